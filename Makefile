@@ -1,0 +1,31 @@
+# The project's commands. `make setup` builds everything; `make test` runs every test;
+# `make demo` runs the main job on the simulated Panda.
+SHELL := /bin/bash
+ENV := source scripts/env.sh
+PYTEST_ARGS ?=
+
+.PHONY: setup test test-fast lint demo experiments bench clean
+
+setup:
+	@flock /tmp/vla-setup-$$(id -u).lock bash scripts/setup.sh
+
+test: setup
+	@$(ENV) && python -m pytest $(PYTEST_ARGS)
+
+test-fast: setup
+	@$(ENV) && python -m pytest -m "not slow" $(PYTEST_ARGS)
+
+lint: setup
+	@$(ENV) && ruff check src test bench
+
+demo: setup
+	@$(ENV) && vla_latent_controller demo $(DEMO_ARGS)
+
+experiments: setup
+	@$(ENV) && vla_latent_controller experiments $(EXPERIMENTS_ARGS)
+
+bench: setup
+	@$(ENV) && for b in bench/bench_*.py; do echo "== $$b"; python "$$b" || exit 1; done
+
+clean:
+	rm -rf build install log

@@ -1,0 +1,1 @@
+"""The robot side: a MuJoCo-backed simulated Panda and a ros2_control forwarder, behind one safety layer."""

@@ -1,0 +1,122 @@
+"""The simulated teleoperator's core: candidate grid, waypoint schedule, greedy choice, closed loop."""
+import numpy as np
+import pytest
+from vla_latent_controller.sim_teleoperator import (
+    SimTeleoperator,
+    WaypointSchedule,
+    axis_candidates,
+    best_candidate,
+)
+
+Q0 = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+
+
+def deadband_linear(direction, deadband=0.1, speed=0.5):
+    """A fake controller: |axis| <= deadband -> zero, else axis * speed * direction (rad/s)."""
+    d = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+
+    def command(axes, q):
+        axes = np.asarray(axes, dtype=float)
+        z = np.where(np.abs(axes) <= deadband, 0.0, axes)
+        return z[:, None] * speed * d[None, :]
+
+    return command
+
+
+def test_axis_candidates_odd_grid_with_zero_first():
+    a = axis_candidates(41)
+    assert a.shape == (41,)
+    assert a[0] == 0.0
+    assert np.isclose(a.min(), -1) and np.isclose(a.max(), 1)
+    assert np.all(np.diff(np.abs(a)) >= -1e-12)  # ordered by magnitude: ties pick the gentlest
+    with pytest.raises(ValueError):
+        axis_candidates(40)
+    with pytest.raises(ValueError):
+        axis_candidates(1)
+
+
+def test_best_candidate_batched_and_skips_nonfinite():
+    cmds = np.array([[[0.0] * 7, [1.0] * 7, [np.nan] * 7]])  # (1, 3, 7)
+    q = np.zeros((1, 7))
+    w = np.full((1, 7), 1.0)
+    idx, dist = best_candidate(cmds, q, w, horizon=1.0)
+    assert idx.tolist() == [1] and np.isclose(dist[0], 0.0)
+    cmds_bad = np.array([[[np.nan] * 7, [0.0] * 7]])
+    idx, _ = best_candidate(cmds_bad, q, w)
+    assert idx.tolist() == [1]
+
+
+def test_schedule_push_switches_at_k_and_circle_spreads_rest():
+    w1, w2 = Q0, Q0 + 0.1
+    s = WaypointSchedule([w1, w2], switch_time=15.0, time_limit=30.0)
+    assert s.index_at(0.0) == 0 and s.index_at(14.99) == 0 and s.index_at(15.0) == 1
+    assert s.index_at(29.0) == 1 and s.done(30.0) and not s.done(29.9)
+    assert np.allclose(s.final, w2)
+    circle = WaypointSchedule([Q0 + 0.01 * i for i in range(6)], switch_time=15.0, time_limit=30.0)
+    assert circle.switch_times == pytest.approx([15.0, 18.0, 21.0, 24.0, 27.0])
+    assert circle.index_at(16.0) == 1 and circle.index_at(29.0) == 5
+    with pytest.raises(ValueError):
+        WaypointSchedule([np.zeros(6)])
+    with pytest.raises(ValueError):
+        WaypointSchedule([Q0], switch_time=40.0, time_limit=30.0)
+    with pytest.raises(ValueError):
+        WaypointSchedule([Q0, Q0], switch_times=[3.0, 4.0])
+
+
+def test_picks_sign_towards_waypoint_and_zero_at_goal():
+    d = np.array([1.0, 0.5, 0, 0, 0, 0, 0])
+    sched = WaypointSchedule([Q0 + 0.3 * d / np.linalg.norm(d)])
+    tele = SimTeleoperator(deadband_linear(d), sched, horizon=1.0)
+    assert tele.act(0.0, Q0).axis > 0.1
+    behind = WaypointSchedule([Q0 - 0.3 * d / np.linalg.norm(d)])
+    assert SimTeleoperator(deadband_linear(d), behind).act(0.0, Q0).axis < -0.1
+    at_goal = SimTeleoperator(deadband_linear(d), WaypointSchedule([Q0]))
+    assert at_goal.act(0.0, Q0).axis == 0.0
+
+
+def test_zero_model_means_hands_off_and_bad_inputs_never_raise():
+    def zero(axes, q):
+        return np.zeros((len(axes), 7))
+
+    def broken(axes, q):
+        raise RuntimeError("boom")
+
+    sched = WaypointSchedule([Q0 + 0.2])
+    assert SimTeleoperator(zero, sched).act(0.0, Q0).axis == 0.0
+    step = SimTeleoperator(broken, sched).act(0.0, Q0)
+    assert step.axis == 0.0 and "boom" in step.reason
+    step = SimTeleoperator(zero, sched).act(0.0, np.full(7, np.nan))
+    assert step.axis == 0.0 and "bad joint state" in step.reason
+    step = SimTeleoperator(lambda a, q: np.zeros((3, 7)), sched).act(0.0, Q0)
+    assert step.axis == 0.0 and "shape" in step.reason
+    done = SimTeleoperator(zero, sched).act(30.0, Q0)
+    assert done.done and done.axis == 0.0
+    with pytest.raises(ValueError):
+        SimTeleoperator(zero, sched, horizon=0.0)
+
+
+def test_closed_loop_reaches_pre_then_post_push_waypoint():
+    """A decoder whose direction depends on the state (two phases) lets the greedy user reach both."""
+    d1 = np.array([0.4, 0.2, 0.0, 0.1, 0.0, 0.0, 0.0])
+    d2 = np.array([0.0, 0.0, 0.3, 0.0, 0.2, 0.0, 0.0])
+    pre, post = Q0 + d1, Q0 + d1 + d2
+
+    def two_phase(axes, q):
+        # before the pre-push point move along d1, after it along d2 (like a learned push)
+        along = float(np.dot(q - Q0, d1) / np.dot(d1, d1))
+        direction = d1 if along < 0.9 else d2
+        return deadband_linear(direction)(axes, q)
+
+    sched = WaypointSchedule([pre, post], switch_time=15.0, time_limit=30.0)
+    tele = SimTeleoperator(two_phase, sched, horizon=1.0)
+    q, dt = Q0.copy(), 0.05
+    t = 0.0
+    while True:
+        step = tele.act(t, q)
+        if step.done:
+            break
+        q = q + two_phase(np.array([step.axis]), q)[0] * dt
+        if abs(t - 14.0) < dt / 2:
+            assert np.linalg.norm(q - pre) < 0.05  # deadband: stops within half a grid step
+        t += dt
+    assert np.linalg.norm(q - post) < 0.1 * np.linalg.norm(Q0 - post) + 0.05

@@ -1,0 +1,160 @@
+"""The paper's simulated teleoperator (plain Python, no ROS).
+
+In place of a person on a 1-DoF joystick, the paper greedily picks, every step, the latent action
+whose projected next state is closest to a joint-space waypoint:
+
+    z* = argmin_{z in Z} || w - (q + phi(z, s) * dt) ||_2
+
+over a discretised Z = [-1, 1]. Pushing tasks use two waypoints (pre-push, then post-push after
+k = 15 s); a circle uses a sequence; the episode ends at 30 s.
+
+Here the candidates are *stick deflections*, and `command_fn` maps them to the joint velocities the
+controller would send for them (deadband, scaling, decoder, speed clamp): the teleoperator then drives
+the system exactly as a person moving the stick would. `horizon` is the paper's dt, the look-ahead
+of the projected state; it sets how gently the arm settles on a waypoint (a control period would make
+the choice bang-bang).
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+# (axes (N,), q (7,)) -> (N, 7) joint velocities (rad/s) the controller would command for each axis.
+AxisCommandFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+DEFAULT_CANDIDATES = 41
+DEFAULT_SWITCH_TIME = 15.0
+DEFAULT_TIME_LIMIT = 30.0
+DEFAULT_HORIZON = 1.0
+
+
+def axis_candidates(n: int = DEFAULT_CANDIDATES) -> np.ndarray:
+    """n stick values evenly spaced over [-1, 1], ordered by |value| so that ties pick the gentlest.
+
+    n must be odd (so that 0, "hands off", is a candidate) and at least 3.
+    """
+    if int(n) != n or n < 3 or n % 2 == 0:
+        raise ValueError(f"n_candidates must be an odd integer >= 3 (so 0 is a candidate), got {n!r}")
+    grid = np.linspace(-1.0, 1.0, int(n))
+    grid[int(n) // 2] = 0.0
+    order = np.lexsort((grid, np.abs(grid)))  # |a| ascending, then negative before positive
+    return grid[order]
+
+
+def best_candidate(commands: np.ndarray, q: np.ndarray, waypoint: np.ndarray,
+                   horizon: float = DEFAULT_HORIZON) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the candidate command whose projected state is nearest the waypoint.
+
+    commands: (..., N, 7) joint velocities per candidate; q, waypoint: (..., 7).
+    Returns (index (...,), projected distance (...,)). Non-finite commands are never chosen
+    (distance +inf); argmin takes the first of equals, so candidate order breaks ties.
+    """
+    commands = np.asarray(commands, dtype=float)
+    q = np.asarray(q, dtype=float)
+    waypoint = np.asarray(waypoint, dtype=float)
+    predicted = q[..., None, :] + commands * float(horizon)
+    dist = np.linalg.norm(waypoint[..., None, :] - predicted, axis=-1)
+    dist = np.where(np.isfinite(dist), dist, np.inf)
+    idx = np.argmin(dist, axis=-1)
+    return idx, np.take_along_axis(dist, idx[..., None], axis=-1)[..., 0]
+
+
+@dataclass
+class WaypointSchedule:
+    """Which waypoint the teleoperator aims at, by time since the episode started.
+
+    Two waypoints (push): the first until `switch_time`, then the second (the paper's k = 15 s).
+    More (circle): the first until `switch_time`, the rest evenly over [switch_time, time_limit),
+    unless explicit `switch_times` (len(waypoints) - 1 increasing times) are given.
+    """
+
+    waypoints: Sequence[np.ndarray]
+    switch_time: float = DEFAULT_SWITCH_TIME
+    time_limit: float = DEFAULT_TIME_LIMIT
+    switch_times: Sequence[float] | None = None
+
+    def __post_init__(self) -> None:
+        wps = [np.asarray(w, dtype=float).reshape(-1) for w in self.waypoints]
+        if not wps:
+            raise ValueError("a waypoint schedule needs at least one waypoint")
+        for i, w in enumerate(wps):
+            if w.shape != (7,) or not np.all(np.isfinite(w)):
+                raise ValueError(f"waypoint {i} must be 7 finite joint positions, got {w!r}")
+        if not (self.time_limit > 0 and np.isfinite(self.time_limit)):
+            raise ValueError(f"time_limit must be a positive number of seconds, got {self.time_limit!r}")
+        if not (0 <= self.switch_time <= self.time_limit):
+            raise ValueError(f"switch_time must be within [0, time_limit], got {self.switch_time!r}")
+        self.waypoints = wps
+        if self.switch_times is None:
+            n = len(wps)
+            if n == 1:
+                times: list[float] = []
+            else:
+                starts = np.linspace(self.switch_time, self.time_limit, n - 1, endpoint=False)
+                times = [float(t) for t in starts]
+        else:
+            times = [float(t) for t in self.switch_times]
+            if len(times) != len(wps) - 1 or any(b < a for a, b in zip(times, times[1:])):
+                raise ValueError("switch_times must be len(waypoints) - 1 non-decreasing times")
+        self.switch_times = times
+
+    @property
+    def final(self) -> np.ndarray:
+        return self.waypoints[-1]
+
+    def index_at(self, t: float) -> int:
+        return int(np.searchsorted(np.asarray(self.switch_times), t, side="right"))
+
+    def waypoint_at(self, t: float) -> np.ndarray:
+        return self.waypoints[self.index_at(t)]
+
+    def done(self, t: float) -> bool:
+        return t >= self.time_limit
+
+
+@dataclass
+class TeleopStep:
+    """One decision: the stick value to hold, and why."""
+
+    axis: float
+    waypoint_index: int
+    distance: float  # projected distance to the active waypoint after this step (rad)
+    done: bool
+    reason: str = ""
+
+
+class SimTeleoperator:
+    """Greedy one-step simulated user over a fixed grid of stick values."""
+
+    def __init__(self, command_fn: AxisCommandFn, schedule: WaypointSchedule,
+                 horizon: float = DEFAULT_HORIZON, n_candidates: int = DEFAULT_CANDIDATES) -> None:
+        if not (horizon > 0 and np.isfinite(horizon)):
+            raise ValueError(f"horizon must be a positive number of seconds, got {horizon!r}")
+        self.command_fn = command_fn
+        self.schedule = schedule
+        self.horizon = float(horizon)
+        self.axes = axis_candidates(n_candidates)
+
+    def act(self, t: float, q: np.ndarray) -> TeleopStep:
+        """The stick value at time t (s since the episode started) for joint positions q.
+
+        Never raises on bad input: returns 0 (hands off) with a reason instead.
+        """
+        if self.schedule.done(t):
+            return TeleopStep(0.0, len(self.schedule.waypoints) - 1, float("nan"), True, "time limit")
+        idx = self.schedule.index_at(t)
+        q = np.asarray(q, dtype=float).reshape(-1)
+        if q.shape != (7,) or not np.all(np.isfinite(q)):
+            return TeleopStep(0.0, idx, float("nan"), False, "bad joint state")
+        try:
+            commands = np.asarray(self.command_fn(self.axes, q), dtype=float)
+        except Exception as exc:  # a model error must not kill the control loop
+            return TeleopStep(0.0, idx, float("nan"), False, f"command model failed: {exc}")
+        if commands.shape != (len(self.axes), 7):
+            return TeleopStep(0.0, idx, float("nan"), False, f"command model gave shape {commands.shape}")
+        best, dist = best_candidate(commands, q, self.schedule.waypoints[idx], self.horizon)
+        if not np.isfinite(dist):
+            return TeleopStep(0.0, idx, float("nan"), False, "no finite command")
+        return TeleopStep(float(self.axes[int(best)]), idx, float(dist), False)

@@ -1,5 +1,3 @@
-from glob import glob
-
 from setuptools import find_packages, setup
 
 package_name = "vla_camera"
@@ -16,7 +14,9 @@ setup(
     zip_safe=True,
     maintainer="VLA developers",
     maintainer_email="dev@vla.invalid",
-    description="Publishes camera frames (webcam, video file or image folder) as sensor_msgs/Image with CameraInfo.",
+    description=(
+        "Publishes camera frames (webcam, video file or image folder) as sensor_msgs/Image with CameraInfo."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -1,0 +1,273 @@
+"""ROS 2 camera node: publishes frames of a device, video file or image folder with CameraInfo.
+
+Thin wrapper around :mod:`vla_camera.source` and :mod:`vla_camera.camera_info`: a timer at ``fps``
+reads one frame per tick (no busy loop), stamps it and publishes ``camera/image_raw`` and
+``camera/camera_info`` with the same header. A missing or vanished device is retried with backoff and
+reported on ``~/status``; the end of a file either loops, idles (default) or exits 0 (``exit_on_end``).
+"""
+from __future__ import annotations
+
+import sys
+import time
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, Image
+from std_srvs.srv import SetBool
+
+from vla_camera.camera_info import Calibration, CalibrationError, load_calibration
+from vla_camera.source import (
+    PIXEL_FORMATS,
+    Backoff,
+    FrameSource,
+    SourceError,
+    SourceKind,
+    SourceState,
+    parse_source,
+)
+from vla_interfaces.msg import CameraStatus
+
+_STATE_CODES = {
+    SourceState.STREAMING: CameraStatus.STREAMING,
+    SourceState.PAUSED: CameraStatus.PAUSED,
+    SourceState.RECONNECTING: CameraStatus.RECONNECTING,
+    SourceState.ENDED: CameraStatus.ENDED,
+}
+_CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
+WARN_PERIOD_S = 5.0
+
+
+class ConfigError(ValueError):
+    """A parameter value the node cannot start with."""
+
+
+def _desc(text: str, *, int_range=None, float_range=None, read_only=True) -> ParameterDescriptor:
+    d = ParameterDescriptor(description=text, read_only=read_only)
+    if int_range is not None:
+        d.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
+    if float_range is not None:
+        d.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1])]
+    return d
+
+
+class CameraNode(Node):
+    def __init__(self, *, capture_opener=None, **node_kwargs):
+        super().__init__("camera_node", **node_kwargs)
+        p = self._declare_parameters()
+        try:
+            spec = parse_source(p["source"])
+        except SourceError as exc:
+            raise ConfigError(f"parameter 'source': {exc}") from exc
+        if p["pixel_format"] not in PIXEL_FORMATS:
+            raise ConfigError(
+                f"parameter 'pixel_format' must be one of {PIXEL_FORMATS}, got {p['pixel_format']!r}"
+            )
+        if (p["width"] == 0) != (p["height"] == 0):
+            raise ConfigError("parameters 'width' and 'height' must both be 0 (native size) or both be set")
+        if not p["frame_id"]:
+            raise ConfigError("parameter 'frame_id' must not be empty")
+        if p["reconnect_initial_s"] > p["reconnect_max_s"]:
+            raise ConfigError("parameter 'reconnect_initial_s' must not exceed 'reconnect_max_s'")
+        self._calibration: Calibration | None = None
+        if p["camera_info_url"]:
+            try:
+                self._calibration = load_calibration(p["camera_info_url"])
+                if p["width"] > 0:
+                    self._calibration.scaled_to(p["width"], p["height"])  # refuse a mismatch now
+            except CalibrationError as exc:
+                raise ConfigError(f"parameter 'camera_info_url': {exc}") from exc
+        self._params = p
+        self._frame_id = p["frame_id"]
+        self._encoding = p["pixel_format"]
+        try:
+            self.source = FrameSource(
+                spec,
+                pixel_format=p["pixel_format"],
+                width=p["width"],
+                height=p["height"],
+                fps=p["fps"],
+                loop=p["loop"],
+                backoff=Backoff(p["reconnect_initial_s"], p["reconnect_max_s"]),
+                capture_opener=capture_opener,
+            )
+        except SourceError as exc:
+            raise ConfigError(f"parameter 'source': {exc}") from exc
+        self.frames_published = 0
+        self.finished = False  # set when the source ended and exit_on_end is true
+        self._info_cache: dict[tuple[int, int], CameraInfo] = {}
+        self._last_state: SourceState | None = None
+        self._message = ""
+
+        # Reliable keep-last: matched by reliable and by best-effort (SensorDataQoS) subscribers alike.
+        qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
+        self._image_pub = self.create_publisher(Image, "camera/image_raw", qos)
+        self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info", qos)
+        self._status_pub = self.create_publisher(CameraStatus, "~/status", 10)
+        self.create_service(SetBool, "~/set_capture", self._on_set_capture)
+        self._timer = self.create_timer(1.0 / p["fps"], self._tick)
+        self.create_timer(1.0, self._publish_status)
+        calib = f"calibration {p['camera_info_url']}" if self._calibration else "uncalibrated"
+        size = "native size" if p["width"] == 0 else f"{p['width']}x{p['height']}"
+        self.get_logger().info(
+            f"{spec.describe()} -> camera/image_raw at {p['fps']:g} Hz, {self._encoding}, {size}, "
+            f"frame '{self._frame_id}', {calib}, loop={p['loop']}"
+        )
+        self._publish_status()
+
+    # -- parameters --------------------------------------------------------------------------------
+    def _declare_parameters(self) -> dict:
+        specs = {
+            "source": ("0", _desc("Device index, /dev/videoN, a video file, or a folder/glob of images")),
+            "loop": (False, _desc("Restart a video file or image list at its end instead of stopping")),
+            "width": (0, _desc("Output width in pixels (0 = native); frames are resized to it",
+                               int_range=(0, 8192))),
+            "height": (0, _desc("Output height in pixels (0 = native)", int_range=(0, 8192))),
+            "fps": (30.0, _desc("Publish rate in Hz (timer period); also requested from a device",
+                                float_range=(0.1, 240.0))),
+            "pixel_format": ("rgb8", _desc("Output encoding: rgb8, bgr8 or mono8")),
+            "frame_id": ("camera_optical_frame", _desc("header.frame_id of images and camera info")),
+            "camera_info_url": ("", _desc("Calibration YAML: file:///path, package://pkg/path or a path; "
+                                          "empty = uncalibrated")),
+            "exit_on_end": (False, _desc("At the end of a non-looping file/folder: exit 0 (true) or idle")),
+            "reconnect_initial_s": (0.25, _desc("First retry delay for a missing device (doubles each time)",
+                                                float_range=(0.01, 60.0))),
+            "reconnect_max_s": (8.0, _desc("Longest retry delay for a missing device",
+                                           float_range=(0.01, 600.0))),
+        }
+        values = {}
+        for name, (default, descriptor) in specs.items():
+            try:
+                values[name] = self.declare_parameter(name, default, descriptor).value
+            except Exception as exc:  # InvalidParameterValueException / type mismatch from overrides
+                raise ConfigError(f"parameter '{name}': {exc}") from exc
+        return values
+
+    # -- publishing --------------------------------------------------------------------------------
+    def _tick(self) -> None:
+        result = self.source.read(time.monotonic())
+        if result.frame is not None:
+            self._publish_frame(result.frame)
+            if result.message:
+                self.get_logger().warn(result.message, throttle_duration_sec=WARN_PERIOD_S)
+        state = result.state
+        self._message = result.message
+        if state is SourceState.RECONNECTING:
+            self.get_logger().warn(
+                f"camera {self._params['source']}: {result.message}", throttle_duration_sec=WARN_PERIOD_S
+            )
+        if state != self._last_state:
+            self._on_state_change(state, result.message)
+
+    def _on_state_change(self, state: SourceState, message: str) -> None:
+        previous, self._last_state = self._last_state, state
+        if state is SourceState.STREAMING and previous is SourceState.RECONNECTING:
+            self.get_logger().info(f"camera {self._params['source']} streaming")
+        if state is SourceState.ENDED:
+            self._timer.cancel()
+            what = "exiting" if self._params["exit_on_end"] else "idling (set_capture true restarts it)"
+            self.get_logger().info(f"{message}; {self.frames_published} frames published; {what}")
+            if self._params["exit_on_end"]:
+                self.finished = True
+        self._publish_status()
+
+    def _publish_frame(self, frame) -> None:
+        h, w = frame.shape[:2]
+        stamp = self.get_clock().now().to_msg()
+        img = Image()
+        img.header.stamp = stamp
+        img.header.frame_id = self._frame_id
+        img.height, img.width = h, w
+        img.encoding = self._encoding
+        img.is_bigendian = 0
+        img.step = w * _CHANNELS[self._encoding]
+        img.data = frame.tobytes()
+        info = self._camera_info(w, h)
+        info.header.stamp = stamp
+        self._image_pub.publish(img)
+        self._info_pub.publish(info)
+        self.frames_published += 1
+
+    def _camera_info(self, width: int, height: int) -> CameraInfo:
+        info = self._info_cache.get((width, height))
+        if info is not None:
+            return info
+        info = CameraInfo()
+        info.header.frame_id = self._frame_id
+        info.width, info.height = width, height
+        if self._calibration is not None:
+            try:
+                c = self._calibration.scaled_to(width, height)
+                info.distortion_model = c.distortion_model
+                info.d = c.d
+                info.k = c.k
+                info.r = c.r
+                info.p = c.p
+            except CalibrationError as exc:
+                self.get_logger().error(f"{exc}; publishing camera_info without intrinsics")
+        self._info_cache[(width, height)] = info
+        return info
+
+    def _publish_status(self) -> None:
+        msg = CameraStatus()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = self._frame_id
+        msg.state = _STATE_CODES[self.source.current_state]
+        msg.source = str(self._params["source"])
+        msg.frames_published = self.frames_published
+        msg.reconnect_attempts = self.source.backoff.attempts
+        msg.message = self._message
+        self._status_pub.publish(msg)
+
+    # -- services ----------------------------------------------------------------------------------
+    def _on_set_capture(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        if request.data:
+            ended = self.source.state is SourceState.ENDED and self.source.spec.kind is not SourceKind.DEVICE
+            if ended:
+                self.source.restart()
+            self.source.resume()
+            self._message = "restarted from the first frame" if ended else "capture resumed"
+            if self._timer.is_canceled():
+                self._timer.reset()
+        else:
+            self.source.pause()
+            self._message = "capture paused"
+        self._last_state = self.source.current_state
+        response.success = True
+        response.message = self._message
+        self.get_logger().info(self._message)
+        self._publish_status()
+        return response
+
+    def destroy_node(self):
+        self.source.close()
+        return super().destroy_node()
+
+
+def main(args=None) -> int:
+    rclpy.init(args=args)
+    node = None
+    code = 0
+    try:
+        node = CameraNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        while rclpy.ok() and not node.finished:
+            executor.spin_once(timeout_sec=0.5)
+    except ConfigError as exc:
+        print(f"camera_node: {exc}", file=sys.stderr)
+        code = 2
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        if node is not None:
+            node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+    return code
+
+
+if __name__ == "__main__":
+    sys.exit(main())

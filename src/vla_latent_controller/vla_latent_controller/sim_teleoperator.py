@@ -158,3 +158,37 @@ class SimTeleoperator:
         if not np.isfinite(dist):
             return TeleopStep(0.0, idx, float("nan"), False, "no finite command")
         return TeleopStep(float(self.axes[int(best)]), idx, float(dist), False)
+
+
+class StickToCommand:
+    """What the controller commands for a stick value, vectorised over candidate stick values.
+
+    Mirrors the controller's latent path: deadband on the stick, z = gain(latched class) * axis_scale *
+    stick, a = phi(z, s) from the NumPy decoder with the episode's context latched, command =
+    action_scale * a, rescaled as a whole when its norm exceeds max_joint_speed (the paper's 1.5 rad/s).
+    """
+
+    def __init__(self, model, context: np.ndarray, class_id: str | None = None, deadband: float = 0.1,
+                 axis_scale: float = 1.0, action_scale: float = 1.0, max_joint_speed: float = 1.5) -> None:
+        self.model = model
+        self.decoder = model.decoder
+        self.decoder.set_context(context)
+        self.gain = float(model.gain(class_id))
+        self.deadband = float(deadband)
+        self.axis_scale = float(axis_scale)
+        self.action_scale = float(action_scale)
+        self.max_joint_speed = float(max_joint_speed)
+
+    def latent(self, axes: np.ndarray) -> np.ndarray:
+        a = np.clip(np.asarray(axes, dtype=float), -1.0, 1.0)
+        a = np.where(np.abs(a) <= self.deadband, 0.0, a)
+        return self.gain * self.axis_scale * a
+
+    def __call__(self, axes: np.ndarray, q: np.ndarray) -> np.ndarray:
+        z = self.latent(axes)
+        cmd = self.action_scale * self.decoder.decode_batch(q, z)
+        cmd[z == 0.0] = 0.0  # the controller's deadband gives exactly zero
+        norms = np.linalg.norm(cmd, axis=1)
+        over = norms > self.max_joint_speed
+        cmd[over] *= (self.max_joint_speed / norms[over])[:, None]
+        return cmd

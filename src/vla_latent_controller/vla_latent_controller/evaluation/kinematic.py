@@ -1,0 +1,199 @@
+"""`--mode kinematic`: the paper's evaluation loop, q <- q + phi(z*, s) dt, in plain Python.
+
+Layouts are rendered once (MuJoCo camera, the same as the bridge's) and detected once, like the
+controller's first-frame latch, then shared by every model evaluated on them: a sweep over many
+trained models costs one decoder batch per control step. The arm is a pure integrator here (no
+physics, no objects moving), so success is not judged; the metric is the final state error.
+"""
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+from vla_panda_bridge.objects import ObjectPose
+from vla_panda_bridge.panda import Q_MAX, Q_MIN, READY_POSE
+
+from ..context import ContextError, Det, select_detection
+from ..sim_teleoperator import (
+    DEFAULT_CANDIDATES,
+    DEFAULT_HORIZON,
+    DEFAULT_SWITCH_TIME,
+    DEFAULT_TIME_LIMIT,
+    SimTeleoperator,
+    StickToCommand,
+    WaypointSchedule,
+)
+from .metrics import EpisodeResult, final_state_error
+
+# Validation layouts are drawn from seeds at and above this offset; demonstration generators use
+# small seeds, so evaluation layouts are never training layouts.
+VALIDATION_SEED_OFFSET = 100_000
+
+
+@dataclass
+class TeleopSettings:
+    """How the simulated user and the controller behave (the controller's parameters must match)."""
+
+    rate: float = 20.0  # control steps per second of simulated time
+    horizon: float = DEFAULT_HORIZON
+    n_candidates: int = DEFAULT_CANDIDATES
+    switch_time: float = DEFAULT_SWITCH_TIME
+    time_limit: float = DEFAULT_TIME_LIMIT
+    deadband: float = 0.1
+    axis_scale: float = 1.0
+    action_scale: float = 1.0
+    max_joint_speed: float = 1.5
+    goal_selection: str = "highest_score"
+    path_every: int = 2  # keep every n-th TCP position for plots
+
+
+@dataclass
+class Layout:
+    """One evaluation scene: the goal object, the arm's start and the teleoperator's waypoints, plus
+    what the camera saw at the start (image and detections) for the context encoders."""
+
+    task: str
+    seed: int
+    objects: list[ObjectPose]
+    goal: ObjectPose
+    q0: np.ndarray
+    waypoints: list[np.ndarray]
+    image: np.ndarray | None = None
+    image_size: tuple[int, int] | None = None
+    detections: list[Det] = field(default_factory=list)
+
+
+def sample_layout_objects(task_name: str, seed: int, distractors: int = 0) -> list[ObjectPose]:
+    """A random layout (seeded) holding the task's object, optionally with distractor objects."""
+    from vla_panda_bridge.objects import OBJECT_CLASSES
+    from vla_panda_bridge.sim import random_layout
+    from vla_panda_bridge.tasks import parse_task
+
+    spec = parse_task(task_name)
+    rng = np.random.default_rng(seed)
+    others = [c for c in OBJECT_CLASSES if c != spec.object_class]
+    extra = [others[i] for i in rng.permutation(len(others))[:distractors]]
+    return random_layout(rng, classes=[spec.object_class, *extra])
+
+
+def plan_waypoints(kin, task_name: str, goal: ObjectPose, q0: np.ndarray,
+                   plan_seed: int = 0) -> list[np.ndarray]:
+    """The planner's joint-space waypoints (pre-push, post-push; a sequence for a circle)."""
+    from vla_panda_bridge.planner import plan_task
+    from vla_panda_bridge.tasks import parse_task
+
+    rng = np.random.default_rng(plan_seed)
+    plan = plan_task(kin, parse_task(task_name), goal, np.asarray(q0, float), rng)
+    return [np.asarray(w, float) for w in plan.waypoints]
+
+
+def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=None, kin=None,
+                 render: bool = True, q0: np.ndarray | None = None, distractors: int = 0,
+                 progress: Callable[[str], None] | None = None) -> list[Layout]:
+    """Reset the simulator to each (task, seed) layout, render the first frame and detect on it."""
+    from vla_panda_bridge.kinematics import PandaKinematics
+    from vla_panda_bridge.tasks import parse_task
+
+    kin = kin or PandaKinematics()
+    if render and sim is None:
+        from vla_panda_bridge.sim import PandaSim
+
+        sim = PandaSim(render=True)
+    q_start = np.asarray(READY_POSE if q0 is None else q0, float)
+    out = []
+    for task in tasks:
+        cls = parse_task(task).object_class
+        for seed in seeds:
+            objects = sample_layout_objects(task, seed, distractors)
+            image, size, dets = None, None, []
+            if sim is not None:
+                objects = sim.reset(objects=objects, q0=q_start)
+                sim.step(50)  # let objects settle on the table before the first frame
+                objects = sim.object_poses()
+                if render:
+                    image = sim.render()
+                    size = (image.shape[1], image.shape[0])
+                    if detector is not None:
+                        dets = [_as_det(d) for d in detector.detect(image)]
+            goal = next(o for o in objects if o.class_id == cls)
+            wps = plan_waypoints(kin, task, goal, q_start)
+            out.append(Layout(task, int(seed), list(objects), goal, q_start.copy(), wps, image, size, dets))
+            if progress:
+                progress(f"layout {task} seed {seed}")
+    return out
+
+
+def _as_det(d) -> Det:
+    return Det(class_id=str(d.class_id), score=float(d.score), cx=float(d.cx), cy=float(d.cy),
+               width=float(getattr(d, "w", getattr(d, "width", 0.0))),
+               height=float(getattr(d, "h", getattr(d, "height", 0.0))),
+               class_index=int(getattr(d, "class_index", -1)))
+
+
+def layout_context(model, layout: Layout,
+                   goal_selection: str = "highest_score") -> tuple[np.ndarray, str | None, str]:
+    """(context, class for the latent gain, detected class) as the controller would latch them.
+
+    The detector encoder uses the detection chosen by `goal_selection`; localization gets the oracle
+    class (the paper's setup) and the image; end-to-end sees only the image. ContextError if the
+    inputs are missing (no detection: the controller would wait, the arm does not move).
+    """
+    oracle = layout.goal.class_id
+    det = select_detection(layout.detections, goal_selection, classes=model.classes)
+    detected = det.class_id if det is not None else ""
+    if model.encoder == "detector":
+        if det is None:
+            raise ContextError("no detection in the first frame")
+        return model.context(det=det, image_size=layout.image_size), det.class_id, detected
+    if layout.image is None:
+        raise ContextError("no camera image for a CNN encoder")
+    if model.encoder == "localization":
+        return model.context(image=layout.image, class_id=oracle), oracle, detected
+    return model.context(image=layout.image), None, detected
+
+
+def run_episode(model, layout: Layout, settings: TeleopSettings, kin=None, label: str = "") -> EpisodeResult:
+    """One kinematic episode with the simulated teleoperator; never raises for a bad model/context."""
+    result = EpisodeResult(task=layout.task, layout_seed=layout.seed, mode="kinematic",
+                           encoder=getattr(model, "encoder", ""), model=label,
+                           object_start=layout.goal.to_dict())
+    q = layout.q0.copy()
+    final = layout.waypoints[-1]
+    t0 = time.perf_counter()
+    try:
+        context, gain_class, detected = layout_context(model, layout, settings.goal_selection)
+        result.detected_class = detected
+        command = StickToCommand(model, context, gain_class, settings.deadband, settings.axis_scale,
+                                 settings.action_scale, settings.max_joint_speed)
+    except (ContextError, ValueError) as e:
+        result.note = f"no context: {e}"
+        result.final_state_error = final_state_error(q, final)
+        result.duration_s = 0.0
+        return result
+    schedule = WaypointSchedule(layout.waypoints, settings.switch_time, settings.time_limit)
+    tele = SimTeleoperator(command, schedule, settings.horizon, settings.n_candidates)
+    dt = 1.0 / settings.rate
+    n_steps = int(round(settings.time_limit * settings.rate))
+    path = []
+    for i in range(n_steps):
+        step = tele.act(i * dt, q)
+        if step.done:
+            break
+        cmd = command(np.array([step.axis]), q)[0]
+        q = np.clip(q + cmd * dt, Q_MIN, Q_MAX)
+        if kin is not None and i % settings.path_every == 0:
+            path.append(kin.fk(q)[0])
+    result.final_state_error = final_state_error(q, final)
+    result.duration_s = settings.time_limit
+    result.extra["wall_s"] = round(time.perf_counter() - t0, 4)
+    if path:
+        result.ee_path = np.asarray(path)
+    return result
+
+
+def evaluate_kinematic(model, layouts: Sequence[Layout], settings: TeleopSettings | None = None,
+                       kin=None, label: str = "") -> list[EpisodeResult]:
+    settings = settings or TeleopSettings()
+    return [run_episode(model, lay, settings, kin, label) for lay in layouts]

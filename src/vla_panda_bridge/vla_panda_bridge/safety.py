@@ -1,0 +1,384 @@
+"""The safety layer between any joint-velocity command and the arm (plain NumPy, no ROS).
+
+Every backend (MuJoCo, ros2_control) runs each command through one `SafetyFilter`, once per control
+period `dt`. The filter turns an arbitrary, possibly malformed stream of 7-value velocity commands into
+a velocity output that is continuous, within the Panda's velocity/acceleration/jerk table, stays clear
+of the position limits, and comes to rest when commands stop, on e-stop and on shutdown.
+
+Pipeline per control period:
+  1. validation: a new command with the wrong length or a NaN/Inf is rejected (counted, reported,
+     treated as zero);
+  2. velocity scaling: a vector over the velocity limit is scaled uniformly by the worst joint's
+     ratio, so its direction is kept;
+  3. watchdog / e-stop: no valid command for `command_timeout`, or a latched e-stop, sets the target
+     to zero (e-stop holds it there until released);
+  4. position margin, soft part: near a limit the target towards it is capped so the joint can still
+     stop at `position_margin` from the limit; motion away is never capped;
+  5. a per-joint jerk-limited tracker moves the output velocity towards the target;
+  6. position margin, hard part: if the tracker's step would leave the joint unable to stop before
+     the margin (by a braking-distance bound), that joint takes the braking step instead.
+
+Guarantees (exact up to floating-point rounding; tested with random and adversarial streams):
+- Tracker. With a = (v_k - v_{k-1})/dt and j = (a_k - a_{k-1})/dt, each step picks
+  a' = clip(a_des, a - J dt, a + J dt) with |a_des| <= A, so |a| <= A and |j| <= J by construction.
+  a_des is the largest acceleration from which the accel can still be ramped to zero at the jerk
+  limit without passing the target: dt|a| + a^2/(2J) <= |v_t - v|. With G(a) the exact velocity
+  gained while ramping a > 0 down to zero in steps of J dt (G(a) <= a^2/(2J)), every step keeps
+  v + G(a+) <= max(v_t, previous value) (and the mirror image), so with |v_t| <= V the output never
+  exceeds V. With v_t = 0 the output converges to rest (quadratically near zero): it can always stop.
+- Position. `_excursion_bound(v, a)` bounds how far the joint still travels if it brakes (tracks
+  zero) from (v, a): ramp steps at the peak velocity + v_pk^2/(2A) + a geometric tail. If the state
+  after a step passes the check, its braking trajectory ends inside the margin; if not, the joint
+  brakes, and the next state lies on a braking trajectory that already did. So once inside the
+  margin, the reference position never leaves it; started outside, it never moves further out.
+The reference position is the integral of the output (what a velocity-integrating servo follows),
+re-synchronised to the measured position at rest and whenever they differ by more than
+`position_sync_tolerance`.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vla_panda_bridge.panda import DDDQ_MAX, DDQ_MAX, DQ_MAX, JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN
+
+# Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
+# a test checks they agree).
+OK = 0
+NON_FINITE_COMMAND = 1
+WRONG_LENGTH = 2
+VELOCITY_SCALED = 3
+ACCELERATION_LIMITED = 4
+POSITION_MARGIN = 5
+COMMAND_TIMEOUT = 6
+ESTOP = 7
+CODE_NAMES = {OK: "OK", NON_FINITE_COMMAND: "NON_FINITE_COMMAND", WRONG_LENGTH: "WRONG_LENGTH",
+              VELOCITY_SCALED: "VELOCITY_SCALED", ACCELERATION_LIMITED: "ACCELERATION_LIMITED",
+              POSITION_MARGIN: "POSITION_MARGIN", COMMAND_TIMEOUT: "COMMAND_TIMEOUT", ESTOP: "ESTOP"}
+
+# The soft position cap plans the approach with this fraction of the deceleration limit, so the
+# tracker follows it without leaning on the hard check (which would brake in bang-bang fashion).
+_CAP_DECEL_FRACTION = 0.8
+_SNAP = 1e-12  # |v_t - v| below which the output lands exactly on the target
+
+
+@dataclass(frozen=True)
+class SafetyConfig:
+    """Parameters of the safety layer; limits are fractions of the Panda table in `panda.py`."""
+
+    dt: float = 0.001                    # control period (s): one filter update per servo/physics step
+    velocity_scale: float = 1.0          # fraction of DQ_MAX allowed (a configurable lower max)
+    acceleration_scale: float = 1.0      # fraction of DDQ_MAX
+    jerk_scale: float = 1.0              # fraction of DDDQ_MAX
+    position_margin: float = 0.1         # rad kept from every position limit
+    command_timeout: float = 0.1         # s without a valid command before braking to zero
+    position_sync_tolerance: float = 0.05  # rad of reference-vs-measured drift that forces a re-sync
+
+    def validate(self) -> None:
+        """Raise ValueError naming the first bad value."""
+        def check(name: str, value: float, lo: float, hi: float, lo_open: bool = True) -> None:
+            ok = math.isfinite(value) and (value > lo if lo_open else value >= lo) and value <= hi
+            if not ok:
+                bracket = "(" if lo_open else "["
+                raise ValueError(f"safety: {name}={value!r} is outside {bracket}{lo}, {hi}]")
+
+        check("dt", self.dt, 0.0, 0.02)
+        check("velocity_scale", self.velocity_scale, 0.0, 1.0)
+        check("acceleration_scale", self.acceleration_scale, 0.0, 1.0)
+        check("jerk_scale", self.jerk_scale, 0.0, 1.0)
+        check("position_margin", self.position_margin, 0.0, 0.5, lo_open=False)
+        check("command_timeout", self.command_timeout, 0.0, 10.0)
+        check("position_sync_tolerance", self.position_sync_tolerance, 0.0, 1.0)
+
+
+class SafetyFilter:
+    """Per-control-period filter: `filter(cmd, q, now) -> (dq_out, code, text)`; never raises on input.
+
+    `cmd` is the command that arrived since the previous call, or None when none did (the previous
+    valid command stays the target until the watchdog expires). `q` is the measured joint position,
+    `now` the time in seconds (simulated or wall clock) used by the watchdog only; integration uses
+    the fixed period `config.dt`. The per-step core works on Python floats joint by joint: for seven
+    values that is several times faster than NumPy, which matters at 1 kHz.
+    """
+
+    def __init__(self, config: SafetyConfig | None = None):
+        self.config = cfg = config or SafetyConfig()
+        cfg.validate()
+        h = cfg.dt
+        self.v_max = DQ_MAX * cfg.velocity_scale
+        self.a_max = DDQ_MAX * cfg.acceleration_scale
+        self.j_max = DDDQ_MAX * cfg.jerk_scale
+        A, J = self.a_max, self.j_max
+        D = J * h                                           # largest acceleration change per step
+        v_star = h * A + A * A / (2 * J)                    # below it braking is on the jerk-limited curve
+        tail = v_star * A / (2 * J)                         # distance covered by that geometric tail
+        cap_n = np.ceil(A / D) * h                          # ramp-time term of the bound at a = 0
+        cap_a = A * _CAP_DECEL_FRACTION
+        # Beyond this distance from both margins neither the cap nor the check can act.
+        v_pk = self.v_max + A * A / (2 * J)
+        far_check = np.ceil(2 * A / D) * h * v_pk + v_pk ** 2 / (2 * A) + tail
+        far_cap = cap_n * self.v_max + self.v_max ** 2 / (2 * cap_a) + tail
+        far = np.maximum(far_check, far_cap) + 2 * h * self.v_max + 1e-6
+        q_lo = Q_MIN + cfg.position_margin
+        q_hi = Q_MAX - cfg.position_margin
+        self._h = h
+        # Per joint: (V, A, J, D, q_lo, q_hi, tail, cap_n, cap_a, far) as Python floats.
+        self._lim = [tuple(float(x[i]) for x in (self.v_max, A, J, D, q_lo, q_hi, tail, cap_n, cap_a, far))
+                     for i in range(NUM_JOINTS)]
+
+        self._v = [0.0] * NUM_JOINTS
+        self._a = [0.0] * NUM_JOINTS
+        self._q_ref: list[float] | None = None
+        self._target = [0.0] * NUM_JOINTS
+        self._target_code = OK                              # why the target is what it is
+        self._target_text = ""
+        self._last_valid: float | None = None
+        self._estop = False
+        self._code = OK
+        self.commands_received = 0
+        self.commands_rejected = 0
+        self.interventions = 0
+        self.resyncs = 0
+        self.last_intervention = OK
+
+    # ----------------------------------------------------------------------------------------- state
+    @property
+    def velocity(self) -> np.ndarray:
+        return np.array(self._v)
+
+    @property
+    def acceleration(self) -> np.ndarray:
+        return np.array(self._a)
+
+    @property
+    def reference_position(self) -> np.ndarray | None:
+        return None if self._q_ref is None else np.array(self._q_ref)
+
+    @property
+    def estop_active(self) -> bool:
+        return self._estop
+
+    @property
+    def is_stopped(self) -> bool:
+        return not any(self._v) and not any(self._a)
+
+    @property
+    def code(self) -> int:
+        return self._code
+
+    def reset(self, q=None) -> None:
+        """Forget motion (the arm was teleported or restarted): output at rest, target zero, watchdog
+        cleared, reference re-synchronised to `q` (or on the next call). The e-stop latch survives."""
+        self._v = [0.0] * NUM_JOINTS
+        self._a = [0.0] * NUM_JOINTS
+        self._target = [0.0] * NUM_JOINTS
+        self._target_code, self._target_text = OK, ""
+        self._last_valid = None
+        self._q_ref = _valid_q(q)
+
+    def set_estop(self, active: bool) -> None:
+        """Latch (True) or release (False). Release does not resume the old command: a new one is needed."""
+        active = bool(active)
+        if active and not self._estop:
+            self._count_intervention(ESTOP)
+        self._estop = active
+        self._target = [0.0] * NUM_JOINTS
+        self._target_code, self._target_text = OK, ""
+        self._last_valid = None
+
+    def stopping_time_bound(self) -> float:
+        """Upper bound (s) on how long braking from the current state takes (for shutdown loops)."""
+        return float(np.max(np.abs(self._v) / self.a_max + 2 * self.a_max / self.j_max) + 50 * self._h)
+
+    # ----------------------------------------------------------------------------------------- update
+    def filter(self, cmd, q, now: float) -> tuple[np.ndarray, int, str]:
+        """One control period. Returns the safe velocity (7,), the status code and a text."""
+        if not (isinstance(now, float | int) and math.isfinite(now)):
+            now = math.nan                                  # an unusable clock expires the watchdog
+        event_code, event_text = OK, ""
+        if cmd is not None:
+            event_code, event_text = self._accept_command(cmd, now)
+
+        # Watchdog: a target older than command_timeout decays to zero.
+        if self._last_valid is not None:
+            age = now - self._last_valid
+            if age < 0.0:                                   # clock went back (sim reset): restart
+                self._last_valid = now
+            elif not age <= self.config.command_timeout:
+                self._last_valid = None
+                self._target = [0.0] * NUM_JOINTS
+                self._target_code = COMMAND_TIMEOUT
+                self._target_text = (f"no valid command for {self.config.command_timeout:.3g} s: "
+                                     "decelerating to zero")
+                self._count_intervention(COMMAND_TIMEOUT)
+
+        self._sync_position(q)
+        q_ref = self._q_ref
+        hold = self._estop or q_ref is None                 # no valid position ever: hold still too
+        h = self._h
+        v_out = [0.0] * NUM_JOINTS
+        a_out = [0.0] * NUM_JOINTS
+        margin_joints: list[int] = []
+        accel_limited = False
+        for i in range(NUM_JOINTS):
+            V, A, J, D, lo, hi, tail, cap_n, cap_a, far = self._lim[i]
+            t = 0.0 if hold else self._target[i]
+            v, a = self._v[i], self._a[i]
+            near = q_ref is not None and (hi - q_ref[i] < far or q_ref[i] - lo < far)
+            if near:
+                qi = q_ref[i]
+                capped = min(max(t, -_cap(qi - lo, tail, cap_n, cap_a)), _cap(hi - qi, tail, cap_n, cap_a))
+                if abs(capped - t) > 1e-9:
+                    margin_joints.append(i)
+                t = capped
+            vn, an = _track(v, a, t, h, A, J, D)
+            if near and not self._reachable(i, vn, an):
+                vn, an = _track(v, a, 0.0, h, A, J, D)      # brake: a state that already passed
+                if not margin_joints or margin_joints[-1] != i:
+                    margin_joints.append(i)
+            if abs(an) >= A * (1 - 1e-9):
+                accel_limited = True
+            v_out[i], a_out[i] = vn, an
+        self._v, self._a = v_out, a_out
+        if q_ref is not None:
+            self._q_ref = [qr + h * vn for qr, vn in zip(q_ref, v_out)]
+
+        # Status: the most important reason the output differs from the raw command.
+        moving = not self.is_stopped
+        if self._estop:
+            code, text = ESTOP, "e-stop latched: decelerating to zero and holding until released"
+        elif event_code != OK:
+            code, text = event_code, event_text
+        elif self._target_code in (COMMAND_TIMEOUT, NON_FINITE_COMMAND, WRONG_LENGTH) and moving:
+            code, text = self._target_code, self._target_text
+        elif margin_joints:
+            names = ", ".join(JOINT_NAMES[i] for i in margin_joints)
+            code = POSITION_MARGIN
+            text = f"{names} slowed to stop {self.config.position_margin:.3g} rad from the position limit"
+        elif self._target_code == VELOCITY_SCALED:
+            code, text = VELOCITY_SCALED, self._target_text
+        elif accel_limited:
+            code, text = ACCELERATION_LIMITED, "acceleration limit shaping the output (jerk-limited ramp)"
+        else:
+            code, text = OK, ""
+        if code != self._code and code in (VELOCITY_SCALED, ACCELERATION_LIMITED, POSITION_MARGIN):
+            self._count_intervention(code)                  # the others are counted where they happen
+        self._code = code
+        return np.array(v_out), code, text
+
+    # -------------------------------------------------------------------------------------- internals
+    def _count_intervention(self, code: int) -> None:
+        self.interventions += 1
+        self.last_intervention = code
+
+    def _accept_command(self, cmd, now: float) -> tuple[int, str]:
+        self.commands_received += 1
+        try:
+            arr = np.asarray(cmd, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            arr = None
+        if arr is None or arr.shape != (NUM_JOINTS,):
+            n = "non-numeric" if arr is None else f"{arr.size} values"
+            return self._reject(WRONG_LENGTH,
+                                f"command rejected: {n}, expected {NUM_JOINTS}; treated as zero")
+        finite = np.isfinite(arr)
+        if not finite.all():
+            bad = ", ".join(JOINT_NAMES[i] for i in np.flatnonzero(~finite))
+            return self._reject(NON_FINITE_COMMAND,
+                                f"command rejected: non-finite value at {bad}; treated as zero")
+        if self._estop:
+            return OK, ""                                   # ignored while latched
+        self._last_valid = now
+        ratios = np.abs(arr) / self.v_max
+        ratio = float(ratios.max())
+        if ratio > 1.0:
+            worst = JOINT_NAMES[int(np.argmax(ratios))]
+            self._target = (arr / ratio).tolist()
+            self._target_code = VELOCITY_SCALED
+            self._target_text = (f"velocity scaled by {1.0 / ratio:.3g} keeping its direction "
+                                 f"({worst} was {ratio:.3g}x its limit)")
+        else:
+            self._target = arr.tolist()
+            self._target_code, self._target_text = OK, ""
+        return OK, ""
+
+    def _reject(self, code: int, text: str) -> tuple[int, str]:
+        self.commands_rejected += 1
+        self._count_intervention(code)
+        self._target = [0.0] * NUM_JOINTS
+        self._target_code, self._target_text = code, text
+        self._last_valid = None                             # zero target: nothing left to time out
+        return code, text
+
+    def _sync_position(self, q) -> None:
+        q = _valid_q(q)
+        if q is None:
+            return
+        if self._q_ref is None or self.is_stopped:
+            self._q_ref = q
+        elif max(abs(x - y) for x, y in zip(q, self._q_ref)) > self.config.position_sync_tolerance:
+            self._q_ref = q
+            self.resyncs += 1
+
+    def _reachable(self, i: int, vn: float, an: float) -> bool:
+        """Whether joint i, after stepping to (vn, an), can still brake to rest inside its margin —
+        or, if it is outside already, ends no further out than braking now would."""
+        _, A, J, D, lo, hi, tail, _, _, _ = self._lim[i]
+        h, qi = self._h, self._q_ref[i]
+        q_next = qi + h * vn
+        up = q_next + _excursion_bound(vn, an, h, A, D, tail)
+        down = q_next - _excursion_bound(-vn, -an, h, A, D, tail)
+        if up <= hi and down >= lo:
+            return True
+        vb, ab = _track(self._v[i], self._a[i], 0.0, h, A, J, D)
+        qb = qi + h * vb
+        if up > hi and up > qb + _excursion_bound(vb, ab, h, A, D, tail) + 1e-12:
+            return False
+        return not (down < lo and down < qb - _excursion_bound(-vb, -ab, h, A, D, tail) - 1e-12)
+
+
+def _valid_q(q) -> list[float] | None:
+    """q as 7 finite floats, or None."""
+    if q is None:
+        return None
+    try:
+        arr = np.asarray(q, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        return None
+    if arr.shape != (NUM_JOINTS,) or not np.isfinite(arr).all():
+        return None
+    return arr.tolist()
+
+
+def _track(v: float, a: float, vt: float, h: float, A: float, J: float, D: float) -> tuple[float, float]:
+    """One jerk-limited step of the velocity v (acceleration a) towards vt (see the module docstring)."""
+    e = vt - v
+    ae = abs(e)
+    mag = 2.0 * ae / (h + math.sqrt(h * h + 2.0 * ae / J))   # solves h m + m^2 / (2J) = |e|
+    a_des = min(mag, A) if e >= 0.0 else -min(mag, A)
+    a_new = min(max(a_des, a - D), a + D)
+    v_new = v + h * a_new
+    if abs(vt - v_new) < _SNAP and abs(a_new) < 1e-6:     # land exactly (rest is exactly zero)
+        return vt, 0.0
+    return v_new, a_new
+
+
+def _excursion_bound(v: float, a: float, h: float, A: float, D: float, tail: float) -> float:
+    """Upper bound on the further travel in the + direction while braking (tracking zero) from (v, a)."""
+    ap = a if a > 0.0 else 0.0
+    m = math.floor(ap / D)
+    v_pk = v + h * (m * ap - D * m * (m + 1) / 2)           # + exact gain while ramping ap to zero
+    if v_pk <= 0.0:
+        return 0.0
+    ramp_steps = math.ceil((max(a, -A) + A) / D)
+    return ramp_steps * h * v_pk + v_pk * v_pk / (2 * A) + tail
+
+
+def _cap(d: float, tail: float, cap_n: float, cap_a: float) -> float:
+    """Largest speed towards a margin at distance d from which the planned approach stops in time."""
+    room = d - tail
+    if room <= 0.0:
+        return 0.0
+    return cap_a * (math.sqrt(cap_n * cap_n + 2.0 * room / cap_a) - cap_n)

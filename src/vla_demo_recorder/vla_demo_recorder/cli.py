@@ -1,0 +1,117 @@
+"""`vla_demo_recorder` command line: recover, info, pairs, generate."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _cmd_recover(args: argparse.Namespace) -> int:
+    from .bag_writer import BagError
+    from .recover import recover
+
+    status = 0
+    for bag in args.bags:
+        try:
+            report = recover(bag, keep_original=args.keep_original, force=args.force)
+        except BagError as err:
+            print(f"error: {err}", file=sys.stderr)
+            status = 1
+            continue
+        print(report.summary())
+    return status
+
+
+def _cmd_info(args: argparse.Namespace) -> int:
+    from .bag_writer import BagError, EpisodeInfo, read_metadata_yaml
+
+    status = 0
+    for bag in args.bags:
+        try:
+            meta = read_metadata_yaml(Path(bag))
+        except BagError as err:
+            print(f"error: {err}", file=sys.stderr)
+            status = 1
+            continue
+        episode = EpisodeInfo.from_custom_data(meta.get("custom_data"))
+        print(f"{bag}: {meta['message_count']} messages, "
+              f"{meta['duration']['nanoseconds'] / 1e9:.2f} s")
+        if episode is not None:
+            print(f"  episode {episode.index}: task {episode.task} ({episode.object_class}), "
+                  f"outcome {episode.outcome}" + (f", note: {episode.note}" if episode.note else "")
+                  + (f", error: {episode.error}" if episode.error else ""))
+        for t in meta["topics_with_message_count"]:
+            tm = t["topic_metadata"]
+            print(f"  {tm['name']:<28} {tm['type']:<36} {t['message_count']:>8}")
+    return status
+
+
+def _cmd_pairs(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from .dataset import load_demos, make_pairs
+
+    demos, skipped = load_demos(args.paths, require=args.require)
+    for path, reason in skipped:
+        print(f"skipped {path}: {reason}")
+    rng = np.random.default_rng(args.seed)
+    total = 0
+    for demo in demos:
+        q_noisy, _ = make_pairs(demo, rng)
+        total += len(q_noisy)
+        print(f"{demo.bag_path}: {demo.task}, {len(demo.t)} samples at 10 Hz, {len(q_noisy)} pairs, "
+              f"image {'yes' if demo.first_image is not None else 'no'}, "
+              f"detection {demo.detection['class_id'] if demo.detection else 'no'}")
+    print(f"{len(demos)} demos, {len(skipped)} skipped, {total} pairs")
+    return 0 if demos else 1
+
+
+def _cmd_generate(args: argparse.Namespace) -> int:
+    from .generate import main_generate
+
+    return main_generate(args)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="vla_demo_recorder", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("recover", help="make a bag whose writer was killed readable again")
+    p.add_argument("bags", nargs="+", help="bag folders (or .mcap files)")
+    p.add_argument("--keep-original", action="store_true", help="keep the damaged file as .mcap.orig")
+    p.add_argument("--force", action="store_true", help="rewrite even a complete bag")
+    p.set_defaults(func=_cmd_recover)
+
+    p = sub.add_parser("info", help="episode metadata and per-topic counts of bags")
+    p.add_argument("bags", nargs="+")
+    p.set_defaults(func=_cmd_info)
+
+    p = sub.add_parser("pairs", help="load demo bags and report the training pairs they give")
+    p.add_argument("paths", nargs="+", help="bag folders or folders of bags")
+    p.add_argument("--require", choices=("image", "detection"), default=None)
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=_cmd_pairs)
+
+    p = sub.add_parser("generate", help="simulated kinesthetic demonstrations through the ROS graph")
+    p.add_argument("--task", action="append", default=[],
+                   help="task, e.g. bread:push_east (repeatable); default: the base tasks")
+    p.add_argument("--tasks-file", type=Path, help="file with one task per line")
+    p.add_argument("--episodes", type=int, default=10, help="episodes per task")
+    p.add_argument("--out", type=Path, default=Path("demos"), help="output folder of the bags")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--image-every-n", type=int, default=1000,
+                   help="record every n-th camera frame (the first one always)")
+    p.add_argument("--camera-rate", type=float, default=5.0, help="camera frames per second")
+    p.add_argument("--keep-failed", action="store_true",
+                   help="keep episodes whose object was not displaced as intended (marked discarded)")
+    p.set_defaults(func=_cmd_generate)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,262 @@
+"""ROS 2 wrapper of the episode recorder: generic subscriptions, episode services, joystick buttons.
+
+Topics are subscribed as raw CDR bytes (create_subscription(raw=True)) with the type read from the
+graph and imported by name, so any message type is recorded without code changes. Like
+`ros2 bag record`, the subscription QoS adapts to the publishers (reliable when every publisher is
+reliable, else best effort, which also matches sensor-data publishers) with a deep queue, so a
+1 kHz topic is not thinned out while the writer thread is busy. Messages are recorded only while an
+episode is open; the episode's bag is written by the core Recorder (recorder.py).
+"""
+from __future__ import annotations
+
+import importlib
+import time
+
+import rclpy
+from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
+from rclpy.executors import ExternalShutdownException
+from rclpy.node import Node
+from rclpy.qos import (
+    DurabilityPolicy,
+    HistoryPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
+from sensor_msgs.msg import Joy
+from std_srvs.srv import Trigger
+
+from vla_interfaces.msg import RecorderStatus
+from vla_interfaces.srv import StartEpisode
+
+from .bag_writer import make_qos, normalize_type
+from .recorder import Recorder, RecorderError
+
+DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy"]
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+
+
+def import_message(msgtype: str) -> type:
+    """`pkg/msg/Type` -> the generated Python class (ImportError/AttributeError when absent)."""
+    pkg, sub, name = normalize_type(msgtype).split("/")
+    return getattr(importlib.import_module(f"{pkg}.{sub}"), name)
+
+
+def _policy_name(policy) -> str:
+    return policy.name.lower() if hasattr(policy, "name") else "unknown"
+
+
+class RecorderNode(Node):
+    """Records the configured topics into one rosbag2 MCAP bag per episode."""
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__("recorder", **kwargs)
+        p = self._declare
+        output_dir = p("output_dir", "~/vla_demos", "folder that receives one bag folder per episode")
+        self.topics = list(p("topics", DEFAULT_TOPICS, "topics to record (relative names resolve in "
+                                                      "the node's namespace)"))
+        self.image_every_n = p("image_every_n", 1, "record every n-th image (1 = all; the paper needs "
+                                                   "only the first frame of an episode)",
+                               int_range=(1, 10000))
+        flush = p("flush_period_s", 0.5, "complete MCAP chunks are flushed and fsynced at least this often",
+                  float_range=(0.05, 1.0))
+        fsync = p("fsync", True, "fsync at every flush (crash safety against power loss)")
+        self.qos_depth = p("qos_depth", 1000, "subscription queue depth (messages)", int_range=(1, 100000))
+        max_queue_mb = p("max_queue_mb", 1024, "writer queue bound; beyond it messages are counted as "
+                                               "dropped", int_range=(16, 65536))
+        delete_discarded = p("delete_discarded", False, "delete discarded episodes instead of keeping "
+                                                        "them marked 'discarded'")
+        poll = p("topic_poll_period_s", 0.5, "how often to look for publishers of unsubscribed topics",
+                 float_range=(0.05, 10.0))
+        status_period = p("status_period_s", 0.5, "period of ~/status", float_range=(0.02, 10.0))
+        self.joy_topic = p("joy_topic", "joy", "sensor_msgs/Joy topic carrying the episode buttons")
+        self.joy_task = p("joy_task", "", "task of episodes started with the joystick "
+                                          "(e.g. bread/push_east)")
+        self.buttons = {
+            "start": p("start_button", 0, "joystick button that starts an episode (-1: none)",
+                       int_range=(-1, 127)),
+            "stop": p("stop_button", 1, "joystick button that stops and keeps the episode (-1: none)",
+                      int_range=(-1, 127)),
+            "discard": p("discard_button", 2, "joystick button that stops and discards the episode "
+                                              "(-1: none)", int_range=(-1, 127)),
+        }
+        self.debounce_s = p("button_debounce_s", 0.5, "ignore repeated presses within this time",
+                            float_range=(0.0, 5.0))
+
+        self.recorder = Recorder(output_dir, flush_period_s=flush, fsync=fsync,
+                                 max_queue_bytes=max_queue_mb << 20, delete_discarded=delete_discarded,
+                                 log=self._log)
+        self._subs: dict[str, tuple[str, list, object]] = {}  # topic -> (type, offered qos, sub)
+        self._image_counts: dict[str, int] = {}
+        self._warned: set[str] = set()
+        self._prev_buttons: list[int] = []
+        self._last_press: dict[str, float] = {}
+
+        self.create_service(StartEpisode, "~/start_episode", self._on_start)
+        self.create_service(Trigger, "~/stop_episode", lambda req, res: self._on_stop(res, keep=True))
+        self.create_service(Trigger, "~/discard_episode", lambda req, res: self._on_stop(res, keep=False))
+        self.status_pub = self.create_publisher(RecorderStatus, "~/status", 10)
+        self.create_subscription(Joy, self.joy_topic, self._on_joy, qos_profile_sensor_data)
+        self.create_timer(poll, self._poll_topics)
+        self.create_timer(status_period, self._publish_status)
+        self._poll_topics()
+        self.get_logger().info(f"recording {', '.join(self._resolved(t) for t in self.topics)} into "
+                               f"{self.recorder.output_dir} (idle; call ~/start_episode)")
+
+    # -- parameters ----------------------------------------------------------------------------
+    def _declare(self, name, default, description, int_range=None, float_range=None):
+        desc = ParameterDescriptor(description=description)
+        if int_range:
+            desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
+        if float_range:
+            desc.floating_point_range = [FloatingPointRange(from_value=float(float_range[0]),
+                                                            to_value=float(float_range[1]))]
+        return self.declare_parameter(name, default, desc).value
+
+    def _log(self, level: str, text: str) -> None:
+        {"error": self.get_logger().error, "warn": self.get_logger().warning}.get(
+            level, self.get_logger().info)(text)
+
+    def _resolved(self, topic: str) -> str:
+        return self.resolve_topic_name(topic)
+
+    # -- subscriptions -------------------------------------------------------------------------
+    def _offered_qos(self, topic: str) -> tuple[list, QoSProfile] | None:
+        infos = self.get_publishers_info_by_topic(topic)
+        if not infos:
+            return None
+        offered = [make_qos(_policy_name(i.qos_profile.reliability), _policy_name(i.qos_profile.durability),
+                            i.qos_profile.depth, _policy_name(i.qos_profile.history)) for i in infos]
+        reliable = all(i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos)
+        latched = all(i.qos_profile.durability == DurabilityPolicy.TRANSIENT_LOCAL for i in infos)
+        qos = QoSProfile(
+            history=HistoryPolicy.KEEP_LAST, depth=self.qos_depth,
+            reliability=ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT,
+            durability=DurabilityPolicy.TRANSIENT_LOCAL if latched else DurabilityPolicy.VOLATILE)
+        return offered, qos
+
+    def _poll_topics(self) -> None:
+        """Subscribe to configured topics as soon as a publisher (and so the type) is known."""
+        wanted = {self._resolved(t) for t in self.topics} - set(self._subs)
+        if not wanted:
+            return
+        types = dict(self.get_topic_names_and_types())
+        for topic in sorted(wanted & set(types)):
+            found = self._offered_qos(topic)
+            if found is None:
+                continue
+            offered, qos = found
+            msgtype = normalize_type(types[topic][0])
+            try:
+                cls = import_message(msgtype)
+            except (ImportError, AttributeError) as err:
+                if topic not in self._warned:
+                    self._warned.add(topic)
+                    self.get_logger().warning(f"cannot record {topic}: type {msgtype} not importable ({err})")
+                continue
+            sub = self.create_subscription(cls, topic, self._make_callback(topic, msgtype), qos, raw=True)
+            self._subs[topic] = (msgtype, offered, sub)
+            self.get_logger().info(f"subscribed to {topic} [{msgtype}], "
+                                   f"{qos.reliability.name.lower()}, depth {qos.depth}")
+
+    def _make_callback(self, topic: str, msgtype: str):
+        is_image = msgtype in IMAGE_TYPES
+        clock = self.get_clock()
+
+        def callback(data: bytes) -> None:
+            if not self.recorder.recording:
+                return
+            if is_image:
+                n = self._image_counts.get(topic, 0)
+                self._image_counts[topic] = n + 1
+                if n % self.image_every_n:
+                    return
+            self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data)
+        return callback
+
+    # -- episodes ------------------------------------------------------------------------------
+    def start_episode(self, task: str, note: str = "") -> tuple[bool, str, str]:
+        topics = {t: (mt, offered) for t, (mt, offered, _s) in self._subs.items()}
+        self._image_counts.clear()
+        try:
+            path = self.recorder.start(task, note, topics, start_time_ns=self.get_clock().now().nanoseconds)
+        except RecorderError as err:
+            self.get_logger().error(f"start_episode: {err}")
+            return False, str(err), ""
+        st = self.recorder.state()
+        message = f"recording episode {st.episode_index} ({st.task}) to {path}"
+        self.get_logger().info(message)
+        return True, message, str(path)
+
+    def stop_episode(self, keep: bool) -> tuple[bool, str]:
+        try:
+            result = self.recorder.stop(keep=keep, end_time_ns=self.get_clock().now().nanoseconds)
+        except RecorderError as err:
+            self.get_logger().error(f"{'stop' if keep else 'discard'}_episode: {err}")
+            return False, str(err)
+        message = result.summary()
+        (self.get_logger().info if result.outcome != "failed" else self.get_logger().error)(message)
+        return result.outcome in ("kept", "discarded"), message
+
+    def _on_start(self, request: StartEpisode.Request, response: StartEpisode.Response):
+        response.success, response.message, response.bag_path = self.start_episode(request.task, request.note)
+        return response
+
+    def _on_stop(self, response: Trigger.Response, keep: bool):
+        response.success, response.message = self.stop_episode(keep)
+        return response
+
+    def _on_joy(self, msg: Joy) -> None:
+        """Rising edges of the configured buttons start/stop/discard episodes (hands-free demos)."""
+        buttons = list(msg.buttons)
+        prev = self._prev_buttons + [0] * max(0, len(buttons) - len(self._prev_buttons))
+        self._prev_buttons = buttons
+        now = time.monotonic()
+        for action, index in self.buttons.items():
+            if index < 0 or index >= len(buttons) or not (buttons[index] and not prev[index]):
+                continue
+            if now - self._last_press.get(action, -1e9) < self.debounce_s:
+                continue
+            self._last_press[action] = now
+            recording = self.recorder.recording
+            if action == "start" and not recording:
+                if not self.joy_task:
+                    self.get_logger().error("start button pressed but parameter joy_task is empty")
+                    continue
+                self.start_episode(self.joy_task, note="started with the joystick")
+            elif action in ("stop", "discard") and recording:
+                self.stop_episode(keep=action == "stop")
+
+    # -- status --------------------------------------------------------------------------------
+    def _publish_status(self) -> None:
+        st = self.recorder.state()
+        msg = RecorderStatus()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.recording, msg.task, msg.bag_path = st.recording, st.task, st.bag_path
+        msg.episode_index = st.episode_index
+        msg.messages_written, msg.bytes_written = st.messages_written, st.bytes_written
+        msg.messages_dropped, msg.last_error = st.messages_dropped, st.last_error
+        self.status_pub.publish(msg)
+
+    def destroy_node(self) -> None:
+        result = self.recorder.shutdown()
+        if result is not None:
+            self.get_logger().warning(f"shut down while recording: {result.summary()}")
+        super().destroy_node()
+
+
+def main(args=None) -> None:
+    rclpy.init(args=args)
+    node = RecorderNode()
+    try:
+        rclpy.spin(node)
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.destroy_node()
+        if rclpy.ok():
+            rclpy.shutdown()
+
+
+if __name__ == "__main__":
+    main()

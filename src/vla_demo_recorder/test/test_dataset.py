@@ -1,0 +1,136 @@
+"""Bag -> Demo -> pairs, from bags written by hand with rosbags (known joint states and context)."""
+from pathlib import Path
+
+import numpy as np
+import pytest
+from recorder_testing import detections, image, joint_state, string
+from rosbags.rosbag2 import StoragePlugin, Writer
+from vla_demo_recorder.bag_writer import BagWriter, EpisodeInfo
+from vla_demo_recorder.dataset import DemoError, load_demo, load_demos, make_pairs
+
+NAMES = [f"panda_joint{i}" for i in range(1, 8)]
+T0 = 1_700_000_000 * 10**9
+
+
+def q_of(t: float) -> np.ndarray:
+    """Known joint trajectory: joint j moves linearly at 0.1 * (j + 1) rad/s from j * 0.2."""
+    return np.array([0.2 * j + 0.1 * (j + 1) * t for j in range(7)])
+
+
+def write_rosbags_bag(path: Path, *, seconds=2.0, rate=100.0, with_image=True, with_detection=True,
+                      encoding="rgb8", episode: EpisodeInfo | None = None, image_delay_s=0.0) -> Path:
+    """A bag written by rosbags directly (not our writer): shuffled joint order, an extra joint and
+    an extra topic, padded image rows."""
+    from recorder_testing import typestore
+
+    ts = typestore()
+    names = ["finger_joint", *NAMES[::-1]]  # reversed plus an extra joint: resolved by name
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        if episode is not None:
+            for k, v in episode.to_custom_data().items():
+                w.set_custom_data(k, v)
+        js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        other = w.add_connection("/rosout_like", "std_msgs/msg/String", typestore=ts)
+        cam = w.add_connection("/camera/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+        det = w.add_connection("/detections", "vla_interfaces/msg/DetectionArray", typestore=ts)
+        pixels = np.zeros((4, 6, 3), np.uint8)
+        pixels[..., 0] = 200  # red in RGB
+        pixels[1, 2] = (1, 2, 3)
+        if encoding == "bgr8":
+            pixels = pixels[..., ::-1].copy()
+        t_img = T0 + int(image_delay_s * 1e9)
+        if with_image:
+            w.write(cam, t_img, image(t_img, pixels, encoding, pad=2))
+            w.write(cam, t_img + 10**8, image(t_img, np.zeros_like(pixels), encoding))
+        if with_detection:
+            w.write(det, T0, detections(T0, []))  # empty first: skipped
+            w.write(det, T0 + 1, detections(T0, [("bread", 0, 0.4, 10, 20, 5, 5),
+                                                 ("soda_can", 1, 0.8, 300.5, 200.25, 40, 60)]))
+        for i in range(int(seconds * rate) + 1):
+            t = i / rate
+            w.write(js, T0 + int(t * 1e9), joint_state(T0 + int(t * 1e9), names, [0.04, *q_of(t)[::-1]]))
+        w.write(other, T0, string("ignored"))
+    return path
+
+
+def test_loader_resamples_and_reads_context(tmp_path):
+    ep = EpisodeInfo(task="soda_can/push_south", index=1, outcome="kept")
+    demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep))
+    assert demo.task == "soda_can/push_south" and demo.object_class == "soda_can"
+    assert demo.t.shape == (21,) and np.allclose(demo.t, np.arange(21) * 0.1)
+    assert demo.q.shape == (21, 7)
+    assert np.allclose(demo.q, np.stack([q_of(t) for t in demo.t]), atol=1e-9)
+    assert demo.first_image.shape == (4, 6, 3) and demo.first_image.dtype == np.uint8
+    assert tuple(demo.first_image[1, 2]) == (1, 2, 3) and demo.first_image[0, 0, 0] == 200
+    assert demo.image_size == (6, 4)
+    assert demo.detection == {"class_id": "soda_can", "class_index": 1, "score": 0.8, "cx": 300.5,
+                              "cy": 200.25, "width": 40.0, "height": 60.0}
+
+
+def test_bgr_images_come_out_rgb(tmp_path):
+    ep = EpisodeInfo(task="bread/push_east", outcome="kept")
+    demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep, encoding="bgr8"))
+    assert tuple(demo.first_image[1, 2]) == (1, 2, 3) and demo.first_image[0, 0, 0] == 200
+
+
+def test_pairs_follow_the_paper(tmp_path):
+    ep = EpisodeInfo(task="bread/push_east", outcome="kept")
+    demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep))
+    q_noisy, actions = make_pairs(demo, np.random.default_rng(3))
+    eps = np.random.default_rng(3).normal(0.0, 0.01, size=7)
+    T = len(demo.q)
+    assert len(q_noisy) == len(actions) == sum(T - w for w in range(1, 11))
+    expected_states = np.concatenate([demo.q[:-w] + eps for w in range(1, 11)])
+    expected_actions = np.concatenate([demo.q[w:] - (demo.q[:-w] + eps) for w in range(1, 11)])
+    assert np.allclose(q_noisy, expected_states) and np.allclose(actions, expected_actions)
+    # the noise is one draw per demonstration: the same eps in every pair of this demo
+    assert np.allclose(q_noisy[:T - 1] - demo.q[:-1], eps)
+    # ...and a different draw for the next demo from the same generator
+    rng = np.random.default_rng(3)
+    a, _ = make_pairs(demo, rng)
+    b, _ = make_pairs(demo, rng)
+    assert not np.allclose(a - b, 0)
+
+
+def test_bag_from_our_writer_and_without_metadata(tmp_path):
+    """Our own writer works too; a bag from another writer without episode metadata needs a task."""
+    bag = BagWriter(tmp_path / "ours", EpisodeInfo(task="cereal_box/circle")).open()
+    bag.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+    for i in range(11):
+        bag.write("/joint_states", T0 + i * 10**8, joint_state(T0 + i * 10**8, NAMES, q_of(i * 0.1)))
+    bag.close("kept")
+    demo = load_demo(bag.path)
+    assert demo.task == "cereal_box/circle" and len(demo.q) == 11 and demo.first_image is None
+    plain = write_rosbags_bag(tmp_path / "plain")
+    with pytest.raises(DemoError, match="no task"):
+        load_demo(plain)
+    assert load_demo(plain, task="bread/push_east").task == "bread/push_east"
+
+
+def test_unusable_bags_are_reported_and_skipped(tmp_path):
+    kept = EpisodeInfo(task="bread/push_east", outcome="kept")
+    root = tmp_path / "demos"
+    write_rosbags_bag(root / "ep1_good", episode=kept)
+    write_rosbags_bag(root / "ep2_no_context", episode=kept, with_image=False, with_detection=False)
+    write_rosbags_bag(root / "ep3_image_only", episode=kept, with_detection=False)
+    discarded = EpisodeInfo(task="bread/push_east", outcome="discarded")
+    write_rosbags_bag(root / "ep4_discarded", episode=discarded)
+    write_rosbags_bag(root / "ep5_late_image", episode=kept, with_detection=False, image_delay_s=5.0)
+    crashed = BagWriter(root / "ep6_crashed", EpisodeInfo(task="bread/push_east")).open()
+    crashed.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+    crashed.flush()
+    crashed.abort()
+
+    demos, skipped = load_demos(root)
+    reasons = {Path(p).name: r for p, r in skipped}
+    assert sorted(Path(d.bag_path).name for d in demos) == ["ep1_good", "ep3_image_only"]
+    assert "no usable context" in reasons["ep2_no_context"]
+    assert "discarded" in reasons["ep4_discarded"]
+    assert "after the start" in reasons["ep5_late_image"]
+    assert "recover" in reasons["ep6_crashed"]
+
+    demos, skipped = load_demos(root, require="detection")
+    assert [Path(d.bag_path).name for d in demos] == ["ep1_good"]
+    assert "no detection" in dict((Path(p).name, r) for p, r in skipped)["ep3_image_only"]
+    with pytest.raises(ValueError, match="require"):
+        load_demos(root, require="depth")

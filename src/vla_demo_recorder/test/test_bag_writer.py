@@ -101,8 +101,12 @@ def test_episode_metadata_round_trip(tmp_path):
 
 def test_never_overwrites(tmp_path):
     write_sample(tmp_path / "ep").close()
+    before = {p.name: p.read_bytes() for p in (tmp_path / "ep").iterdir()}
+    late = BagWriter(tmp_path / "ep", EpisodeInfo(task="bread/push_east"))
     with pytest.raises(BagError, match="never overwritten"):
-        BagWriter(tmp_path / "ep").open()
+        late.open()
+    late.abort("gave up")
+    assert {p.name: p.read_bytes() for p in (tmp_path / "ep").iterdir()} == before
 
 
 def test_unknown_type_is_a_clear_error(tmp_path):

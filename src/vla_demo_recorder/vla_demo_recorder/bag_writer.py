@@ -386,8 +386,9 @@ class BagWriter:
         self.error = error or self.error
         writer, self._writer = self._writer, None
         self.closed = True
-        if writer is not None:
-            writer.abort()
+        if writer is None:  # never opened (or already closed): the folder is not ours to touch
+            return
+        writer.abort()
         if self.episode is not None and self.error:
             self.episode.outcome, self.episode.error = "failed", self.error
             try:  # best effort: the disk may be full; recover.py regenerates it anyway

@@ -8,6 +8,7 @@ A write error (disk full) ends the episode with a clear error; earlier bags are 
 """
 from __future__ import annotations
 
+import os
 import queue
 import re
 import shutil
@@ -125,17 +126,31 @@ class Recorder:
     def start(self, task: str, note: str = "", topics: dict[str, tuple[str, list[Qos]]] | None = None,
               start_time_ns: int | None = None) -> Path:
         """Open a new episode bag; `topics` maps topic -> (type, offered QoS) known at start."""
-        task = validate_task(task)
+        try:
+            return self._start(validate_task(task), note, topics, start_time_ns)
+        except RecorderError as err:
+            self._last_error = str(err)
+            raise
+
+    def check_output_dir(self) -> str:
+        """'' when output_dir can take episodes, else the reason (reported at startup)."""
+        try:
+            self.output_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            return f"cannot create output_dir {self.output_dir}: {err.strerror or err}"
+        if not os.access(self.output_dir, os.W_OK | os.X_OK):
+            return f"output_dir {self.output_dir} is not writable"
+        return ""
+
+    def _start(self, task: str, note: str, topics: dict[str, tuple[str, list[Qos]]] | None,
+               start_time_ns: int | None) -> Path:
         with self._lock:
             if self._episode is not None:
                 ep = self._episode
                 raise RecorderError(f"already recording episode {ep.info.index} ({ep.info.task}) to "
                                     f"{ep.writer.path}; stop or discard it first")
-            try:
-                self.output_dir.mkdir(parents=True, exist_ok=True)
-            except OSError as err:
-                raise RecorderError(f"cannot create output_dir {self.output_dir}: "
-                                    f"{err.strerror or err}") from err
+            if problem := self.check_output_dir():
+                raise RecorderError(problem)
             index = next_episode_index(self.output_dir)
             now = datetime.now()
             while (path := self.output_dir / episode_dir_name(index, task, now)).exists():
@@ -156,7 +171,6 @@ class Recorder:
                         self._log("warn", f"not recording {topic}: {err}")
             except BagError as err:
                 writer.abort(str(err))
-                self._last_error = str(err)
                 raise RecorderError(str(err)) from err
             self._episode = _Episode(writer, info)
             self._last_error = ""

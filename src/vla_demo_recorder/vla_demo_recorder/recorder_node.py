@@ -100,6 +100,8 @@ class RecorderNode(Node):
         self.create_timer(poll, self._poll_topics)
         self.create_timer(status_period, self._publish_status)
         self._poll_topics()
+        if problem := self.recorder.check_output_dir():
+            self.get_logger().error(f"{problem}; episodes cannot start until this is fixed")
         self.get_logger().info(f"recording {', '.join(self._resolved(t) for t in self.topics)} into "
                                f"{self.recorder.output_dir} (idle; call ~/start_episode)")
 

@@ -1,0 +1,222 @@
+"""recorder_node: episodes through services and joystick, bags readable by rosbags and mcap, SIGKILL."""
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosbags.highlevel import AnyReader
+from sensor_msgs.msg import Image, JointState, Joy
+from std_srvs.srv import Trigger
+from vla_demo_recorder.bag_writer import EpisodeInfo, read_metadata_yaml
+from vla_demo_recorder.recorder_node import RecorderNode
+from vla_demo_recorder.recover import find_mcap, has_footer
+
+from vla_interfaces.msg import Detection, DetectionArray, RecorderStatus
+from vla_interfaces.srv import StartEpisode
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+NAMES = [f"panda_joint{i}" for i in range(1, 8)]
+ROOT = Path(__file__).resolve().parents[3]
+
+
+class Client:
+    """Publishers and service clients of the tests."""
+
+    def __init__(self, ros, prefix="/recorder"):
+        self.ros = ros
+        self.node = ros.add(Node("recorder_test_client", context=ros.context))
+        reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        self.js = self.node.create_publisher(JointState, "joint_states", reliable)
+        self.img = self.node.create_publisher(Image, "camera/image_raw", 50)
+        self.det = self.node.create_publisher(DetectionArray, "detections", 10)
+        self.joy = self.node.create_publisher(Joy, "joy", 10)
+        self.start_cli = self.node.create_client(StartEpisode, f"{prefix}/start_episode")
+        self.stop_cli = self.node.create_client(Trigger, f"{prefix}/stop_episode")
+        self.discard_cli = self.node.create_client(Trigger, f"{prefix}/discard_episode")
+        self.status: list[RecorderStatus] = []
+        self.node.create_subscription(RecorderStatus, f"{prefix}/status", self.status.append, 10)
+
+    def wait_subscribed(self, *pubs):
+        assert self.ros.spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs), 15)
+
+    def start(self, task="bread/push_east", note=""):
+        return self.ros.call(self.start_cli, StartEpisode.Request(task=task, note=note))
+
+    def stop(self):
+        return self.ros.call(self.stop_cli, Trigger.Request())
+
+    def discard(self):
+        return self.ros.call(self.discard_cli, Trigger.Request())
+
+    def publish_joints(self, n, start=0):
+        for i in range(start, start + n):
+            self.js.publish(JointState(name=NAMES, position=[float(i)] * 7))
+            if i % 20 == 0:
+                self.ros.executor.spin_once(timeout_sec=0)
+
+    def publish_images(self, n):
+        for i in range(n):
+            self.img.publish(Image(height=2, width=2, encoding="rgb8", step=6, data=bytes([i % 256]) * 12))
+
+
+def make_recorder(ros, out, **params):
+    overrides = [Parameter("output_dir", value=str(out)), Parameter("topic_poll_period_s", value=0.1),
+                 Parameter("fsync", value=False), Parameter("flush_period_s", value=0.2),
+                 Parameter("status_period_s", value=0.1)]
+    overrides += [Parameter(k, value=v) for k, v in params.items()]
+    return ros.add(RecorderNode(context=ros.context, parameter_overrides=overrides))
+
+
+def rosbags_counts(path):
+    counts = {}
+    with AnyReader([Path(path)]) as reader:
+        for conn, _t, raw in reader.messages():
+            reader.deserialize(raw, conn.msgtype)
+            counts[conn.topic] = counts.get(conn.topic, 0) + 1
+    return counts
+
+
+def mcap_counts(path):
+    with find_mcap(Path(path)).open("rb") as f:
+        stats = make_reader(f).get_summary()
+    topics = {c.id: c.topic for c in stats.channels.values()}
+    return {topics[cid]: n for cid, n in stats.statistics.channel_message_counts.items() if n}
+
+
+def settle(ros, bag_counts, expected, timeout=10):
+    """Spin until the recorder's status reports `expected` messages written."""
+    return ros.spin_until(lambda: bag_counts() >= expected, timeout)
+
+
+def test_start_stop_discard_round_trip(ros, tmp_path):
+    rec = make_recorder(ros, tmp_path)
+    c = Client(ros)
+    c.wait_subscribed(c.js, c.det)
+
+    res = c.start("bread/push_east", note="first")
+    assert res.success and Path(res.bag_path).parent == tmp_path, res.message
+    assert not c.start("soda_can/push_south").success  # one episode at a time
+    c.publish_joints(200)
+    c.det.publish(DetectionArray(image_width=640, image_height=480,
+                                 detections=[Detection(class_id="bread", class_index=0, score=0.9)]))
+    assert settle(ros, lambda: rec.recorder.state().messages_written, 201)
+    assert ros.spin_until(lambda: any(s.recording and s.episode_index == 1 for s in c.status))
+    stop = c.stop()
+    assert stop.success and "kept episode 1" in stop.message, stop.message
+    assert not c.stop().success  # nothing to stop
+
+    res2 = c.start("soda_can:push_south")
+    assert res2.success and res2.bag_path != res.bag_path
+    c.publish_joints(30)
+    assert settle(ros, lambda: rec.recorder.state().messages_written, 30)
+    assert c.discard().success
+    bad = c.start("spaceship/fly")
+    assert not bad.success and "unknown object class" in bad.message
+
+    ep1 = EpisodeInfo.from_custom_data(read_metadata_yaml(Path(res.bag_path))["custom_data"])
+    ep2 = EpisodeInfo.from_custom_data(read_metadata_yaml(Path(res2.bag_path))["custom_data"])
+    assert (ep1.index, ep1.task, ep1.outcome, ep1.note) == (1, "bread/push_east", "kept", "first")
+    assert (ep2.index, ep2.task, ep2.outcome) == (2, "soda_can/push_south", "discarded")
+    assert ep1.start_time_ns < ep1.end_time_ns <= ep2.start_time_ns
+
+    # the same bag reads back with rosbags and with the mcap library, same counts
+    counts = rosbags_counts(res.bag_path)
+    assert counts == {"/joint_states": 200, "/detections": 1}
+    assert mcap_counts(res.bag_path) == counts
+    meta = read_metadata_yaml(Path(res.bag_path))
+    assert {t["topic_metadata"]["name"]: t["message_count"] for t in meta["topics_with_message_count"]} \
+        == {"/joint_states": 200, "/detections": 1, "/camera/image_raw": 0, "/joy": 0}  # as rosbag2
+    with AnyReader([Path(res.bag_path)]) as reader:
+        positions = [reader.deserialize(raw, conn.msgtype).position[0]
+                     for conn, _t, raw in reader.messages() if conn.topic == "/joint_states"]
+    assert positions == [float(i) for i in range(200)]  # nothing lost, in order
+    assert rosbags_counts(res2.bag_path) == {"/joint_states": 30}
+
+
+def test_image_every_n_and_joystick_buttons(ros, tmp_path):
+    rec = make_recorder(ros, tmp_path, image_every_n=3, joy_task="cereal_box/circle",
+                        start_button=4, stop_button=5, discard_button=-1, button_debounce_s=0.0)
+    c = Client(ros)
+    c.wait_subscribed(c.img, c.joy)
+    pressed = [0] * 8
+    pressed[4] = 1
+    c.joy.publish(Joy(buttons=pressed))
+    assert ros.spin_until(lambda: rec.recorder.recording)
+    c.publish_images(10)
+    assert settle(ros, lambda: rec.recorder.state().messages_written, 5)  # 4 images + the joy message
+    c.joy.publish(Joy(buttons=[0] * 8))
+    pressed = [0] * 8
+    pressed[5] = 1
+    c.joy.publish(Joy(buttons=pressed))
+    assert ros.spin_until(lambda: not rec.recorder.recording)
+    path = rec.recorder.state().bag_path
+    counts = rosbags_counts(path)
+    assert counts["/camera/image_raw"] == 4  # frames 0, 3, 6, 9
+    with AnyReader([Path(path)]) as reader:
+        first = [reader.deserialize(raw, conn.msgtype) for conn, _t, raw in reader.messages()
+                 if conn.topic == "/camera/image_raw"]
+    assert [int(m.data[0]) for m in first] == [0, 3, 6, 9]
+    ep = EpisodeInfo.from_custom_data(read_metadata_yaml(Path(path))["custom_data"])
+    assert ep.task == "cereal_box/circle" and ep.outcome == "kept"
+
+
+def test_unwritable_output_dir_is_reported(ros, tmp_path):
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    rec = make_recorder(ros, blocker / "demos")
+    c = Client(ros)
+    res = c.start()
+    assert not res.success and "cannot create output_dir" in res.message
+    assert not rec.recorder.recording
+    assert ros.spin_until(lambda: any("cannot create output_dir" in s.last_error for s in c.status))
+
+
+def _installed(exe: str) -> str:
+    path = ROOT / "install" / "vla_demo_recorder" / "lib" / "vla_demo_recorder" / exe
+    if not path.exists():
+        pytest.skip(f"{path} not installed (run make setup)")
+    return str(path)
+
+
+def test_sigkill_mid_episode_then_recover(ros, tmp_path):
+    """A recorder killed with SIGKILL leaves a bag that `recover` makes readable: everything that was
+    published before the last flush is there."""
+    exe = _installed("recorder_node")
+    proc = subprocess.Popen(
+        [exe, "--ros-args", "-r", "__node:=killme", "-p", f"output_dir:={tmp_path}",
+         "-p", "flush_period_s:=0.2", "-p", "topic_poll_period_s:=0.1"],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+    try:
+        c = Client(ros, prefix="/killme")
+        c.wait_subscribed(c.js)
+        res = c.start("glass_bottle/push_west")
+        assert res.success, res.message
+        c.publish_joints(300)
+        assert ros.spin_until(lambda: any(s.messages_written >= 300 for s in c.status), 15)
+        ros.spin_for(1.0)  # > flush period: all 300 are in complete chunks on disk
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    bag = Path(res.bag_path)
+    assert not has_footer(find_mcap(bag))
+    out = subprocess.run([sys.executable, "-m", "vla_demo_recorder.cli", "recover", str(bag)],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 0, out.stderr
+    assert "recovered 300 messages" in out.stdout
+    assert rosbags_counts(bag) == {"/joint_states": 300} == mcap_counts(bag)
+    ep = EpisodeInfo.from_custom_data(read_metadata_yaml(bag)["custom_data"])
+    assert ep.task == "glass_bottle/push_west" and ep.outcome == "recovered"
+    positions = []
+    with AnyReader([bag]) as reader:
+        for conn, _t, raw in reader.messages():
+            positions.append(reader.deserialize(raw, conn.msgtype).position[0])
+    assert np.array_equal(positions, np.arange(300.0))

@@ -120,3 +120,43 @@ def test_closed_loop_reaches_pre_then_post_push_waypoint():
             assert np.linalg.norm(q - pre) < 0.05  # deadband: stops within half a grid step
         t += dt
     assert np.linalg.norm(q - post) < 0.1 * np.linalg.norm(Q0 - post) + 0.05
+
+
+def random_model(path, seed=0):
+    """A small valid detector-encoder model with random weights (no training needed)."""
+    from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
+    from vla_latent_controller.model import LatentModel
+
+    classes = ["bread", "soda_can", "milk_carton", "glass_bottle", "cereal_box"]
+    cfg = {"encoder": "detector", "classes": classes, "joint_names": [f"panda_joint{i}" for i in range(1, 8)],
+           "dims": {"context": 7, "joints": 7, "latent": 1, "hidden": 30, "cnn_feature": 0},
+           "normalisation": {"q_mean": Q0.tolist(), "q_std": [0.2] * 7, "a_scale": [0.3] * 7},
+           "latent": {"gain": {"bread": 0.8, "soda_can": -0.6}, "default_gain": 0.7}}
+    rng = np.random.default_rng(seed)
+    tensors = {k: rng.normal(0, 0.5, s) for k, s in decoder_tensor_shapes(cfg).items()}
+    return LatentModel.load(save_model(path, cfg, tensors))
+
+
+def test_stick_to_command_matches_the_controller_core(tmp_path):
+    """The teleoperator must predict exactly what the controller will command for each stick value."""
+    from vla_latent_controller.context import Det
+    from vla_latent_controller.sim_teleoperator import StickToCommand
+    from vla_latent_controller.teleop import TeleopCore, TeleopParams
+
+    model = random_model(tmp_path / "m")
+    det = Det("soda_can", 0.9, 320.0, 200.0)
+    params = TeleopParams(deadband=0.1, axis_scale=1.3, action_scale=2.0, max_joint_speed=1.5)
+    core = TeleopCore(params, model)
+    core.on_joint_states([f"panda_joint{i}" for i in range(1, 8)], Q0.tolist(), 0.0)
+    core.on_detections([det], (640, 480), 0.0)
+    ctx = model.context(det=det, image_size=(640, 480))
+    stick = StickToCommand(model, ctx, "soda_can", deadband=0.1, axis_scale=1.3, action_scale=2.0,
+                           max_joint_speed=1.5)
+    axes = np.array([-1.0, -0.6, -0.1, 0.0, 0.05, 0.1, 0.11, 0.3, 0.9, 1.0, 1.7])
+    predicted = stick(axes, Q0)
+    for a, p in zip(axes, predicted):
+        core.on_joy([a, 0.0], [0, 0, 0, 0], 0.0)
+        cmd, status = core.step(0.01)
+        assert np.allclose(cmd, p, atol=1e-9), (a, cmd, p, status.reason)
+    assert np.all(predicted[2:6] == 0.0)
+    assert np.all(np.linalg.norm(predicted, axis=1) <= 1.5 + 1e-9)

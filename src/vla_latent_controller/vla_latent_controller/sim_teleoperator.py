@@ -114,6 +114,23 @@ class WaypointSchedule:
         return t >= self.time_limit
 
 
+def teleop_waypoints(plan) -> list[np.ndarray]:
+    """The waypoints the paper's teleoperator aims at, from a planner's TaskPlan.
+
+    Push: the pre-push and post-push keyframes only (the planner also has a hover point before and a
+    lift after): the keyframes at push height, first and last. Circle: every keyframe (the approach,
+    then the loop).
+    """
+    wps = [np.asarray(w, dtype=float) for w in plan.waypoints]
+    if getattr(plan.task, "kind", "push") != "push" or len(wps) <= 2:
+        return wps
+    tcp_z = np.array([float(np.asarray(p)[2]) for p in plan.tcp_waypoints])
+    low = np.flatnonzero(tcp_z <= tcp_z.min() + 0.01)
+    if len(low) >= 2:
+        return [wps[low[0]], wps[low[-1]]]
+    return [wps[1], wps[2]] if len(wps) >= 3 else wps
+
+
 @dataclass
 class TeleopStep:
     """One decision: the stick value to hold, and why."""
@@ -163,13 +180,18 @@ class SimTeleoperator:
 class StickToCommand:
     """What the controller commands for a stick value, vectorised over candidate stick values.
 
-    Mirrors the controller's latent path: deadband on the stick, z = gain(latched class) * axis_scale *
-    stick, a = phi(z, s) from the NumPy decoder with the episode's context latched, command =
-    action_scale * a, rescaled as a whole when its norm exceeds max_joint_speed (the paper's 1.5 rad/s).
+    Mirrors the controller's latent path (`teleop.TeleopCore`): stick clipped to [-1, 1]; within the
+    deadband exactly zero, outside it rescaled so +-1 is still reached, times axis_scale (clipped);
+    z = gain(latched class) * u; command = action_scale * phi(z, s) from the NumPy decoder with the
+    episode's context latched; the whole vector scaled down to the max_joint_speed norm (the paper's
+    1.5 rad/s) and to per-joint dq_max when given. A test checks it against the controller core.
     """
 
     def __init__(self, model, context: np.ndarray, class_id: str | None = None, deadband: float = 0.1,
-                 axis_scale: float = 1.0, action_scale: float = 1.0, max_joint_speed: float = 1.5) -> None:
+                 axis_scale: float = 1.0, action_scale: float = 1.0, max_joint_speed: float = 1.5,
+                 dq_max: Sequence[float] | None = None) -> None:
+        if not 0.0 <= deadband < 1.0:
+            raise ValueError(f"deadband must be in [0, 1), got {deadband}")
         self.model = model
         self.decoder = model.decoder
         self.decoder.set_context(context)
@@ -178,17 +200,23 @@ class StickToCommand:
         self.axis_scale = float(axis_scale)
         self.action_scale = float(action_scale)
         self.max_joint_speed = float(max_joint_speed)
+        self.dq_max = None if dq_max is None else np.asarray(dq_max, dtype=float)
 
-    def latent(self, axes: np.ndarray) -> np.ndarray:
-        a = np.clip(np.asarray(axes, dtype=float), -1.0, 1.0)
-        a = np.where(np.abs(a) <= self.deadband, 0.0, a)
-        return self.gain * self.axis_scale * a
+    def stick(self, axes: np.ndarray) -> np.ndarray:
+        """Stick values after deadband, rescaling and axis_scale, in [-1, 1]."""
+        v = np.clip(np.asarray(axes, dtype=float), -1.0, 1.0)
+        u = np.sign(v) * (np.abs(v) - self.deadband) / (1.0 - self.deadband) * self.axis_scale
+        return np.where(np.abs(v) <= self.deadband, 0.0, np.clip(u, -1.0, 1.0))
 
     def __call__(self, axes: np.ndarray, q: np.ndarray) -> np.ndarray:
-        z = self.latent(axes)
-        cmd = self.action_scale * self.decoder.decode_batch(q, z)
-        cmd[z == 0.0] = 0.0  # the controller's deadband gives exactly zero
-        norms = np.linalg.norm(cmd, axis=1)
-        over = norms > self.max_joint_speed
-        cmd[over] *= (self.max_joint_speed / norms[over])[:, None]
-        return cmd
+        u = self.stick(axes)
+        cmd = self.action_scale * self.decoder.decode_batch(q, u * self.gain)
+        cmd[u == 0.0] = 0.0  # the controller's deadband gives exactly zero
+        scale = np.ones(len(cmd))
+        if self.max_joint_speed > 0:
+            norms = np.linalg.norm(cmd, axis=1)
+            scale = np.where(norms > self.max_joint_speed, self.max_joint_speed / np.maximum(norms, 1e-300), 1.0)
+        if self.dq_max is not None:
+            worst = np.max(np.abs(cmd) / self.dq_max, axis=1)
+            scale = np.where(worst * scale > 1.0, 1.0 / np.maximum(worst, 1e-300), scale)
+        return cmd * scale[:, None]

@@ -24,12 +24,14 @@ from ..sim_teleoperator import (
     SimTeleoperator,
     StickToCommand,
     WaypointSchedule,
+    teleop_waypoints,
 )
 from .metrics import EpisodeResult, final_state_error
 
 # Validation layouts are drawn from seeds at and above this offset; demonstration generators use
 # small seeds, so evaluation layouts are never training layouts.
 VALIDATION_SEED_OFFSET = 100_000
+LAYOUT_RETRY_STRIDE = 1_000_003  # derived seeds when a layout cannot be planned
 
 
 @dataclass
@@ -65,32 +67,27 @@ class Layout:
     detections: list[Det] = field(default_factory=list)
 
 
-def sample_layout_objects(task_name: str, seed: int, distractors: int = 0) -> list[ObjectPose]:
-    """A random layout (seeded) holding the task's object, optionally with distractor objects."""
-    from vla_panda_bridge.objects import OBJECT_CLASSES
-    from vla_panda_bridge.sim import random_layout
-    from vla_panda_bridge.tasks import parse_task
+def sample_layout_objects(task_name: str, seed: int, n_objects: int = 1) -> list[ObjectPose]:
+    """A seeded random layout for the task (its object first, placed so the task is reachable),
+    with n_objects - 1 distractors kept out of the pushing corridor."""
+    from vla_panda_bridge.tasks import task_layout
 
-    spec = parse_task(task_name)
-    rng = np.random.default_rng(seed)
-    others = [c for c in OBJECT_CLASSES if c != spec.object_class]
-    extra = [others[i] for i in rng.permutation(len(others))[:distractors]]
-    return random_layout(rng, classes=[spec.object_class, *extra])
+    return task_layout(task_name, np.random.default_rng(seed), n_objects=n_objects)
 
 
 def plan_waypoints(kin, task_name: str, goal: ObjectPose, q0: np.ndarray,
                    plan_seed: int = 0) -> list[np.ndarray]:
-    """The planner's joint-space waypoints (pre-push, post-push; a sequence for a circle)."""
+    """The teleoperator's joint-space waypoints from the planner (pre-push, post-push; a circle's loop)."""
     from vla_panda_bridge.planner import plan_task
     from vla_panda_bridge.tasks import parse_task
 
     rng = np.random.default_rng(plan_seed)
     plan = plan_task(kin, parse_task(task_name), goal, np.asarray(q0, float), rng)
-    return [np.asarray(w, float) for w in plan.waypoints]
+    return teleop_waypoints(plan)
 
 
 def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=None, kin=None,
-                 render: bool = True, q0: np.ndarray | None = None, distractors: int = 0,
+                 render: bool = True, q0: np.ndarray | None = None, n_objects: int = 1,
                  progress: Callable[[str], None] | None = None) -> list[Layout]:
     """Reset the simulator to each (task, seed) layout, render the first frame and detect on it."""
     from vla_panda_bridge.kinematics import PandaKinematics
@@ -106,23 +103,39 @@ def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=
     for task in tasks:
         cls = parse_task(task).object_class
         for seed in seeds:
-            objects = sample_layout_objects(task, seed, distractors)
+            objects, goal, wps, used = _plannable_layout(kin, task, cls, int(seed), q_start, n_objects)
             image, size, dets = None, None, []
             if sim is not None:
-                objects = sim.reset(objects=objects, q0=q_start)
+                sim.reset(objects=objects, q0=q_start)
                 sim.step(50)  # let objects settle on the table before the first frame
                 objects = sim.object_poses()
+                goal = next(o for o in objects if o.class_id == cls)
                 if render:
                     image = sim.render()
                     size = (image.shape[1], image.shape[0])
                     if detector is not None:
                         dets = [_as_det(d) for d in detector.detect(image)]
-            goal = next(o for o in objects if o.class_id == cls)
-            wps = plan_waypoints(kin, task, goal, q_start)
-            out.append(Layout(task, int(seed), list(objects), goal, q_start.copy(), wps, image, size, dets))
+            out.append(Layout(task, used, list(objects), goal, q_start.copy(), wps, image, size, dets))
             if progress:
-                progress(f"layout {task} seed {seed}")
+                progress(f"layout {task} seed {used}")
     return out
+
+
+def _plannable_layout(kin, task: str, cls: str, seed: int, q_start: np.ndarray, n_objects: int,
+                      attempts: int = 50):
+    """The seed's layout, or the next derived seed's when the planner cannot plan it (IK limits)."""
+    from vla_panda_bridge.planner import PlanError
+
+    last = None
+    for k in range(attempts):
+        used = seed + k * LAYOUT_RETRY_STRIDE
+        objects = sample_layout_objects(task, used, n_objects)
+        goal = next(o for o in objects if o.class_id == cls)
+        try:
+            return objects, goal, plan_waypoints(kin, task, goal, q_start), used
+        except PlanError as e:
+            last = e
+    raise ValueError(f"{task}: no plannable layout from seed {seed} in {attempts} attempts ({last})")
 
 
 def _as_det(d) -> Det:

@@ -119,3 +119,62 @@ def _save(fig, path) -> Path:
     fig.savefig(path)
     plt.close(fig)
     return path
+
+
+def save_task_bars(summary: Sequence[Mapping], path: str | os.PathLike, y: str = "final_state_error",
+                   title: str = "Final state error per task (mean +- standard error)") -> Path:
+    """Per-task mean with standard-error bars (and the success rate written above when known)."""
+    fig, ax = plt.subplots(figsize=(max(4.0, 1.1 * len(summary) + 1.5), 3.6), dpi=120)
+    names = [str(r["task"]) for r in summary]
+    means = np.array([float(r[y]) if r[y] is not None else np.nan for r in summary])
+    sems = np.array([float(r.get(f"{y}_sem") or 0.0) for r in summary])
+    xs = np.arange(len(names))
+    ax.bar(xs, means, yerr=sems, color="tab:blue", alpha=0.8, capsize=3)
+    for x, r, m in zip(xs, summary, means):
+        if r.get("success_rate") is not None:
+            ax.annotate(f"{100 * r['success_rate']:.0f} %", (x, np.nan_to_num(m)), ha="center", fontsize=7,
+                        xytext=(0, 6), textcoords="offset points")
+    ax.set_xticks(xs, [n.replace("/", "\n") for n in names], fontsize=7)
+    ax.set_ylabel("final state error (rad)")
+    ax.set_title(title, fontsize=9)
+    ax.grid(axis="y", alpha=0.3)
+    return _save(fig, path)
+
+
+def write_evaluation_report(results: Sequence, out_dir: str | os.PathLike, meta: Mapping | None = None,
+                            keys: Sequence[str] = ("task",)) -> dict[str, Path]:
+    """episodes.csv, summary.csv, results.json, final_state_error.png and per-task path plots."""
+    from .metrics import summarize, write_csv, write_json
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = summarize(results, keys)
+    files = {
+        "episodes": write_csv([r.row() for r in results], out / "episodes.csv"),
+        "summary": write_csv(summary, out / "summary.csv"),
+        "json": write_json({"meta": dict(meta or {}), "summary": summary,
+                            "episodes": [r.to_json(include_path=False) for r in results]},
+                           out / "results.json"),
+    }
+    if "task" in keys and summary:
+        files["bars"] = save_task_bars(summary, out / "final_state_error.png")
+    by_task: dict[str, list] = {}
+    for r in results:
+        by_task.setdefault(r.task, []).append(r)
+    for task, rs in by_task.items():
+        paths = [r.ee_path for r in rs if r.ee_path is not None and len(r.ee_path) > 1]
+        if not paths:
+            continue
+        objects = []
+        for r in rs:
+            if r.object_start:
+                s = r.object_start
+                o = {"class_id": s["class_id"], "x": s["x"], "y": s["y"]}
+                if r.object_end:
+                    o.update(x_end=r.object_end["x"], y_end=r.object_end["y"])
+                objects.append(o)
+        label = rs[0].encoder or rs[0].model or "episodes"
+        files[f"paths_{task}"] = save_ee_paths(
+            {label: paths}, out / f"paths_{task.replace('/', '_')}.png", objects=objects,
+            title=f"{task}: end-effector paths (top-down)")
+    return files

@@ -1,0 +1,35 @@
+"""Where the shipped models live: installed under share/<package>/models, else in the source tree."""
+from __future__ import annotations
+
+from pathlib import Path
+
+PACKAGE = "vla_latent_controller"
+SOURCE_MODELS = Path(__file__).resolve().parents[2] / "models"
+
+
+def latent_model_dir(encoder: str = "detector") -> Path:
+    """The shipped latent-action model directory for `encoder` (may not exist yet)."""
+    try:
+        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+
+        try:
+            p = Path(get_package_share_directory(PACKAGE)) / "models" / encoder
+            if (p / "config.json").is_file():
+                return p
+        except PackageNotFoundError:
+            pass
+    except ImportError:
+        pass
+    return SOURCE_MODELS / encoder
+
+
+def source_model_dir(encoder: str = "detector") -> Path:
+    """Where a freshly trained model is written so that it ships with the repository."""
+    return SOURCE_MODELS / encoder
+
+
+def detector_model_path() -> Path:
+    """The shipped detector (vla_detector's models/detector.onnx)."""
+    from vla_detector.inference import default_model_path
+
+    return Path(default_model_path())

@@ -18,11 +18,16 @@ setup(
     zip_safe=True,
     maintainer="VLA developers",
     maintainer_email="dev@vla.invalid",
-    description="Launch files, shared parameters and the `vla` tool (ros2 run / ros2 launch for machines without ros2cli).",
+    description=(
+        "Launch files, shared parameters and the `vla` tool "
+        "(ros2 run / ros2 launch for machines without ros2cli)."
+    ),
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
             "vla = vla_bringup.cli:main",
+            "demo_talker = vla_bringup.demo_talker:main",
+            "demo_listener = vla_bringup.demo_listener:main",
         ],
     },
 )

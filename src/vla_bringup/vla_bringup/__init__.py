@@ -1,1 +1,1 @@
-"""Launch files, shared parameters and the `vla` tool (ros2 run / ros2 launch for machines without ros2cli)."""
+"""Launch files, shared parameters and the `vla` tool (ros2 run / ros2 launch without ros2cli)."""

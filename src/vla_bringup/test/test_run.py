@@ -1,0 +1,54 @@
+"""`vla run`: ament-index resolution like `ros2 run`, clear errors, arguments passed through."""
+import os
+import subprocess
+import sys
+
+import pytest
+from vla_bringup.run import RunError, executables, find_executable, run_command
+
+VLA = [sys.executable, "-m", "vla_bringup.cli"]
+
+
+def vla(*args, timeout=30):
+    return subprocess.run(VLA + list(args), capture_output=True, text=True, timeout=timeout)
+
+
+def test_resolves_installed_executable_like_ros2_run():
+    from ament_index_python.packages import get_package_prefix
+
+    path = find_executable("vla_bringup", "demo_talker")
+    assert path == os.path.join(get_package_prefix("vla_bringup"), "lib", "vla_bringup", "demo_talker")
+    assert os.access(path, os.X_OK)
+    names = {os.path.basename(p) for p in executables("vla_bringup")}
+    assert {"demo_talker", "demo_listener", "vla"} <= names
+
+
+def test_missing_package_and_executable_errors():
+    with pytest.raises(RunError, match="^Package 'no_such_package' not found$"):
+        find_executable("no_such_package", "x")
+    with pytest.raises(RunError, match="^No executable found$"):
+        find_executable("vla_bringup", "no_such_exe")
+
+
+def test_prefix_is_shell_split():
+    cmd = run_command("vla_bringup", "vla", ["--help"], prefix="env FOO='a b'")
+    assert cmd[:2] == ["env", "FOO=a b"] and cmd[2].endswith("/vla") and cmd[3:] == ["--help"]
+
+
+def test_cli_runs_the_executable_with_arguments_and_exit_code():
+    r = vla("run", "vla_bringup", "vla", "launch", "--help")
+    assert r.returncode == 0 and "--show-args" in r.stdout
+    r = vla("run", "vla_bringup", "vla", "launch", "/no/such.launch.yaml")
+    assert r.returncode == 1 and "launch file not found" in r.stderr
+    r = vla("run", "--prefix", "echo PREFIX", "vla_bringup", "demo_talker", "--ros-args", "-p", "rate:=2.0")
+    assert r.returncode == 0 and r.stdout.startswith("PREFIX /") and r.stdout.rstrip().endswith(
+        "demo_talker --ros-args -p rate:=2.0")
+
+
+def test_cli_errors():
+    r = vla("run", "no_such_package", "x")
+    assert r.returncode == 1 and r.stderr.strip() == "Package 'no_such_package' not found"
+    r = vla("run", "vla_bringup", "no_such_exe")
+    assert r.returncode == 1 and r.stderr.strip() == "No executable found"
+    r = vla("run", "vla_bringup")
+    assert r.returncode == 2 and "demo_talker" in r.stderr

@@ -1,0 +1,339 @@
+"""Process supervision for `vla launch`: start, stream, forward signals, tear down, no orphans.
+
+One thread, one `selectors` loop: child pipes and a signal wake-up pipe are watched together, so
+output, exits and Ctrl-C are handled as they happen without polling threads.
+
+- Every child runs in its own process group (a terminal's Ctrl-C reaches only `vla launch`, which
+  forwards it) and gets PR_SET_PDEATHSIG=SIGTERM, so it is stopped even if `vla launch` is killed.
+- Each output line is printed as `[label-pid] line` (stdout to stdout, stderr to stderr).
+- Shutdown (Ctrl-C, SIGTERM, SIGHUP, or a node dying): the signal is sent to every child's group;
+  after `sigterm_timeout` SIGTERM follows, after `sigkill_timeout` SIGKILL. Another Ctrl-C (a
+  second or more later) escalates at once. At the end every child group is SIGKILLed, catching
+  stray grandchildren.
+- By default a process exiting with a non-zero code tears the others down (`keep_going` disables
+  this); one exiting with 0 just ends (unless it has `on_exit: shutdown`); `respawn` restarts.
+- Exit code: 0 when every process ended cleanly (0, or stopped by our SIGINT/SIGTERM), otherwise the
+  first failure's code (128 + signal number for a death by signal; a SIGKILL escalation counts).
+"""
+from __future__ import annotations
+
+import contextlib
+import ctypes
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import dataclass, field
+from typing import TextIO
+
+_PR_SET_PDEATHSIG = 1
+try:
+    _PRCTL = ctypes.CDLL(None, use_errno=True).prctl
+except (OSError, AttributeError):  # not Linux
+    _PRCTL = None
+
+_REPEAT_DEBOUNCE_S = 1.0
+_CLEAN_STOP_CODES = {0, -signal.SIGINT, -signal.SIGTERM, 128 + signal.SIGINT, 128 + signal.SIGTERM}
+
+
+@dataclass
+class ProcessSpec:
+    label: str
+    cmd: list[str]
+    env: dict[str, str | None] = field(default_factory=dict)  # overrides; None unsets
+    cwd: str | None = None
+    on_exit_shutdown: bool = False
+    respawn: bool = False
+    respawn_delay: float = 0.0
+    sigterm_timeout: float | None = None
+    sigkill_timeout: float | None = None
+
+
+@dataclass
+class _Child:
+    spec: ProcessSpec
+    popen: subprocess.Popen
+    fds: dict[int, bool] = field(default_factory=dict)  # fd -> is stderr
+    partial: dict[int, bytearray] = field(default_factory=dict)
+    stage: int = 0  # 0 running, 1 SIGINT sent, 2 SIGTERM sent, 3 SIGKILL sent
+    deadline: float | None = None
+
+    @property
+    def pid(self) -> int:
+        return self.popen.pid
+
+    @property
+    def tag(self) -> str:
+        return f"{self.spec.label}-{self.pid}"
+
+
+def _signal_name(num: int) -> str:
+    try:
+        return signal.Signals(num).name
+    except ValueError:
+        return f"signal {num}"
+
+
+def _preexec(parent_pid: int):
+    def setup() -> None:  # runs in the child between fork and exec
+        if _PRCTL is not None:
+            _PRCTL(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
+        if os.getppid() != parent_pid:  # the parent died before prctl took effect
+            os._exit(1)
+    return setup
+
+
+class Launcher:
+    """Runs a list of processes until they end or a shutdown; `run()` returns the exit code."""
+
+    def __init__(self, specs: list[ProcessSpec], *, sigterm_timeout: float = 5.0,
+                 sigkill_timeout: float = 5.0, keep_going: bool = False,
+                 stdout: TextIO | None = None, stderr: TextIO | None = None) -> None:
+        self.specs = specs
+        self.sigterm_timeout = sigterm_timeout
+        self.sigkill_timeout = sigkill_timeout
+        self.keep_going = keep_going
+        self.out = stdout or sys.stdout
+        self.err = stderr or sys.stderr
+        self.children: list[_Child] = []
+        self.all_pids: list[int] = []
+        self.failures: list[tuple[str, int]] = []
+        self.shutting_down = False
+        self._signals: list[int] = []
+        self._last_escalation = 0.0
+        self._respawns: list[tuple[float, ProcessSpec]] = []
+        self._sel = selectors.DefaultSelector()
+
+    # -------------------------------------------------------------------------------- output
+    def _write(self, stream: TextIO, text: str) -> None:
+        try:
+            stream.write(text)
+            stream.flush()
+        except (BrokenPipeError, ValueError):
+            pass
+
+    def log(self, msg: str, error: bool = False) -> None:
+        self._write(self.err, f"[{'ERROR' if error else 'INFO'}] [launch]: {msg}\n")
+
+    def _emit(self, child: _Child, fd: int, data: bytes, final: bool = False) -> None:
+        buf = child.partial.setdefault(fd, bytearray())
+        buf += data
+        *lines, rest = bytes(buf).split(b"\n")
+        if final and rest or len(rest) > 65536:
+            lines.append(rest)
+            rest = b""
+        child.partial[fd] = bytearray(rest)
+        stream = self.err if child.fds.get(fd, False) else self.out
+        for line in lines:
+            self._write(stream, f"[{child.tag}] {line.decode('utf-8', 'replace').rstrip(chr(13))}\n")
+
+    def _read(self, child: _Child, fd: int, drain: bool = False) -> None:
+        """Read what is available; on EOF (or `drain`), flush and stop watching the fd."""
+        while True:
+            try:
+                data = os.read(fd, 65536)
+            except BlockingIOError:
+                if drain:
+                    break
+                return
+            except OSError:
+                data = b""
+            if not data:
+                break
+            self._emit(child, fd, data)
+            if not drain:
+                return
+        self._emit(child, fd, b"", final=True)
+        with contextlib.suppress(KeyError, ValueError):
+            self._sel.unregister(fd)
+        os.close(fd)
+        child.fds.pop(fd, None)
+
+    # --------------------------------------------------------------------------------- start
+    def _start(self, spec: ProcessSpec) -> None:
+        env = dict(os.environ)
+        env.setdefault("PYTHONUNBUFFERED", "1")
+        for k, v in spec.env.items():
+            if v is None:
+                env.pop(k, None)
+            else:
+                env[k] = v
+        try:
+            popen = subprocess.Popen(
+                spec.cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                env=env, cwd=spec.cwd, close_fds=True, process_group=0, preexec_fn=_preexec(os.getpid()))
+        except (OSError, subprocess.SubprocessError) as e:
+            self.log(f"{spec.label}: cannot start {spec.cmd[0]}: {e}", error=True)
+            self.failures.append((spec.label, 127))
+            if not self.keep_going:
+                self.begin_shutdown(signal.SIGINT, f"{spec.label} failed to start")
+            return
+        child = _Child(spec, popen)
+        for stream, is_err in ((popen.stdout, False), (popen.stderr, True)):
+            fd = os.dup(stream.fileno())
+            stream.close()
+            os.set_blocking(fd, False)
+            child.fds[fd] = is_err
+            self._sel.register(fd, selectors.EVENT_READ, (child, fd))
+        self.children.append(child)
+        self.all_pids.append(child.pid)
+        self.log(f"process started with pid [{child.pid}]: {spec.label}: {' '.join(spec.cmd)}")
+
+    # ------------------------------------------------------------------------------ shutdown
+    def _send(self, child: _Child, sig: int) -> None:
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(child.pid, sig)
+        now = time.monotonic()
+        if sig == signal.SIGINT:
+            child.stage = 1
+            t = child.spec.sigterm_timeout
+            child.deadline = now + (self.sigterm_timeout if t is None else t)
+        elif sig == signal.SIGTERM:
+            child.stage = 2
+            t = child.spec.sigkill_timeout
+            child.deadline = now + (self.sigkill_timeout if t is None else t)
+        else:
+            child.stage = 3
+            child.deadline = None
+
+    def _escalate(self, child: _Child) -> None:
+        if child.stage <= 1:
+            self.log(f"sending SIGTERM to {child.tag}", error=child.stage == 1)
+            self._send(child, signal.SIGTERM)
+        elif child.stage == 2:
+            self.log(f"{child.tag} did not stop after SIGTERM, sending SIGKILL", error=True)
+            self._send(child, signal.SIGKILL)
+
+    def begin_shutdown(self, first_signal: int, reason: str) -> None:
+        if self.shutting_down:
+            return
+        self.shutting_down = True
+        self._respawns.clear()
+        self.log(f"shutting down ({reason}): sending {_signal_name(first_signal)} to "
+                 f"{len(self.children)} process(es)")
+        for child in self.children:
+            self._send(child, first_signal)
+
+    def _on_signal(self, signum: int, frame: object) -> None:
+        self._signals.append(signum)
+
+    def _handle_signals(self) -> None:
+        while self._signals:
+            sig = self._signals.pop(0)
+            if sig == signal.SIGCHLD:
+                continue
+            now = time.monotonic()
+            if not self.shutting_down:
+                first = signal.SIGINT if sig == signal.SIGINT else signal.SIGTERM
+                self.begin_shutdown(first, f"received {_signal_name(sig)}")
+                self._last_escalation = now
+            elif now - self._last_escalation >= _REPEAT_DEBOUNCE_S:
+                # A repeated Ctrl-C escalates; one signal delivered twice (e.g. by `timeout`, which
+                # signals the child and then its own group) must not.
+                self._last_escalation = now
+                for child in self.children:
+                    self._escalate(child)
+
+    # ------------------------------------------------------------------------------- exits
+    def _reap(self) -> None:
+        for child in list(self.children):
+            rc = child.popen.poll()
+            if rc is None:
+                continue
+            for fd in list(child.fds):
+                self._read(child, fd, drain=True)
+            self.children.remove(child)
+            self._on_exit(child, rc)
+
+    def _on_exit(self, child: _Child, rc: int) -> None:
+        how = f"exit code {rc}" if rc >= 0 else f"killed by {_signal_name(-rc)}"
+        spec = child.spec
+        if self.shutting_down:
+            if child.stage == 3 or rc not in _CLEAN_STOP_CODES:
+                self.failures.append((spec.label, rc))
+                self.log(f"process [{child.tag}] did not stop cleanly ({how})", error=True)
+            else:
+                self.log(f"process [{child.tag}] stopped ({how})")
+            return
+        if rc == 0:
+            self.log(f"process [{child.tag}] has finished cleanly")
+        elif spec.respawn:
+            self.log(f"process [{child.tag}] has died ({how}); respawning", error=True)
+        else:
+            self.failures.append((spec.label, rc))
+            self.log(f"process [{child.tag}] has died ({how}), cmd: {' '.join(spec.cmd)}", error=True)
+        if spec.respawn:
+            self._respawns.append((time.monotonic() + spec.respawn_delay, spec))
+        elif spec.on_exit_shutdown:
+            self.begin_shutdown(signal.SIGINT, f"{spec.label} exited and has on_exit: shutdown")
+        elif rc != 0 and not self.keep_going:
+            self.begin_shutdown(signal.SIGINT, f"{spec.label} died")
+
+    def exit_code(self) -> int:
+        if not self.failures:
+            return 0
+        rc = self.failures[0][1]
+        if rc < 0:
+            return min(128 - rc, 255)
+        return min(rc, 255) if rc > 0 else 1
+
+    # -------------------------------------------------------------------------------- loop
+    def _loop(self, wake_fd: int) -> None:
+        while True:
+            self._handle_signals()
+            now = time.monotonic()
+            for child in self.children:
+                if child.deadline is not None and now >= child.deadline:
+                    self._escalate(child)
+            due = [r for r in self._respawns if r[0] <= now]
+            for r in due:
+                self._respawns.remove(r)
+                if not self.shutting_down:
+                    self._start(r[1])
+            if not self.children and not self._respawns:
+                return
+            waits = [c.deadline - now for c in self.children if c.deadline is not None]
+            waits += [t - now for t, _ in self._respawns]
+            timeout = max(0.0, min([0.5] + waits))
+            for key, _ in self._sel.select(timeout):
+                if key.data is None:
+                    with contextlib.suppress(BlockingIOError):
+                        while os.read(wake_fd, 512):
+                            pass
+                else:
+                    child, fd = key.data
+                    if fd in child.fds:
+                        self._read(child, fd)
+            self._reap()
+
+    def run(self) -> int:
+        wake_r, wake_w = os.pipe()
+        os.set_blocking(wake_r, False)
+        os.set_blocking(wake_w, False)
+        self._sel.register(wake_r, selectors.EVENT_READ, None)
+        old_wakeup = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
+        old = {s: signal.signal(s, self._on_signal)
+               for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD)}
+        try:
+            for spec in self.specs:
+                self._handle_signals()
+                if self.shutting_down:
+                    break
+                self._start(spec)
+            self._loop(wake_r)
+        finally:
+            for child in self.children:  # only after an exception: do not leave anything behind
+                self._send(child, signal.SIGKILL)
+                child.popen.wait()
+            for pid in self.all_pids:  # stray grandchildren left in our children's groups
+                with contextlib.suppress(ProcessLookupError, PermissionError):
+                    os.killpg(pid, signal.SIGKILL)
+            for s, h in old.items():
+                signal.signal(s, h)
+            signal.set_wakeup_fd(old_wakeup)
+            self._sel.close()
+            os.close(wake_r)
+            os.close(wake_w)
+        return self.exit_code()

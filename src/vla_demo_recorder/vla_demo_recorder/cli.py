@@ -1,8 +1,9 @@
-"""`vla_demo_recorder` command line: recover, info, pairs, generate."""
+"""`vla_demo_recorder` command line: recover, info, pairs, start/stop/discard/status, generate."""
 from __future__ import annotations
 
 import argparse
 import sys
+import time
 from pathlib import Path
 
 
@@ -66,6 +67,56 @@ def _cmd_pairs(args: argparse.Namespace) -> int:
     return 0 if demos else 1
 
 
+def _cmd_episode(args: argparse.Namespace) -> int:
+    """Call the recorder node's services (this workspace has no ros2cli)."""
+    import rclpy
+    from rclpy.node import Node
+    from std_srvs.srv import Trigger
+
+    from vla_interfaces.msg import RecorderStatus
+    from vla_interfaces.srv import StartEpisode
+
+    rclpy.init()
+    node = Node("vla_demo_recorder_cli")
+    try:
+        base = args.node.rstrip("/")
+        if args.command == "status":
+            got: list[RecorderStatus] = []
+            node.create_subscription(RecorderStatus, f"{base}/status", got.append, 10)
+            end = time.monotonic() + args.timeout
+            while not got and time.monotonic() < end:
+                rclpy.spin_once(node, timeout_sec=0.1)
+            if not got:
+                print(f"error: no {base}/status within {args.timeout} s", file=sys.stderr)
+                return 1
+            st = got[-1]
+            print(f"{'recording' if st.recording else 'idle'}: episode {st.episode_index} ({st.task}) "
+                  f"{st.messages_written} messages, {st.bytes_written / 1e6:.1f} MB, "
+                  f"{st.messages_dropped} dropped, {st.bag_path}"
+                  + (f"; last error: {st.last_error}" if st.last_error else ""))
+            return 0
+        if args.command == "start":
+            client = node.create_client(StartEpisode, f"{base}/start_episode")
+            request = StartEpisode.Request(task=args.task, note=args.note)
+        else:
+            client = node.create_client(Trigger, f"{base}/{args.command}_episode")
+            request = Trigger.Request()
+        if not client.wait_for_service(timeout_sec=args.timeout):
+            print(f"error: service {client.srv_name} not available", file=sys.stderr)
+            return 1
+        future = client.call_async(request)
+        rclpy.spin_until_future_complete(node, future, timeout_sec=args.timeout + 30)
+        result = future.result()
+        if result is None:
+            print("error: no reply", file=sys.stderr)
+            return 1
+        print(result.message)
+        return 0 if result.success else 1
+    finally:
+        node.destroy_node()
+        rclpy.shutdown()
+
+
 def _cmd_generate(args: argparse.Namespace) -> int:
     from .generate import main_generate
 
@@ -91,6 +142,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--require", choices=("image", "detection"), default=None)
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=_cmd_pairs)
+
+    for name, text in (("start", "start an episode on a running recorder_node"),
+                       ("stop", "stop (keep) the running episode"),
+                       ("discard", "stop and discard the running episode"),
+                       ("status", "print the recorder's status")):
+        p = sub.add_parser(name, help=text)
+        if name == "start":
+            p.add_argument("--task", required=True, help="e.g. bread/push_east")
+            p.add_argument("--note", default="")
+        p.add_argument("--node", default="/recorder", help="the recorder node's name")
+        p.add_argument("--timeout", type=float, default=10.0)
+        p.set_defaults(func=_cmd_episode)
 
     p = sub.add_parser("generate", help="simulated kinesthetic demonstrations through the ROS graph")
     p.add_argument("--task", action="append", default=[],

@@ -4,9 +4,10 @@ import math
 import numpy as np
 import pytest
 from vla_panda_bridge.kinematics import PandaKinematics
+from vla_panda_bridge.layout import LAYOUT_X, LAYOUT_Y, overlap
 from vla_panda_bridge.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose
 from vla_panda_bridge.panda import DQ_MAX, READY_POSE
-from vla_panda_bridge.sim import LAYOUT_X, LAYOUT_Y, PandaSim, _overlap
+from vla_panda_bridge.sim import PandaSim
 
 
 @pytest.fixture(scope="module")
@@ -99,7 +100,7 @@ def test_random_layouts_are_valid(sim):
             assert LAYOUT_X[0] <= p.x <= LAYOUT_X[1] and LAYOUT_Y[0] <= p.y <= LAYOUT_Y[1]
             assert p.z == pytest.approx(OBJECT_SPECS[p.class_id].height / 2, abs=1e-6)
             for q in layout[i + 1:]:
-                assert not _overlap(p, q, 0.0)
+                assert not overlap(p, q, 0.0)
     assert counts == {1, 2, 3, 4}
 
 

@@ -71,18 +71,25 @@ class PandaKinematics:
         """Flange (panda_link8) position and rotation in the base frame."""
         return self._frame(q, self.flange_id)
 
+    def frame_position(self, q, frame: str) -> np.ndarray:
+        """Position of any URDF frame (e.g. "panda_link6", the wrist) in the base frame."""
+        if not self.model.existFrame(frame):
+            raise ValueError(f"unknown frame {frame!r}")
+        return self._frame(q, self.model.getFrameId(frame))[0]
+
     def jacobian(self, q) -> np.ndarray:
         """(6, 7) TCP Jacobian, LOCAL_WORLD_ALIGNED: rows 0-2 linear, 3-5 angular velocity (world axes)."""
         return pin.computeFrameJacobian(self.model, self.data, self._check_q(q), self.tcp_id,
                                         pin.ReferenceFrame.LOCAL_WORLD_ALIGNED).copy()
 
     def ik(self, pos, rot=None, q0=None, *, max_iter: int = 300, tol_pos: float = 1e-4,
-           tol_rot: float = 1e-3, damping: float = 1e-4, null_gain: float = 0.05
-           ) -> tuple[np.ndarray, bool]:
+           tol_rot: float = 1e-3, damping: float = 1e-4, null_gain: float = 0.05,
+           locked: tuple[int, ...] = ()) -> tuple[np.ndarray, bool]:
         """Joint positions putting the TCP at `pos` (and orientation `rot` unless None).
 
         Damped least squares from q0 (default: the ready pose), clamped to the joint limits, with a
-        weak null-space pull towards q0 so solutions stay close to the start. Returns (q, success).
+        weak null-space pull towards q0 so solutions stay close to the start. Joints listed in
+        `locked` (indices 0..6) keep their q0 value. Returns (q, success).
         """
         target_p = np.asarray(pos, dtype=float).reshape(3)
         target_r = None if rot is None else np.asarray(rot, dtype=float).reshape(3, 3)
@@ -99,11 +106,15 @@ class PandaKinematics:
             if np.linalg.norm(err[:3]) < tol_pos and np.linalg.norm(err[3:]) < tol_rot:
                 return q, True
             J = self.jacobian(q)[rows]
+            if locked:
+                J[:, list(locked)] = 0.0
             # Damping fades as the error shrinks so the last steps are exact Gauss-Newton steps.
             lam = damping * min(1.0, float(e @ e) / 1e-4) + 1e-9
             JJt = J @ J.T + lam * np.eye(J.shape[0])
             J_pinv = J.T @ np.linalg.solve(JJt, np.eye(J.shape[0]))
             dq = J_pinv @ e + null_gain * (np.eye(7) - J_pinv @ J) @ (q_ref - q)
+            if locked:
+                dq[list(locked)] = 0.0
             step = np.linalg.norm(dq)
             if step > 0.3:
                 dq *= 0.3 / step

@@ -14,12 +14,11 @@ import mujoco
 import numpy as np
 
 from vla_panda_bridge.kinematics import FINGER_JOINTS, panda_description_dir, panda_urdf_path
+from vla_panda_bridge.layout import TABLE_X, TABLE_Y
 from vla_panda_bridge.objects import OBJECT_CLASSES, OBJECT_SPECS
 from vla_panda_bridge.panda import DQ_MAX, JOINT_NAMES, Q_MAX, Q_MIN, TAU_MAX
 
 # Table: the robot is mounted on the table top (z = 0) at the origin, x away from the robot.
-TABLE_X = (-0.35, 1.05)
-TABLE_Y = (-0.75, 0.75)
 TABLE_THICKNESS = 0.04
 FLOOR_Z = -0.75
 

@@ -1,0 +1,109 @@
+"""Scripted-demonstration planner: geometry of the plans, variation, and the tracking command."""
+import math
+
+import numpy as np
+import pytest
+from vla_panda_bridge.kinematics import PandaKinematics
+from vla_panda_bridge.objects import OBJECT_SPECS, ObjectPose
+from vla_panda_bridge.panda import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
+from vla_panda_bridge.planner import PlanError, plan_task, random_start_pose
+from vla_panda_bridge.tasks import TASKS, task_layout
+
+
+@pytest.fixture(scope="module")
+def kin():
+    return PandaKinematics()
+
+
+def _plan(kin, name, seed):
+    rng = np.random.default_rng(seed)
+    obj = task_layout(name, rng)[0]
+    q0 = random_start_pose(rng)
+    return plan_task(kin, TASKS[name], obj, q0, rng), obj, q0
+
+
+@pytest.mark.parametrize("name", [n for n in sorted(TASKS) if TASKS[n].kind == "push"])
+def test_push_plan_geometry(kin, name):
+    spec = TASKS[name]
+    d = spec.direction_vector
+    plan, obj, q0 = _plan(kin, name, 0)
+    assert len(plan.waypoints) == 4 and len(plan.times) == 4
+    assert np.all(np.diff(plan.times) > 0) and plan.duration == pytest.approx(plan.times[-1])
+    hover, pre, post, lifted = (kin.fk(q)[0] for q in plan.waypoints)
+    c = obj.xy
+    half = OBJECT_SPECS[obj.class_id].half_extent_along(d, obj.yaw)
+    # Pre-push: low, on the far side of the object, clear of it; hover straight above it.
+    assert pre[2] < 0.035
+    assert (pre[:2] - c) @ d < -half
+    assert np.linalg.norm(hover[:2] - pre[:2]) < 1e-3 and hover[2] > OBJECT_SPECS[obj.class_id].height
+    # Push: along the direction, far enough to move the object >= the task distance.
+    push = post[:2] - pre[:2]
+    assert push @ d >= spec.distance + 0.02
+    assert np.linalg.norm(push - (push @ d) * d) < 1e-3
+    assert lifted[2] > post[2] + 0.08
+    for q in plan.waypoints:
+        assert np.all(q >= Q_MIN) and np.all(q <= Q_MAX)
+
+
+def test_circle_plan_geometry(kin):
+    plan, obj, _ = _plan(kin, "cereal_box/circle", 1)
+    tcp = np.array([kin.fk(q)[0] for q in plan.waypoints])  # the loop's start, then every 1/12
+    r = np.linalg.norm(tcp[:, :2] - obj.xy, axis=1)
+    assert np.all(r > OBJECT_SPECS[obj.class_id].footprint_radius + 0.04)
+    assert np.ptp(r) < 2e-3
+    assert np.all(tcp[:, 2] > OBJECT_SPECS[obj.class_id].height + 0.04)
+    angles = np.unwrap(np.arctan2(tcp[:, 1] - obj.y, tcp[:, 0] - obj.x))
+    assert abs(angles[-1] - angles[0]) == pytest.approx(2 * math.pi, abs=1e-2)  # one full loop
+    assert np.all(np.diff(angles) > 0)  # counter-clockwise
+
+
+def test_plans_vary_with_rng_and_repeat_with_seed(kin):
+    obj = ObjectPose("bread", 0.5, 0.1, 0.3)
+    a = plan_task(kin, TASKS["bread/push_east"], obj, READY_POSE, np.random.default_rng(1))
+    b = plan_task(kin, TASKS["bread/push_east"], obj, READY_POSE, np.random.default_rng(2))
+    c = plan_task(kin, TASKS["bread/push_east"], obj, READY_POSE, np.random.default_rng(1))
+    assert a.params != b.params and a.duration != b.duration
+    assert a.params == c.params
+    np.testing.assert_allclose(np.array(a.waypoints), np.array(c.waypoints))
+
+
+def test_command_tracks_the_reference(kin):
+    plan, _, q0 = _plan(kin, "soda_can/push_south", 2)
+    dt = 0.002
+    q = q0 + 0.02  # start off the reference: the P term pulls it back
+    worst = 0.0
+    for k in range(int((plan.duration + 0.5) / dt)):
+        t = k * dt
+        dq = plan.command(t, q)
+        assert np.all(np.abs(dq) <= DQ_MAX + 1e-12)
+        q = q + dq * dt
+        if t > 1.0:
+            worst = max(worst, float(np.abs(plan.reference(t)[0] - q).max()))
+    assert worst < 5e-3
+    np.testing.assert_allclose(q, plan.waypoints[-1], atol=1e-3)
+    assert np.abs(plan.command(plan.duration + 10.0, plan.waypoints[-1])).max() < 1e-9
+
+
+def test_reference_is_smooth_and_slow(kin):
+    plan, _, _ = _plan(kin, "milk_carton/push_south_west", 3)
+    ts = np.arange(0.0, plan.duration, 0.002)
+    dq = np.array([plan.reference(t)[1] for t in ts])
+    assert np.abs(dq).max() < 1.0  # well inside DQ_MAX
+    acc = np.diff(dq, axis=0) / 0.002
+    assert np.percentile(np.abs(acc).max(axis=1), 99) < 5.0
+
+
+def test_command_never_raises_on_bad_q(kin):
+    plan, _, _ = _plan(kin, "bread/push_east", 4)
+    for bad in (None, [np.nan] * 7, np.zeros(3), "x"):
+        np.testing.assert_array_equal(plan.command(1.0, bad), np.zeros(7))
+
+
+def test_unreachable_or_mismatched_object_refused(kin):
+    rng = np.random.default_rng(0)
+    with pytest.raises(PlanError):
+        plan_task(kin, TASKS["bread/push_east"], ObjectPose("bread", 0.95, 0.0, 0.0), READY_POSE, rng)
+    with pytest.raises(PlanError, match="soda_can"):
+        plan_task(kin, TASKS["bread/push_east"], ObjectPose("soda_can", 0.5, 0.0, 0.0), READY_POSE, rng)
+    with pytest.raises(ValueError):
+        plan_task(kin, "bread/push_east", ObjectPose("bread", 0.5, 0.0, 0.0), [0.0] * 6, rng)

@@ -54,9 +54,11 @@ ACCELERATION_LIMITED = 4
 POSITION_MARGIN = 5
 COMMAND_TIMEOUT = 6
 ESTOP = 7
+INVALID_STATE = 8
 CODE_NAMES = {OK: "OK", NON_FINITE_COMMAND: "NON_FINITE_COMMAND", WRONG_LENGTH: "WRONG_LENGTH",
               VELOCITY_SCALED: "VELOCITY_SCALED", ACCELERATION_LIMITED: "ACCELERATION_LIMITED",
-              POSITION_MARGIN: "POSITION_MARGIN", COMMAND_TIMEOUT: "COMMAND_TIMEOUT", ESTOP: "ESTOP"}
+              POSITION_MARGIN: "POSITION_MARGIN", COMMAND_TIMEOUT: "COMMAND_TIMEOUT", ESTOP: "ESTOP",
+              INVALID_STATE: "INVALID_STATE"}
 
 # The soft position cap plans the approach with this fraction of the deceleration limit, so the
 # tracker follows it without leaning on the hard check (which would brake in bang-bang fashion).
@@ -199,7 +201,7 @@ class SafetyFilter:
             now = math.nan                                  # an unusable clock expires the watchdog
         event_code, event_text = OK, ""
         if cmd is not None:
-            event_code, event_text = self._accept_command(cmd, now)
+            event_code, event_text = self.submit(cmd, now)
 
         # Watchdog: a target older than command_timeout decays to zero.
         if self._last_valid is not None:
@@ -214,9 +216,9 @@ class SafetyFilter:
                                      "decelerating to zero")
                 self._count_intervention(COMMAND_TIMEOUT)
 
-        self._sync_position(q)
+        state_ok = self._sync_position(q)
         q_ref = self._q_ref
-        hold = self._estop or q_ref is None                 # no valid position ever: hold still too
+        hold = self._estop or not state_ok                  # no valid measured position: brake
         h = self._h
         v_out = [0.0] * NUM_JOINTS
         a_out = [0.0] * NUM_JOINTS
@@ -251,6 +253,8 @@ class SafetyFilter:
             code, text = ESTOP, "e-stop latched: decelerating to zero and holding until released"
         elif event_code != OK:
             code, text = event_code, event_text
+        elif not state_ok:
+            code, text = INVALID_STATE, "no valid measured joint position: braking to zero"
         elif self._target_code in (COMMAND_TIMEOUT, NON_FINITE_COMMAND, WRONG_LENGTH) and moving:
             code, text = self._target_code, self._target_text
         elif margin_joints:
@@ -263,7 +267,8 @@ class SafetyFilter:
             code, text = ACCELERATION_LIMITED, "acceleration limit shaping the output (jerk-limited ramp)"
         else:
             code, text = OK, ""
-        if code != self._code and code in (VELOCITY_SCALED, ACCELERATION_LIMITED, POSITION_MARGIN):
+        if code != self._code and code in (VELOCITY_SCALED, ACCELERATION_LIMITED, POSITION_MARGIN,
+                                           INVALID_STATE):
             self._count_intervention(code)                  # the others are counted where they happen
         self._code = code
         return np.array(v_out), code, text
@@ -273,7 +278,12 @@ class SafetyFilter:
         self.interventions += 1
         self.last_intervention = code
 
-    def _accept_command(self, cmd, now: float) -> tuple[int, str]:
+    def submit(self, cmd, now: float) -> tuple[int, str]:
+        """Take a new command without stepping (a node calls this as each message arrives, so every
+        command is validated and counted even if several arrive within one period; the latest valid
+        one is the target). Returns (NON_FINITE_COMMAND | WRONG_LENGTH, text) on rejection, else (OK, "")."""
+        if not (isinstance(now, float | int) and math.isfinite(now)):
+            now = math.nan
         self.commands_received += 1
         try:
             arr = np.asarray(cmd, dtype=float).reshape(-1)
@@ -312,15 +322,17 @@ class SafetyFilter:
         self._last_valid = None                             # zero target: nothing left to time out
         return code, text
 
-    def _sync_position(self, q) -> None:
+    def _sync_position(self, q) -> bool:
+        """Update the reference position from a measurement; False if q is not 7 finite values."""
         q = _valid_q(q)
         if q is None:
-            return
+            return False
         if self._q_ref is None or self.is_stopped:
             self._q_ref = q
         elif max(abs(x - y) for x, y in zip(q, self._q_ref)) > self.config.position_sync_tolerance:
             self._q_ref = q
             self.resyncs += 1
+        return True
 
     def _reachable(self, i: int, vn: float, an: float) -> bool:
         """Whether joint i, after stepping to (vn, an), can still brake to rest inside its margin —

@@ -142,3 +142,26 @@ def test_package_mode_and_inspection(launch, args, expected):
     run = launch(*args)
     run.finish()
     assert expected in run.text()
+
+
+def test_launcher_api_from_a_thread(fixtures_dir):
+    """Programmatic use (e.g. an evaluation harness): run() in a thread, stop() from another."""
+    import io
+    import threading
+    import time
+
+    from vla_bringup.launcher import Launcher, ProcessSpec
+
+    out, err = io.StringIO(), io.StringIO()
+    script = os.path.join(fixtures_dir, "proc.py")
+    launcher = Launcher([ProcessSpec("a", [sys.executable, script, "--out", "hi"])], stdout=out, stderr=err)
+    result = {}
+    t = threading.Thread(target=lambda: result.setdefault("rc", launcher.run()))
+    t.start()
+    deadline = time.monotonic() + 20
+    while "ready" not in err.getvalue() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    launcher.stop()
+    t.join(20)
+    assert result == {"rc": 0}
+    assert f"[a-{launcher.all_pids[0]}] hi" in out.getvalue()

@@ -24,6 +24,7 @@ import selectors
 import signal
 import subprocess
 import sys
+import threading
 import time
 from dataclasses import dataclass, field
 from typing import TextIO
@@ -103,6 +104,7 @@ class Launcher:
         self.shutting_down = False
         self._signals: list[int] = []
         self._last_escalation = 0.0
+        self._wake_w: int | None = None
         self._respawns: list[tuple[float, ProcessSpec]] = []
         self._sel = selectors.DefaultSelector()
 
@@ -308,14 +310,29 @@ class Launcher:
                         self._read(child, fd)
             self._reap()
 
+    def stop(self) -> None:
+        """Ask a running launcher to shut down, as Ctrl-C would (safe from any thread)."""
+        self._signals.append(signal.SIGINT)
+        if self._wake_w is not None:
+            with contextlib.suppress(OSError):
+                os.write(self._wake_w, b"\0")
+
     def run(self) -> int:
+        """Start everything and supervise until all processes have ended; returns the exit code.
+
+        In the main thread it also handles SIGINT/SIGTERM/SIGHUP; in another thread use `stop()`.
+        """
         wake_r, wake_w = os.pipe()
         os.set_blocking(wake_r, False)
         os.set_blocking(wake_w, False)
+        self._wake_w = wake_w
         self._sel.register(wake_r, selectors.EVENT_READ, None)
-        old_wakeup = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
-        old = {s: signal.signal(s, self._on_signal)
-               for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD)}
+        in_main = threading.current_thread() is threading.main_thread()
+        old_wakeup, old = -1, {}
+        if in_main:
+            old_wakeup = signal.set_wakeup_fd(wake_w, warn_on_full_buffer=False)
+            old = {s: signal.signal(s, self._on_signal)
+                   for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD)}
         try:
             for spec in self.specs:
                 self._handle_signals()
@@ -330,9 +347,11 @@ class Launcher:
             for pid in self.all_pids:  # stray grandchildren left in our children's groups
                 with contextlib.suppress(ProcessLookupError, PermissionError):
                     os.killpg(pid, signal.SIGKILL)
-            for s, h in old.items():
-                signal.signal(s, h)
-            signal.set_wakeup_fd(old_wakeup)
+            if in_main:
+                for s, h in old.items():
+                    signal.signal(s, h)
+                signal.set_wakeup_fd(old_wakeup)
+            self._wake_w = None
             self._sel.close()
             os.close(wake_r)
             os.close(wake_w)

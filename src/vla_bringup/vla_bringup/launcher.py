@@ -185,8 +185,11 @@ class Launcher:
 
     # ------------------------------------------------------------------------------ shutdown
     def _send(self, child: _Child, sig: int) -> None:
-        with contextlib.suppress(ProcessLookupError, PermissionError):
+        try:
             os.killpg(child.pid, sig)
+        except (ProcessLookupError, PermissionError):  # the child left its group (setsid)
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.kill(child.pid, sig)
         now = time.monotonic()
         if sig == signal.SIGINT:
             child.stage = 1

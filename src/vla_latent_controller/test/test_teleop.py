@@ -1,0 +1,258 @@
+import math
+
+import numpy as np
+import pytest
+from synthetic import READY
+from vla_latent_controller.context import Det
+from vla_latent_controller.model import LatentModel
+from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
+
+NAMES = [f"panda_joint{i}" for i in range(1, 8)]
+SIZE = (640, 480)
+
+
+class FakeKin:
+    """A fixed full-rank Jacobian: enough to check the end-effector mapping."""
+
+    def __init__(self):
+        self.J = np.random.default_rng(0).normal(size=(6, 7))
+
+    def jacobian(self, q):
+        return self.J
+
+
+def make_core(model_dir=None, **kw):
+    model = LatentModel.load(model_dir) if model_dir is not None else None
+    return TeleopCore(TeleopParams(**kw), model=model, kinematics=FakeKin())
+
+
+BREAD = (Det("bread", 0.9, 320, 240),)
+
+
+def feed(core, now, axis=0.8, buttons=(0, 0, 0), dets=BREAD, q=READY):
+    core.on_joint_states(NAMES, list(q), now)
+    if axis is not None:
+        core.on_joy([axis, 0.0], list(buttons), now)
+    if dets is not None:
+        core.on_detections(list(dets), SIZE, now)
+
+
+def test_active_command_then_deadband_is_exactly_zero(random_model_dir):
+    core = make_core(random_model_dir)
+    feed(core, 0.0, axis=0.8)
+    cmd, st = core.step(0.01)
+    assert st.code == Code.ACTIVE and np.linalg.norm(cmd) > 0
+    assert st.latched_class == "bread" and st.latched_x == pytest.approx(0.5)
+    for v in (0.0, 0.1, -0.1, 0.05):
+        core.on_joy([v], [0, 0, 0], 0.02)
+        cmd, st = core.step(0.03)
+        assert st.code == Code.ZERO_DEADBAND
+        assert np.all(cmd == 0.0)
+
+
+def test_stick_maps_continuously_beyond_deadband(random_model_dir):
+    core = make_core(random_model_dir)
+    feed(core, 0.0, axis=0.1001)
+    _, st = core.step(0.0)
+    assert st.code == Code.ACTIVE and 0 < st.z < 1e-3
+    feed(core, 0.0, axis=1.0)
+    _, st = core.step(0.0)
+    assert st.z == pytest.approx(0.8)  # full stick = the model's gain
+
+
+@pytest.mark.parametrize(
+    "axes, code, text",
+    [
+        ([float("nan"), 0.0], Code.BAD_INPUT, "not a finite"),
+        ([], Code.BAD_INPUT, "out of range"),
+        (["x"], Code.BAD_INPUT, "not a finite"),
+    ],
+)
+def test_bad_axes_give_zero_and_status(random_model_dir, axes, code, text):
+    core = make_core(random_model_dir)
+    feed(core, 0.0)
+    core.on_joy(axes, [], 0.0)
+    cmd, st = core.step(0.01)
+    assert st.code == code and text in st.reason and np.all(cmd == 0)
+
+
+def test_axis_index_out_of_range(random_model_dir):
+    core = make_core(random_model_dir, axis=5)
+    feed(core, 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.BAD_INPUT and "axis 5 out of range" in st.reason and np.all(cmd == 0)
+
+
+def test_joint_states_by_name_in_any_order(random_model_dir):
+    a = make_core(random_model_dir)
+    feed(a, 0.0)
+    ref = a.step(0.0)[0].copy()
+    b = make_core(random_model_dir)
+    feed(b, 0.0)
+    order = [3, 0, 6, 2, 5, 1, 4]
+    b.on_joint_states(
+        ["panda_finger_joint1"] + [NAMES[i] for i in order], [0.04] + [READY[i] for i in order], 0.0
+    )
+    np.testing.assert_array_equal(b.step(0.0)[0], ref)
+
+
+@pytest.mark.parametrize(
+    "names, pos, text",
+    [
+        (NAMES[:6], list(READY[:6]), "lacks panda_joint7"),
+        (NAMES, [*READY[:6], float("nan")], "non-finite positions for panda_joint7"),
+        (NAMES, list(READY[:5]), "7 names but 5 positions"),
+    ],
+)
+def test_bad_joint_states(random_model_dir, names, pos, text):
+    core = make_core(random_model_dir)
+    feed(core, 0.0)
+    core.on_joint_states(names, pos, 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.BAD_INPUT and text in st.reason and np.all(cmd == 0)
+
+
+def test_waiting_and_timeouts(random_model_dir):
+    core = make_core(random_model_dir, joy_timeout=0.1, joint_states_timeout=0.5)
+    assert core.step(0.0)[1].code == Code.WAITING_FOR_JOINT_STATES
+    core.on_joint_states(NAMES, list(READY), 0.0)
+    core.on_detections([Det("bread", 0.9, 1, 1)], SIZE, 0.0)
+    assert core.step(0.0)[1].code == Code.WAITING_FOR_JOY
+    core.on_joy([0.9], [], 0.0)
+    assert core.step(0.05)[1].code == Code.ACTIVE
+    cmd, st = core.step(0.2)
+    assert st.code == Code.JOY_TIMEOUT and np.all(cmd == 0)
+    core.on_joy([0.9], [], 1.0)
+    cmd, st = core.step(1.0)
+    assert st.code == Code.WAITING_FOR_JOINT_STATES and "timeout" in st.reason and np.all(cmd == 0)
+
+
+def test_deadman(random_model_dir):
+    core = make_core(random_model_dir, enable_button=1)
+    feed(core, 0.0, buttons=(0, 0))
+    cmd, st = core.step(0.0)
+    assert st.code == Code.DEADMAN_RELEASED and np.all(cmd == 0)
+    feed(core, 0.0, buttons=(0, 1))
+    assert core.step(0.0)[1].code == Code.ACTIVE
+    feed(core, 0.0, buttons=())
+    assert core.step(0.0)[1].code == Code.BAD_INPUT
+
+
+def test_no_detection_waits_then_latches_once(random_model_dir):
+    core = make_core(random_model_dir)
+    feed(core, 0.0, dets=None)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.WAITING_FOR_DETECTION and np.all(cmd == 0)
+    core.on_detections([], SIZE, 0.0)
+    assert core.step(0.0)[1].code == Code.WAITING_FOR_DETECTION
+    core.on_detections([Det("bread", 0.5, 64, 48), Det("soda_can", 0.9, 320, 240)], SIZE, 0.1)
+    _, st = core.step(0.1)
+    assert st.code == Code.ACTIVE and st.latched_class == "soda_can"
+    core.on_detections([Det("bread", 0.99, 64, 48)], SIZE, 0.2)  # latched: later detections are ignored
+    assert core.step(0.2)[1].latched_class == "soda_can"
+
+
+def test_redetect_and_max_age(random_model_dir):
+    core = make_core(random_model_dir, redetect_button=2, detection_max_age=1.0)
+    feed(core, 0.0)
+    assert core.step(0.0)[1].latched_class == "bread"
+    core.on_joy([0.8, 0.0], [0, 0, 1], 0.5)  # button press: re-detect
+    _, st = core.step(0.5)
+    assert st.code == Code.WAITING_FOR_DETECTION and st.latched_class == ""
+    core.on_detections([Det("milk_carton", 0.9, 100, 100)], SIZE, 0.6)
+    core.on_joy([0.8, 0.0], [0, 0, 1], 0.6)  # held, not a new press
+    core.on_joint_states(NAMES, list(READY), 0.6)
+    assert core.step(0.6)[1].latched_class == "milk_carton"
+    core.on_joint_states(NAMES, list(READY), 1.7)
+    core.on_joy([0.8, 0.0], [0, 0, 0], 1.7)
+    _, st = core.step(1.7)  # latched 1.1 s ago, no newer detection
+    assert st.code == Code.WAITING_FOR_DETECTION
+    core.on_detections([Det("glass_bottle", 0.9, 100, 100)], SIZE, 1.7)
+    assert core.step(1.7)[1].latched_class == "glass_bottle"
+
+
+def test_fixed_goal_class(random_model_dir):
+    core = make_core(random_model_dir, goal_selection="milk_carton")
+    feed(core, 0.0, dets=[Det("bread", 0.9, 1, 1)])
+    assert core.step(0.0)[1].code == Code.WAITING_FOR_DETECTION
+    core.on_detections([Det("bread", 0.9, 1, 1), Det("milk_carton", 0.2, 5, 5)], SIZE, 0.0)
+    assert core.step(0.0)[1].latched_class == "milk_carton"
+    core.params.goal_selection = "teapot"
+    cmd, st = core.step(0.0)
+    assert st.code == Code.MODEL_ERROR and "goal_selection" in st.reason and np.all(cmd == 0)
+
+
+def test_classes_unknown_to_the_model(tmp_path):
+    from conftest import write_random_model
+
+    d = write_random_model(tmp_path / "m", classes=("apple", "pear"))
+    core = make_core(d)
+    feed(core, 0.0, dets=[Det("bread", 0.9, 1, 1)])
+    cmd, st = core.step(0.0)
+    assert st.code == Code.MODEL_ERROR and "not in the model's classes" in st.reason and np.all(cmd == 0)
+
+
+def test_no_model(tmp_path):
+    core = TeleopCore(TeleopParams(), model=None, model_error="model.safetensors: corrupt")
+    feed(core, 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.MODEL_ERROR and "corrupt" in st.reason and np.all(cmd == 0)
+
+
+def test_speed_clamp_keeps_direction(random_model_dir):
+    core = make_core(random_model_dir, action_scale=1.0)
+    feed(core, 0.0, axis=1.0)
+    raw = core.step(0.0)[0].copy()
+    core.params.action_scale = 1000.0
+    cmd = core.step(0.0)[0]
+    assert np.linalg.norm(cmd) == pytest.approx(1.5)
+    np.testing.assert_allclose(cmd / np.linalg.norm(cmd), raw / np.linalg.norm(raw), atol=1e-9)
+    core.params.dq_max = [0.1] * 7
+    assert np.max(np.abs(core.step(0.0)[0])) == pytest.approx(0.1)
+
+
+def test_loop_never_raises(random_model_dir):
+    core = make_core(random_model_dir)
+    feed(core, 0.0)
+
+    def boom(q, z):
+        raise RuntimeError("decoder exploded")
+
+    core.model.decoder.decode = boom
+    cmd, st = core.step(0.0)
+    assert st.code == Code.MODEL_ERROR and "decoder exploded" in st.reason and np.all(cmd == 0)
+    core.model.decoder.decode = lambda q, z: np.full(7, np.nan)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.MODEL_ERROR and "not finite" in st.reason and np.all(cmd == 0)
+
+
+def test_end_effector_mode_follows_selected_axis():
+    core = make_core(None, mode="end_effector", ee_mode_button=0, max_joint_speed=100.0)
+    kin = core.kinematics
+    for k, axis in enumerate(("x", "y", "z", "roll", "pitch", "yaw")):
+        feed(core, 10.0 * k, axis=0.55, dets=None)
+        cmd, st = core.step(10.0 * k)
+        assert st.code == Code.ACTIVE and st.ee_axis == axis
+        twist = kin.J @ cmd
+        assert np.argmax(np.abs(twist)) == k and twist[k] > 0
+        assert np.linalg.norm(np.delete(twist, k)) < 1e-2 * abs(twist[k])  # damping: tiny cross-talk
+        core.on_joy([0.55, 0.0], [1, 0, 0], 10.0 * k + 0.01)  # press: next axis
+        core.on_joy([0.55, 0.0], [0, 0, 0], 10.0 * k + 0.05)
+        core.on_joy([0.55, 0.0], [1, 0, 0], 10.0 * k + 0.1)  # within 0.25 s: debounced
+        core.on_joy([0.55, 0.0], [0, 0, 0], 10.0 * k + 0.15)
+    assert core.ee.axis == "x"  # cycled once per step, wrapped around
+
+
+def test_status_codes_match_message_constants():
+    from vla_interfaces.msg import ControllerStatus
+
+    for c in Code:
+        assert getattr(ControllerStatus, c.name) == c.value
+
+
+def test_mode_switch_rejects_unknown():
+    core = make_core(None)
+    assert core.set_mode("end_effector")[0] and core.mode == "end_effector"
+    ok, msg = core.set_mode("joint")
+    assert not ok and "unknown mode" in msg and core.mode == "end_effector"
+    assert math.isnan(core.status.latched_x)

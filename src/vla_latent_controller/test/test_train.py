@@ -1,0 +1,126 @@
+import json
+
+import numpy as np
+import pytest
+from synthetic import CLASSES, class_direction, make_demos, make_pairs
+from vla_latent_controller.artifacts import CONFIG_FILE, load_model
+from vla_latent_controller.context import Det
+from vla_latent_controller.model import LatentModel
+from vla_latent_controller.train import TrainConfig, prepare_demos, train_model
+
+
+def _cos(a, b):
+    return float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+
+
+@pytest.mark.slow
+def test_trained_decoder_does_the_task_and_rests_at_zero(trained_model_dir):
+    model = LatentModel.load(trained_model_dir)
+    cfg = model.config
+    assert cfg["training"]["demos_per_task"] == {f"{c}/push": 3 for c in CLASSES[:4]}
+    assert len(cfg["fingerprint"]["sha256"]) == 64
+    for demo in make_demos(per_class=2, seed=7, T=30):  # unseen positions
+        model.decoder.set_context(model.context(Det.from_dict(demo.detection), demo.image_size))
+        g = model.gain(demo.object_class)
+        fwd = model.decoder.decode(demo.q[0], g).copy()
+        back = model.decoder.decode(demo.q[0], -g).copy()
+        rest = model.decoder.decode(demo.q[0], 0.0).copy()
+        v = class_direction(demo.object_class)
+        assert _cos(fwd, v) > 0.9, demo.object_class  # + does the task
+        assert _cos(back, v) < -0.5  # - retraces it
+        assert np.linalg.norm(rest) < 0.1 * np.linalg.norm(fwd)  # the z = 0 term
+
+
+@pytest.mark.slow
+def test_paper_exact_switches_the_improvements_off(tmp_path):
+    demos = make_demos(per_class=1)
+    res = train_model(
+        demos,
+        TrainConfig.paper(epochs=3),
+        classes=CLASSES,
+        pairs_fn=make_pairs,
+        progress=False,
+        log=lambda s: None,
+    )
+    hp = res.config["hyper_parameters"]
+    assert hp["paper_exact"] and hp["zero_weight"] == 0 and not hp["bounded_latent"] and not hp["normalise"]
+    assert hp["lr"] == 0.01 and hp["step_size"] == 400 and hp["gamma"] == 0.1 and hp["batch_size"] == 6000
+    assert res.config["normalisation"]["q_std"] == [1.0] * 7
+    assert all(abs(g) == 1.0 for g in res.config["latent"]["gain"].values())
+    assert res.config["training"]["pairs"] == res.config["training"]["forward_pairs"]  # no reversed pairs
+    res.save(tmp_path / "m")
+    assert json.loads((tmp_path / "m" / CONFIG_FILE).read_text())["encoder"] == "detector"
+
+
+def test_prepare_demos_skips_with_reasons():
+    demos = make_demos(per_class=1)
+    demos[0].detection = None
+    demos[1].detection = dict(demos[1].detection, class_id="teapot")
+    demos[2].q = demos[2].q[:, :6]
+    kept, skipped = prepare_demos(demos, "detector", CLASSES)
+    assert len(kept) == 1
+    reasons = " | ".join(r for _, r in skipped)
+    assert "no recorded detection" in reasons and "'teapot' not in" in reasons and "shape" in reasons
+    kept, skipped = prepare_demos(make_demos(per_class=1), "end_to_end", CLASSES)
+    assert not kept and "first image" in skipped[0][1]
+
+
+def test_detector_runs_when_the_demo_has_no_detection():
+    class FakeDetector:
+        classes = list(CLASSES)
+
+        def detect(self, rgb):
+            class D:
+                class_id, class_index, score, cx, cy, w, h = "soda_can", 1, 0.8, 100.0, 50.0, 10.0, 10.0
+
+            return [D()]
+
+    demos = make_demos(classes=["soda_can"], per_class=1, with_image=True)
+    demos[0].detection = None
+    kept, skipped = prepare_demos(demos, "detector", CLASSES, detector=FakeDetector())
+    assert not skipped and kept[0].det.cx == 100.0 and kept[0].image_size == (640, 480)
+
+
+def test_no_usable_demos_is_a_clear_error():
+    with pytest.raises(ValueError, match="no usable demos"):
+        train_model(
+            make_demos(per_class=1),
+            TrainConfig(encoder="end_to_end", epochs=1),
+            classes=CLASSES,
+            pairs_fn=make_pairs,
+            progress=False,
+            log=lambda s: None,
+        )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("encoder", ["end_to_end", "localization"])
+def test_cnn_encoders_export_onnx_matching_torch(tmp_path, encoder):
+    demos = make_demos(per_class=1, with_image=True)
+    res = train_model(
+        demos,
+        TrainConfig(encoder=encoder, epochs=3),
+        classes=CLASSES,
+        pairs_fn=make_pairs,
+        progress=False,
+        log=lambda s: None,
+    )
+    out = res.save(tmp_path / "m")
+    art = load_model(out)
+    assert art.cnn_path is not None and art.cnn_path.is_file()
+    model = LatentModel(art)
+    assert model.needs_image
+    img = demos[0].first_image
+    ctx = model.context(image=img, class_id="bread")
+    assert ctx.shape == (art.config["dims"]["context"],)
+    # the ONNX CNN reproduces the torch CNN the decoder was trained with
+    import torch
+    from vla_latent_controller.cae import ContextCNN
+    from vla_latent_controller.context import preprocess_image
+
+    cnn = ContextCNN()
+    sd = {k.removeprefix("cnn."): torch.tensor(v) for k, v in art.tensors.items() if k.startswith("cnn.")}
+    cnn.load_state_dict(sd)
+    with torch.no_grad():
+        ref = cnn(torch.tensor(preprocess_image(img))[None]).numpy()[0]
+    np.testing.assert_allclose(ctx[: len(ref)], ref, atol=1e-5)

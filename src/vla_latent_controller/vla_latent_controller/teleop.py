@@ -1,0 +1,393 @@
+"""The teleoperation core (no rclpy): joystick + joint state + latched visual context → joint velocity.
+
+Joystick mapping as teleop_twist_joy (axis, scale, deadband → exactly zero, optional deadman button,
+timeout → zero); the paper's 1.5 rad/s norm clamp; the context (detection and/or image) is latched at
+episode start and re-latched on a button, on request, or when older than ``detection_max_age``.
+:meth:`TeleopCore.step` never raises: every problem becomes a zero command and a status saying why.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .context import GOAL_SELECTIONS, ContextError, Det, select_detection
+from .ee_baseline import EE_AXES, EndEffectorBaseline
+
+MODES = ("latent", "end_effector")
+
+
+class Code(enum.IntEnum):
+    """Mirrors vla_interfaces/msg/ControllerStatus constants (a test checks they agree)."""
+
+    ACTIVE = 0
+    ZERO_DEADBAND = 1
+    WAITING_FOR_JOY = 2
+    JOY_TIMEOUT = 3
+    WAITING_FOR_JOINT_STATES = 4
+    WAITING_FOR_DETECTION = 5
+    BAD_INPUT = 6
+    DEADMAN_RELEASED = 7
+    MODEL_ERROR = 8
+
+
+@dataclass
+class TeleopParams:
+    """Controller parameters (the node declares each with a descriptor; see README)."""
+
+    mode: str = "latent"
+    axis: int = 0
+    axis_scale: float = 1.0
+    deadband: float = 0.1
+    enable_button: int = -1
+    joy_timeout: float = 0.1
+    action_scale: float = 1.0
+    max_joint_speed: float = 1.5
+    redetect_button: int = -1
+    ee_mode_button: int = 0
+    ee_debounce: float = 0.25
+    ee_linear_speed: float = 0.2
+    ee_angular_speed: float = 0.5
+    ee_damping: float = 0.05
+    detection_max_age: float = 0.0
+    goal_selection: str = "highest_score"
+    joint_states_timeout: float = 0.5
+    dq_max: Sequence[float] | None = None  # per-joint limits; the whole vector is scaled to respect them
+
+    def check(self, classes: Sequence[str] | None = None) -> str | None:
+        """A reason the parameters are unusable, or None."""
+        if self.mode not in MODES:
+            return f"mode {self.mode!r} is not one of {MODES}"
+        if not 0.0 <= self.deadband < 1.0:
+            return f"deadband {self.deadband} must be in [0, 1)"
+        if (
+            self.goal_selection not in GOAL_SELECTIONS
+            and classes is not None
+            and self.goal_selection not in classes
+        ):
+            return (
+                f"goal_selection {self.goal_selection!r} is neither {GOAL_SELECTIONS} nor one of the model's "
+                f"classes {list(classes)}"
+            )
+        return None
+
+
+@dataclass
+class Status:
+    mode: str = "latent"
+    code: Code = Code.WAITING_FOR_JOINT_STATES
+    reason: str = ""
+    latched_class: str = ""
+    latched_x: float = math.nan
+    latched_y: float = math.nan
+    z: float = 0.0
+    ee_axis: str = "x"
+    command: np.ndarray = field(default_factory=lambda: np.zeros(7))
+
+
+@dataclass
+class Latched:
+    class_id: str | None
+    x: float
+    y: float
+    t: float
+    gain: float
+
+
+def _finite(x) -> bool:
+    try:
+        return math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
+
+
+class TeleopCore:
+    """One controller instance. Feed it inputs with ``on_*`` and call :meth:`step` at the command rate.
+
+    ``model`` is a :class:`vla_latent_controller.model.LatentModel` (or None with ``model_error`` saying
+    why); ``kinematics`` has ``jacobian(q)`` (and ``fk(q)`` for ``nearest_to_ee``); ``ee_pixel`` maps q to
+    the end effector's pixel in the detector's image (or None when the camera is not calibrated).
+    """
+
+    def __init__(
+        self,
+        params: TeleopParams,
+        model=None,
+        kinematics=None,
+        joint_names: Sequence[str] | None = None,
+        model_error: str | None = None,
+        ee_pixel: Callable[[np.ndarray], tuple[float, float] | None] | None = None,
+    ):
+        self.params = params
+        self.kinematics = kinematics
+        self.ee_pixel = ee_pixel
+        self.ee = EndEffectorBaseline(
+            kinematics, params.ee_linear_speed, params.ee_angular_speed, params.ee_damping, params.ee_debounce
+        )
+        self.mode = params.mode if params.mode in MODES else "latent"
+        self.model = None
+        self.model_error = model_error
+        self.joint_names: list[str] = (
+            list(joint_names) if joint_names is not None else [f"panda_joint{i}" for i in range(1, 8)]
+        )
+        self.set_model(model, model_error)
+        # inputs
+        self._q: np.ndarray | None = None
+        self._q_t = -math.inf
+        self._q_error: str | None = None
+        self._axes: list[float] | None = None
+        self._buttons: list[int] = []
+        self._joy_t = -math.inf
+        self._dets: list[Det] = []
+        self._dets_size: tuple[int, int] | None = None
+        self._dets_t = -math.inf
+        self._image: np.ndarray | None = None
+        self._image_t = -math.inf
+        # context
+        self.latched: Latched | None = None
+        self._latch_after = -math.inf  # a new latch needs inputs received at or after this time
+        self._cmd = np.zeros(len(self.joint_names))
+        self.status = Status(mode=self.mode, ee_axis=self.ee.axis, command=self._cmd.copy())
+
+    # ----------------------------------------------------------------- configuration
+    def set_model(self, model, error: str | None = None) -> None:
+        self.model, self.model_error = model, error
+        if model is not None:
+            self.joint_names = list(model.joint_names)
+            self.model_error = None
+        self.latched = None
+
+    def set_mode(self, mode: str) -> tuple[bool, str]:
+        if mode not in MODES:
+            return False, f"unknown mode {mode!r}; expected one of {MODES}"
+        self.mode = mode
+        return True, f"mode {mode}"
+
+    def request_redetect(self, now: float) -> None:
+        """Drop the latched context; the next detection (and image) received from ``now`` on is latched."""
+        self.latched = None
+        self._latch_after = now
+
+    # ----------------------------------------------------------------- inputs
+    def on_joy(self, axes: Sequence[float], buttons: Sequence[int], now: float) -> None:
+        prev = self._buttons
+        self._axes = list(axes)
+        self._buttons = [int(b) for b in buttons]
+        self._joy_t = now
+
+        def pressed(i: int) -> bool:
+            return (
+                0 <= i < len(self._buttons) and self._buttons[i] != 0 and not (i < len(prev) and prev[i] != 0)
+            )
+
+        p = self.params
+        if pressed(p.ee_mode_button) and self.mode == "end_effector":
+            self.ee.press(now)
+        if pressed(p.redetect_button):
+            self.request_redetect(now)
+
+    def on_joint_states(self, names: Sequence[str], positions: Sequence[float], now: float) -> None:
+        """Resolve by name (any order, extra joints ignored); a missing joint or NaN is a BAD_INPUT."""
+        if len(names) != len(positions):
+            self._q_error = f"joint_states has {len(names)} names but {len(positions)} positions"
+            self._q_t = now
+            return
+        index = {n: i for i, n in enumerate(names)}
+        missing = [n for n in self.joint_names if n not in index]
+        if missing:
+            self._q_error = f"joint_states lacks {', '.join(missing)}"
+            self._q_t = now
+            return
+        q = np.array([positions[index[n]] for n in self.joint_names], dtype=float)
+        if not np.all(np.isfinite(q)):
+            bad = [n for n, v in zip(self.joint_names, q) if not math.isfinite(v)]
+            self._q_error = f"joint_states has non-finite positions for {', '.join(bad)}"
+            self._q_t = now
+            return
+        self._q, self._q_t, self._q_error = q, now, None
+
+    def on_detections(self, dets: Sequence[Det], image_size: tuple[int, int], now: float) -> None:
+        self._dets, self._dets_size, self._dets_t = list(dets), tuple(image_size), now
+
+    def on_image(self, rgb: np.ndarray, now: float) -> None:
+        self._image, self._image_t = rgb, now
+
+    # ----------------------------------------------------------------- loop
+    def step(self, now: float) -> tuple[np.ndarray, Status]:
+        """The command for this tick and the status; never raises."""
+        try:
+            return self._step(now)
+        except Exception as e:  # a control loop must not die: report and command zero
+            return self._zero(Code.MODEL_ERROR, f"internal error: {type(e).__name__}: {e}")
+
+    def _zero(self, code: Code, reason: str, z: float = 0.0) -> tuple[np.ndarray, Status]:
+        self._cmd[:] = 0.0
+        return self._cmd, self._set_status(code, reason, z)
+
+    def _set_status(self, code: Code, reason: str, z: float) -> Status:
+        s = self.status
+        s.mode, s.code, s.reason, s.z, s.ee_axis = self.mode, code, reason, float(z), self.ee.axis
+        lat = self.latched
+        s.latched_class = (lat.class_id or "") if lat else ""
+        s.latched_x, s.latched_y = (lat.x, lat.y) if lat else (math.nan, math.nan)
+        s.command = self._cmd.copy()
+        return s
+
+    def _stick(self, now: float) -> tuple[Code | None, str, float]:
+        """(problem code or None, reason, stick value u ∈ [-1, 1] after deadband and scale)."""
+        p = self.params
+        if self._axes is None:
+            return Code.WAITING_FOR_JOY, "no joy message yet", 0.0
+        age = now - self._joy_t
+        if age > p.joy_timeout:
+            return Code.JOY_TIMEOUT, f"last joy message {age:.2f} s ago (joy_timeout {p.joy_timeout} s)", 0.0
+        if not 0 <= p.axis < len(self._axes):
+            return Code.BAD_INPUT, f"axis {p.axis} out of range: joy has {len(self._axes)} axes", 0.0
+        if p.enable_button >= 0:
+            if p.enable_button >= len(self._buttons):
+                return (
+                    Code.BAD_INPUT,
+                    f"enable_button {p.enable_button} out of range: joy has {len(self._buttons)} buttons",
+                    0.0,
+                )
+            if not self._buttons[p.enable_button]:
+                return Code.DEADMAN_RELEASED, f"enable button {p.enable_button} not held", 0.0
+        v = self._axes[p.axis]
+        if not _finite(v):
+            return Code.BAD_INPUT, f"joy axis {p.axis} is not a finite number ({v!r})", 0.0
+        v = max(-1.0, min(1.0, float(v)))
+        if abs(v) <= p.deadband:
+            return Code.ZERO_DEADBAND, f"stick within deadband {p.deadband}", 0.0
+        u = math.copysign((abs(v) - p.deadband) / (1.0 - p.deadband), v) * p.axis_scale
+        return None, "", max(-1.0, min(1.0, u))
+
+    def _step(self, now: float) -> tuple[np.ndarray, Status]:
+        p = self.params
+        bad = p.check(self.model.classes if self.model is not None else None)
+        if bad:
+            return self._zero(Code.MODEL_ERROR, f"bad parameters: {bad}")
+        if self._q_t == -math.inf:
+            return self._zero(Code.WAITING_FOR_JOINT_STATES, "no joint_states yet")
+        if now - self._q_t > p.joint_states_timeout:
+            return self._zero(
+                Code.WAITING_FOR_JOINT_STATES,
+                f"last joint_states {now - self._q_t:.2f} s ago (timeout {p.joint_states_timeout} s)",
+            )
+        if self._q_error is not None:
+            return self._zero(Code.BAD_INPUT, self._q_error)
+        q = self._q
+        assert q is not None
+        if self.mode == "latent":
+            if self.model is None:
+                return self._zero(Code.MODEL_ERROR, self.model_error or "no model loaded (set model_path)")
+            problem = self._ensure_context(q, now)
+            if problem is not None:
+                return self._zero(*problem)
+        elif self.kinematics is None:
+            return self._zero(Code.MODEL_ERROR, "end_effector mode needs the Panda kinematics (Pinocchio)")
+        code, reason, u = self._stick(now)
+        if code is not None:
+            return self._zero(code, reason)
+        if self.mode == "latent":
+            assert self.latched is not None
+            z = u * self.latched.gain
+            dq = self.model.decoder.decode(q, z) * p.action_scale
+        else:
+            z = u
+            dq = self.ee.command(q, u)
+        if not np.all(np.isfinite(dq)):
+            return self._zero(
+                Code.MODEL_ERROR, "command is not finite (model or kinematics output NaN/Inf)", z
+            )
+        self._cmd[:] = dq
+        self._limit(self._cmd)
+        return self._cmd, self._set_status(Code.ACTIVE, "", z)
+
+    def _limit(self, dq: np.ndarray) -> None:
+        """Scale the whole vector (keeping its direction) to the norm clamp and the per-joint limits."""
+        p = self.params
+        n = float(np.linalg.norm(dq))
+        scale = 1.0
+        if p.max_joint_speed > 0 and n > p.max_joint_speed:
+            scale = p.max_joint_speed / n
+        if p.dq_max is not None:
+            lim = np.asarray(p.dq_max, float)
+            worst = float(np.max(np.abs(dq) / lim))
+            if worst * scale > 1.0:
+                scale = 1.0 / worst
+        if scale < 1.0:
+            dq *= scale
+
+    # ----------------------------------------------------------------- context
+    def _ensure_context(self, q: np.ndarray, now: float) -> tuple[Code, str] | None:
+        """Latch or re-latch the context; a (code, reason) when the command must be zero."""
+        p, m = self.params, self.model
+        lat = self.latched
+        if lat is not None and p.detection_max_age > 0 and now - lat.t > p.detection_max_age:
+            self.latched = None
+            self._latch_after = max(self._latch_after, now - p.detection_max_age)
+        if self.latched is not None:
+            return None
+        need_det = m.encoder == "detector" or (
+            m.encoder == "localization" and p.goal_selection in GOAL_SELECTIONS
+        )
+        det = None
+        if need_det:
+            if self._dets_t < self._latch_after or self._dets_t == -math.inf:
+                return (
+                    Code.WAITING_FOR_DETECTION,
+                    "no detections received yet"
+                    if self._dets_t == -math.inf
+                    else "waiting for a new detection to latch",
+                )
+            det = self._pick(q)
+            if det is None:
+                seen = sorted({d.class_id for d in self._dets})
+                if seen and not any(c in m.classes for c in seen):
+                    return (
+                        Code.MODEL_ERROR,
+                        f"detected classes {seen} are not in the model's classes "
+                        f"{m.classes} (model and detector disagree)",
+                    )
+                want = "" if p.goal_selection in GOAL_SELECTIONS else f" of class {p.goal_selection!r}"
+                return Code.WAITING_FOR_DETECTION, f"no detection{want} in the latest detections"
+        image = None
+        if m.needs_image:
+            if self._image is None or self._image_t < self._latch_after:
+                return Code.WAITING_FOR_DETECTION, "waiting for a camera image to latch the context"
+            image = self._image
+        class_id = (
+            det.class_id
+            if det is not None
+            else (p.goal_selection if p.goal_selection not in GOAL_SELECTIONS else None)
+        )
+        try:
+            ctx = m.context(det=det, image_size=self._dets_size, image=image, class_id=class_id)
+            m.decoder.set_context(ctx)
+        except (ContextError, ValueError) as e:
+            return Code.MODEL_ERROR, f"cannot build the context: {e}"
+        t = self._dets_t if det is not None else self._image_t
+        if det is not None and self._dets_size:
+            x, y = det.cx / self._dets_size[0], det.cy / self._dets_size[1]
+        else:
+            x = y = math.nan
+        gain_class = class_id if m.encoder != "end_to_end" else None
+        self.latched = Latched(class_id=class_id, x=x, y=y, t=t, gain=m.gain(gain_class))
+        return None
+
+    def _pick(self, q: np.ndarray) -> Det | None:
+        p = self.params
+        ee_px = None
+        if p.goal_selection == "nearest_to_ee" and self.ee_pixel is not None:
+            try:
+                ee_px = self.ee_pixel(q)
+            except Exception:  # an uncalibrated camera falls back to the highest score
+                ee_px = None
+        return select_detection(self._dets, p.goal_selection, self.model.classes, ee_px)
+
+
+__all__ = ["Code", "EE_AXES", "MODES", "Status", "TeleopCore", "TeleopParams"]

@@ -160,3 +160,104 @@ def test_stick_to_command_matches_the_controller_core(tmp_path):
         assert np.allclose(cmd, p, atol=1e-9), (a, cmd, p, status.reason)
     assert np.all(predicted[2:6] == 0.0)
     assert np.all(np.linalg.norm(predicted, axis=1) <= 1.5 + 1e-9)
+
+
+# ---------------------------------------------------------------- the ROS node, in-process
+@pytest.fixture
+def ros():
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    nodes = []
+    yield ctx, ex, nodes
+    for n in nodes:
+        ex.remove_node(n)
+        n.destroy_node()
+    ex.shutdown()
+    rclpy.shutdown(context=ctx)
+
+
+def _spin_until(ex, cond, timeout):
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and not cond():
+        ex.spin_once(timeout_sec=0.02)
+    return cond()
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_node_drives_joy_through_an_episode(ros, tmp_path):
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState, Joy
+    from vla_latent_controller.sim_teleoperator_node import SimTeleoperatorNode
+    from vla_panda_bridge.tasks import task_layout
+
+    from vla_interfaces.msg import ControllerStatus, SceneObject, SceneObjectArray, TeleopStatus
+    from vla_interfaces.srv import StartEpisode
+
+    ctx, ex, nodes = ros
+    random_model(tmp_path / "m")
+    P = Parameter
+    tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[
+        P("model_path", value=str(tmp_path / "m")), P("rate", value=50.0), P("time_limit", value=1.5),
+        P("switch_time", value=0.7), P("start_timeout", value=1.0)])
+    peer = Node("peer", context=ctx)
+    nodes += [tele, peer]
+    ex.add_node(tele)
+    ex.add_node(peer)
+    joys, statuses = [], []
+    peer.create_subscription(Joy, "joy", joys.append, 10)
+    peer.create_subscription(TeleopStatus, "sim_teleoperator/status", statuses.append, 10)
+    js_pub = peer.create_publisher(JointState, "joint_states", qos_profile_sensor_data)
+    obj_pub = peer.create_publisher(SceneObjectArray, "scene/objects", 10)
+    ctrl_pub = peer.create_publisher(ControllerStatus, "controller_node/status", 10)
+    start = peer.create_client(StartEpisode, "sim_teleoperator/start_episode")
+    goal = task_layout("bread/push_east", np.random.default_rng(3), n_objects=1)[0]
+
+    flags = {"ctrl": True}
+
+    def feed():
+        js = JointState(name=[f"panda_joint{i}" for i in range(1, 8)], position=Q0.tolist())
+        js_pub.publish(js)
+        objs = SceneObjectArray(objects=[SceneObject(class_id="bread", x=goal.x, y=goal.y, yaw=goal.yaw)])
+        obj_pub.publish(objs)
+        if flags["ctrl"]:
+            ctrl_pub.publish(ControllerStatus(latched_class="bread", latched_x=0.5, latched_y=0.6))
+
+    peer.create_timer(0.02, feed)
+    assert start.wait_for_service(timeout_sec=5.0)
+
+    def call(task):
+        fut = start.call_async(StartEpisode.Request(task=task))
+        assert _spin_until(ex, fut.done, 5.0)
+        return fut.result()
+
+    bad = call("bread/juggle")
+    assert not bad.success and "unknown action" in bad.message
+    ok = call("bread/push_east")
+    assert ok.success
+    assert _spin_until(ex, lambda: any(s.state == TeleopStatus.DONE for s in statuses), 10.0)
+    running = [s for s in statuses if s.state == TeleopStatus.RUNNING]
+    assert running and running[-1].waypoint_count == 2 and len(running[-1].final_waypoint) == 7
+    assert running[-1].task == "bread/push_east"
+    assert len(joys) >= 40  # ~50 Hz for 1.5 s
+    assert all(len(j.axes) >= 1 and -1.0 <= j.axes[0] <= 1.0 for j in joys)
+    assert joys[-1].axes[0] == 0.0  # stick released at the time limit
+    assert joys[-1].header.stamp.sec > 0 or joys[-1].header.stamp.nanosec > 0
+
+
+    # without the controller's latched context it gives up after start_timeout, stick released
+    flags["ctrl"] = False
+    _spin_until(ex, lambda: False, 0.3)
+    statuses.clear()
+    assert call("bread/push_east").success
+    assert _spin_until(ex, lambda: any(s.state == TeleopStatus.FAILED for s in statuses), 10.0)
+    failed = next(s for s in statuses if s.state == TeleopStatus.FAILED)
+    assert "controller_status" in failed.reason and joys[-1].axes[0] == 0.0

@@ -215,7 +215,8 @@ class StickToCommand:
         scale = np.ones(len(cmd))
         if self.max_joint_speed > 0:
             norms = np.linalg.norm(cmd, axis=1)
-            scale = np.where(norms > self.max_joint_speed, self.max_joint_speed / np.maximum(norms, 1e-300), 1.0)
+            over = norms > self.max_joint_speed
+            scale = np.where(over, self.max_joint_speed / np.maximum(norms, 1e-300), 1.0)
         if self.dq_max is not None:
             worst = np.max(np.abs(cmd) / self.dq_max, axis=1)
             scale = np.where(worst * scale > 1.0, 1.0 / np.maximum(worst, 1e-300), scale)

@@ -116,7 +116,7 @@ class NodeProcesses:
         self.workdir = workdir
         self.log = log
         self.procs: dict[str, subprocess.Popen] = {}
-        self._logs: list = []
+        self._logs: dict = {}
 
     def start(self, nodes: Sequence[str] = (BRIDGE, DETECTOR, CONTROLLER, TELEOP)) -> None:
         params = self.config.node_params()
@@ -126,10 +126,11 @@ class NodeProcesses:
             pfile = self.workdir / f"{node}.params.yaml"
             pfile.write_text(_yaml_params(node, params[node]))
             cmd = [executable(pkg, exe), "--ros-args", "-r", f"__node:={node}", "--params-file", str(pfile)]
-            logf = open(self.workdir / f"{node}.log", "w")  # noqa: SIM115 - closed in stop()
-            self._logs.append(logf)
-            self.procs[node] = subprocess.Popen(cmd, env=self.env, stdout=logf, stderr=subprocess.STDOUT,
-                                                start_new_session=True)
+            logf = open(self.workdir / f"{node}.log", "a")  # noqa: SIM115 - closed in stop()
+            self._logs[node] = logf
+            self.procs[node] = subprocess.Popen(
+                cmd, env=self.env, stdout=logf, stderr=subprocess.STDOUT, start_new_session=True
+            )
 
     def check_alive(self) -> None:
         for node, p in self.procs.items():
@@ -144,15 +145,19 @@ class NodeProcesses:
         except OSError:
             return ""
 
-    def stop(self, timeout: float = 8.0) -> None:
-        for p in self.procs.values():
+    def stop(self, nodes: Sequence[str] | None = None, timeout: float = 8.0) -> None:
+        """SIGINT (the nodes command zero and exit), then SIGTERM, then SIGKILL; all nodes by default."""
+        names = [n for n in (nodes if nodes is not None else list(self.procs)) if n in self.procs]
+        for n in names:
+            p = self.procs[n]
             if p.poll() is None:
                 try:
                     os.killpg(p.pid, signal.SIGINT)
                 except ProcessLookupError:
                     pass
         deadline = time.monotonic() + timeout
-        for node, p in self.procs.items():
+        for node in names:
+            p = self.procs.pop(node)
             try:
                 p.wait(max(0.1, deadline - time.monotonic()))
             except subprocess.TimeoutExpired:
@@ -166,9 +171,9 @@ class NodeProcesses:
                     except ProcessLookupError:
                         pass
                     p.wait()
-        for f in self._logs:
-            f.close()
-        self._logs.clear()
+            f = self._logs.pop(node, None)
+            if f is not None:
+                f.close()
 
     def returncodes(self) -> dict[str, int | None]:
         return {n: p.poll() for n, p in self.procs.items()}
@@ -342,7 +347,8 @@ class EpisodeRecord:
     """What an episode leaves besides its metrics: the TCP path and camera frames (for the demo)."""
 
     result: EpisodeResult
-    tcp_path: np.ndarray
+    tcp_path: np.ndarray  # (T, 3) TCP positions
+    tcp_times: np.ndarray  # (T,) s since the episode started
     frames: list[tuple[float, np.ndarray]] = field(default_factory=list)
 
 
@@ -447,6 +453,31 @@ class GraphEvaluator:
             else:
                 os.environ[key] = val
 
+    def set_model(self, model_path: str) -> None:
+        """Use another latent model: restart the controller and the teleoperator with it (the bridge
+        and the detector keep running)."""
+        if str(model_path) == str(self.config.model_path):
+            return
+        self.config.model_path = str(model_path)
+        obs = self.obs
+        self.procs.stop([CONTROLLER, TELEOP])
+        t0 = obs.now()
+        self.log(f"[graph] controller + teleoperator restarted with {model_path}")
+        self.procs.start([CONTROLLER, TELEOP])
+        alive = self.procs.check_alive
+        for cli in (obs.redetect_cli, obs.start_cli):
+            deadline = time.monotonic() + self.config.startup_timeout
+            while not cli.wait_for_service(timeout_sec=0.5):
+                alive()
+                if time.monotonic() > deadline:
+                    raise GraphError(f"service {cli.srv_name} did not come back")
+        obs.wait_for(
+            lambda: obs.ctrl_recv > t0 and obs.teleop_recv > t0,
+            self.config.startup_timeout,
+            "the restarted controller and teleoperator",
+            alive,
+        )
+
     # ------------------------------------------------------------------ episodes
     def run_episode(self, task: str, seed: int, label: str = "", n_objects: int = 1) -> EpisodeRecord:
         """Reset to the seeded layout of `task`, latch the context, let the teleoperator drive."""
@@ -492,6 +523,7 @@ class GraphEvaluator:
         limits = LimitMonitor()
         tally = SafetyTally()
         path: list[np.ndarray] = []
+        path_t: list[float] = []
         frames: list[tuple[float, np.ndarray]] = []
         t_start = [math.inf]
         every = max(1, int(round(cfg.state_rate / 20.0)))
@@ -504,6 +536,7 @@ class GraphEvaluator:
             counter[0] += 1
             if counter[0] % every == 0:
                 path.append(self.kin.fk(q)[0])
+                path_t.append(stamp - t_start[0])
 
         def on_objects(stamp, objs):
             if stamp >= t_start[0] and spec.object_class in objs:
@@ -572,7 +605,7 @@ class GraphEvaluator:
                              "interventions_by_code": dict(tally.by_code)})
         result.ee_path = np.asarray(path) if path else None
         tcp = result.ee_path if result.ee_path is not None else np.zeros((0, 3))
-        return EpisodeRecord(result, tcp, frames)
+        return EpisodeRecord(result, tcp, np.asarray(path_t[: len(tcp)]), frames)
 
     @staticmethod
     def _scene_object(pose):

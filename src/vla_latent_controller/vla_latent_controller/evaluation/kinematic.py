@@ -174,6 +174,7 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, kin=None, label
                            object_start=layout.goal.to_dict())
     q = layout.q0.copy()
     final = layout.waypoints[-1]
+    result.extra["start_error"] = round(final_state_error(q, final), 5)
     t0 = time.perf_counter()
     try:
         context, gain_class, detected = layout_context(model, layout, settings.goal_selection)

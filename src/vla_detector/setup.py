@@ -11,12 +11,13 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml", "README.md"]),
+        ("share/" + package_name + "/models", glob("models/detector.*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,
     maintainer="VLA developers",
     maintainer_email="dev@vla.invalid",
-    description="Object detector for the latent-action context: datasets, training, ONNX Runtime inference node.",
+    description="Object detector for the latent-action context: data, training, ONNX Runtime inference node.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -1,0 +1,205 @@
+"""detector_node in-process with the shipped model on rendered scenes, and as an installed executable."""
+
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image
+from std_srvs.srv import SetBool
+from vla_detector.detector_node import DetectorNode
+
+from vla_interfaces.msg import DetectionArray
+
+pytestmark = [pytest.mark.ros, pytest.mark.slow]
+ROOT = Path(__file__).resolve().parents[3]
+EXE = ROOT / "install" / "vla_detector" / "lib" / "vla_detector" / "detector_node"
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """A rendered scene with one soda can and one cereal box, at 320x240 and 640x480."""
+    from vla_panda_bridge.sim import PandaSim
+
+    sim = PandaSim(320, 240)
+    sim.reset(objects=[("soda_can", 0.45, 0.10, 0.0), ("cereal_box", 0.60, -0.15, 0.4)])
+    small = sim.render()
+    centre = sim.project(np.array([[0.45, 0.10, 0.061]]))[0]
+    sim.set_camera_size(640, 480)
+    large = sim.render()
+    sim.close()
+    return small, large, centre
+
+
+def image_msg(rgb, encoding="rgb8", frame="camera_optical_frame", stamp=(12, 345)):
+    img = rgb
+    if encoding == "bgr8":
+        img = rgb[..., ::-1]
+    elif encoding == "mono8":
+        img = rgb.mean(axis=2).astype(np.uint8)[..., None]
+    img = np.ascontiguousarray(img)
+    m = Image(
+        height=img.shape[0],
+        width=img.shape[1],
+        encoding=encoding,
+        is_bigendian=0,
+        step=img.shape[1] * img.shape[2],
+    )
+    m.header.frame_id = frame
+    m.header.stamp.sec, m.header.stamp.nanosec = stamp
+    m.data = img.tobytes()
+    return m
+
+
+class Harness:
+    def __init__(self, **params):
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        self.node = DetectorNode(
+            context=self.ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
+        )
+        self.peer = rclpy.create_node("detector_test_peer", context=self.ctx)
+        self.dets, self.overlays = [], []
+        self.peer.create_subscription(DetectionArray, "detections", self.dets.append, 10)
+        self.peer.create_subscription(
+            Image, "detections/image", self.overlays.append, qos_profile_sensor_data
+        )
+        self.pub = self.peer.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
+        self.ex.add_node(self.node)
+        self.ex.add_node(self.peer)
+        assert self.spin_until(
+            lambda: self.pub.get_subscription_count() >= 1 and self.node.pub.get_subscription_count() >= 1
+        )
+
+    def spin_until(self, pred, timeout=10.0):
+        end = time.monotonic() + timeout
+        while not pred() and time.monotonic() < end:
+            self.ex.spin_once(timeout_sec=0.02)
+        return pred()
+
+    def send(self, msg, expect=True, timeout=10.0):
+        n = len(self.dets)
+        self.pub.publish(msg)
+        if expect:
+            assert self.spin_until(lambda: len(self.dets) > n, timeout), "no detections published"
+            return self.dets[-1]
+        self.spin_until(lambda: len(self.dets) > n, 1.0)
+        assert len(self.dets) == n, "published although it should not have"
+        return None
+
+    def set_enable(self, value):
+        cli = self.peer.create_client(SetBool, "detector_node/enable")
+        assert cli.wait_for_service(timeout_sec=5.0)
+        fut = cli.call_async(SetBool.Request(data=value))
+        assert self.spin_until(fut.done)
+        return fut.result()
+
+    def close(self):
+        self.node.destroy_node()
+        self.peer.destroy_node()
+        self.ex.shutdown()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def harness(request):
+    h = Harness(**getattr(request, "param", {}))
+    yield h
+    h.close()
+
+
+def classes_of(out):
+    return [d.class_id for d in out.detections]
+
+
+def test_detects_rendered_scene_with_right_classes(harness, scene):
+    small, large, centre = scene
+    out = harness.send(image_msg(small))
+    assert sorted(classes_of(out)) == ["cereal_box", "soda_can"]
+    assert out.header.frame_id == "camera_optical_frame"
+    assert (out.header.stamp.sec, out.header.stamp.nanosec) == (12, 345)
+    assert (out.image_width, out.image_height) == (320, 240)
+    can = next(d for d in out.detections if d.class_id == "soda_can")
+    assert can.class_index == 1 and can.score > 0.5
+    assert np.hypot(can.center_x - centre[0], can.center_y - centre[1]) < 4.0
+    # a 640x480 bgr8 frame: converted, resized by the detector, boxes in 640x480 pixels
+    out = harness.send(image_msg(large, "bgr8"))
+    assert sorted(classes_of(out)) == ["cereal_box", "soda_can"]
+    assert out.image_width == 640
+    can2 = next(d for d in out.detections if d.class_id == "soda_can")
+    assert np.hypot(can2.center_x - 2 * centre[0] - 0.5, can2.center_y - 2 * centre[1] - 0.5) < 8.0
+
+
+def test_bad_images_skipped_node_keeps_running(harness, scene):
+    small = scene[0]
+    bad = image_msg(small)
+    bad.encoding = "jpeg"
+    harness.send(bad, expect=False)
+    short = image_msg(small)
+    short.data = short.data[:100]
+    harness.send(short, expect=False)
+    assert harness.node.skipped == 2
+    harness.send(image_msg(small, "mono8"))  # converted, not skipped
+    assert harness.node.skipped == 2
+    assert sorted(classes_of(harness.send(image_msg(small)))) == ["cereal_box", "soda_can"]
+
+
+def test_enable_service_and_class_filter(harness, scene):
+    small = scene[0]
+    assert harness.set_enable(False).success
+    harness.send(image_msg(small), expect=False)
+    harness.set_enable(True)
+    assert len(harness.send(image_msg(small)).detections) == 2
+    harness.node.set_parameters([Parameter("classes", value=["soda_can"])])
+    assert classes_of(harness.send(image_msg(small))) == ["soda_can"]
+    res = harness.node.set_parameters([Parameter("classes", value=["unicorn"])])
+    assert not res[0].successful and "unknown class" in res[0].reason
+    harness.node.set_parameters([Parameter("score_threshold", value=0.999999)])
+    assert harness.send(image_msg(small)).detections == []
+
+
+@pytest.mark.parametrize("harness", [{"publish_overlay": True, "max_detections": 1}], indirect=True)
+def test_overlay_and_max_detections(harness, scene):
+    out = harness.send(image_msg(scene[0]))
+    assert len(out.detections) == 1
+    assert harness.spin_until(lambda: harness.overlays)
+    ov = harness.overlays[-1]
+    assert (ov.width, ov.height, ov.encoding) == (320, 240, "rgb8")
+    assert bytes(ov.data) != image_msg(scene[0]).data.tobytes()  # boxes drawn
+
+
+def run_exe(*ros_args, timeout=60):
+    if not EXE.exists():
+        pytest.skip(f"{EXE} not installed (run make setup)")
+    return subprocess.run(
+        [str(EXE), "--ros-args", *ros_args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        env=os.environ.copy(),
+    )
+
+
+@pytest.mark.parametrize(
+    "content,message", [(None, "not found"), (b"garbage" * 20, "not a valid ONNX model")]
+)
+def test_missing_or_corrupt_model_exits_nonzero(tmp_path, content, message):
+    path = tmp_path / "model.onnx"
+    if content is not None:
+        path.write_bytes(content)
+    r = run_exe("-p", f"model_path:={path}")
+    assert r.returncode != 0
+    assert message in r.stderr and str(path) in r.stderr
+
+
+def test_unknown_class_filter_exits_nonzero():
+    r = run_exe("-p", "classes:=[unicorn]")
+    assert r.returncode != 0 and "unknown class names" in r.stderr

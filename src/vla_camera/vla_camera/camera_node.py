@@ -108,6 +108,7 @@ class CameraNode(Node):
         self._status_pub = self.create_publisher(CameraStatus, "~/status", 10)
         self.create_service(SetBool, "~/set_capture", self._on_set_capture)
         self._timer = self.create_timer(1.0 / p["fps"], self._tick)
+        self._wake_timer = None  # one-shot timer for the next reconnect attempt
         self.create_timer(1.0, self._publish_status)
         calib = f"calibration {p['camera_info_url']}" if self._calibration else "uncalibrated"
         size = "native size" if p["width"] == 0 else f"{p['width']}x{p['height']}"
@@ -154,12 +155,31 @@ class CameraNode(Node):
                 self.get_logger().warn(result.message, throttle_duration_sec=WARN_PERIOD_S)
         state = result.state
         self._message = result.message
+        if state != self._last_state:
+            self._on_state_change(state, result.message)
         if state is SourceState.RECONNECTING:
             self.get_logger().warn(
                 f"camera {self._params['source']}: {result.message}", throttle_duration_sec=WARN_PERIOD_S
             )
-        if state != self._last_state:
-            self._on_state_change(state, result.message)
+            self._sleep_until_retry()
+
+    def _sleep_until_retry(self) -> None:
+        """Stop the frame timer until the next reconnect attempt: no wake-ups at fps while it is away."""
+        delay = max(0.01, self.source.backoff.next_time - time.monotonic())
+        self._timer.cancel()
+        self._cancel_wake()
+        self._wake_timer = self.create_timer(delay, self._wake)
+
+    def _wake(self) -> None:
+        self._cancel_wake()
+        if not self.source.paused and self.source.state is not SourceState.ENDED:
+            self._timer.reset()
+            self._tick()  # attempt now rather than one frame period later
+
+    def _cancel_wake(self) -> None:
+        if self._wake_timer is not None:
+            self.destroy_timer(self._wake_timer)
+            self._wake_timer = None
 
     def _on_state_change(self, state: SourceState, message: str) -> None:
         previous, self._last_state = self._last_state, state
@@ -233,6 +253,8 @@ class CameraNode(Node):
                 self._timer.reset()
         else:
             self.source.pause()
+            self._timer.cancel()  # no wake-ups while paused
+            self._cancel_wake()
             self._message = "capture paused"
         self._last_state = self.source.current_state
         response.success = True
@@ -262,10 +284,13 @@ def main(args=None) -> int:
     except (KeyboardInterrupt, ExternalShutdownException):
         pass
     finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+        try:
+            if node is not None:
+                node.destroy_node()
+            if rclpy.ok():
+                rclpy.shutdown()
+        except KeyboardInterrupt:  # a late Ctrl-C during cleanup is still a clean stop
+            pass
     return code
 
 

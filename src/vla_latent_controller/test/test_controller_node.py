@@ -1,0 +1,207 @@
+"""The controller node in-process: topics, services, parameters, zero on every problem."""
+
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import JointState, Joy
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+from synthetic import READY
+from vla_latent_controller.controller_node import ControllerNode
+
+from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
+from vla_interfaces.srv import SetMode
+
+pytestmark = pytest.mark.ros
+NAMES = [f"panda_joint{i}" for i in range(1, 8)]
+
+
+class Harness:
+    def __init__(self, model_dir, **params):
+        self.ctx = rclpy.context.Context()
+        rclpy.init(context=self.ctx)
+        self.ex = SingleThreadedExecutor(context=self.ctx)
+        overrides = [Parameter("model_path", value=str(model_dir) if model_dir else "")]
+        overrides += [Parameter(k, value=v) for k, v in params.items()]
+        self.node = ControllerNode(context=self.ctx, parameter_overrides=overrides)
+        self.io = rclpy.create_node("controller_test_io", context=self.ctx)
+        self.ex.add_node(self.node)
+        self.ex.add_node(self.io)
+        self.joy = self.io.create_publisher(Joy, "joy", 10)
+        self.js = self.io.create_publisher(JointState, "joint_states", 10)
+        self.det = self.io.create_publisher(DetectionArray, "detections", 10)
+        self.cmds, self.status = [], []
+        self.io.create_subscription(
+            Float64MultiArray, "joint_velocity_cmd", lambda m: self.cmds.append(m.data), 10
+        )
+        self.io.create_subscription(ControllerStatus, "controller_node/status", self.status.append, 10)
+        self.spin_until(lambda: all(p.get_subscription_count() > 0 for p in (self.joy, self.js, self.det)))
+        self.spin_until(lambda: self.cmds)
+
+    def spin_until(self, cond, timeout=5.0):
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            self.ex.spin_once(timeout_sec=0.01)
+            if cond():
+                return True
+        return False
+
+    def send(self, axis=0.8, names=NAMES, q=READY, dets=(("bread", 320.0, 240.0),)):
+        js = JointState(name=list(names), position=[float(v) for v in q])
+        js.header.stamp = self.io.get_clock().now().to_msg()
+        self.js.publish(js)
+        if dets is not None:
+            msg = DetectionArray(image_width=640, image_height=480)
+            msg.detections = [Detection(class_id=c, score=0.9, center_x=x, center_y=y) for c, x, y in dets]
+            self.det.publish(msg)
+        if axis is not None:
+            self.joy.publish(Joy(axes=[float(axis), 0.0], buttons=[0, 0]))
+
+    def settle(self, code, **send):
+        """Keep inputs fresh until the status reports `code`; the last command."""
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end:
+            self.send(**send)
+            self.status.clear()
+            self.spin_until(lambda: self.status, timeout=0.05)
+            if self.status and self.status[-1].code == code:
+                n = len(self.cmds) + 1
+                self.spin_until(lambda n=n: len(self.cmds) > n, timeout=1.0)
+                return self.status[-1], np.array(self.cmds[-1])
+        raise AssertionError(f"status never {code}: {self.status[-1:] if self.status else 'none'}")
+
+    def call(self, srv_type, name, req):
+        cli = self.io.create_client(srv_type, name)
+        assert self.spin_until(cli.service_is_ready)
+        fut = cli.call_async(req)
+        self.spin_until(fut.done)
+        return fut.result()
+
+    def close(self):
+        self.ex.shutdown()
+        self.node.destroy_node()
+        self.io.destroy_node()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def harness(random_model_dir):
+    h = Harness(random_model_dir)
+    yield h
+    h.close()
+
+
+def test_latent_command_deadband_and_status(harness):
+    st, cmd = harness.settle(ControllerStatus.ACTIVE)
+    assert np.linalg.norm(cmd) > 0 and st.latched_class == "bread" and st.mode == "latent"
+    assert st.latched_x == pytest.approx(0.5) and st.header.frame_id
+    st, cmd = harness.settle(ControllerStatus.ZERO_DEADBAND, axis=0.05)
+    assert np.all(cmd == 0.0)
+
+
+def test_bad_inputs_give_zero_and_status(harness):
+    st, cmd = harness.settle(ControllerStatus.BAD_INPUT, names=NAMES[:6], q=READY[:6])
+    assert "lacks panda_joint7" in st.reason and np.all(cmd == 0.0)
+    st, cmd = harness.settle(ControllerStatus.BAD_INPUT, axis=float("nan"))
+    assert "not a finite" in st.reason and np.all(cmd == 0.0)
+    st, cmd = harness.settle(ControllerStatus.ACTIVE)
+    st, cmd = harness.settle(ControllerStatus.JOY_TIMEOUT, axis=None)
+    assert np.all(cmd == 0.0)
+
+
+def test_services_and_parameters(harness):
+    harness.settle(ControllerStatus.ACTIVE)
+    r = harness.call(Trigger, "controller_node/redetect", Trigger.Request())
+    assert r.success
+    st, cmd = harness.settle(ControllerStatus.WAITING_FOR_DETECTION, dets=None)
+    assert np.all(cmd == 0.0) and st.latched_class == ""
+    st, _ = harness.settle(ControllerStatus.ACTIVE, dets=[("milk_carton", 100.0, 100.0)])
+    assert st.latched_class == "milk_carton"
+    r = harness.call(SetMode, "controller_node/set_mode", SetMode.Request(mode="joint"))
+    assert not r.success and "unknown mode" in r.message
+    r = harness.call(SetMode, "controller_node/set_mode", SetMode.Request(mode="end_effector"))
+    assert r.success
+    st, cmd = harness.settle(ControllerStatus.ACTIVE)
+    assert st.mode == "end_effector" and st.ee_axis == "x" and np.linalg.norm(cmd) > 0
+    res = harness.node.set_parameters([Parameter("deadband", value=0.9)])
+    assert res[0].successful
+    harness.settle(ControllerStatus.ZERO_DEADBAND)
+    res = harness.node.set_parameters([Parameter("deadband", value=2.0)])
+    assert not res[0].successful  # outside the descriptor's range
+    res = harness.node.set_parameters([Parameter("rate", value=10.0)])
+    assert not res[0].successful
+
+
+def test_without_a_model_latent_mode_reports_model_error(tmp_path):
+    (tmp_path / "config.json").write_text("{broken")
+    h = Harness(tmp_path)
+    try:
+        st, cmd = h.settle(ControllerStatus.MODEL_ERROR)
+        assert "corrupt JSON" in st.reason and np.all(cmd == 0.0)
+    finally:
+        h.close()
+
+
+def _installed(exe: str) -> Path:
+    root = Path(__file__).resolve().parents[3]
+    return root / "install" / "vla_latent_controller" / "lib" / "vla_latent_controller" / exe
+
+
+@pytest.mark.slow
+def test_process_publishes_zero_on_shutdown(random_model_dir):
+    exe = _installed("controller_node")
+    if not exe.exists():
+        pytest.skip("controller_node not installed (make setup)")
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    node = rclpy.create_node("shutdown_probe", context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    ex.add_node(node)
+    cmds = []
+    node.create_subscription(Float64MultiArray, "joint_velocity_cmd", lambda m: cmds.append(list(m.data)), 10)
+    joy = node.create_publisher(Joy, "joy", 10)
+    js = node.create_publisher(JointState, "joint_states", 10)
+    det = node.create_publisher(DetectionArray, "detections", 10)
+    proc = subprocess.Popen(
+        [str(exe), "--ros-args", "-p", f"model_path:={random_model_dir}"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        env=os.environ.copy(),
+    )
+    try:
+        end = time.monotonic() + 30
+        active = False
+        while time.monotonic() < end and not active:
+            js.publish(JointState(name=NAMES, position=list(READY)))
+            msg = DetectionArray(image_width=640, image_height=480)
+            msg.detections = [Detection(class_id="bread", score=0.9, center_x=320.0, center_y=240.0)]
+            det.publish(msg)
+            joy.publish(Joy(axes=[0.9], buttons=[]))
+            ex.spin_once(timeout_sec=0.02)
+            active = bool(cmds) and any(v != 0.0 for v in cmds[-1])
+        assert active, "controller never commanded motion"
+        proc.send_signal(signal.SIGINT)
+        t = time.monotonic()
+        while time.monotonic() - t < 5:  # keep the stick pushed: the last command must still be zero
+            joy.publish(Joy(axes=[0.9], buttons=[]))
+            ex.spin_once(timeout_sec=0.02)
+            if proc.poll() is not None:
+                break
+        for _ in range(20):
+            ex.spin_once(timeout_sec=0.02)
+        assert proc.wait(timeout=10) == 0
+        assert cmds[-1] == [0.0] * 7
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        ex.shutdown()
+        node.destroy_node()
+        rclpy.shutdown(context=ctx)

@@ -21,8 +21,8 @@ def test_cli_has_the_subcommands_with_defaults():
 
 
 def test_each_task_gets_its_model():
-    assert demo.model_name_for("bread/push_east") == "detector"
-    assert demo.model_name_for("glass_bottle/push_west") == "detector"
+    assert demo.model_name_for("bread/push_east") == "default"
+    assert demo.model_name_for("glass_bottle/push_west") == "default"
     assert demo.model_name_for("cereal_box/push_south_east") == "cereal_box_push_south_east"
     assert demo.model_name_for("cereal_box/circle") == "cereal_box_circle"
 

@@ -6,9 +6,10 @@ the simulated user over the base tasks and the unseen-object (cereal box) tasks 
 prints a table (task, success, final state error, time), saves it as results.json in --out, and
 writes a video and an image strip of the camera view with the end-effector path drawn.
 
-Models: base tasks use the shipped `detector` model (10 demos per base object); each cereal-box
-task uses its few-shot transfer model (base demos + 5 new ones), as in the paper's Figure 2c. A
-missing model is trained first (demonstrations generated through the graph, progress shown).
+Models: base tasks use the shipped `default` model (detector encoder, 10 demos per base object);
+each cereal-box task uses its few-shot transfer model (base demos + 5 new ones), as in the paper's
+Figure 2c. A missing model is trained first (demonstrations generated through the graph, progress
+shown).
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ import sys
 import time
 from pathlib import Path
 
-BASE_MODEL = "detector"
+BASE_MODEL = "default"  # the controller node's default model (detector encoder, base tasks)
 
 
 def model_name_for(task: str) -> str:
@@ -42,7 +43,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--models",
         type=Path,
         default=None,
-        help="folder of latent models (detector/, cereal_box_*/); default: the shipped ones",
+        help="folder of latent models (default/, cereal_box_*/); default: the shipped ones",
     )
     p.add_argument("--detector-model", type=Path, default=None, help="detector ONNX (default: shipped)")
     p.add_argument(

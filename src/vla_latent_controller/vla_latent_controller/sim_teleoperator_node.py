@@ -23,6 +23,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
+from vla_panda_bridge.panda import DQ_MAX
 
 from vla_interfaces.msg import ControllerStatus, SceneObjectArray, TeleopStatus
 from vla_interfaces.srv import StartEpisode
@@ -42,10 +43,10 @@ JOINT_NAMES = tuple(f"panda_joint{i}" for i in range(1, 8))
 
 
 def default_model_path() -> str:
-    """The model shipped with the package (share/vla_latent_controller/models/detector)."""
+    """The model shipped with the package (share/vla_latent_controller/models/default)."""
     from .evaluation.resources import latent_model_dir
 
-    return str(latent_model_dir("detector"))
+    return str(latent_model_dir("default"))
 
 
 def _desc(text: str, lo: float | None = None, hi: float | None = None, integer: bool = False,
@@ -242,7 +243,7 @@ class SimTeleoperatorNode(Node):
             context = self.model.context(det=det, image_size=(1, 1), image=self.image, class_id=cls)
             g = self.get_parameter
             command = StickToCommand(self.model, context, cls, g("deadband").value, g("axis_scale").value,
-                                     g("action_scale").value, g("max_joint_speed").value)
+                                     g("action_scale").value, g("max_joint_speed").value, DQ_MAX)
             plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
                              np.random.default_rng(int(g("plan_seed").value)))
             waypoints = teleop_waypoints(plan)

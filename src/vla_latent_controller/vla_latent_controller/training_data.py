@@ -118,7 +118,7 @@ def ensure_latent_models(
     log: Callable[[str], None] = print,
     epochs: int = 1000,
 ) -> dict[str, Path]:
-    """Train the named models (`detector`: base tasks; `cereal_box_<action>`: base + few-shot)."""
+    """Train the named models (`default`: base tasks; `cereal_box_<action>`: base + few-shot)."""
     from vla_detector.inference import Detector
     from vla_panda_bridge.tasks import BASE_TASKS, UNSEEN_TASKS
 
@@ -131,7 +131,7 @@ def ensure_latent_models(
         base += load_task_demos(folder, task, detector, BASE_EPISODES)
     made: dict[str, Path] = {}
     for name in names:
-        if name == "detector":
+        if name == "default":
             demos = base
         else:
             task = next((t for t in UNSEEN_TASKS if t.replace("/", "_") == name), None)

@@ -73,7 +73,7 @@ def run(args) -> int:
 
     tasks = task_list(args.tasks)
     seeds = [args.seed + i for i in range(args.layouts)]
-    model_dir = args.model or latent_model_dir("detector")
+    model_dir = args.model or latent_model_dir("default")
     det_path = args.detector_model or detector_model_path()
     for what, path in (("latent model", model_dir), ("detector model", det_path)):
         if not Path(path).exists():

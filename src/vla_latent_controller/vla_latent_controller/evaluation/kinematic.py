@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from vla_panda_bridge.objects import ObjectPose
-from vla_panda_bridge.panda import Q_MAX, Q_MIN, READY_POSE
+from vla_panda_bridge.panda import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
 
 from ..context import ContextError, Det, select_detection
 from ..sim_teleoperator import (
@@ -48,6 +48,7 @@ class TeleopSettings:
     action_scale: float = 1.0
     max_joint_speed: float = 1.5
     goal_selection: str = "highest_score"
+    dq_max: tuple | None = tuple(float(v) for v in DQ_MAX)  # the controller node's per-joint limit
     path_every: int = 2  # keep every n-th TCP position for plots
 
 
@@ -180,7 +181,7 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, kin=None, label
         context, gain_class, detected = layout_context(model, layout, settings.goal_selection)
         result.detected_class = detected
         command = StickToCommand(model, context, gain_class, settings.deadband, settings.axis_scale,
-                                 settings.action_scale, settings.max_joint_speed)
+                                 settings.action_scale, settings.max_joint_speed, settings.dq_max)
     except (ContextError, ValueError) as e:
         result.note = f"no context: {e}"
         result.final_state_error = final_state_error(q, final)

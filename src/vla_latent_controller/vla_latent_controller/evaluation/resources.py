@@ -7,25 +7,26 @@ PACKAGE = "vla_latent_controller"
 SOURCE_MODELS = Path(__file__).resolve().parents[2] / "models"
 
 
-def latent_model_dir(encoder: str = "detector") -> Path:
-    """The shipped latent-action model directory for `encoder` (may not exist yet)."""
+def latent_model_dir(name: str = "default") -> Path:
+    """The shipped latent-action model directory `name` (may not exist yet); `default` is the
+    controller's default: detector encoder trained on the base tasks."""
     try:
         from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
         try:
-            p = Path(get_package_share_directory(PACKAGE)) / "models" / encoder
+            p = Path(get_package_share_directory(PACKAGE)) / "models" / name
             if (p / "config.json").is_file():
                 return p
         except PackageNotFoundError:
             pass
     except ImportError:
         pass
-    return SOURCE_MODELS / encoder
+    return SOURCE_MODELS / name
 
 
-def source_model_dir(encoder: str = "detector") -> Path:
+def source_model_dir(name: str = "default") -> Path:
     """Where a freshly trained model is written so that it ships with the repository."""
-    return SOURCE_MODELS / encoder
+    return SOURCE_MODELS / name
 
 
 def detector_model_path() -> Path:

@@ -12,6 +12,7 @@ import sys
 
 # (name, module, one-line help). Add a subcommand by adding a row.
 SUBCOMMANDS: list[tuple[str, str, str]] = [
+    ("train", "vla_latent_controller.train_cli", "train a latent-action model from demonstration bags"),
     (
         "evaluate",
         "vla_latent_controller.evaluation.cli",

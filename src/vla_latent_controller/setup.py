@@ -1,5 +1,3 @@
-from glob import glob
-
 from setuptools import find_packages, setup
 
 package_name = "vla_latent_controller"
@@ -16,7 +14,7 @@ setup(
     zip_safe=True,
     maintainer="VLA developers",
     maintainer_email="dev@vla.invalid",
-    description="Maps a 1-D joystick through the learned conditional-autoencoder decoder to Panda joint velocities; end-effector baseline; simulated teleoperator.",
+    description="Joystick to Panda joint velocities through learned latent actions.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -1,5 +1,3 @@
-from glob import glob
-
 from setuptools import find_packages, setup
 
 package_name = "vla_panda_bridge"
@@ -16,7 +14,7 @@ setup(
     zip_safe=True,
     maintainer="VLA developers",
     maintainer_email="dev@vla.invalid",
-    description="The robot side: a MuJoCo-backed simulated Panda and a ros2_control forwarder, behind one safety layer.",
+    description="Simulated (MuJoCo) and real (ros2_control) Panda behind one safety layer.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

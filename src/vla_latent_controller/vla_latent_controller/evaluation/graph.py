@@ -543,7 +543,8 @@ class GraphEvaluator:
                 tracker.update(stamp - t_start[0], objs[spec.object_class])
 
         def on_safety(msg):
-            tally.update(int(msg.code), int(msg.interventions), bool(msg.estop_active))
+            tally.update(int(msg.code), int(msg.interventions), bool(msg.estop_active),
+                         int(msg.commands_rejected))
 
         def on_frame(stamp, frame):
             if stamp >= t_start[0]:
@@ -601,7 +602,9 @@ class GraphEvaluator:
         result.limit_violations = limits.violations
         result.extra.update({"wall_s": round(time.monotonic() - wall0, 2),
                              "max_speed_ratio": round(limits.max_speed_ratio, 3),
-                             "estop": tally.estop_seen,
+                             "estop": tally.estop_seen, "commands_rejected": tally.rejected,
+                             "position_violations": limits.position_violations,
+                             "velocity_violations": limits.velocity_violations,
                              "interventions_by_code": dict(tally.by_code)})
         result.ee_path = np.asarray(path) if path else None
         tcp = result.ee_path if result.ee_path is not None else np.zeros((0, 3))

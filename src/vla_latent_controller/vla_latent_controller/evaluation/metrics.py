@@ -97,13 +97,20 @@ class SafetyTally:
     def __init__(self) -> None:
         self.first_counter: int | None = None
         self.last_counter: int | None = None
+        self.first_rejected: int | None = None
+        self.last_rejected: int | None = None
         self.by_code: dict[int, int] = {}
         self.estop_seen = False
 
-    def update(self, code: int, interventions: int, estop_active: bool = False) -> None:
+    def update(self, code: int, interventions: int, estop_active: bool = False,
+               rejected: int | None = None) -> None:
         if self.first_counter is None:
             self.first_counter = int(interventions)
         self.last_counter = int(interventions)
+        if rejected is not None:
+            if self.first_rejected is None:
+                self.first_rejected = int(rejected)
+            self.last_rejected = int(rejected)
         if code != 0:
             self.by_code[int(code)] = self.by_code.get(int(code), 0) + 1
         self.estop_seen = self.estop_seen or bool(estop_active)
@@ -113,6 +120,13 @@ class SafetyTally:
         if self.first_counter is None or self.last_counter is None:
             return 0
         return max(0, self.last_counter - self.first_counter)
+
+    @property
+    def rejected(self) -> int:
+        """Commands the bridge rejected (non-finite, wrong length) during the episode."""
+        if self.first_rejected is None or self.last_rejected is None:
+            return 0
+        return max(0, self.last_rejected - self.first_rejected)
 
 
 @dataclass

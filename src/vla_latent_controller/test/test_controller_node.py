@@ -205,3 +205,16 @@ def test_process_publishes_zero_on_shutdown(random_model_dir):
         ex.shutdown()
         node.destroy_node()
         rclpy.shutdown(context=ctx)
+
+
+def test_nearest_to_ee_projection_matches_the_simulated_camera():
+    from vla_latent_controller.controller_node import look_at_rotation
+    from vla_panda_bridge.scene import CAMERA_LOOKAT, CAMERA_POS
+    from vla_panda_bridge.sim import PandaSim
+
+    sim = PandaSim(render=False)
+    pts = np.array([[0.5, 0.1, 0.0], [0.3, -0.2, 0.2], [0.6, 0.25, 0.05]])
+    fx, fy, cx, cy = sim.camera_intrinsics()
+    pc = (pts - np.array(CAMERA_POS)) @ look_at_rotation(np.array(CAMERA_POS), np.array(CAMERA_LOOKAT))
+    ours = np.column_stack([fx * pc[:, 0] / pc[:, 2] + cx, fy * pc[:, 1] / pc[:, 2] + cy])
+    np.testing.assert_allclose(ours, sim.project(pts), atol=1e-6)

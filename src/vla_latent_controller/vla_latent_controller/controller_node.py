@@ -93,8 +93,11 @@ _STRINGS = [
     ),
 ]
 _ARRAYS = [
-    ("camera_position", [1.45, -0.40, 0.95], "camera optical centre in the world (m), for nearest_to_ee"),
-    ("camera_look_at", [0.38, 0.0, 0.22], "point the camera looks at (m), for nearest_to_ee; [] disables it"),
+    (
+        "camera_position",
+        "camera optical centre in the world (m), for nearest_to_ee; default: the simulated webcam",
+    ),
+    ("camera_look_at", "point the camera looks at (m), for nearest_to_ee; default: the simulated webcam's"),
 ]
 _TUNABLE = {n for n, *_ in _DOUBLES + _INTS} - {"rate", "status_rate"} | {"goal_selection"}
 
@@ -108,6 +111,19 @@ def default_model_path() -> str:
         return str(p) if (p / "config.json").is_file() else ""
     except Exception:
         return ""
+
+
+def _sim_camera() -> dict[str, list[float]]:
+    """The simulated webcam's pose (vla_panda_bridge.scene), the default camera for nearest_to_ee."""
+    try:
+        from vla_panda_bridge.scene import CAMERA_LOOKAT, CAMERA_POS
+
+        return {
+            "camera_position": [float(v) for v in CAMERA_POS],
+            "camera_look_at": [float(v) for v in CAMERA_LOOKAT],
+        }
+    except Exception:  # no simulator installed: the user sets the real camera's pose
+        return {"camera_position": [0.0, 0.0, 0.0], "camera_look_at": [0.0, 0.0, 0.0]}
 
 
 def look_at_rotation(pos: np.ndarray, target: np.ndarray) -> np.ndarray:
@@ -132,7 +148,9 @@ class ControllerNode(Node):
             self.declare_parameter(name, default, d)
         for name, default, text in _STRINGS:
             self.declare_parameter(name, default, ParameterDescriptor(description=text))
-        for name, default, text in _ARRAYS:
+        sim_camera = _sim_camera()
+        for name, text in _ARRAYS:
+            default = sim_camera[name]
             self.declare_parameter(
                 name,
                 default,
@@ -272,6 +290,8 @@ class ControllerNode(Node):
         pos = self.get_parameter("camera_position").value
         target = self.get_parameter("camera_look_at").value
         if self._intrinsics is None or self._kin is None or len(pos) != 3 or len(target) != 3:
+            return None
+        if np.allclose(pos, target):
             return None
         rot = look_at_rotation(np.asarray(pos), np.asarray(target))
         pc = (self._kin.fk(q)[0] - np.asarray(pos)) @ rot

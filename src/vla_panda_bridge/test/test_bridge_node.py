@@ -1,0 +1,281 @@
+"""The bridge node with the MuJoCo backend, in-process (private rclpy Context and executor).
+
+Small cameras and real_time_factor > 1 keep it quick; the node steps physics and the safety filter
+at 1 kHz either way.
+"""
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image, JointState
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import SetBool
+from vla_panda_bridge.bridge_node import ConfigError, PandaBridge
+from vla_panda_bridge.panda import READY_POSE
+from vla_panda_bridge.sim import PandaSim
+
+from vla_interfaces.msg import SafetyStatus, SceneObject, SceneObjectArray
+from vla_interfaces.srv import ResetScene
+
+pytestmark = pytest.mark.ros
+
+
+class Harness:
+    """A private ROS context with the bridge and a probe node on one executor."""
+
+    def __init__(self, **params):
+        self.ctx = Context()
+        rclpy.init(context=self.ctx)
+        self.executor = SingleThreadedExecutor(context=self.ctx)
+        defaults = {"camera_rate": 0.0, "real_time_factor": 2.0, "scene_rate": 10.0}
+        defaults.update(params)
+        self.bridge = PandaBridge(context=self.ctx, parameter_overrides=[
+            Parameter(k, value=v) for k, v in defaults.items()])
+        self.probe = rclpy.create_node("probe", context=self.ctx)
+        self.executor.add_node(self.bridge)
+        self.executor.add_node(self.probe)
+        self.states: list[JointState] = []
+        self.status: list[SafetyStatus] = []
+        self.scenes: list[SceneObjectArray] = []
+        self.clock: list[Clock] = []
+        self.probe.create_subscription(JointState, "joint_states", self.states.append, 200)
+        self.probe.create_subscription(SafetyStatus, "panda_bridge/status", self.status.append, 50)
+        self.probe.create_subscription(SceneObjectArray, "scene/objects", self.scenes.append, 10)
+        self.probe.create_subscription(Clock, "/clock", self.clock.append, 10)
+        self.cmd_pub = self.probe.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
+        self.wait(lambda: self.cmd_pub.get_subscription_count() > 0 and self.states, 10.0)
+
+    def wait(self, pred, timeout: float) -> bool:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if pred():
+                return True
+            self.executor.spin_once(timeout_sec=0.01)
+        return bool(pred())
+
+    def command(self, values) -> None:
+        self.cmd_pub.publish(Float64MultiArray(data=[float(v) for v in values]))
+
+    def call(self, srv_type, name: str, request, timeout: float = 10.0):
+        client = self.probe.create_client(srv_type, name)
+        assert client.wait_for_service(timeout_sec=5.0)
+        future = client.call_async(request)
+        assert self.wait(future.done, timeout), f"{name} did not answer"
+        return future.result()
+
+    def close(self) -> None:
+        self.bridge.destroy_node()
+        self.probe.destroy_node()
+        self.executor.shutdown()
+        rclpy.shutdown(context=self.ctx)
+
+
+@pytest.fixture
+def harness(request):
+    created = []
+
+    def make(**params):
+        h = Harness(**params)
+        created.append(h)
+        return h
+
+    yield make
+    for h in created:
+        h.close()
+
+
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def test_constant_command_moves_joints_as_integrated(harness):
+    """Tolerance: after the jerk-limited ramp (< 0.05 s at these speeds) the measured motion over 0.5 s
+    of simulated time equals cmd * 0.5 s within 2e-3 rad per joint, and joint_states velocity equals
+    the command within 0.02 rad/s (servo tracking error)."""
+    h = harness(real_time_factor=2.0)
+    cmd = np.array([0.2, -0.1, 0.15, 0.1, -0.2, 0.2, 0.3])
+    h.command(cmd)
+    h.probe.create_timer(0.02, lambda: h.command(cmd))  # keep the watchdog fed
+    t_cmd = _stamp(h.states[-1])
+    window = []
+
+    def collect():
+        window[:] = [s for s in h.states if _stamp(s) > t_cmd + 0.2]
+        return window and _stamp(window[-1]) - _stamp(window[0]) >= 0.5
+
+    assert h.wait(collect, 30.0)
+    first = window[0]
+    last = next(s for s in window if _stamp(s) - _stamp(first) >= 0.5 - 1e-6)
+    dt = _stamp(last) - _stamp(first)
+    moved = np.array(last.position) - np.array(first.position)
+    np.testing.assert_allclose(moved, cmd * dt, atol=2e-3)
+    np.testing.assert_allclose(last.velocity, cmd, atol=0.02)
+    assert list(last.name) == [f"panda_joint{i}" for i in range(1, 8)]
+    assert len(last.effort) == 7
+    # joint_states at 200 Hz of simulated time, stamped with the simulation clock that /clock publishes.
+    # (A loaded machine may drop a message in transport; the stamps stay on the 5 ms grid.)
+    steps = np.diff([_stamp(s) for s in window]) / 0.005
+    np.testing.assert_allclose(steps, np.round(steps), atol=1e-3)
+    assert np.all(np.round(steps) >= 1) and np.mean(np.round(steps) == 1) > 0.8
+    assert h.clock and _stamp_clock(h.clock[-1]) >= _stamp(window[-1]) - 1e-9
+
+
+def _stamp_clock(msg: Clock) -> float:
+    return msg.clock.sec + msg.clock.nanosec * 1e-9
+
+
+def test_command_stream_stops_by_watchdog_and_bad_commands_are_reported(harness):
+    h = harness(real_time_factor=2.0, command_timeout=0.1)
+    h.command([0.3] * 7)
+    assert h.wait(lambda: abs(h.states[-1].velocity[0]) > 0.25, 5.0)
+    # No more commands: braked to rest (status COMMAND_TIMEOUT on the way).
+    assert h.wait(lambda: max(abs(v) for v in h.states[-1].velocity) < 1e-3, 5.0)
+    assert any(s.code == SafetyStatus.COMMAND_TIMEOUT for s in h.status)
+    h.command([float("nan")] * 7)
+    h.command([0.1] * 3)
+    assert h.wait(lambda: h.status and h.status[-1].commands_rejected >= 2, 5.0)
+    codes = {s.code for s in h.status}
+    assert {SafetyStatus.NON_FINITE_COMMAND, SafetyStatus.WRONG_LENGTH} <= codes
+    assert h.status[-1].last_intervention in (SafetyStatus.NON_FINITE_COMMAND, SafetyStatus.WRONG_LENGTH)
+
+
+def test_estop_latches_until_released(harness):
+    h = harness(real_time_factor=2.0, command_timeout=1.0)
+    cmd = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4]
+    h.command(cmd)
+    assert h.wait(lambda: h.states[-1].velocity[6] > 0.35, 5.0)
+    res = h.call(SetBool, "panda_bridge/estop", SetBool.Request(data=True))
+    assert res.success and "latched" in res.message
+    assert h.wait(lambda: abs(h.states[-1].velocity[6]) < 1e-3, 5.0)
+    q_stop = h.states[-1].position[6]
+    for _ in range(10):                                  # commands are ignored while latched
+        h.command(cmd)
+        h.wait(lambda: False, 0.02)
+    assert abs(h.states[-1].position[6] - q_stop) < 1e-3
+    assert h.status[-1].estop_active and h.status[-1].code == SafetyStatus.ESTOP
+    res = h.call(SetBool, "panda_bridge/estop", SetBool.Request(data=False))
+    assert res.success
+    h.wait(lambda: False, 0.1)
+    assert abs(h.states[-1].position[6] - q_stop) < 1e-3   # release alone does not move it
+    h.command(cmd)
+    assert h.wait(lambda: h.states[-1].velocity[6] > 0.35, 5.0)
+
+
+def _layout(objs):
+    return [(o.class_id, round(o.x, 9), round(o.y, 9), round(o.yaw, 9)) for o in objs]
+
+
+def _same_scene(a, b, tol: float = 1e-3) -> bool:
+    """Same classes at the same poses (objects at rest still settle by ~1e-8 m)."""
+    return ([o.class_id for o in a] == [o.class_id for o in b]
+            and all(abs(p.x - q.x) < tol and abs(p.y - q.y) < tol and abs(p.yaw - q.yaw) < tol
+                    for p, q in zip(a, b)))
+
+
+def test_reset_with_the_same_seed_reproduces_the_layout(harness):
+    h = harness(real_time_factor=4.0)
+    req = ResetScene.Request(seed=7, use_seed=True)
+    first = h.call(ResetScene, "panda_bridge/reset", req)
+    assert first.success, first.message
+    assert h.wait(lambda: h.scenes and _layout(h.scenes[-1].objects) == _layout(first.objects), 5.0)
+    other = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(seed=8, use_seed=True))
+    assert _layout(other.objects) != _layout(first.objects)
+    again = h.call(ResetScene, "panda_bridge/reset", req)
+    assert _layout(again.objects) == _layout(first.objects) and len(first.objects) >= 1
+    assert h.scenes[-1].header.frame_id == "panda_link0"
+    # Explicit layout and initial joint positions.
+    q0 = list(READY_POSE + 0.1)
+    res = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(
+        objects=[SceneObject(class_id="soda_can", x=0.5, y=0.1, yaw=0.3)], initial_positions=q0))
+    assert res.success, res.message
+    assert [o.class_id for o in res.objects] == ["soda_can"]
+    assert res.objects[0].x == pytest.approx(0.5, abs=1e-6) and res.objects[0].pose.position.z > 0
+    assert h.wait(lambda: np.allclose(h.states[-1].position, q0, atol=2e-3), 5.0)
+
+
+@pytest.mark.parametrize("objects,q0,why", [
+    ([SceneObject(class_id="pizza", x=0.5, y=0.0)], [], "pizza"),
+    ([SceneObject(class_id="bread", x=float("nan"), y=0.0)], [], "bread"),
+    ([SceneObject(class_id="bread", x=0.5, y=0.0), SceneObject(class_id="bread", x=0.6, y=0.2)], [], "bread"),
+    ([SceneObject(class_id="bread", x=0.5, y=0.0), SceneObject(class_id="soda_can", x=0.5, y=0.0)], [], ""),
+    ([SceneObject(class_id="bread", x=5.0, y=0.0)], [], ""),
+    ([], [0.0, 0.1], "q0"),
+])
+def test_bad_reset_is_refused_with_a_clear_error_and_the_scene_unchanged(harness, objects, q0, why):
+    h = harness(real_time_factor=4.0)
+    before = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(seed=3, use_seed=True))
+    q_before = np.array(h.states[-1].position)
+    res = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(objects=objects, initial_positions=q0))
+    assert not res.success
+    assert "scene unchanged" in res.message and why in res.message
+    assert _same_scene(res.objects, before.objects)
+    n = len(h.scenes)
+    assert h.wait(lambda: len(h.scenes) > n, 5.0)
+    assert _same_scene(h.scenes[-1].objects, before.objects)
+    np.testing.assert_allclose(h.states[-1].position, q_before, atol=1e-3)
+
+
+def test_camera_publishes_the_configured_size_and_encoding(harness):
+    h = harness(camera_rate=30.0, camera_width=96, camera_height=64, real_time_factor=1.0)
+    images, infos = [], []
+    h.probe.create_subscription(Image, "camera/image_raw", images.append, qos_profile_sensor_data)
+    h.probe.create_subscription(CameraInfo, "camera/camera_info", infos.append, qos_profile_sensor_data)
+    assert h.wait(lambda: len(images) >= 3 and infos, 20.0)
+    img, info = images[-1], infos[-1]
+    assert (img.width, img.height, img.encoding, img.step) == (96, 64, "rgb8", 96 * 3)
+    assert len(img.data) == 96 * 64 * 3
+    pixels = np.frombuffer(bytes(img.data), np.uint8).reshape(64, 96, 3)
+    assert pixels.std() > 5                              # a rendered scene, not a blank buffer
+    assert (info.width, info.height) == (96, 64)
+    assert img.header.frame_id == info.header.frame_id == "camera_optical_frame"
+    fx, cx, fy, cy = info.k[0], info.k[2], info.k[4], info.k[5]
+    assert fx == pytest.approx(fy) and cx == pytest.approx(47.5) and cy == pytest.approx(31.5)
+    expected = PandaSim(camera_width=96, camera_height=64, render=False).camera_intrinsics()
+    assert (fx, fy, cx, cy) == pytest.approx(expected, rel=1e-9)       # the rendered camera's intrinsics
+    stamps = [_stamp(i) for i in images]
+    assert all(b > a for a, b in zip(stamps, stamps[1:]))
+
+
+def test_bad_parameters_are_refused_in_process():
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        for name, value, needle in [("state_rate", 5000.0, "state_rate"), ("backend", "gazebo", "backend"),
+                                    ("initial_positions", [0.0, 1.0], "initial_positions"),
+                                    ("camera_width", 4, "camera_width"),
+                                    ("real_time_factor", -1.0, "real_time_factor"),
+                                    ("ee_frame", "elbow", "ee_frame")]:
+            with pytest.raises(ConfigError, match=needle):
+                PandaBridge(context=ctx, parameter_overrides=[Parameter(name, value=value)])
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_integer_value_for_a_rate_is_accepted(harness):
+    h = harness(state_rate=500, real_time_factor=1.0)
+    assert h.bridge.params["state_rate"] == 500.0
+
+
+def _installed(exe: str) -> str:
+    prefix = os.environ.get("VLA_ROOT", os.getcwd())
+    path = os.path.join(prefix, "install", "vla_panda_bridge", "lib", "vla_panda_bridge", exe)
+    if not os.path.exists(path):
+        pytest.skip(f"{path} not installed (make setup)")
+    return path
+
+
+@pytest.mark.slow
+def test_installed_executable_exits_nonzero_with_a_message_on_a_bad_parameter():
+    out = subprocess.run([sys.executable, _installed("panda_bridge"), "--ros-args", "-p", "state_rate:=0.0"],
+                         capture_output=True, text=True, timeout=60)
+    assert out.returncode == 2
+    assert "state_rate" in out.stderr and "range" in out.stderr

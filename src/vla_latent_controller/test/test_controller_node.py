@@ -208,7 +208,7 @@ def test_process_publishes_zero_on_shutdown(random_model_dir):
 
 
 def test_nearest_to_ee_projection_matches_the_simulated_camera():
-    from vla_latent_controller.controller_node import look_at_rotation
+    from vla_latent_controller.camera_model import look_at_rotation
     from vla_panda_bridge.scene import CAMERA_LOOKAT, CAMERA_POS
     from vla_panda_bridge.sim import PandaSim
 

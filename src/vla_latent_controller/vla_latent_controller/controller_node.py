@@ -32,6 +32,7 @@ from vla_interfaces.msg import ControllerStatus, DetectionArray
 from vla_interfaces.srv import SetMode
 
 from .artifacts import ModelError
+from .camera_model import look_at_rotation, project
 from .context import CNN_ENCODERS, GOAL_SELECTIONS, Det
 from .teleop import MODES, Code, TeleopCore, TeleopParams
 
@@ -124,15 +125,6 @@ def _sim_camera() -> dict[str, list[float]]:
         }
     except Exception:  # no simulator installed: the user sets the real camera's pose
         return {"camera_position": [0.0, 0.0, 0.0], "camera_look_at": [0.0, 0.0, 0.0]}
-
-
-def look_at_rotation(pos: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Optical-frame rotation (columns x right, y down, z forward in the world) of a camera without roll."""
-    z = np.asarray(target, float) - np.asarray(pos, float)
-    z /= np.linalg.norm(z)
-    x = np.cross(z, [0.0, 0.0, 1.0])
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
 
 
 class ControllerNode(Node):
@@ -294,11 +286,7 @@ class ControllerNode(Node):
         if np.allclose(pos, target):
             return None
         rot = look_at_rotation(np.asarray(pos), np.asarray(target))
-        pc = (self._kin.fk(q)[0] - np.asarray(pos)) @ rot
-        if pc[2] <= 1e-6:
-            return None
-        fx, fy, cx, cy = self._intrinsics
-        return fx * pc[0] / pc[2] + cx, fy * pc[1] / pc[2] + cy
+        return project(self._kin.fk(q)[0], pos, rot, self._intrinsics)
 
     def _on_set_mode(self, req: SetMode.Request, resp: SetMode.Response) -> SetMode.Response:
         ok, text = self.core.set_mode(req.mode)

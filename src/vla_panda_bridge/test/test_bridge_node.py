@@ -279,3 +279,53 @@ def test_installed_executable_exits_nonzero_with_a_message_on_a_bad_parameter():
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "state_rate" in out.stderr and "range" in out.stderr
+
+
+def _bringup_yaml() -> str:
+    here = os.path.dirname(os.path.abspath(__file__))
+    return os.path.normpath(os.path.join(here, "..", "..", "vla_bringup", "config", "panda_bridge.yaml"))
+
+
+def test_the_shipped_parameter_file_names_every_parameter_and_starts_the_node():
+    import yaml
+    from vla_panda_bridge.bridge_node import PARAMETERS
+
+    path = _bringup_yaml()
+    with open(path) as f:
+        values = yaml.safe_load(f)["panda_bridge"]["ros__parameters"]
+    assert set(values) == set(PARAMETERS)
+    for name, value in values.items():                    # the file restates the defaults
+        assert value == pytest.approx(PARAMETERS[name][0]), name
+    ctx = Context()
+    rclpy.init(context=ctx, args=["--ros-args", "--params-file", path, "-p", "camera_rate:=0.0"])
+    try:
+        node = PandaBridge(context=ctx)
+        assert node.params["state_rate"] == 200.0 and node.params["backend"] == "mujoco"
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)
+
+
+def test_pacer_advances_one_state_period_per_tick_despite_jitter_and_slips_when_behind():
+    from vla_panda_bridge.sim_clock import SimPacer
+
+    pacer = SimPacer(unit=0.005, real_time_factor=1.0)
+    assert pacer.timer_period() == pytest.approx(0.005)
+    pacer.start(100.0, 0.0)
+    rng = np.random.default_rng(0)
+    sim = 0.0
+    for k in range(1, 400):                               # ticks late or early by up to 40 % of a period
+        units = pacer.units_due(100.0 + k * 0.005 + rng.uniform(-0.002, 0.002), sim)
+        assert units == 1
+        sim += units * 0.005
+    # A stall of 50 ms catches up in bounded bursts; one of 1 s re-anchors instead.
+    assert pacer.units_due(100.0 + 400 * 0.005 + 0.05, sim) == pacer.max_burst == 3
+    assert pacer.units_due(100.0 + 400 * 0.005 + 1.0, sim) == 1 and pacer.lag_events == 1
+    fast = SimPacer(unit=0.005, real_time_factor=4.0)
+    assert fast.timer_period() == pytest.approx(0.00125)
+    turbo = SimPacer(unit=0.001, real_time_factor=10.0)    # 0.1 ms ticks would be too short: 1 ms, 10 units
+    assert turbo.timer_period() == pytest.approx(0.001) and turbo.max_burst == 21
+    asap = SimPacer(unit=0.005, real_time_factor=0.0)
+    assert asap.timer_period() == 0.0 and asap.units_due(0.0, 123.0) == 2
+    with pytest.raises(ValueError):
+        SimPacer(unit=0.005, real_time_factor=-1.0)

@@ -200,6 +200,21 @@ def test_measured_position_drift_resyncs_the_reference():
     assert f.resyncs == 1
 
 
+def test_missing_or_invalid_measured_position():
+    f = SafetyFilter()
+    dq, code, _ = f.filter(np.full(7, 0.3), None, 0.0)       # never measured: cannot check limits
+    assert code == safety.INVALID_STATE and np.all(dq == 0.0)
+    vs, qs, _ = run(f, [np.full(7, 0.3)] * 100, q0=MID)
+    # None = no new measurement: the integrated reference carries on.
+    vs2 = [f.filter(None, None, 0.1 + k * DT)[0] for k in range(20)]
+    np.testing.assert_array_equal(vs2[-1], np.full(7, 0.3))
+    # An invalid measurement brakes (within the limits) and says why.
+    out = [f.filter(None, [np.nan] * 7, 0.12 + k * DT) for k in range(300)]
+    assert all(c == safety.INVALID_STATE for _, c, _ in out[:5])
+    assert np.all(out[-1][0] == 0.0)
+    assert_within_limits(f, np.vstack([vs, vs2, [o[0] for o in out]]))
+
+
 def test_never_raises_on_garbage_state_or_clock():
     f = SafetyFilter()
     for q in (None, [np.nan] * 7, [1, 2], "q", READY_POSE):

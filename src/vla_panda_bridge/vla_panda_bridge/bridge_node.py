@@ -41,7 +41,8 @@ from vla_panda_bridge.sim_clock import SimPacer
 
 BACKENDS = ("mujoco", "ros2_control")
 EE_FRAMES = ("tcp", "flange")
-MAX_CAMERA_SIZE = (1920, 1440)  # scene.MAX_OFFSCREEN (the offscreen buffer)
+MAX_CAMERA_SIZE = (1920, 1440)
+_NO_STATE = np.full(NUM_JOINTS, np.nan)  # scene.MAX_OFFSCREEN (the offscreen buffer)
 
 
 class ConfigError(ValueError):
@@ -325,8 +326,10 @@ class PandaBridge(Node):
         units = self._pacer.units_due(time.monotonic(), self._sim_seconds())
         sim = self._mj.sim
         for _ in range(units):
-            for _ in range(self._steps_per_state):
-                dq, code, text = self.filter.filter(None, sim.q_target, self._sim_seconds())
+            for k in range(self._steps_per_state):
+                # The servo targets integrate exactly what the filter integrates: measure once a unit.
+                q = sim.q_target if k == 0 else None
+                dq, code, text = self.filter.filter(None, q, self._sim_seconds())
                 sim.set_velocity_command(dq)
                 sim.step(1)
                 self._steps += 1
@@ -420,15 +423,14 @@ class PandaBridge(Node):
     def _control_tick(self) -> None:
         sample = self._rc.read()
         now = self._now_s()
-        q = None
         if sample is not None and now - self._rc.received_at <= self.params["state_timeout"]:
-            q = sample.position
-        elif not self._rc_state_stale:
-            self.get_logger().warn(
-                f"no joint state from {self.params['robot_joint_states_topic']} for "
-                f"{self.params['state_timeout']:g} s: braking to zero"
-            )
-        self._rc_state_stale = q is None
+            q, stale = sample.position, False
+        else:
+            q, stale = _NO_STATE, True                   # invalid on purpose: the filter brakes
+            if not self._rc_state_stale:
+                self.get_logger().warn(f"no joint state from {self.params['robot_joint_states_topic']} "
+                                       f"for {self.params['state_timeout']:g} s: braking to zero")
+        self._rc_state_stale = stale
         dq, code, text = self.filter.filter(None, q, now)
         self._rc.write(dq)
         if code != self._published_code:

@@ -99,7 +99,8 @@ class SafetyFilter:
     """Per-control-period filter: `filter(cmd, q, now) -> (dq_out, code, text)`; never raises on input.
 
     `cmd` is the command that arrived since the previous call, or None when none did (the previous
-    valid command stays the target until the watchdog expires). `q` is the measured joint position,
+    valid command stays the target until the watchdog expires). `q` is the measured joint position
+    (None: no new measurement this period; anything but 7 finite values: invalid, brake),
     `now` the time in seconds (simulated or wall clock) used by the watchdog only; integration uses
     the fixed period `config.dt`. The per-step core works on Python floats joint by joint: for seven
     values that is several times faster than NumPy, which matters at 1 kHz.
@@ -323,7 +324,11 @@ class SafetyFilter:
         return code, text
 
     def _sync_position(self, q) -> bool:
-        """Update the reference position from a measurement; False if q is not 7 finite values."""
+        """Update the reference position from a measurement. q None = no new measurement this period
+        (the integrated reference carries on, if there is one). False if there is no usable position:
+        q is not 7 finite values, or None before any measurement."""
+        if q is None:
+            return self._q_ref is not None
         q = _valid_q(q)
         if q is None:
             return False

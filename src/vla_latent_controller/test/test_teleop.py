@@ -256,3 +256,14 @@ def test_mode_switch_rejects_unknown():
     ok, msg = core.set_mode("joint")
     assert not ok and "unknown mode" in msg and core.mode == "end_effector"
     assert math.isnan(core.status.latched_x)
+
+
+def test_stick_to_unit_vectorised_matches_scalar():
+    from vla_latent_controller.teleop import stick_to_unit
+
+    s = np.array([-2.0, -1.0, -0.5, -0.1, 0.0, 0.05, 0.1, 0.55, 1.0, 3.0])
+    u = stick_to_unit(s, 0.1, 1.0)
+    np.testing.assert_allclose(u, [-1, -1, -0.4 / 0.9, 0, 0, 0, 0, 0.5, 1, 1])
+    assert all(
+        stick_to_unit(float(v), 0.1, 2.0) == pytest.approx(min(1, max(-1, 2 * x))) for v, x in zip(s, u)
+    )

@@ -98,6 +98,16 @@ class Latched:
     gain: float
 
 
+def stick_to_unit(stick, deadband: float, axis_scale: float = 1.0):
+    """The stick mapping (scalar or array): |s| <= deadband → 0 exactly; beyond, rescaled so it starts at
+    0 and reaches ±1 at full stick, times ``axis_scale``, clamped to [-1, 1]. The simulated teleoperator
+    uses this too, so it commands what the node would."""
+    s = np.clip(np.asarray(stick, dtype=float), -1.0, 1.0)
+    u = np.where(np.abs(s) <= deadband, 0.0, np.sign(s) * (np.abs(s) - deadband) / (1.0 - deadband))
+    u = np.clip(u * axis_scale, -1.0, 1.0)
+    return float(u) if u.ndim == 0 else u
+
+
 def _finite(x) -> bool:
     try:
         return math.isfinite(float(x))
@@ -259,11 +269,9 @@ class TeleopCore:
         v = self._axes[p.axis]
         if not _finite(v):
             return Code.BAD_INPUT, f"joy axis {p.axis} is not a finite number ({v!r})", 0.0
-        v = max(-1.0, min(1.0, float(v)))
-        if abs(v) <= p.deadband:
+        if abs(float(v)) <= p.deadband:
             return Code.ZERO_DEADBAND, f"stick within deadband {p.deadband}", 0.0
-        u = math.copysign((abs(v) - p.deadband) / (1.0 - p.deadband), v) * p.axis_scale
-        return None, "", max(-1.0, min(1.0, u))
+        return None, "", stick_to_unit(float(v), p.deadband, p.axis_scale)
 
     def _step(self, now: float) -> tuple[np.ndarray, Status]:
         p = self.params
@@ -390,4 +398,4 @@ class TeleopCore:
         return select_detection(self._dets, p.goal_selection, self.model.classes, ee_px)
 
 
-__all__ = ["Code", "EE_AXES", "MODES", "Status", "TeleopCore", "TeleopParams"]
+__all__ = ["Code", "EE_AXES", "MODES", "Status", "TeleopCore", "TeleopParams", "stick_to_unit"]

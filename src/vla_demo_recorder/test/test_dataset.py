@@ -67,6 +67,35 @@ def test_loader_resamples_and_reads_context(tmp_path):
                               "cy": 200.25, "width": 40.0, "height": 60.0}
 
 
+def test_detection_of_the_task_object_is_preferred(tmp_path):
+    """bread scores lower than soda_can in the hand-made bag: a bread task takes the bread box."""
+    ep = EpisodeInfo(task="bread/push_east", outcome="kept")
+    demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep))
+    assert demo.detection["class_id"] == "bread" and demo.detection["score"] == 0.4
+    ep = EpisodeInfo(task="cereal_box/push_south", outcome="kept")  # not detected: top detection
+    assert load_demo(write_rosbags_bag(tmp_path / "c", episode=ep)).detection["class_id"] == "soda_can"
+
+
+def test_a_frame_queued_before_the_start_is_not_the_context(tmp_path):
+    from recorder_testing import typestore
+
+    ts = typestore()
+    ep = EpisodeInfo(task="bread/push_east", outcome="kept", start_time_ns=T0)
+    path = tmp_path / "stale"
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        for k, v in ep.to_custom_data().items():
+            w.set_custom_data(k, v)
+        js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        cam = w.add_connection("/camera/image_raw", "sensor_msgs/msg/Image", typestore=ts)
+        old_scene = np.full((2, 2, 3), 7, np.uint8)
+        new_scene = np.full((2, 2, 3), 9, np.uint8)
+        w.write(cam, T0, image(T0 - 3 * 10**9, old_scene))  # rendered 3 s before the start
+        w.write(cam, T0 + 10**8, image(T0 + 10**8, new_scene))
+        for i in range(11):
+            w.write(js, T0 + i * 10**8, joint_state(T0 + i * 10**8, NAMES, q_of(i * 0.1)))
+    assert load_demo(path).first_image[0, 0, 0] == 9
+
+
 def test_bgr_images_come_out_rgb(tmp_path):
     ep = EpisodeInfo(task="bread/push_east", outcome="kept")
     demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep, encoding="bgr8"))

@@ -162,11 +162,30 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--episodes", type=int, default=10, help="episodes per task")
     p.add_argument("--out", type=Path, default=Path("demos"), help="output folder of the bags")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--image-every-n", type=int, default=1000,
-                   help="record every n-th camera frame (the first one always)")
-    p.add_argument("--camera-rate", type=float, default=5.0, help="camera frames per second")
-    p.add_argument("--keep-failed", action="store_true",
-                   help="keep episodes whose object was not displaced as intended (marked discarded)")
+    p.add_argument(
+        "--image-every-n",
+        type=int,
+        default=1000,
+        help="record every n-th camera frame (the first one always)",
+    )
+    p.add_argument("--camera-rate", type=float, default=5.0, help="camera frames per second (sim time)")
+    p.add_argument(
+        "--real-time-factor",
+        type=float,
+        default=1.0,
+        help="simulation speed relative to wall time (0: as fast as possible)",
+    )
+    p.add_argument(
+        "--detector-model",
+        default=None,
+        help="ONNX detector for the first-frame detections (default: the shipped model if any; '' for none)",
+    )
+    p.add_argument(
+        "--delete-failed",
+        action="store_true",
+        help="delete episodes that failed the task instead of keeping them marked discarded",
+    )
+    p.add_argument("--log-dir", type=Path, default=None, help="write the bridge's log here")
     p.set_defaults(func=_cmd_generate)
     return parser
 

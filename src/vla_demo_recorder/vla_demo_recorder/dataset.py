@@ -35,6 +35,8 @@ JOINT_STATE_TYPES = ("sensor_msgs/msg/JointState",)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DETECTION_TYPES = ("vla_interfaces/msg/DetectionArray", "vision_msgs/msg/Detection2DArray")
 USABLE_OUTCOMES = ("kept",)
+# A camera frame stamped this long before the episode start was queued before it: never the context.
+STALE_FRAME_S = 1.0
 
 
 class DemoError(ValueError):
@@ -98,25 +100,32 @@ def _class_index(class_id: str, given: int | None) -> int:
     return OBJECT_CLASSES.index(class_id) if class_id in OBJECT_CLASSES else -1
 
 
-def top_detection(msg, schema: str) -> dict | None:
-    """The highest-score detection of a detection array as a dict, or None when empty."""
-    best = None
+def _detections(msg, schema: str) -> list[dict]:
+    """All detections of a vla_interfaces/DetectionArray or vision_msgs/Detection2DArray as dicts."""
+    out = []
     if schema.startswith("vla_interfaces"):
         for d in msg.detections:
-            if best is None or d.score > best["score"]:
-                best = {"class_id": d.class_id, "class_index": _class_index(d.class_id, d.class_index),
+            out.append({"class_id": d.class_id, "class_index": _class_index(d.class_id, d.class_index),
                         "score": float(d.score), "cx": float(d.center_x), "cy": float(d.center_y),
-                        "width": float(d.size_x), "height": float(d.size_y)}
+                        "width": float(d.size_x), "height": float(d.size_y)})
     else:  # vision_msgs/Detection2DArray
         for d in msg.detections:
+            c = d.bbox.center.position
             for hyp in d.results:
                 h = hyp.hypothesis
-                if best is None or h.score > best["score"]:
-                    c = d.bbox.center.position
-                    best = {"class_id": h.class_id, "class_index": _class_index(h.class_id, None),
+                out.append({"class_id": h.class_id, "class_index": _class_index(h.class_id, None),
                             "score": float(h.score), "cx": float(c.x), "cy": float(c.y),
-                            "width": float(d.bbox.size_x), "height": float(d.bbox.size_y)}
-    return best
+                            "width": float(d.bbox.size_x), "height": float(d.bbox.size_y)})
+    return out
+
+
+def top_detection(msg, schema: str, prefer_class: str | None = None) -> dict | None:
+    """The highest-score detection of a detection array, or None when empty. With `prefer_class`
+    (the episode's object) the best detection of that class wins when there is one: the context of
+    a demonstration is the object it manipulates, even when another object scores higher."""
+    dets = _detections(msg, schema)
+    preferred = [d for d in dets if prefer_class and d["class_id"] == prefer_class]
+    return max(preferred or dets, key=lambda d: d["score"], default=None)
 
 
 # -- bag reading -------------------------------------------------------------------------------
@@ -171,6 +180,10 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
                     include_incomplete and episode.outcome in ("interrupted", "recovered")):
                 raise DemoError(f"episode outcome is {episode.outcome!r}"
                                 + (f" ({episode.error})" if episode.error else ""))
+            prefer = episode.object_class if episode is not None else \
+                (task.replace(":", "/").split("/")[0] if task else None)
+            stale_before = episode.start_time_ns - int(STALE_FRAME_S * 1e9) \
+                if episode is not None and episode.start_time_ns else 0
             summary = reader.get_summary()
             wanted = None if summary is None else [
                 c.topic for c in summary.channels.values()
@@ -184,6 +197,8 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
                     js_t.append(_stamp_ns(msg))
                     js_log.append(message.log_time)
                 elif schema.name in IMAGE_TYPES and image is None and image_err is None:
+                    if stale_before and 0 < _stamp_ns(msg) < stale_before:
+                        continue  # queued before the episode started: not this episode's scene
                     try:
                         image = image_to_rgb(msg, schema.name)
                         image_size = (image.shape[1], image.shape[0])
@@ -191,7 +206,7 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
                     except DemoError as err:
                         image_err = str(err)
                 elif schema.name in DETECTION_TYPES and detection is None:
-                    detection = top_detection(msg, schema.name)
+                    detection = top_detection(msg, schema.name, prefer_class=prefer)
                     if detection is not None:
                         det_t = message.log_time
                         w, h = getattr(msg, "image_width", 0), getattr(msg, "image_height", 0)

@@ -123,6 +123,10 @@ class RecorderNode(Node):
         return self.resolve_topic_name(topic)
 
     # -- subscriptions -------------------------------------------------------------------------
+    def subscribed_topics(self) -> list[str]:
+        """Topics subscribed so far (a configured topic is subscribed once it has a publisher)."""
+        return sorted(self._subs)
+
     def _offered_qos(self, topic: str) -> tuple[list, QoSProfile] | None:
         infos = self.get_publishers_info_by_topic(topic)
         if not infos:

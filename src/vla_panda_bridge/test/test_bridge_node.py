@@ -3,6 +3,7 @@
 Small cameras and real_time_factor > 1 keep it quick; the node steps physics and the safety filter
 at 1 kHz either way.
 """
+import math
 import os
 import subprocess
 import sys
@@ -329,3 +330,45 @@ def test_pacer_advances_one_state_period_per_tick_despite_jitter_and_slips_when_
     assert asap.timer_period() == 0.0 and asap.units_due(0.0, 123.0) == 2
     with pytest.raises(ValueError):
         SimPacer(unit=0.005, real_time_factor=-1.0)
+
+
+@pytest.mark.slow
+def test_scripted_push_through_joint_velocity_cmd_moves_the_object(harness):
+    """Pinocchio IK plan from the object's pose (vla_panda_bridge.planner), executed by a client that
+    turns each joint state into a joint_velocity_cmd: the object moves >= 5 cm within 30 deg."""
+    from vla_panda_bridge.kinematics import PandaKinematics
+    from vla_panda_bridge.objects import ObjectPose
+    from vla_panda_bridge.planner import plan_task
+    from vla_panda_bridge.tasks import TASKS, task_layout
+
+    h = harness(real_time_factor=2.0, scene_rate=20.0)
+    task = TASKS["soda_can/push_south"]
+    rng = np.random.default_rng(5)
+    layout = task_layout(task, rng, n_objects=1)
+    res = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(
+        objects=[SceneObject(class_id=o.class_id, x=o.x, y=o.y, yaw=o.yaw) for o in layout]))
+    assert res.success, res.message
+    start = res.objects[0]
+    n = len(h.states)
+    assert h.wait(lambda: len(h.states) > n + 2, 10.0)
+    q_start = np.array(h.states[-1].position)
+    plan = plan_task(PandaKinematics(), task, ObjectPose(start.class_id, start.x, start.y, start.yaw),
+                     q_start, rng)
+    t0 = _stamp(h.states[-1])
+    done = []
+
+    def on_state(msg: JointState) -> None:
+        t = _stamp(msg) - t0
+        h.command(plan.command(t, np.array(msg.position)))
+        if t > plan.duration + 0.5:
+            done.append(True)
+
+    h.probe.create_subscription(JointState, "joint_states", on_state, 10)
+    assert h.wait(lambda: bool(done), 120.0)
+    n = len(h.scenes)
+    assert h.wait(lambda: len(h.scenes) > n, 5.0)
+    end = h.scenes[-1].objects[0]
+    delta = np.array([end.x - start.x, end.y - start.y])
+    moved = float(np.linalg.norm(delta))
+    angle = math.degrees(math.acos(np.clip(delta @ task.direction_vector / max(moved, 1e-9), -1, 1)))
+    assert moved >= 0.05 and angle <= 30.0, (moved, angle)

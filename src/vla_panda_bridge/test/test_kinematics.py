@@ -83,3 +83,19 @@ def test_bad_q_is_refused(kin):
         kin.fk(np.zeros(6))
     with pytest.raises(ValueError):
         kin.fk([np.nan] * 7)
+
+
+def test_link_points_match_mujoco_meshes(kin):
+    model = build_model()
+    data = mujoco.MjData(model)
+    q = np.random.default_rng(4).uniform(Q_MIN, Q_MAX)
+    data.qpos[:7] = q
+    mujoco.mj_kinematics(model, data)
+    for link in ("panda_link3", "panda_link5", "panda_link7"):
+        pts = kin.link_points(q, (link,))
+        geom = next(g for g in range(model.ngeom) if model.body(model.geom_bodyid[g]).name == link)
+        mesh = model.geom_dataid[geom]
+        verts = model.mesh_vert[model.mesh_vertadr[mesh]:model.mesh_vertadr[mesh] + model.mesh_vertnum[mesh]]
+        world = verts @ data.geom_xmat[geom].reshape(3, 3).T + data.geom_xpos[geom]
+        np.testing.assert_allclose(pts.min(0), world.min(0), atol=1e-5)
+        np.testing.assert_allclose(pts.max(0), world.max(0), atol=1e-5)

@@ -6,7 +6,7 @@ import pytest
 from vla_panda_bridge.kinematics import PandaKinematics
 from vla_panda_bridge.objects import OBJECT_SPECS, ObjectPose
 from vla_panda_bridge.panda import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
-from vla_panda_bridge.planner import PlanError, plan_task, random_start_pose
+from vla_panda_bridge.planner import MIN_CLEARANCE, PlanError, object_clearance, plan_task, random_start_pose
 from vla_panda_bridge.tasks import TASKS, task_layout
 
 
@@ -107,3 +107,25 @@ def test_unreachable_or_mismatched_object_refused(kin):
         plan_task(kin, TASKS["bread/push_east"], ObjectPose("soda_can", 0.5, 0.0, 0.0), READY_POSE, rng)
     with pytest.raises(ValueError):
         plan_task(kin, "bread/push_east", ObjectPose("bread", 0.5, 0.0, 0.0), [0.0] * 6, rng)
+
+
+def test_object_clearance_sees_the_forearm(kin):
+    # TCP low in front of the robot: a can far to the side is clear; a tall box under the wrist is not.
+    q, ok = kin.ik([0.5, 0.0, 0.05], np.diag([1.0, -1.0, -1.0]), READY_POSE)
+    assert ok
+    far = ObjectPose("soda_can", 0.5, 0.35, 0.0)
+    assert object_clearance(kin, q, far) > 0.1
+    wrist = kin.frame_position(q, "panda_link6")
+    under = ObjectPose("cereal_box", float(wrist[0]), float(wrist[1]), 0.0)
+    assert object_clearance(kin, q, under) < -0.02  # the wrist dips below the box top
+
+
+def test_push_plans_keep_the_arm_off_tall_objects(kin):
+    # Regression: without the clearance check the forearm touched the bottle's top on these seeds.
+    for seed in (5003, 0, 1, 2):
+        rng = np.random.default_rng(seed)
+        obj = task_layout("glass_bottle/push_west", rng)[0]
+        plan = plan_task(kin, TASKS["glass_bottle/push_west"], obj, random_start_pose(rng), rng)
+        assert plan.params["clearance"] >= MIN_CLEARANCE
+        clearance = object_clearance(kin, plan.waypoints[1], obj)
+        assert clearance == pytest.approx(plan.params["clearance"], abs=0.005)

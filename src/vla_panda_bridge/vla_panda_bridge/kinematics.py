@@ -6,6 +6,7 @@ The tool centre point (TCP) is the URDF's `panda_hand_tcp` frame, between the cl
 """
 from __future__ import annotations
 
+import functools
 import os
 
 import numpy as np
@@ -35,6 +36,23 @@ def panda_urdf_path() -> str:
     if not os.path.isfile(path):
         raise FileNotFoundError(f"Panda URDF not found at {path}")
     return path
+
+
+ARM_LINKS = ("panda_link3", "panda_link4", "panda_link5", "panda_link6", "panda_link7")
+
+
+@functools.cache
+def _mesh_vertices(mesh: str) -> np.ndarray:
+    """Unique vertices of a binary STL collision mesh of example-robot-data's Panda (link frame)."""
+    path = os.path.join(panda_description_dir(), "meshes", "collision", f"{mesh}.stl")
+    with open(path, "rb") as f:
+        data = f.read()
+    count = int(np.frombuffer(data, dtype="<u4", count=1, offset=80)[0])
+    tri = np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("attr", "<u2")])
+    if len(data) != 84 + count * tri.itemsize:
+        raise ValueError(f"{path} is not a binary STL file")
+    verts = np.frombuffer(data, dtype=tri, count=count, offset=84)["v"].reshape(-1, 3)
+    return np.unique(verts.astype(float).round(6), axis=0)
 
 
 class PandaKinematics:
@@ -76,6 +94,18 @@ class PandaKinematics:
         if not self.model.existFrame(frame):
             raise ValueError(f"unknown frame {frame!r}")
         return self._frame(q, self.model.getFrameId(frame))[0]
+
+    def link_points(self, q, links: tuple[str, ...] = ARM_LINKS) -> np.ndarray:
+        """(N, 3) world positions of the collision-mesh vertices of `links` (the STL files MuJoCo
+        also uses), for clearance checks in planning."""
+        qv = self._check_q(q)
+        pin.forwardKinematics(self.model, self.data, qv)
+        out = []
+        for name in links:
+            verts = _mesh_vertices(name.removeprefix("panda_"))
+            placement = pin.updateFramePlacement(self.model, self.data, self.model.getFrameId(name))
+            out.append(verts @ placement.rotation.T + placement.translation)
+        return np.vstack(out)
 
     def jacobian(self, q) -> np.ndarray:
         """(6, 7) TCP Jacobian, LOCAL_WORLD_ALIGNED: rows 0-2 linear, 3-5 angular velocity (world axes)."""

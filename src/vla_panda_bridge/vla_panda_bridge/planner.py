@@ -28,6 +28,8 @@ REF_MAX_SPEED = 0.8
 REF_MAX_ACCEL = 2.5
 _DENSE_STEP = 0.005  # m between IK samples along Cartesian segments
 TILT_RANGE_DEG = (18.0, 26.0)  # gripper tilt while pushing: finger tips lead, the wrist stays back
+MIN_CLEARANCE = 0.02  # m between the arm (links 3-7) and the object before the push starts
+_EXTRA_TILT_DEG = (0.0, 8.0, 16.0)  # tried in turn when the arm would come too close to the object
 
 
 class PlanError(ValueError):
@@ -130,41 +132,59 @@ def push_rotation(direction_xy, tilt: float, flip: bool = False) -> np.ndarray:
     return np.column_stack([x, np.cross(z, x), z])
 
 
-def _wrist_clearance(kin: PandaKinematics, q: np.ndarray, direction_xy: np.ndarray) -> float:
-    """How far (m) the wrist (joint 6) sits behind the TCP, against the push direction: the bulky
-    wrist must not hang over the object being pushed."""
-    tcp = kin.fk(q)[0]
-    wrist = kin.frame_position(q, "panda_link6")
-    return float(-(wrist - tcp)[:2] @ direction_xy)
+DOWN = np.diag([1.0, -1.0, -1.0])  # TCP pointing down, hand x along world x (as in the ready pose)
+
+
+def object_clearance(kin: PandaKinematics, q: np.ndarray, obj: ObjectPose, shift=(0.0, 0.0)) -> float:
+    """Smallest distance (m) from the arm's links 3-7 (collision-mesh vertices) to the object's
+    volume (footprint prism up to its height; optionally shifted on the table by `shift`). The hand
+    and fingers are left out: they are meant to touch it. Negative: a link dips into the object."""
+    shape = OBJECT_SPECS[obj.class_id]
+    pts = kin.link_points(q)
+    rel = pts[:, :2] - (np.array([obj.x, obj.y]) + np.asarray(shift))
+    if shape.shape == "cylinder":
+        d_xy = np.linalg.norm(rel, axis=1) - shape.size[0]
+    else:
+        c, s = math.cos(obj.yaw), math.sin(obj.yaw)
+        local = np.abs(rel @ np.array([[c, -s], [s, c]]))  # into the object's frame
+        excess = local - np.array(shape.size[:2]) / 2
+        outside = np.linalg.norm(np.maximum(excess, 0.0), axis=1)
+        d_xy = np.where(outside > 0, outside, excess.max(axis=1))
+    d_z = pts[:, 2] - shape.height
+    return float(np.min(np.maximum(d_xy, d_z)))
 
 
 def _joint_margin(q: np.ndarray) -> float:
     return float(min(np.min(q - np.asarray(Q_MIN)), np.min(np.asarray(Q_MAX) - q)))
 
 
-def _best_push_configuration(kin: PandaKinematics, pos, direction_xy, tilt: float, q_seed: np.ndarray
-                             ) -> tuple[np.ndarray, np.ndarray]:
-    """IK for the pre-push pose over both hand flips and several joint-7 seeds; keeps the solution
-    with the wrist furthest behind the pusher (then the larger joint margin). Returns (q, rot)."""
+def _best_push_configuration(kin: PandaKinematics, pre, hover, direction_xy, tilt: float,
+                             q_seed: np.ndarray, obj: ObjectPose) -> tuple[np.ndarray, np.ndarray, float]:
+    """IK for the pre-push pose over both hand flips and several joint-7 seeds (with the hover pose
+    above it reachable from there), keeping the solution whose arm stays furthest from the object
+    (the bulky forearm must not hang over a tall object), then the larger joint margin.
+    Returns (q_pre, rot, clearance); PlanError when no candidate works."""
     best = None
     for flip in (False, True):
         rot = push_rotation(direction_xy, tilt, flip)
         for q7 in (-2.4, -1.2, 0.0, 1.2, 2.4):
             seed = np.array(q_seed, dtype=float)
             seed[6] = q7
-            q, ok = kin.ik(pos, rot, seed)
+            q, ok = kin.ik(pre, rot, seed)
             margin = _joint_margin(q)
             if not ok or margin < 0.15:
                 continue
-            score = _wrist_clearance(kin, q, direction_xy) + 0.1 * min(margin, 0.4)
-            if best is None or score > best[0]:
-                best = (score, q, rot)
+            clearance = object_clearance(kin, q, obj)
+            score = min(clearance, MIN_CLEARANCE + 0.03) + 0.1 * min(margin, 0.4)
+            if best is not None and score <= best[0]:
+                continue
+            q_hover, ok = kin.ik(hover, rot, q)
+            if ok and _joint_margin(q_hover) > 0.05:
+                best = (score, q, rot, clearance)
     if best is None:
-        raise PlanError(f"no IK solution for the pre-push pose at {np.round(pos, 3).tolist()}")
-    return best[1], best[2]
-
-
-DOWN = np.diag([1.0, -1.0, -1.0])  # TCP pointing down, hand x along world x (as in the ready pose)
+        raise PlanError(f"no IK solution for the pre-push pose at {np.round(pre, 3).tolist()} "
+                        f"(tilt {math.degrees(tilt):.0f} deg) with the hover pose above it")
+    return best[1], best[2], best[3]
 
 
 class _Builder:
@@ -289,7 +309,23 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         start_xy = c - d * (h + FINGER_HALF_THICKNESS + p["approach_gap"]) + perp * p["lateral_offset"]
         end_xy = start_xy + d * (p["approach_gap"] + spec.distance + p["extra_distance"])
         zp = p["push_height"]
-        q_pre, rot = _best_push_configuration(kin, [*start_xy, zp], d, math.radians(p["tilt_deg"]), q0)
+        found = None
+        for extra in _EXTRA_TILT_DEG:
+            try:
+                q_pre, rot, clearance = _best_push_configuration(
+                    kin, [*start_xy, zp], [*start_xy, p["hover_height"]], d,
+                    math.radians(p["tilt_deg"] + extra), q0, obj)
+            except PlanError:
+                if extra == _EXTRA_TILT_DEG[0]:
+                    raise
+                break
+            if found is None or clearance > found[2] + 1e-3:
+                found = (q_pre, rot, clearance, extra)
+            if clearance >= MIN_CLEARANCE:
+                break
+        q_pre, rot, clearance, extra = found
+        p["tilt_deg"] += extra
+        p["clearance"] = clearance
         b.joint_move([*start_xy, p["hover_height"]], rot, p["transit_speed"], seed=q_pre)
         b.line([*start_xy, zp], rot, p["transit_speed"] * 0.6)
         b.dwell(p["dwell"])

@@ -261,3 +261,21 @@ def test_node_drives_joy_through_an_episode(ros, tmp_path):
     assert _spin_until(ex, lambda: any(s.state == TeleopStatus.FAILED for s in statuses), 10.0)
     failed = next(s for s in statuses if s.state == TeleopStatus.FAILED)
     assert "controller_status" in failed.reason and joys[-1].axes[0] == 0.0
+
+
+def test_stick_rate_limit_moves_the_stick_gradually():
+    d = np.array([1.0, 0, 0, 0, 0, 0, 0])
+    sched = WaypointSchedule([Q0 + 5.0 * d], switch_time=1.0, time_limit=30.0)
+    free = SimTeleoperator(deadband_linear(d), sched)
+    assert free.act(0.0, Q0).axis == 1.0 and free.act(0.01, Q0).axis == 1.0
+    limited = SimTeleoperator(deadband_linear(d), sched, max_stick_rate=5.0)
+    first = limited.act(0.0, Q0).axis  # nothing to limit against yet
+    assert first == 1.0
+    behind = WaypointSchedule([Q0 - 5.0 * d], switch_time=1.0, time_limit=30.0)
+    limited.schedule = behind  # the goal flips: the hand needs 0.4 s to go from +1 to -1
+    axes = [limited.act(0.02 * k, Q0).axis for k in range(1, 25)]
+    steps = np.abs(np.diff([first, *axes]))
+    assert np.all(steps <= 5.0 * 0.02 + 1e-9)
+    assert axes[-1] == pytest.approx(-1.0) and axes[3] > 0.5
+    with pytest.raises(ValueError):
+        SimTeleoperator(deadband_linear(d), sched, max_stick_rate=-1.0)

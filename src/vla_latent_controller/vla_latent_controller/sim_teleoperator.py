@@ -146,13 +146,20 @@ class SimTeleoperator:
     """Greedy one-step simulated user over a fixed grid of stick values."""
 
     def __init__(self, command_fn: AxisCommandFn, schedule: WaypointSchedule,
-                 horizon: float = DEFAULT_HORIZON, n_candidates: int = DEFAULT_CANDIDATES) -> None:
+                 horizon: float = DEFAULT_HORIZON, n_candidates: int = DEFAULT_CANDIDATES,
+                 max_stick_rate: float = 0.0) -> None:
         if not (horizon > 0 and np.isfinite(horizon)):
             raise ValueError(f"horizon must be a positive number of seconds, got {horizon!r}")
+        if not (max_stick_rate >= 0 and np.isfinite(max_stick_rate)):
+            raise ValueError(f"max_stick_rate must be >= 0 (0: unlimited), got {max_stick_rate!r}")
         self.command_fn = command_fn
         self.schedule = schedule
         self.horizon = float(horizon)
         self.axes = axis_candidates(n_candidates)
+        # A hand moves the stick at a finite speed (stick units per second); 0 = the paper's
+        # unconstrained choice. With a limit, only values reachable since the last step compete.
+        self.max_stick_rate = float(max_stick_rate)
+        self._last: tuple[float, float] | None = None  # (t, axis) of the previous step
 
     def act(self, t: float, q: np.ndarray) -> TeleopStep:
         """The stick value at time t (s since the episode started) for joint positions q.
@@ -165,16 +172,35 @@ class SimTeleoperator:
         q = np.asarray(q, dtype=float).reshape(-1)
         if q.shape != (7,) or not np.all(np.isfinite(q)):
             return TeleopStep(0.0, idx, float("nan"), False, "bad joint state")
+        axes = self._reachable(t)
         try:
-            commands = np.asarray(self.command_fn(self.axes, q), dtype=float)
+            commands = np.asarray(self.command_fn(axes, q), dtype=float)
         except Exception as exc:  # a model error must not kill the control loop
             return TeleopStep(0.0, idx, float("nan"), False, f"command model failed: {exc}")
-        if commands.shape != (len(self.axes), 7):
+        if commands.shape != (len(axes), 7):
             return TeleopStep(0.0, idx, float("nan"), False, f"command model gave shape {commands.shape}")
         best, dist = best_candidate(commands, q, self.schedule.waypoints[idx], self.horizon)
         if not np.isfinite(dist):
             return TeleopStep(0.0, idx, float("nan"), False, "no finite command")
-        return TeleopStep(float(self.axes[int(best)]), idx, float(dist), False)
+        axis = float(axes[int(best)])
+        self._last = (float(t), axis)
+        return TeleopStep(axis, idx, float(dist), False)
+
+    def _reachable(self, t: float) -> np.ndarray:
+        """The candidate grid, or with a stick rate limit its values reachable from the last one plus
+        the two ends of the reachable interval (still ordered gentlest first)."""
+        if self.max_stick_rate <= 0 or self._last is None:
+            return self.axes
+        t0, a0 = self._last
+        reach = self.max_stick_rate * max(0.0, float(t) - t0)
+        lo, hi = max(-1.0, a0 - reach), min(1.0, a0 + reach)
+        inside = self.axes[(self.axes >= lo) & (self.axes <= hi)]
+        cand = np.unique(np.concatenate([inside, [lo, hi, a0]]))
+        return cand[np.lexsort((cand, np.abs(cand)))]
+
+    def reset(self) -> None:
+        """Forget the previous stick value (a new episode starts from the stick at rest)."""
+        self._last = None
 
 
 class StickToCommand:

@@ -82,6 +82,8 @@ class SimTeleoperatorNode(Node):
         p("switch_time", DEFAULT_SWITCH_TIME,
           _desc("time on the pre-push waypoint, the paper's k (s)", 0.0, 600.0))
         p("time_limit", DEFAULT_TIME_LIMIT, _desc("episode length (s)", 0.1, 3600.0))
+        p("max_stick_rate", 0.0, _desc("how fast the simulated hand moves the stick (units/s); 0: unlimited "
+                                      "(the paper's choice)", 0.0, 1000.0))
         p("plan_seed", 0, _desc("seed of the planner's waypoint variation", 0, 2**31 - 1, True))
         p("start_timeout", 10.0, _desc("give up starting when inputs are missing this long (s)", 0.1, 600.0))
         p("controller_status_topic", "controller_node/status",
@@ -249,7 +251,8 @@ class SimTeleoperatorNode(Node):
             waypoints = teleop_waypoints(plan)
             schedule = WaypointSchedule(waypoints, float(g("switch_time").value),
                                         float(g("time_limit").value))
-            self.tele = SimTeleoperator(command, schedule, float(g("horizon").value), self.n_candidates)
+            self.tele = SimTeleoperator(command, schedule, float(g("horizon").value), self.n_candidates,
+                                        float(g("max_stick_rate").value))
         except (ContextError, ValueError, RuntimeError) as e:
             self._finish(TeleopStatus.FAILED, f"cannot start: {e}")
             self.get_logger().error(f"{self.task}: {self.reason}")

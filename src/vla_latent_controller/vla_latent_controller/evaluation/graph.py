@@ -76,7 +76,8 @@ class GraphConfig:
                          "goal_selection": s.goal_selection, **stick},
             TELEOP: {"model_path": str(self.model_path), "rate": float(self.rate), "horizon": s.horizon,
                      "n_candidates": int(s.n_candidates), "switch_time": s.switch_time,
-                     "time_limit": s.time_limit, "controller_status_topic": f"{CONTROLLER}/status", **stick},
+                     "time_limit": s.time_limit, "controller_status_topic": f"{CONTROLLER}/status",
+                     "max_stick_rate": float(s.max_stick_rate), **stick},
         }
         for node, extra in self.extra_params.items():
             params.setdefault(node, {}).update(extra)
@@ -350,6 +351,7 @@ class EpisodeRecord:
     tcp_path: np.ndarray  # (T, 3) TCP positions
     tcp_times: np.ndarray  # (T,) s since the episode started
     frames: list[tuple[float, np.ndarray]] = field(default_factory=list)
+    trace: np.ndarray | None = None  # (T, 11): t, q1..q7, stick, waypoint index, projected distance
 
 
 class GraphEvaluator:
@@ -524,6 +526,7 @@ class GraphEvaluator:
         tally = SafetyTally()
         path: list[np.ndarray] = []
         path_t: list[float] = []
+        trace: list[list[float]] = []  # t, q1..q7, stick, waypoint index, projected distance
         frames: list[tuple[float, np.ndarray]] = []
         t_start = [math.inf]
         every = max(1, int(round(cfg.state_rate / 20.0)))
@@ -537,6 +540,9 @@ class GraphEvaluator:
             if counter[0] % every == 0:
                 path.append(self.kin.fk(q)[0])
                 path_t.append(stamp - t_start[0])
+                st = obs.teleop
+                if st is not None:
+                    trace.append([stamp - t_start[0], *q, st.axis, st.waypoint_index, st.distance])
 
         def on_objects(stamp, objs):
             if stamp >= t_start[0] and spec.object_class in objs:
@@ -608,7 +614,7 @@ class GraphEvaluator:
                              "interventions_by_code": dict(tally.by_code)})
         result.ee_path = np.asarray(path) if path else None
         tcp = result.ee_path if result.ee_path is not None else np.zeros((0, 3))
-        return EpisodeRecord(result, tcp, np.asarray(path_t[: len(tcp)]), frames)
+        return EpisodeRecord(result, tcp, np.asarray(path_t[: len(tcp)]), frames, np.asarray(trace))
 
     @staticmethod
     def _scene_object(pose):

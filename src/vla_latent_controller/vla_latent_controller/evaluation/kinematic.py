@@ -50,6 +50,7 @@ class TeleopSettings:
     goal_selection: str = "highest_score"
     dq_max: tuple | None = tuple(float(v) for v in DQ_MAX)  # the controller node's per-joint limit
     path_every: int = 2  # keep every n-th TCP position for plots
+    max_stick_rate: float = 0.0  # stick units per second; 0: unlimited (the paper)
 
 
 @dataclass
@@ -188,7 +189,8 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, kin=None, label
         result.duration_s = 0.0
         return result
     schedule = WaypointSchedule(layout.waypoints, settings.switch_time, settings.time_limit)
-    tele = SimTeleoperator(command, schedule, settings.horizon, settings.n_candidates)
+    tele = SimTeleoperator(command, schedule, settings.horizon, settings.n_candidates,
+                           settings.max_stick_rate)
     dt = 1.0 / settings.rate
     n_steps = int(round(settings.time_limit * settings.rate))
     path = []

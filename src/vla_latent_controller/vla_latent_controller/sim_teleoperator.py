@@ -229,10 +229,11 @@ class StickToCommand:
         self.dq_max = None if dq_max is None else np.asarray(dq_max, dtype=float)
 
     def stick(self, axes: np.ndarray) -> np.ndarray:
-        """Stick values after deadband, rescaling and axis_scale, in [-1, 1]."""
-        v = np.clip(np.asarray(axes, dtype=float), -1.0, 1.0)
-        u = np.sign(v) * (np.abs(v) - self.deadband) / (1.0 - self.deadband) * self.axis_scale
-        return np.where(np.abs(v) <= self.deadband, 0.0, np.clip(u, -1.0, 1.0))
+        """Stick values after deadband, rescaling and axis_scale, in [-1, 1] (the controller's own
+        mapping function)."""
+        from .teleop import stick_to_unit
+
+        return np.atleast_1d(stick_to_unit(np.asarray(axes, dtype=float), self.deadband, self.axis_scale))
 
     def __call__(self, axes: np.ndarray, q: np.ndarray) -> np.ndarray:
         u = self.stick(axes)

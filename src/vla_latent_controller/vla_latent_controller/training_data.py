@@ -58,16 +58,17 @@ def count_bags(folder: Path) -> int:
 
 
 def ensure_demos(
-    task: str, episodes: int, data_dir: Path, seed: int, log: Callable[[str], None] = print
+    task: str, episodes: int, data_dir: Path, seed: int, log: Callable[[str], None] = print, attempts: int = 3
 ) -> Path:
-    """A folder with at least `episodes` demonstration bags of `task` (generated when short)."""
+    """A folder with at least `episodes` successful demonstration bags of `task`, generated through
+    the graph (`vla_demo_recorder generate`, failed episodes deleted) when short."""
     folder = task_dir(data_dir, task)
-    have = count_bags(folder)
-    if have >= episodes:
-        return folder
-    log(f"[data] generating {episodes - have} demonstrations of {task} into {folder}")
-    run_command(
-        [
+    for attempt in range(attempts):
+        have = count_bags(folder)
+        if have >= episodes:
+            return folder
+        log(f"[data] generating {episodes - have} demonstrations of {task} into {folder}")
+        cmd = [
             "vla_demo_recorder",
             "generate",
             "--task",
@@ -75,12 +76,14 @@ def ensure_demos(
             "--episodes",
             str(episodes - have),
             "--seed",
-            str(seed + have),
+            str(seed + 1000 * attempt + have),
             "--out",
             str(folder),
-        ],
-        log,
-    )
+            "--real-time-factor",
+            "0",
+            "--delete-failed",
+        ]
+        run_command(cmd, log)
     if count_bags(folder) < episodes:
         raise RuntimeError(f"generation left {count_bags(folder)} of {episodes} bags of {task} in {folder}")
     return folder

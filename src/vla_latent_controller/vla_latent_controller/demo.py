@@ -49,7 +49,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--data",
         type=Path,
-        default=Path("data"),
+        default=Path("out/data"),
         help="where demonstrations are generated when a model must be trained",
     )
     p.add_argument("--no-video", action="store_true", help="skip the video and image strip")

@@ -245,7 +245,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("docs/results"), help="output folder")
     p.add_argument("--quick", action="store_true", help="small version for CI (<= 3 minutes)")
     p.add_argument(
-        "--data", type=Path, default=Path("data"), help="demonstration bags (generated if missing)"
+        "--data", type=Path, default=Path("out/data"), help="demonstration bags (generated if missing)"
     )
     p.add_argument(
         "--demo-source",

@@ -550,6 +550,12 @@ class PandaBridge(Node):
             self._camera.close()
         if self._mj is not None:
             self._mj.close()
+            wall = time.monotonic() - self._wall_start
+            cam = (f", camera {self._camera.frames} frames ({self._camera.dropped} dropped while rendering)"
+                   if self._camera is not None else "")
+            sim_s = self._sim_seconds()
+            print(f"panda_bridge: {sim_s:.1f} s simulated in {wall:.1f} s (x{sim_s / max(wall, 1e-9):.2f}, "
+                  f"fell behind {self._pacer.lag_events} times){cam}; command zeroed", file=sys.stderr)
             return
         if self._rc is not None:
             self.filter.set_estop(True)

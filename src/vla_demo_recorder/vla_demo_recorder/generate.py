@@ -132,6 +132,8 @@ class Demonstrator:
         self.objects_stamp = -math.inf
         self.frame_stamp = -math.inf
         self.want_frame = False
+        self.frame_after = math.inf
+        self.last_frame_stamp = -math.inf
         self.object_class = ""
         self.first_frame = None
         self.detection: dict | None = None
@@ -196,7 +198,11 @@ class Demonstrator:
             self.cond.notify_all()
 
     def _on_image(self, msg) -> None:
-        if not self.want_frame:
+        stamp = self._stamp(msg)
+        with self.cond:
+            self.last_frame_stamp = stamp
+            self.cond.notify_all()
+        if not self.want_frame or stamp < self.frame_after:
             return
         from .dataset import image_to_rgb
 
@@ -224,7 +230,7 @@ class Demonstrator:
             best = max(mine or dets, key=lambda d: d.score, default=None)
             self.detection = best.as_dict() if best is not None else None
         with self.cond:
-            self.first_frame, self.frame_stamp = rgb, self._stamp(msg)
+            self.first_frame, self.frame_stamp = rgb, stamp
             self.cond.notify_all()
 
     # -- helpers for the orchestrator (main thread; the executor spins elsewhere) ----------------
@@ -371,8 +377,14 @@ def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
     demo = Demonstrator(ctx, detector)
     executor.add_node(recorder)
     executor.add_node(demo.node)
-    spin = threading.Thread(target=executor.spin, daemon=True)
-    spin.start()
+    stop_spinning = threading.Event()
+
+    def spin() -> None:
+        while ctx.ok() and not stop_spinning.is_set():
+            executor.spin_once(timeout_sec=0.1)
+
+    spinner = threading.Thread(target=spin, daemon=True)
+    spinner.start()
     records: list[EpisodeRecord] = []
     try:
         demo.wait(
@@ -429,7 +441,9 @@ def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
                 default=str,
             )
         )
-        executor.shutdown()
+        stop_spinning.set()
+        spinner.join(10)  # no callback may run on a node being destroyed
+        executor.shutdown(timeout_sec=10)
         recorder.destroy_node()
         demo.node.destroy_node()
         rclpy.shutdown(context=ctx)
@@ -460,6 +474,8 @@ def _reset_scene(demo: Demonstrator, spec, layout, q0):
         lambda: (
             demo.q_stamp > t_reset + 0.2
             and demo.objects_stamp > t_reset + 0.2
+            # a camera frame of the new scene too: frames queued before the reset then come first
+            and demo.last_frame_stamp > t_reset
             and float(np.max(np.abs(demo.q - q0))) < 0.02
         ),
         30,
@@ -492,14 +508,17 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord) ->
 
     # 2. record: first frame (+ detection) before the arm moves, then the demonstration
     note = json.dumps({"generated": True, "seed": rec.seed, "plan": rec.plan_params})
+    demo.object_class = spec.object_class
     res = demo.call(demo.start_cli, demo.StartEpisode.Request(task=spec.name, note=note), 30, "start")
     if not res.success:
         raise GenerateError(f"start_episode refused: {res.message}")
     rec.bag = res.bag_path
-    t_start = demo.now()
-    demo.object_class = spec.object_class
+    # the recorder holds every frame from its start on; detect the first one received after the
+    # reply (a frame stamped between the recorder's start and the reply would be missed otherwise)
+    t_recording = demo.now()
+    demo.frame_after = t_recording
     demo.want_frame = True
-    demo.wait(lambda: demo.frame_stamp >= t_start, 30, "the first camera frame")
+    demo.wait(lambda: demo.frame_stamp >= t_recording, 30, "the first camera frame")
     rec.detection = demo.detection
     wall_limit = (plan.duration + cfg.settle) / max(cfg.real_time_factor, 0.05) * 4 + 60
     demo.run_plan(plan, cfg.settle, wall_limit)

@@ -50,9 +50,12 @@ class ConfigError(ValueError):
 
 
 def _desc(
-    text: str, *, float_range: tuple[float, float] | None = None, int_range: tuple[int, int] | None = None
+    text: str, *, float_range: tuple[float, float] | None = None, int_range: tuple[int, int] | None = None,
+    choices: tuple[str, ...] | None = None,
 ) -> ParameterDescriptor:
     d = ParameterDescriptor(description=text, read_only=True)
+    if choices is not None:
+        d.additional_constraints = "one of: " + ", ".join(choices)
     if float_range is not None:
         d.floating_point_range = [
             FloatingPointRange(from_value=float(float_range[0]), to_value=float(float_range[1]))
@@ -67,7 +70,8 @@ PARAMETERS: dict[str, tuple[object, ParameterDescriptor]] = {
         "mujoco",
         _desc(
             "Robot behind the safety layer: 'mujoco' (simulated Panda) or "
-            "'ros2_control' (JointGroupVelocityController)"
+            "'ros2_control' (JointGroupVelocityController)",
+            choices=BACKENDS,
         ),
     ),
     "control_rate": (
@@ -106,7 +110,8 @@ PARAMETERS: dict[str, tuple[object, ParameterDescriptor]] = {
     "seed": (0, _desc("mujoco: seed of the initial random object layout", int_range=(0, 2**31 - 1))),
     "initial_positions": (list(READY_POSE), _desc("mujoco: initial joint positions (7, rad)")),
     "base_frame_id": ("panda_link0", _desc("frame_id of ee_pose and scene/objects (the robot base)")),
-    "ee_frame": ("tcp", _desc("ee_pose of the 'tcp' (between the closed finger tips) or the 'flange'")),
+    "ee_frame": ("tcp", _desc("ee_pose of the 'tcp' (between the closed finger tips) or the 'flange'",
+                              choices=EE_FRAMES)),
     "command_timeout": (
         0.1,
         _desc(

@@ -49,3 +49,19 @@ def test_bad_context_rejected(random_model_dir):
         dec.set_context(np.zeros(3))
     with pytest.raises(ValueError, match="NaN"):
         dec.set_context(np.full(art.config["dims"]["context"], np.nan))
+
+
+def test_runtime_never_imports_torch(random_model_dir):
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "import vla_latent_controller.controller_node\n"
+        "from vla_latent_controller.model import LatentModel\n"
+        f"m = LatentModel.load({str(random_model_dir)!r})\n"
+        "m.decoder.set_context([1, 0, 0, 0, 0, 0.5, 0.5]); m.decoder.decode([0.0] * 7, 0.5)\n"
+        "assert 'torch' not in sys.modules, 'torch was imported'\n"
+    )
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr

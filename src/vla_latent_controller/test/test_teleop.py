@@ -267,3 +267,15 @@ def test_stick_to_unit_vectorised_matches_scalar():
     assert all(
         stick_to_unit(float(v), 0.1, 2.0) == pytest.approx(min(1, max(-1, 2 * x))) for v, x in zip(s, u)
     )
+
+
+def test_malformed_detection_and_joy(random_model_dir):
+    core = make_core(random_model_dir)
+    feed(core, 0.0, dets=None)
+    core.on_detections([Det("bread", 0.9, 320, 240)], (0, 0), 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.BAD_INPUT and "image size" in st.reason and np.all(cmd == 0)
+    core.on_joy(None, None, 0.0)
+    core.on_detections([Det("bread", 0.9, 320, 240)], SIZE, 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.BAD_INPUT and np.all(cmd == 0)

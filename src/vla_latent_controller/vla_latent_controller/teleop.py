@@ -185,8 +185,11 @@ class TeleopCore:
     # ----------------------------------------------------------------- inputs
     def on_joy(self, axes: Sequence[float], buttons: Sequence[int], now: float) -> None:
         prev = self._buttons
-        self._axes = list(axes)
-        self._buttons = [int(b) for b in buttons]
+        try:
+            self._axes = list(axes)
+            self._buttons = [int(b) for b in buttons]
+        except (TypeError, ValueError):  # not a sequence of numbers: BAD_INPUT via an empty axes list
+            self._axes, self._buttons = [], []
         self._joy_t = now
 
         def pressed(i: int) -> bool:
@@ -376,8 +379,8 @@ class TeleopCore:
         try:
             ctx = m.context(det=det, image_size=self._dets_size, image=image, class_id=class_id)
             m.decoder.set_context(ctx)
-        except (ContextError, ValueError) as e:
-            return Code.MODEL_ERROR, f"cannot build the context: {e}"
+        except (ContextError, ValueError) as e:  # a malformed detection or image
+            return Code.BAD_INPUT, f"cannot build the context: {e}"
         t = self._dets_t if det is not None else self._image_t
         if det is not None and self._dets_size:
             x, y = det.cx / self._dets_size[0], det.cy / self._dets_size[1]

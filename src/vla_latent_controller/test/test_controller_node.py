@@ -218,3 +218,42 @@ def test_nearest_to_ee_projection_matches_the_simulated_camera():
     pc = (pts - np.array(CAMERA_POS)) @ look_at_rotation(np.array(CAMERA_POS), np.array(CAMERA_LOOKAT))
     ours = np.column_stack([fx * pc[:, 0] / pc[:, 2] + cx, fy * pc[:, 1] / pc[:, 2] + cy])
     np.testing.assert_allclose(ours, sim.project(pts), atol=1e-6)
+
+
+@pytest.mark.slow
+def test_image_encoder_latches_a_camera_frame(tmp_path):
+    from sensor_msgs.msg import Image
+    from synthetic import CLASSES, make_demos, make_pairs
+    from vla_latent_controller.train import TrainConfig, train_model
+
+    demos = make_demos(per_class=1, with_image=True, T=20)
+    res = train_model(
+        demos,
+        TrainConfig(encoder="end_to_end", epochs=3),
+        classes=CLASSES,
+        pairs_fn=make_pairs,
+        progress=False,
+        threads=1,
+        log=lambda s: None,
+    )
+    h = Harness(res.save(tmp_path / "e2e"))
+    try:
+        st, cmd = h.settle(ControllerStatus.WAITING_FOR_DETECTION, dets=None)
+        assert "camera image" in st.reason and np.all(cmd == 0.0)
+        pub = h.io.create_publisher(Image, "camera/image_raw", 10)
+        img = demos[0].first_image
+        msg = Image(
+            height=img.shape[0],
+            width=img.shape[1],
+            encoding="rgb8",
+            step=img.shape[1] * 3,
+            data=img.tobytes(),
+        )
+        h.spin_until(lambda: pub.get_subscription_count() > 0)
+        for _ in range(5):
+            pub.publish(msg)
+            h.spin_until(lambda: False, timeout=0.02)
+        st, cmd = h.settle(ControllerStatus.ACTIVE, dets=None)
+        assert np.linalg.norm(cmd) > 0 and st.latched_class == ""
+    finally:
+        h.close()

@@ -328,10 +328,12 @@ class SimTeleoperatorNode(Node):
 def main(args=None) -> None:
     rclpy.init(args=args)
     node = None
+    from rclpy.executors import ExternalShutdownException
+
     try:
         node = SimTeleoperatorNode()
         rclpy.spin(node)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, ExternalShutdownException):
         pass
     except Exception as e:  # noqa: BLE001 - a startup error (bad model, bad parameter) ends with a message
         import sys

@@ -61,6 +61,9 @@ class GraphConfig:
     log_dir: Path | None = None
     domain_id: int | None = None  # None: keep ROS_DOMAIN_ID if set, else pick a random free-ish one
     startup_timeout: float = 90.0
+    # The controller's joy timeout (sim s): above its 0.1 s default so that a busy 2-core machine
+    # stalling a process for a moment does not zero the command mid-episode.
+    joy_timeout: float = 0.25
     extra_params: dict[str, dict] = field(default_factory=dict)
 
     def node_params(self) -> dict[str, dict]:
@@ -73,7 +76,7 @@ class GraphConfig:
                      "camera_width": int(self.camera_size[0]), "camera_height": int(self.camera_size[1])},
             DETECTOR: {"model_path": str(self.detector_model)},
             CONTROLLER: {"model_path": str(self.model_path), "rate": float(self.rate),
-                         "goal_selection": s.goal_selection, **stick},
+                         "goal_selection": s.goal_selection, "joy_timeout": float(self.joy_timeout), **stick},
             TELEOP: {"model_path": str(self.model_path), "rate": float(self.rate), "horizon": s.horizon,
                      "n_candidates": int(s.n_candidates), "switch_time": s.switch_time,
                      "time_limit": s.time_limit, "controller_status_topic": f"{CONTROLLER}/status",
@@ -146,21 +149,24 @@ class NodeProcesses:
         except OSError:
             return ""
 
-    def stop(self, nodes: Sequence[str] | None = None, timeout: float = 8.0) -> None:
-        """SIGINT (the nodes command zero and exit), then SIGTERM, then SIGKILL; all nodes by default."""
-        names = [n for n in (nodes if nodes is not None else list(self.procs)) if n in self.procs]
-        for n in names:
-            p = self.procs[n]
+    def stop(self, nodes: Sequence[str] | None = None, timeout: float = 5.0) -> None:
+        """SIGINT (the nodes command zero and exit), then SIGTERM, then SIGKILL; all nodes by default.
+
+        In reverse start order, one after the other: the teleoperator and the controller go first,
+        while the bridge still publishes /clock (a node on sim time may only notice a signal when a
+        timer fires), and the robot side goes last."""
+        order = [n for n in (TELEOP, CONTROLLER, DETECTOR, BRIDGE) if n in self.procs]
+        order += [n for n in self.procs if n not in order]
+        names = [n for n in order if nodes is None or n in nodes]
+        for node in names:
+            p = self.procs.pop(node)
             if p.poll() is None:
                 try:
                     os.killpg(p.pid, signal.SIGINT)
                 except ProcessLookupError:
                     pass
-        deadline = time.monotonic() + timeout
-        for node in names:
-            p = self.procs.pop(node)
             try:
-                p.wait(max(0.1, deadline - time.monotonic()))
+                p.wait(timeout)
             except subprocess.TimeoutExpired:
                 self.log(f"[graph] {node} ignored SIGINT; terminating")
                 try:

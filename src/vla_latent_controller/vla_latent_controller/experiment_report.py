@@ -81,6 +81,41 @@ def _table(rows: Sequence[dict], cols: Sequence[str], fmt: dict | None = None) -
     return lines
 
 
+def demo_consistency(demos_by_task: dict, start_tol: float = 0.3, cluster_tol: float = 1.0) -> list[dict]:
+    """How consistent the demonstrations are in joint space, per task: a 1-D latent per context can
+    only fit demos that move alike. Counts demos starting away from the ready pose (more than
+    `start_tol` rad) and groups final joint states that lie within `cluster_tol` rad of each other
+    (single linkage): several groups mean the planner ended the same task in different arm
+    configurations (IK branches)."""
+    from vla_panda_bridge.panda import READY_POSE
+
+    rows = []
+    for task, demos in demos_by_task.items():
+        if not demos:
+            continue
+        starts = np.array([np.asarray(d.q)[0] for d in demos])
+        ends = np.array([np.asarray(d.q)[-1] for d in demos])
+        far = int(np.sum(np.linalg.norm(starts - np.asarray(READY_POSE), axis=1) > start_tol))
+        label = list(range(len(ends)))
+        for i in range(len(ends)):
+            for j in range(i):
+                if np.linalg.norm(ends[i] - ends[j]) < cluster_tol:
+                    old, new = label[i], label[j]
+                    label = [new if v == old else v for v in label]
+        sizes = sorted(np.unique(label, return_counts=True)[1].tolist(), reverse=True)
+        rows.append(
+            {
+                "task": task,
+                "demos": len(demos),
+                "start_far_from_ready": far,
+                "end_state_groups": len(sizes),
+                "largest_group_share": round(sizes[0] / len(demos), 2),
+                "end_state_spread_rad": round(float(np.mean(np.linalg.norm(ends - ends.mean(0), axis=1))), 3),
+            }
+        )
+    return rows
+
+
 def write_report(rows: Sequence[dict], out: Path, meta: dict) -> dict[str, Path]:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -194,6 +229,28 @@ def write_report(rows: Sequence[dict], out: Path, meta: dict) -> dict[str, Path]
         text += _table(table, ["setting", "k", "transfer", "no transfer"]) + [""]
         verdicts += _h3(grid, [s for s, _ in panels], sorted({r["count"] for r in c_sum}))
     text += ["## Hypotheses: what the paper found and what we measure", ""] + verdicts + [""]
+    quality = meta.get("demo_consistency") or []
+    if quality:
+        files["data"] = write_csv(quality, out / "demo_consistency.csv")
+        text += [
+            "## The demonstrations",
+            "",
+            "A 1-D latent per context can only fit demonstrations that move alike in joint space. Demos "
+            "starting more than 0.3 rad from the ready pose, and groups of final joint states (single "
+            "linkage at 1 rad; several groups = the same task ended in different arm configurations):",
+            "",
+        ]
+        text += _table(
+            quality,
+            [
+                "task",
+                "demos",
+                "start_far_from_ready",
+                "end_state_groups",
+                "largest_group_share",
+                "end_state_spread_rad",
+            ],
+        ) + [""]
     text += [
         "## Files",
         "",

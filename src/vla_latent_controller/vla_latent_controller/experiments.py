@@ -307,7 +307,10 @@ def run(args) -> int:
         f"on {plan.jobs} worker(s)"
     )
     rows = _run_jobs(jobs, plan.jobs, log)
+    from .experiment_report import demo_consistency
+
     meta = {
+        "demo_consistency": demo_consistency(demos),
         "plan": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(plan).items()},
         "demo_source": source,
         "detector_model": str(det_path),

@@ -157,3 +157,89 @@ def test_kinematic_teleoperator_drives_trained_model_to_the_demo_goal(trained):
     r = run_episode(model, lay, settings)
     assert "no context" in r.note
     assert r.final_state_error == pytest.approx(np.linalg.norm(lay.waypoints[-1] - lay.q0))
+
+
+# ---------------------------------------------------------------- graph config, experiments plumbing
+def test_graph_config_gives_each_node_consistent_parameters():
+    from vla_latent_controller.evaluation.graph import BRIDGE, CONTROLLER, DETECTOR, TELEOP, GraphConfig
+    from vla_latent_controller.evaluation.kinematic import TeleopSettings
+
+    settings = TeleopSettings(rate=100.0, deadband=0.15, action_scale=1.2, max_stick_rate=4.0)
+    cfg = GraphConfig(model_path="/m", detector_model="/d.onnx", real_time_factor=3.0, settings=settings,
+                      extra_params={CONTROLLER: {"status_rate": 20.0}})
+    p = cfg.node_params()
+    assert p[BRIDGE]["real_time_factor"] == 3.0 and "use_sim_time" not in p[BRIDGE]
+    assert all(p[n]["use_sim_time"] for n in (DETECTOR, CONTROLLER, TELEOP))
+    for key in ("deadband", "action_scale", "max_joint_speed", "axis_scale"):
+        assert p[CONTROLLER][key] == p[TELEOP][key]  # the simulated user predicts what the controller does
+    assert p[TELEOP]["model_path"] == p[CONTROLLER]["model_path"] == "/m"
+    assert p[TELEOP]["controller_status_topic"] == f"{CONTROLLER}/status"
+    assert p[TELEOP]["max_stick_rate"] == 4.0 and p[CONTROLLER]["status_rate"] == 20.0
+
+
+def test_experiment_jobs_cover_the_figures_with_distinct_subsets():
+    from vla_latent_controller.experiments import Plan, make_jobs
+
+    base = ["bread/push_east", "soda_can/push_south", "milk_carton/push_south_west", "glass_bottle/push_west"]
+    plan = Plan(demo_counts=(1, 2, 10), k_counts=(1, 5), runs=2)
+    jobs = make_jobs(plan, base)
+    a = [j for j in jobs if j.figure == "2a"]
+    c = [j for j in jobs if j.figure == "2c"]
+    assert len(a) == 3 * 3 * 2 and len(c) == 3 * 2 * 2 * 2
+    one = [j for j in a if j.count == 1 and j.encoder == "detector"]
+    assert all(len(v) == 1 for j in one for v in j.train.values())
+    assert one[0].train != one[1].train  # runs draw different demo subsets
+    full = [j for j in a if j.count == 10]
+    assert all(sorted(v) == list(range(10)) for j in full for v in j.train.values())
+    nt = [j for j in c if j.variant == "no_transfer"]
+    tr = [j for j in c if j.variant == "transfer"]
+    assert all(list(j.train) == [j.eval_tasks[0]] for j in nt)
+    assert all(len(j.train) == 5 and j.eval_tasks[0] in j.train for j in tr)
+    assert sum(j.keep_paths for j in a) == 3  # one path plot per encoder
+
+
+def test_experiment_report_computes_verdicts_from_numbers(tmp_path):
+    from vla_latent_controller.experiment_report import write_report
+
+    rows = []
+    for enc, scale in (("detector", 0.2), ("localization", 0.6), ("end_to_end", 0.7)):
+        for n in (1, 2, 10):
+            for run in range(2):
+                for seed in range(3):
+                    fse = scale / n + 0.01 * run + 0.001 * seed
+                    rows.append({"figure": "2a", "encoder": enc, "setting": "", "variant": "", "count": n,
+                                 "run": run, "task": "bread/push_east", "layout_seed": seed,
+                                 "final_state_error": fse, "start_error": 2.0, "note": "", "train_s": 1.0})
+    for setting in ("Seen", "Near", "Far"):
+        for variant, v in (("transfer", 0.3), ("no_transfer", 0.5)):
+            for k in (1, 2):
+                rows.append({"figure": "2c", "encoder": "detector", "setting": setting, "variant": variant,
+                             "count": k, "run": 0, "task": "cereal_box/push_south", "layout_seed": 0,
+                             "final_state_error": v / k, "start_error": 2.0, "note": "", "train_s": 1.0})
+    files = write_report(rows, tmp_path, {"plan": {"runs": 2, "epochs": 5, "layouts": 3}, "wall_s": 60,
+                                          "settings": {"rate": 20.0}, "demo_source": "test"})
+    text = files["readme"].read_text()
+    assert "detector lower than localization and end_to_end at 3 of 3 demo counts" in text
+    assert "agrees with the paper" in text and "H1 holds for every encoder" in text
+    assert "Seen: transfer better at k = [1, 2]" in text
+    for key in ("fig2a_png", "fig2c_png", "fig2a", "fig2c", "episodes"):
+        assert files[key].is_file()
+    back = metrics.read_csv(files["fig2a"])
+    det1 = next(r for r in back if r["encoder"] == "detector" and r["count"] == "1")
+    assert float(det1["final_state_error"]) == pytest.approx(0.2 + 0.005 + 0.001, abs=1e-6)
+    assert float(det1["sem"]) == pytest.approx(0.005, abs=1e-6)  # standard error across the two runs
+
+
+def test_demo_consistency_finds_ik_branches_and_bad_starts():
+    from types import SimpleNamespace
+
+    from vla_latent_controller.experiment_report import demo_consistency
+
+    a = np.vstack([READY_POSE, READY_POSE + 0.5])
+    b = np.vstack([READY_POSE, READY_POSE + np.array([2.5, 0, 0, 0, 0, 0, -2.0])])
+    stale = np.vstack([READY_POSE + 1.0, READY_POSE + 0.5])
+    demos = {"t": [SimpleNamespace(q=a), SimpleNamespace(q=a + 0.01), SimpleNamespace(q=b),
+                   SimpleNamespace(q=stale)]}
+    r = demo_consistency(demos)[0]
+    assert r["demos"] == 4 and r["start_far_from_ready"] == 1
+    assert r["end_state_groups"] == 2 and r["largest_group_share"] == 0.75

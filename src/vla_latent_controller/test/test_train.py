@@ -124,3 +124,14 @@ def test_cnn_encoders_export_onnx_matching_torch(tmp_path, encoder):
     with torch.no_grad():
         ref = cnn(torch.tensor(preprocess_image(img))[None]).numpy()[0]
     np.testing.assert_allclose(ctx[: len(ref)], ref, atol=1e-5)
+
+
+def test_fast_tanh_is_tanh():
+    import torch
+    from vla_latent_controller.cae import Tanh
+
+    x = torch.linspace(-30, 30, 20001, dtype=torch.float64, requires_grad=True)
+    y = Tanh()(x)
+    torch.testing.assert_close(y, torch.tanh(x), atol=1e-15, rtol=0)
+    y.sum().backward()
+    torch.testing.assert_close(x.grad, 1 - torch.tanh(x.detach()) ** 2, atol=1e-15, rtol=0)

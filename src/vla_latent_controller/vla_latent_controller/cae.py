@@ -14,9 +14,33 @@ from torch import nn
 from .context import CNN_FEATURE_DIM, CNN_INPUT_SIZE
 
 
+class _TanhFn(torch.autograd.Function):
+    """tanh(x) computed as 2·sigmoid(2x) − 1: the same function, about twice as fast on CPU (torch's tanh
+    kernel is the largest single cost of training these small MLPs)."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        y = torch.sigmoid(x * 2.0).mul_(2.0).sub_(1.0)
+        ctx.save_for_backward(y)
+        return y
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (y,) = ctx.saved_tensors
+        return torch.ops.aten.tanh_backward(grad, y)
+
+
+class Tanh(nn.Module):
+    """Drop-in for nn.Tanh (no parameters, so state-dict names are unchanged)."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return _TanhFn.apply(x)
+
+
 def mlp(n_in: int, n_out: int, hidden: int = 30) -> nn.Sequential:
+    """Linear → tanh → Linear → tanh → Linear; tensors named ``0``, ``2``, ``4`` as in the paper's code."""
     return nn.Sequential(
-        nn.Linear(n_in, hidden), nn.Tanh(), nn.Linear(hidden, hidden), nn.Tanh(), nn.Linear(hidden, n_out)
+        nn.Linear(n_in, hidden), Tanh(), nn.Linear(hidden, hidden), Tanh(), nn.Linear(hidden, n_out)
     )
 
 

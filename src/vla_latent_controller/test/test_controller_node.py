@@ -131,6 +131,8 @@ def test_services_and_parameters(harness):
     assert r.success
     st, cmd = harness.settle(ControllerStatus.ACTIVE)
     assert st.mode == "end_effector" and st.ee_axis == "x" and np.linalg.norm(cmd) > 0
+    res = harness.node.set_parameters([Parameter("ee_linear_speed", value=0.05)])
+    assert res[0].successful and harness.node.core.ee.linear_speed == 0.05
     res = harness.node.set_parameters([Parameter("deadband", value=0.9)])
     assert res[0].successful
     harness.settle(ControllerStatus.ZERO_DEADBAND)

@@ -236,6 +236,7 @@ class ControllerNode(Node):
         reason = self._apply([p for p in params if p.name in _TUNABLE or p.name == "mode"])
         if reason:
             return SetParametersResult(successful=False, reason=reason)
+        self.core.sync_params()
         for p in params:
             if p.name == "mode":
                 self.core.set_mode(p.value)

@@ -171,6 +171,12 @@ class TeleopCore:
             self.model_error = None
         self.latched = None
 
+    def sync_params(self) -> None:
+        """Apply changed end-effector parameters (the rest are read from ``params`` on every step)."""
+        p, ee = self.params, self.ee
+        ee.linear_speed, ee.angular_speed = p.ee_linear_speed, p.ee_angular_speed
+        ee.damping, ee.debounce = p.ee_damping, p.ee_debounce
+
     def set_mode(self, mode: str) -> tuple[bool, str]:
         if mode not in MODES:
             return False, f"unknown mode {mode!r}; expected one of {MODES}"

@@ -515,17 +515,26 @@ class GraphEvaluator:
         obs.wait_for(lambda: obs.detections_stamp >= settle_until and obs.objects_stamp >= settle_until,
                      30.0, "detections of the new scene", alive)
         # 3. the controller latches them
-        t_redetect = obs.now()
-        res = obs.call(obs.redetect_cli, obs.Trigger.Request(), 10.0, "redetect")
-        obs.wait_for(lambda: obs.ctrl_recv > t_redetect and bool(obs.ctrl.latched_class)
-                     and obs.ctrl.code != 5, 30.0, "the controller to latch a detection", alive)
-        result.detected_class = obs.ctrl.latched_class
-        result.encoder = ""
+        no_latch = self._latch(alive)
         with obs.cond:
             start_pose = obs.objects.get(spec.object_class)
+            q_now = obs.q.copy()
         if start_pose is None:
             raise GraphError(f"{spec.object_class} missing from scene/objects after reset")
         result.object_start = start_pose.to_dict()
+        if no_latch:
+            # Like a person facing a controller that waits for a detection: nothing moves. The
+            # episode counts as failed, its error measured against the planner's final waypoint.
+            from .kinematic import plan_waypoints
+
+            result.note = f"no detection latched: {no_latch}"
+            result.success = False
+            final_wp = plan_waypoints(self.kin, task, start_pose, q_now)[-1]
+            result.final_state_error = final_state_error(q_now, final_wp)
+            result.extra["wall_s"] = round(time.monotonic() - wall0, 2)
+            self.log(f"[graph] {task}: {result.note}")
+            return EpisodeRecord(result, np.zeros((0, 3)), np.zeros(0), [], np.zeros((0, 11)))
+        result.detected_class = obs.ctrl.latched_class
         # 4. monitors
         tracker = SuccessTracker(spec, start_pose)
         limits = LimitMonitor()
@@ -621,6 +630,26 @@ class GraphEvaluator:
         result.ee_path = np.asarray(path) if path else None
         tcp = result.ee_path if result.ee_path is not None else np.zeros((0, 3))
         return EpisodeRecord(result, tcp, np.asarray(path_t[: len(tcp)]), frames, np.asarray(trace))
+
+    def _latch(self, alive, attempts: int = 3, timeout: float = 10.0) -> str:
+        """Ask the controller to latch the new scene's detection (retried); "" when it did, else why not."""
+        obs = self.obs
+        for attempt in range(attempts):
+            t_redetect = obs.now()
+            obs.call(obs.redetect_cli, obs.Trigger.Request(), 10.0, "redetect")
+            try:
+                obs.wait_for(lambda t0=t_redetect: obs.ctrl_recv > t0 and bool(obs.ctrl.latched_class)
+                             and obs.ctrl.code != 5, timeout, "the controller to latch a detection", alive)
+                return ""
+            except GraphError:
+                with obs.cond:
+                    st, dets = obs.ctrl, obs.detections
+                    age = obs.now() - obs.detections_stamp
+                seen = sorted({d.class_id for d in dets.detections}) if dets is not None else []
+                why = (f"controller: code {st.code if st else '?'} ({st.reason if st else 'no status'}); "
+                       f"last detections {age:.1f} s old: {seen}")
+                self.log(f"[graph] no latch after redetect (attempt {attempt + 1}/{attempts}): {why}")
+        return why
 
     @staticmethod
     def _scene_object(pose):

@@ -201,6 +201,7 @@ def run_job(job: Job) -> list[dict]:
             "layout_seed": r.layout_seed,
             "final_state_error": r.final_state_error,
             "start_error": r.extra.get("start_error"),
+            "waypoint_error": r.extra.get("waypoint_error"),
             "detected_class": r.detected_class,
             "note": r.note,
             "train_demos": len(demos),

@@ -194,15 +194,22 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, kin=None, label
     dt = 1.0 / settings.rate
     n_steps = int(round(settings.time_limit * settings.rate))
     path = []
+    reached = []  # distance to each waypoint when its time is up (a circle's loop, not just its end)
+    active = 0
     for i in range(n_steps):
         step = tele.act(i * dt, q)
         if step.done:
             break
+        if step.waypoint_index != active:
+            reached.append(final_state_error(q, layout.waypoints[active]))
+            active = step.waypoint_index
         cmd = command(np.array([step.axis]), q)[0]
         q = np.clip(q + cmd * dt, Q_MIN, Q_MAX)
         if kin is not None and i % settings.path_every == 0:
             path.append(kin.fk(q)[0])
     result.final_state_error = final_state_error(q, final)
+    reached.append(result.final_state_error)
+    result.extra["waypoint_error"] = round(float(np.mean(reached)), 5)
     result.duration_s = settings.time_limit
     result.extra["wall_s"] = round(time.perf_counter() - t0, 4)
     if path:

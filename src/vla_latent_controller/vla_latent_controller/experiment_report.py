@@ -282,6 +282,14 @@ def write_report(rows: Sequence[dict], out: Path, meta: dict) -> dict[str, Path]
         "means; `fig2a.csv`, `fig2c.csv`: mean ± standard error across runs; PNG plots as above.",
         "",
     ]
+    if (out / "discussion.md").is_file():
+        text += [
+            "## Discussion",
+            "",
+            "Analysis of these figures, written by hand: [discussion.md](discussion.md) "
+            "(it refers to the run it was written for; the numbers above are the latest run's).",
+            "",
+        ]
     (out / "README.md").write_text("\n".join(text))
     files["readme"] = out / "README.md"
     files["meta"] = write_json(meta, out / "meta.json")

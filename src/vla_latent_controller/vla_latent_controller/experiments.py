@@ -246,7 +246,12 @@ def make_jobs(plan: Plan, base_tasks: Sequence[str]) -> list[Job]:
 
 # ------------------------------------------------------------------ CLI
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("docs/results"), help="output folder")
+    p.add_argument(
+        "--out",
+        type=Path,
+        default=None,
+        help="output folder (default: docs/results; with --quick out/experiments_quick)",
+    )
     p.add_argument("--quick", action="store_true", help="small version for CI (<= 3 minutes)")
     p.add_argument(
         "--data", type=Path, default=Path("out/data"), help="demonstration bags (generated if missing)"
@@ -288,7 +293,11 @@ def run(args) -> int:
     if args.only:
         plan.fig2a, plan.fig2c = args.only == "2a", args.only == "2c"
     source = args.demo_source or ("sim" if args.quick else "bags")
-    out = Path(args.out)
+    out = (
+        Path(args.out)
+        if args.out is not None
+        else Path("out/experiments_quick" if args.quick else "docs/results")
+    )
     out.mkdir(parents=True, exist_ok=True)
     log = _log
     det_path = ensure_detector(args.detector_model or detector_model_path(), args.data, log)

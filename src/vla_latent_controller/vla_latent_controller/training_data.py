@@ -19,14 +19,18 @@ BASE_SEED = 0
 UNSEEN_SEED = 5_000
 
 
-def run_command(cmd: Sequence[str], log: Callable[[str], None] = print) -> None:
-    """Run a project command, streaming its output (progress bars included); RuntimeError on failure."""
+def run_command(
+    cmd: Sequence[str], log: Callable[[str], None] = print, accept: Sequence[int] = (0,)
+) -> int:
+    """Run a project command, streaming its output (progress bars included); RuntimeError when its
+    exit code is not in `accept`. Returns the exit code."""
     log("[run] " + " ".join(str(c) for c in cmd))
     proc = subprocess.run([str(c) for c in cmd], stdout=sys.stdout, stderr=sys.stderr)
-    if proc.returncode != 0:
+    if proc.returncode not in accept:
         raise RuntimeError(
             f"{cmd[0]} {cmd[1] if len(cmd) > 1 else ''} failed with exit code {proc.returncode}"
         )
+    return proc.returncode
 
 
 def ensure_detector(path: Path, data_dir: Path, log: Callable[[str], None] = print) -> Path:
@@ -83,7 +87,8 @@ def ensure_demos(
             "0",
             "--delete-failed",
         ]
-        run_command(cmd, log)
+        # exit code 3: some episodes failed the task (deleted); the next attempt tops the folder up
+        run_command(cmd, log, accept=(0, 3))
     if count_bags(folder) < episodes:
         raise RuntimeError(f"generation left {count_bags(folder)} of {episodes} bags of {task} in {folder}")
     return folder

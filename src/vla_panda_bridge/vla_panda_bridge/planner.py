@@ -158,33 +158,86 @@ def _joint_margin(q: np.ndarray) -> float:
     return float(min(np.min(q - np.asarray(Q_MIN)), np.min(np.asarray(Q_MAX) - q)))
 
 
-def _best_push_configuration(kin: PandaKinematics, pre, hover, direction_xy, tilt: float,
-                             q_seed: np.ndarray, obj: ObjectPose) -> tuple[np.ndarray, np.ndarray, float]:
-    """IK for the pre-push pose over both hand flips and several joint-7 seeds (with the hover pose
-    above it reachable from there), keeping the solution whose arm stays furthest from the object
-    (the bulky forearm must not hang over a tall object), then the larger joint margin.
-    Returns (q_pre, rot, clearance); PlanError when no candidate works."""
-    best = None
-    for flip in (False, True):
+def preferred_flip(direction_xy) -> bool:
+    """The hand flip used for every episode of a push direction: the one whose hand x axis points
+    away from the robot (+x), or to +y when the push is sideways. A fixed choice per task keeps all
+    its demonstrations in one arm configuration, which a 1-D latent action needs."""
+    d = np.asarray(direction_xy, dtype=float)
+    if abs(d[0]) > 1e-6:
+        return bool(d[0] < 0)
+    return bool(d[1] < 0)
+
+
+_TILT_PENALTY = 0.5  # rad of joint distance one radian of extra tilt is worth when choosing
+
+
+def _push_candidates(kin: PandaKinematics, pre, hover, direction_xy, tilt: float, seeds, obj: ObjectPose):
+    """IK solutions of the pre-push pose (hover pose above it reachable) for the task's preferred
+    hand flip, or the other flip only when the preferred one has none: (q, rot, clearance)."""
+    preferred = preferred_flip(direction_xy)
+    for flip in (preferred, not preferred):
         rot = push_rotation(direction_xy, tilt, flip)
-        for q7 in (-2.4, -1.2, 0.0, 1.2, 2.4):
-            seed = np.array(q_seed, dtype=float)
-            seed[6] = q7
+        found = []
+        for seed in seeds:
             q, ok = kin.ik(pre, rot, seed)
-            margin = _joint_margin(q)
-            if not ok or margin < 0.15:
-                continue
-            clearance = object_clearance(kin, q, obj)
-            score = min(clearance, MIN_CLEARANCE + 0.03) + 0.1 * min(margin, 0.4)
-            if best is not None and score <= best[0]:
+            if not ok or _joint_margin(q) < 0.15:
                 continue
             q_hover, ok = kin.ik(hover, rot, q)
             if ok and _joint_margin(q_hover) > 0.05:
-                best = (score, q, rot, clearance)
+                found.append((q, rot, object_clearance(kin, q, obj)))
+        if found:
+            return found
+    return []
+
+
+def _best_push_configuration(kin: PandaKinematics, pre, hover, direction_xy, tilt: float,
+                             q_ref: np.ndarray, obj: ObjectPose) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """Pre-push configuration nearest `q_ref` (the task's reference configuration) among IK solutions
+    that keep MIN_CLEARANCE between the arm and the object, over the base tilt and the extra tilts
+    (a little extra tilt is preferred to another arm configuration); when none keeps the clearance,
+    the one with the largest clearance. Choosing by nearness to a fixed reference, not to the
+    jittered start, keeps every demonstration of a task in one arm configuration, which a 1-D
+    latent action needs. Returns (q_pre, rot, clearance, extra_tilt_deg); PlanError when no
+    candidate works."""
+    q_ref = np.asarray(q_ref, dtype=float)
+    seeds = [q_ref]
+    for q7 in (-2.4, -1.2, 0.0, 1.2, 2.4):
+        seed = q_ref.copy()
+        seed[6] = q7
+        seeds.append(seed)
+    best = None
+    for extra in _EXTRA_TILT_DEG:
+        for q, rot, clearance in _push_candidates(kin, pre, hover, direction_xy,
+                                                  tilt + math.radians(extra), seeds, obj):
+            key = (-min(clearance, MIN_CLEARANCE),
+                   float(np.linalg.norm(q - q_ref)) + _TILT_PENALTY * math.radians(extra))
+            if best is None or key < best[0]:
+                best = (key, q, rot, clearance, extra)
     if best is None:
         raise PlanError(f"no IK solution for the pre-push pose at {np.round(pre, 3).tolist()} "
                         f"(tilt {math.degrees(tilt):.0f} deg) with the hover pose above it")
-    return best[1], best[2], best[3]
+    return best[1], best[2], best[3], best[4]
+
+
+_REFERENCE: dict[str, np.ndarray] = {}
+
+
+def reference_configuration(kin: PandaKinematics, spec: TaskSpec) -> np.ndarray:
+    """The task's reference pre-push configuration: planned from the ready pose for the object at
+    the centre of the workspace (x 0.48 m, y 0, yaw 0) with the middle of every random range.
+    Cached per task; deterministic."""
+    if spec.name not in _REFERENCE:
+        shape = OBJECT_SPECS[spec.object_class]
+        obj = ObjectPose(spec.object_class, 0.48, 0.0, 0.0, 0.0)
+        d = spec.direction_vector
+        h = shape.half_extent_along(d, obj.yaw)
+        start_xy = np.array([obj.x, obj.y]) - d * (h + FINGER_HALF_THICKNESS + 0.03)
+        hover = max(0.18, shape.height + 0.09)
+        q, _rot, _c, _e = _best_push_configuration(
+            kin, [*start_xy, 0.025], [*start_xy, hover], d, math.radians(sum(TILT_RANGE_DEG) / 2),
+            np.asarray(READY_POSE), obj)
+        _REFERENCE[spec.name] = q
+    return _REFERENCE[spec.name].copy()
 
 
 class _Builder:
@@ -309,21 +362,9 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         start_xy = c - d * (h + FINGER_HALF_THICKNESS + p["approach_gap"]) + perp * p["lateral_offset"]
         end_xy = start_xy + d * (p["approach_gap"] + spec.distance + p["extra_distance"])
         zp = p["push_height"]
-        found = None
-        for extra in _EXTRA_TILT_DEG:
-            try:
-                q_pre, rot, clearance = _best_push_configuration(
-                    kin, [*start_xy, zp], [*start_xy, p["hover_height"]], d,
-                    math.radians(p["tilt_deg"] + extra), q0, obj)
-            except PlanError:
-                if extra == _EXTRA_TILT_DEG[0]:
-                    raise
-                break
-            if found is None or clearance > found[2] + 1e-3:
-                found = (q_pre, rot, clearance, extra)
-            if clearance >= MIN_CLEARANCE:
-                break
-        q_pre, rot, clearance, extra = found
+        q_pre, rot, clearance, extra = _best_push_configuration(
+            kin, [*start_xy, zp], [*start_xy, p["hover_height"]], d, math.radians(p["tilt_deg"]),
+            reference_configuration(kin, spec), obj)
         p["tilt_deg"] += extra
         p["clearance"] = clearance
         b.joint_move([*start_xy, p["hover_height"]], rot, p["transit_speed"], seed=q_pre)

@@ -190,8 +190,9 @@ def _push_candidates(kin: PandaKinematics, pre, hover, direction_xy, tilt: float
     return []
 
 
-def _best_push_configuration(kin: PandaKinematics, pre, hover, direction_xy, tilt: float,
-                             q_ref: np.ndarray, obj: ObjectPose) -> tuple[np.ndarray, np.ndarray, float, float]:
+def _best_push_configuration(
+    kin: PandaKinematics, pre, hover, direction_xy, tilt: float, q_ref: np.ndarray, obj: ObjectPose
+) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Pre-push configuration nearest `q_ref` (the task's reference configuration) among IK solutions
     that keep MIN_CLEARANCE between the arm and the object, over the base tilt and the extra tilts
     (a little extra tilt is preferred to another arm configuration); when none keeps the clearance,

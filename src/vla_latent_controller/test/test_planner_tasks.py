@@ -1,5 +1,5 @@
 """Trained on planner demonstrations of the paper's base tasks, the latent action does the task:
-one second of z > 0 from a held-out layout's start pose brings the end effector closer to the point
+one second of z > 0 from a held-out layout's start pose brings the arm closer to the configuration
 above the object, and along the push it moves
 the end effector in that task's direction (z < 0 retraces it)."""
 
@@ -48,14 +48,16 @@ def test_positive_latent_does_the_task(setup, task, tmp_path):
         model.decoder.set_context(model.context(Det.from_dict(demo.detection), demo.image_size))
         g = model.gain(demo.object_class)
         assert g > 0  # the signed latent: + is the demonstrated direction by construction
-        q = demo.q[
-            0
-        ].copy()  # one second at z = +gain from the start: towards the hover point above the object
-        hover = kin.fk(plan.waypoints[0])[0]
-        d0 = np.linalg.norm(kin.fk(q)[0] - hover)
+        # One second at z = +gain from the start brings the arm closer to the hover configuration
+        # above the object. Measured in joint space, as the teleoperator and the final state error
+        # are: when the planner changes arm branch the demonstration itself first swings the hand
+        # away from the hover point in Cartesian space.
+        q = demo.q[0].copy()
+        hover = np.asarray(plan.waypoints[0])
+        d0 = np.linalg.norm(q - hover)
         for _ in range(10):
             q += 0.1 * model.decoder.decode(q, g)
-        to_hover.append(1.0 - np.linalg.norm(kin.fk(q)[0] - hover) / d0)
+        to_hover.append(1.0 - np.linalg.norm(q - hover) / d0)
         t_pre, t_post = plan.times[1], plan.times[2]
         for t in np.linspace(t_pre + 0.5, t_post - 0.5, 5):  # states on the demonstrated push
             q = demo.q[int(round(t * 10))]

@@ -135,3 +135,29 @@ def test_fast_tanh_is_tanh():
     torch.testing.assert_close(y, torch.tanh(x), atol=1e-15, rtol=0)
     y.sum().backward()
     torch.testing.assert_close(x.grad, 1 - torch.tanh(x.detach()) ** 2, atol=1e-15, rtol=0)
+
+
+def test_folded_context_standardisation_takes_raw_contexts():
+    """The saved decoder takes raw contexts: folding (c - mean) / std into the first layers gives the
+    same outputs on raw inputs as the unfolded network on standardised ones."""
+    import torch
+    from vla_latent_controller.cae import CAE
+    from vla_latent_controller.train import _fold_input_affine
+
+    torch.manual_seed(0)
+    k = 7
+    model = CAE(k, 7, 1, 30)
+    mean = np.r_[np.zeros(5), 0.5, 0.6]
+    std = np.r_[np.ones(5), 0.05, 0.1]
+    ctx = torch.tensor(
+        np.c_[np.eye(5)[[0, 3, 1]], np.random.default_rng(0).uniform(0.3, 0.8, (3, 2))], dtype=torch.float32
+    )
+    q, a, z = torch.randn(3, 7), torch.randn(3, 7), torch.randn(3, 1)
+    norm = (ctx - torch.tensor(mean, dtype=torch.float32)) / torch.tensor(std, dtype=torch.float32)
+    with torch.no_grad():
+        want_dec, want_enc = model.decode(norm, q, z), model.encode(norm, q, a)
+        _fold_input_affine(model, mean, std)
+        got_dec, got_enc = model.decode(ctx, q, z), model.encode(ctx, q, a)
+    assert torch.allclose(got_dec, want_dec, atol=1e-5)
+    assert torch.allclose(got_enc, want_enc, atol=1e-5)
+    assert not torch.allclose(model.decode(norm, q, z), want_dec, atol=1e-3)  # it did change

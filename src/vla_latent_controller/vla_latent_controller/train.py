@@ -36,6 +36,7 @@ from .context import (
 
 Q_STD_FLOOR = 1e-2  # rad: a joint the demos barely move must not blow up its normalised value
 A_SCALE_FLOOR = 1e-3  # rad
+CTX_STD_FLOOR = 0.02  # of the image size: demos with the object always in one spot
 ZERO_TERM_ROWS = 1024  # rows of each batch the z = 0 term is evaluated on
 
 
@@ -187,6 +188,22 @@ def prepare_demos(
     return kept, skipped
 
 
+def _fold_input_affine(model, mean: np.ndarray, std: np.ndarray) -> None:
+    """Make the encoder's and decoder's first layers take raw contexts: their first len(mean) inputs
+    were trained on (c - mean) / std, so W' = W / std and b' = b - W' mean. The saved model then
+    needs no extra normalisation step at run time."""
+    import torch
+
+    m = torch.tensor(mean, dtype=torch.float32)
+    s = torch.tensor(std, dtype=torch.float32)
+    k = len(mean)
+    with torch.no_grad():
+        for net in (model.encoder, model.decoder):
+            layer = net[0]
+            layer.weight[:, :k] /= s
+            layer.bias -= layer.weight[:, :k] @ m
+
+
 def _default_pairs_fn():
     from vla_demo_recorder.dataset import make_pairs
 
@@ -259,10 +276,13 @@ def train_model(
     f32 = torch.float32
     model = CAE(k, n_joints, 1, cfg.hidden, bounded=cfg.bounded_latent, signed=cfg.reverse_pairs)
     cnn = ContextCNN(cfg.feature_dim) if cfg.encoder in CNN_ENCODERS else None
+    ctx_mean, ctx_std = np.zeros(k), np.ones(k)
     if cfg.encoder == "detector":
-        static = torch.tensor(
-            np.stack([detector_context(it.det, it.image_size, classes) for it in items]), dtype=f32
-        )
+        raw = np.stack([detector_context(it.det, it.image_size, classes) for it in items])
+        if cfg.normalise:  # the object's (x, y) varies by a few tenths: standardise it like q
+            ctx_mean[-2:] = raw[:, -2:].mean(0)
+            ctx_std[-2:] = np.maximum(raw[:, -2:].std(0), CTX_STD_FLOOR)
+        static = torch.tensor((raw - ctx_mean) / ctx_std, dtype=f32)
     elif cfg.encoder == "localization":
         static = torch.tensor(np.stack([one_hot(it.class_id, classes) for it in items]), dtype=f32)
     else:
@@ -347,6 +367,9 @@ def train_model(
     model.eval()
     if cnn is not None:
         cnn.eval()
+    if cfg.encoder == "detector":  # fold the context standardisation into the first layers
+        _fold_input_affine(model, ctx_mean, ctx_std)
+        static = torch.tensor(raw, dtype=f32)
 
     with torch.no_grad():
         ctx_np = contexts().double().numpy()
@@ -360,6 +383,8 @@ def train_model(
         "q_mean": q_mean.tolist(),
         "q_std": q_std.tolist(),
         "a_scale": a_scale.tolist(),
+        "context_mean": ctx_mean.tolist(),  # folded into the first layers (they take raw contexts)
+        "context_std": ctx_std.tolist(),
     }
     config = {
         "encoder": cfg.encoder,

@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 # Per base object for the shipped models: three times the paper's 10. On fresh layouts (kinematic,
-# 10 per task) the mean final state error falls from 0.61 rad with 10 to 0.42 with 30 (0.41 with 60).
+# 10 per task) the mean final state error falls from 0.65 rad with 10 to 0.42 with 30 (0.41 with 60).
 # The experiments (Figure 2a) sweep the paper's 1 ... 10 themselves.
 BASE_EPISODES = 30
 FEW_SHOT_EPISODES = 5  # per unseen task, the paper's largest k

@@ -20,6 +20,7 @@ from rcl_interfaces.msg import (
     ParameterType,
     SetParametersResult,
 )
+from rclpy.duration import Duration
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
@@ -331,9 +332,12 @@ class ControllerNode(Node):
         m.command = [float(v) for v in st.command]
         return m
 
-    def publish_zero(self) -> None:
+    def publish_zero(self, ack_timeout: float = 1.0) -> bool:
+        """Publish the zero command and wait (bounded) until the reliable subscribers have it: the
+        process exits right after, and a sample still in the writer's queue would die with it."""
         self._msg.data = [0.0] * len(self.core.joint_names)
         self.cmd_pub.publish(self._msg)
+        return self.cmd_pub.wait_for_all_acked(Duration(seconds=ack_timeout))
 
 
 def main(args=None) -> int:

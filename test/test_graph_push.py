@@ -32,9 +32,10 @@ def test_graph_pushes_a_base_object_to_success(tmp_path):
                       settings=TeleopSettings(rate=100.0), stop_on_success=True, linger=1.0,
                       log_dir=tmp_path / "logs")
     with GraphEvaluator(cfg, log=print) as ev:
-        # A layout never used for demonstrations. The shipped model's success rate over fresh layouts
-        # is well below 100 % (docs/results, the package README), so the test fixes one on which it
-        # pushes with margin (18-21 cm, 1-10 deg off in repeated runs on a loaded 2-core machine).
+        # A layout never used for demonstrations. The shipped model's success rate over fresh
+        # layouts is well below 100 % (vla_latent_controller README, "Shipped models"), so the test
+        # fixes one on which it pushes with margin (18-21 cm, 1-10 deg off in repeated runs on a
+        # loaded 2-core machine).
         rec = ev.run_episode("milk_carton/push_south_west", seed=100_006)
     r = rec.result
     print(r.row())

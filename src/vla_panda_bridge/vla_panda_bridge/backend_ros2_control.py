@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
@@ -44,9 +45,12 @@ class Ros2ControlBackend:
         msg.data = [float(x) for x in dq]
         self._pub.publish(msg)
 
-    def close(self) -> None:
-        """Zero command (the caller brakes through the safety filter first)."""
+    def close(self, ack_timeout: float = 1.0) -> bool:
+        """Zero command (the caller brakes through the safety filter first), held until the
+        controller has acknowledged it (bounded): the process exits right after, and the controller
+        would otherwise keep the last non-zero command it received."""
         self.write(np.zeros(NUM_JOINTS))
+        return self._pub.wait_for_all_acked(Duration(seconds=ack_timeout))
 
     def _on_joint_states(self, msg: JointState) -> None:
         """Pick panda_joint1..7 by name (other joints, e.g. fingers, are ignored)."""

@@ -96,6 +96,41 @@ def test_a_frame_queued_before_the_start_is_not_the_context(tmp_path):
     assert load_demo(path).first_image[0, 0, 0] == 9
 
 
+def _joint_state_bag(path: Path, stamps_q, start_ns: int) -> Path:
+    from recorder_testing import typestore
+
+    ts = typestore()
+    ep = EpisodeInfo(task="bread/push_east", outcome="kept", start_time_ns=start_ns)
+    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+        for k, v in ep.to_custom_data().items():
+            w.set_custom_data(k, v)
+        js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
+        for i, (t_ns, q) in enumerate(stamps_q):
+            w.write(js, T0 + i, joint_state(t_ns, NAMES, q))  # received late: log times all after T0
+    return path
+
+
+def test_states_queued_before_the_start_are_dropped(tmp_path):
+    """A recorder behind a fast simulation receives the previous episode's last states (another
+    pose, stamped before the start) after the reset: they are not part of the episode."""
+    old = [(T0 - 10**9 + i * 10**7, np.full(7, 1.0)) for i in range(50)]  # 1 s before the start
+    new = [(T0 + i * 10**7, q_of(i * 0.01)) for i in range(101)]
+    demo = load_demo(_joint_state_bag(tmp_path / "b", old + new, start_ns=T0))
+    assert demo.t[-1] == pytest.approx(1.0) and np.allclose(demo.q[0], q_of(0.0))
+
+
+def test_lost_states_and_jumps_are_reported(tmp_path):
+    gap = [(T0 + i * 10**7, q_of(i * 0.01)) for i in range(101) if not 20 <= i < 90]  # 0.7 s lost
+    with pytest.raises(DemoError, match="missing for 0.71 s at 0.2 s"):
+        load_demo(_joint_state_bag(tmp_path / "gap", gap, start_ns=T0))
+    jump = [(T0 + i * 10**7, q_of(i * 0.01) + (0.5 if i >= 50 else 0.0)) for i in range(101)]
+    with pytest.raises(DemoError, match=r"jump by 0.5\d rad in 10 ms at 0.5 s"):
+        load_demo(_joint_state_bag(tmp_path / "jump", jump, start_ns=T0))
+    # the same stamps under another clock than the recorder's: read as they are
+    other_clock = [(t - 3600 * 10**9, q) for t, q in gap[:20]]
+    assert load_demo(_joint_state_bag(tmp_path / "clock", other_clock, start_ns=T0)).q.shape == (2, 7)
+
+
 def test_bgr_images_come_out_rgb(tmp_path):
     ep = EpisodeInfo(task="bread/push_east", outcome="kept")
     demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep, encoding="bgr8"))

@@ -26,9 +26,10 @@ from .bag_writer import BagError, EpisodeInfo, read_metadata_yaml
 from .recover import find_mcap, has_footer
 
 try:
-    from vla_panda_bridge.panda import JOINT_NAMES
+    from vla_panda_bridge.panda import DQ_MAX, JOINT_NAMES
 except ImportError:  # pragma: no cover - the workspace always has it
     JOINT_NAMES = tuple(f"panda_joint{i}" for i in range(1, 8))
+    DQ_MAX = np.array([2.175, 2.175, 2.175, 2.175, 2.61, 2.61, 2.61])
 
 RATE_HZ = 10.0
 JOINT_STATE_TYPES = ("sensor_msgs/msg/JointState",)
@@ -37,6 +38,10 @@ DETECTION_TYPES = ("vla_interfaces/msg/DetectionArray", "vision_msgs/msg/Detecti
 USABLE_OUTCOMES = ("kept",)
 # A camera frame stamped this long before the episode start was queued before it: never the context.
 STALE_FRAME_S = 1.0
+# Joint-state checks: a longer silence means lost messages (resampling would invent a straight line),
+# a faster move than this share of the Panda's velocity limit is a jump (e.g. a scene reset).
+MAX_STATE_GAP_S = 0.5
+MAX_SPEED_SHARE = 1.5
 
 
 class DemoError(ValueError):
@@ -226,10 +231,13 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
     order = np.argsort(stamps, kind="stable")
     stamps, q = stamps[order], np.stack(js_q)[order]
     keep = np.concatenate([[True], np.diff(stamps) > 0])
-    t_s = (stamps[keep] - stamps[keep][0]) / 1e9
+    stamps, q = stamps[keep], q[keep]
+    if episode is not None:
+        stamps, q = _within_episode(stamps, q, episode.start_time_ns)
+    t_s = (stamps - stamps[0]) / 1e9
     if len(t_s) < 2:
         raise DemoError("joint_states have no time span")
-    grid, q10 = resample(t_s, q[keep], rate_hz)
+    grid, q10 = resample(t_s, q, rate_hz)
     start_log = min(js_log)
     if image is not None and (image_t - start_log) / 1e9 > context_window_s:
         image_err = f"first camera frame arrives {(image_t - start_log) / 1e9:.1f} s after the start"
@@ -243,6 +251,36 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
     return Demo(task=task, object_class=object_class, t=grid, q=q10, first_image=image,
                 detection=detection, image_size=image_size, bag_path=str(mcap.parent),
                 image_error=image_err or "")
+
+
+def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    """Joint states stamped inside the episode, checked for lost messages and jumps.
+
+    States stamped before the start were queued before it (a recorder behind a faster-than-real-time
+    simulation receives the previous episode's last states after a reset) and are dropped. The
+    bounds apply only when the stamps and the recorder's clock agree (the stamps straddle the start),
+    so bags whose writer used another clock are read unchanged. DemoError when states are missing
+    (a gap) or jump faster than the arm can move. (A lost tail cannot be told from an early stop:
+    `vla_demo_recorder generate` stops only once the recorder has recorded the plan's end.)
+    """
+    same_clock = bool(start_ns) and stamps[0] - 60e9 < start_ns <= stamps[-1]
+    if same_clock:
+        inside = stamps >= start_ns
+        stamps, q = stamps[inside], q[inside]
+    if len(stamps) < 2:
+        raise DemoError("fewer than 2 joint_states messages inside the episode")
+    dt = np.diff(stamps) / 1e9
+    i = int(np.argmax(dt))
+    if dt[i] > MAX_STATE_GAP_S:
+        raise DemoError(f"joint_states are missing for {dt[i]:.2f} s at {(stamps[i] - stamps[0]) / 1e9:.1f} s "
+                        "into the episode (messages lost while recording)")
+    speed = np.abs(np.diff(q, axis=0)) / np.maximum(dt, 1e-6)[:, None]
+    ratio = speed / (MAX_SPEED_SHARE * np.asarray(DQ_MAX)[: q.shape[1]])
+    k = int(np.argmax(ratio.max(axis=1)))
+    if ratio[k].max() > 1.0 and np.abs(q[k + 1] - q[k]).max() > 0.01:
+        raise DemoError(f"joint positions jump by {np.abs(q[k + 1] - q[k]).max():.2f} rad in {dt[k] * 1e3:.0f} ms "
+                        f"at {(stamps[k] - stamps[0]) / 1e9:.1f} s (a scene reset inside the episode?)")
+    return stamps, q
 
 
 def _bag_paths(paths_or_dir: str | Path | Iterable[str | Path]) -> list[Path]:

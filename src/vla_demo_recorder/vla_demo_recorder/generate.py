@@ -26,6 +26,7 @@ import signal
 import subprocess
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -33,6 +34,7 @@ import numpy as np
 
 BRIDGE = "panda_bridge"
 RECORDER = "recorder"
+RECORD_TAIL_S = 0.2  # s of simulated time recorded past the end of the plan and its settling
 
 
 class GenerateError(RuntimeError):
@@ -46,7 +48,9 @@ class GenerateConfig:
     out: Path = Path("demos")
     seed: int = 0
     real_time_factor: float = 1.0  # simulation speed; 0 = as fast as possible
-    state_rate: float = 200.0  # joint_states (Hz of sim time)
+    # joint_states (Hz of sim time). 50 Hz is 5x the demonstrations' 10 Hz; at 200 Hz the generator
+    # (recorder + demonstrator in Python) fell behind a fast simulation and lost up to 3 s of states.
+    state_rate: float = 50.0
     camera_rate: float = 5.0
     camera_size: tuple[int, int] = (640, 480)
     image_every_n: int = 1000  # keep the first frame of an episode (and every n-th after)
@@ -415,7 +419,9 @@ def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
                 rec = EpisodeRecord(index=index, task=spec.name, seed=ep_seed)
                 wall0 = time.monotonic()
                 try:
-                    _run_episode(cfg, demo, kin, spec, np.random.default_rng(ep_seed), rec)
+                    _run_episode(cfg, demo, kin, spec, np.random.default_rng(ep_seed), rec,
+                                 lambda: recorder.get_clock().now().nanoseconds * 1e-9,
+                                 lambda: recorder.latest_stamp_ns.get("/joint_states", 0) * 1e-9)
                 except GenerateError as err:
                     rec.error = str(err)
                     if recorder.recorder.recording:
@@ -487,7 +493,19 @@ def _reset_scene(demo: Demonstrator, spec, layout, q0):
     return start
 
 
-def _run_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord) -> None:
+def _wait_for_clock(now: Callable[[], float], t: float, timeout: float, what: str) -> None:
+    """Poll (10 ms) until the clock `now` (s) reaches t; GenerateError after `timeout` wall seconds."""
+    deadline = time.monotonic() + timeout
+    while now() < t:
+        if time.monotonic() > deadline:
+            raise GenerateError(f"timed out after {timeout:.0f} s waiting for {what}")
+        time.sleep(0.01)
+
+
+def _run_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord,
+                 recorder_now: Callable[[], float], recorded_until: Callable[[], float]) -> None:
+    """One episode; `recorder_now`: the recorder's clock (s), `recorded_until`: the stamp (s) of the
+    newest joint state it has recorded."""
     from vla_panda_bridge.planner import PlanError, plan_task, random_start_pose
     from vla_panda_bridge.tasks import task_layout, task_success
 
@@ -509,6 +527,10 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord) ->
     # 2. record: first frame (+ detection) before the arm moves, then the demonstration
     note = json.dumps({"generated": True, "seed": rec.seed, "plan": rec.plan_params})
     demo.object_class = spec.object_class
+    # The recorder's start time must come after the reset: its clock (like its queues) can lag the
+    # bridge when the simulation runs faster than real time. The loader drops joint states stamped
+    # before the start, so stale pre-reset states never enter the episode.
+    _wait_for_clock(recorder_now, demo.q_stamp, 30, "the recorder's clock to pass the reset")
     res = demo.call(demo.start_cli, demo.StartEpisode.Request(task=spec.name, note=note), 30, "start")
     if not res.success:
         raise GenerateError(f"start_episode refused: {res.message}")
@@ -525,6 +547,8 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord) ->
     rec.duration_s = plan.duration
     t_end = demo.now()
     demo.wait(lambda: demo.objects_stamp >= t_end, 30, "the final object poses")
+    # stop only once the recorder has recorded the end of the plan (else the episode's tail is lost)
+    _wait_for_clock(recorded_until, t_end + RECORD_TAIL_S, 30, "the recorder to catch up")
     end = demo.objects.get(spec.object_class, start)
     rec.success, rec.displacement, rec.angle_err_deg = task_success(spec, start, end)
 

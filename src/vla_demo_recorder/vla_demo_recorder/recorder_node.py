@@ -23,7 +23,8 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
-from sensor_msgs.msg import Joy
+from rclpy.serialization import deserialize_message
+from sensor_msgs.msg import JointState, Joy
 from std_srvs.srv import Trigger
 
 from vla_interfaces.msg import RecorderStatus
@@ -34,6 +35,7 @@ from .recorder import Recorder, RecorderError
 
 DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy"]
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
 
 def import_message(msgtype: str) -> type:
@@ -88,6 +90,8 @@ class RecorderNode(Node):
                                  log=self._log)
         self._subs: dict[str, tuple[str, list, object]] = {}  # topic -> (type, offered qos, sub)
         self._image_counts: dict[str, int] = {}
+        # header stamp (ns) of the newest joint state recorded per topic: how far the recording has got
+        self.latest_stamp_ns: dict[str, int] = {}
         self._warned: set[str] = set()
         self._prev_buttons: list[int] = []
         self._last_press: dict[str, float] = {}
@@ -167,6 +171,7 @@ class RecorderNode(Node):
 
     def _make_callback(self, topic: str, msgtype: str):
         is_image = msgtype in IMAGE_TYPES
+        is_joint_state = msgtype == JOINT_STATE_TYPE
         clock = self.get_clock()
 
         def callback(data: bytes) -> None:
@@ -177,7 +182,10 @@ class RecorderNode(Node):
                 self._image_counts[topic] = n + 1
                 if n % self.image_every_n:
                     return
-            self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data)
+            if self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data) \
+                    and is_joint_state:
+                stamp = deserialize_message(data, JointState).header.stamp
+                self.latest_stamp_ns[topic] = stamp.sec * 1_000_000_000 + stamp.nanosec
         return callback
 
     # -- episodes ------------------------------------------------------------------------------

@@ -202,7 +202,9 @@ class PandaBridge(Node):
         self._kin = PandaKinematics()
         self._fk = self._kin.fk if p["ee_frame"] == "tcp" else self._kin.flange_fk
 
-        state_qos = QoSProfile(depth=20, reliability=ReliabilityPolicy.RELIABLE)
+        # A deep history: a reliable reader that stalls briefly (a recorder behind a simulation running
+        # faster than real time) gets the states late instead of losing them.
+        state_qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
         self._js_pub = self.create_publisher(JointState, "joint_states", state_qos)
         self._ee_pub = self.create_publisher(PoseStamped, "ee_pose", state_qos)
         self._status_pub = self.create_publisher(SafetyStatus, "~/status", 10)

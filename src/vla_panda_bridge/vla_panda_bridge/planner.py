@@ -2,7 +2,9 @@
 execute it as a joint-velocity tracking command (the stand-in for a person backdriving the arm).
 
 Push: hover above the object's far side (opposite the push direction), descend beside it, push
-along the direction by the task distance plus a margin, lift. The gripper points down, tilted a
+along the direction by the task distance plus a margin, hold there. No lift at the end: the
+teleoperator's last waypoint is the post-push pose, and a lift taught the 1-D latent to rise during
+the push (measured: pushes stopped ~12 cm into a 24 cm stroke, 10-35 % success). The gripper points down, tilted a
 little so the finger tips lead (the hand is wider than the fingers). Circle: a loop of waypoints
 around the object above its top. Every episode varies (approach offset and gap, push height, tilt,
 hover height, extra distance, speeds) through the given random generator.
@@ -56,7 +58,7 @@ class _Segment:
 class TaskPlan:
     """A time-parameterised joint trajectory for one task episode.
 
-    waypoints: joint-space keyframes (push: hover, pre-push, post-push, lifted; circle: hover then
+    waypoints: joint-space keyframes (push: hover, pre-push, post-push, then a hold; circle: hover then
     the loop), times: when each keyframe is reached (s from the start), tcp_waypoints: their TCP
     positions. command(t, q) tracks the trajectory: feed-forward velocity + TRACKING_GAIN * error,
     uniformly scaled into the Panda's velocity limits; zero-velocity hold after `duration`."""
@@ -356,7 +358,7 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
             "extra_distance": float(rng.uniform(0.03, 0.06)),
             "push_speed": float(rng.uniform(0.06, 0.11)),
             "transit_speed": float(rng.uniform(0.15, 0.25)),
-            "lift": float(rng.uniform(0.10, 0.16)),
+            "hold": float(rng.uniform(0.3, 0.6)),  # s at the post-push pose
             "dwell": float(rng.uniform(0.1, 0.4)),
         }
         h = shape.half_extent_along(d, obj.yaw)
@@ -372,7 +374,7 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         b.line([*start_xy, zp], rot, p["transit_speed"] * 0.6)
         b.dwell(p["dwell"])
         b.line([*end_xy, zp], rot, p["push_speed"])
-        b.line([*end_xy, zp + p["lift"]], rot, p["transit_speed"] * 0.6)
+        b.dwell(p["hold"])
     elif spec.kind == "circle":
         p = {
             "radius": shape.footprint_radius + float(rng.uniform(0.05, 0.08)),

@@ -272,14 +272,16 @@ def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[n
     dt = np.diff(stamps) / 1e9
     i = int(np.argmax(dt))
     if dt[i] > MAX_STATE_GAP_S:
-        raise DemoError(f"joint_states are missing for {dt[i]:.2f} s at {(stamps[i] - stamps[0]) / 1e9:.1f} s "
-                        "into the episode (messages lost while recording)")
+        at = (stamps[i] - stamps[0]) / 1e9
+        raise DemoError(f"joint_states are missing for {dt[i]:.2f} s at {at:.1f} s into the episode "
+                        "(messages lost while recording)")
     speed = np.abs(np.diff(q, axis=0)) / np.maximum(dt, 1e-6)[:, None]
     ratio = speed / (MAX_SPEED_SHARE * np.asarray(DQ_MAX)[: q.shape[1]])
     k = int(np.argmax(ratio.max(axis=1)))
     if ratio[k].max() > 1.0 and np.abs(q[k + 1] - q[k]).max() > 0.01:
-        raise DemoError(f"joint positions jump by {np.abs(q[k + 1] - q[k]).max():.2f} rad in {dt[k] * 1e3:.0f} ms "
-                        f"at {(stamps[k] - stamps[0]) / 1e9:.1f} s (a scene reset inside the episode?)")
+        step = np.abs(q[k + 1] - q[k]).max()
+        raise DemoError(f"joint positions jump by {step:.2f} rad in {dt[k] * 1e3:.0f} ms at "
+                        f"{(stamps[k] - stamps[0]) / 1e9:.1f} s (a scene reset inside the episode?)")
     return stamps, q
 
 

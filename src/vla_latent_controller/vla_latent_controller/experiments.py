@@ -39,9 +39,9 @@ class Plan:
     """What to run. The defaults fit `make experiments` in under an hour on 2 cores: 3 runs (the
     paper: 10) and 100 training epochs with the learning-rate step at 40 (the paper: 1000 and 400).
     100 epochs undertrain: with batches of 6000 pairs a few demos give only a few hundred optimiser
-    steps (10 demos per object: validation loss 0.74 after 100 epochs, 0.064 after 1000; final state
-    error 1.2 vs 0.65 rad). `--epochs 1000` is the paper's recipe, about 10x the time. Hidden layers
-    are the paper's 30 units (the shipped models use 64, which costs 1.6x the training time)."""
+    steps (measured on the earlier, lossy demonstrations, 10 per object: validation loss 0.74 after
+    100 epochs, 0.064 after 1000). `--epochs 1000` is the paper's recipe, about 10x the time.
+    Hidden layers are the paper's 30 units (the shipped models use 64, which costs 1.6x the training time)."""
 
     encoders: Sequence[str] = ENCODERS
     demo_counts: Sequence[int] = tuple(range(1, 11))

@@ -40,6 +40,17 @@ def test_safety_tally_counts_increase_of_the_running_counter():
     assert s.interventions == 2 and s.by_code == {3: 1} and s.estop_seen
 
 
+def test_success_tracker_judges_pushes_as_they_happen_and_circles_at_the_end():
+    from vla_panda_bridge.objects import ObjectPose
+
+    push = metrics.SuccessTracker("soda_can/push_south", ObjectPose("soda_can", 0.5, 0.0, 0.0))
+    assert not push.update(1.0, ObjectPose("soda_can", 0.45, 0.0, 0.0))
+    assert push.update(2.0, ObjectPose("soda_can", 0.38, 0.0, 0.0)) and push.time_to_success == 2.0
+    circle = metrics.SuccessTracker("cereal_box/circle", ObjectPose("cereal_box", 0.5, 0.0, 0.0))
+    assert not circle.update(0.2, ObjectPose("cereal_box", 0.5, 0.0, 0.0))  # unmoved is not enough
+    assert circle.time_to_success is None
+
+
 def test_summarize_groups_and_reports(tmp_path):
     rs = [
         EpisodeResult("bread/push_east", 1, encoder="detector", final_state_error=0.1, success=True,

@@ -11,6 +11,7 @@ from vla_panda_bridge.tasks import (
     TASKS,
     UNSEEN_TASKS,
     TaskSpec,
+    circle_sweep_deg,
     parse_task,
     task_layout,
     task_success,
@@ -83,6 +84,24 @@ def test_circle_success_criterion():
     ok, disp, ang = task_success(task, s, _moved(s, 0.01, 0.0))
     assert ok and math.isnan(ang)
     assert not task_success(task, s, _moved(s, 0.05, 0.0))[0]
+
+
+def test_a_circle_needs_the_arm_to_go_round():
+    """An unmoved object alone is not a circle: an arm that never moved leaves it unmoved too."""
+    task = TASKS["cereal_box/circle"]
+    s = ObjectPose("cereal_box", 0.5, 0.1, 0.0)
+
+    def arc(deg):
+        a = np.radians(np.linspace(40.0, 40.0 + deg, 50))
+        return np.column_stack([0.5 + 0.15 * np.cos(a), 0.1 + 0.15 * np.sin(a)])
+
+    ok, _, shortfall = task_success(task, s, _moved(s, 0.01, 0.0), arc(350.0))
+    assert ok and shortfall == 0.0
+    ok, _, shortfall = task_success(task, s, _moved(s, 0.01, 0.0), arc(180.0))
+    assert not ok and shortfall == pytest.approx(150.0)
+    assert not task_success(task, s, s, np.tile([0.65, 0.1], (20, 1)))[0]  # the arm stayed put
+    assert not task_success(task, s, _moved(s, 0.05, 0.0), arc(360.0))[0]  # went round, knocked it
+    assert circle_sweep_deg(arc(720.0), (0.5, 0.1)) == pytest.approx(720.0)
 
 
 @pytest.mark.parametrize("name", sorted(TASKS))

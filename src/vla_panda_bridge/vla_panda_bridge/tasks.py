@@ -23,8 +23,10 @@ from vla_panda_bridge.objects import (
 
 PUSH_SUCCESS_DISTANCE = 0.10
 PUSH_SUCCESS_ANGLE_DEG = 30.0
-# A circle succeeds when the arm went round without knocking the object more than this.
+# A circle succeeds when the arm went round (the TCP's bearing from the object's centre swept at
+# least CIRCLE_MIN_SWEEP_DEG) without knocking the object more than CIRCLE_MAX_DISPLACEMENT.
 CIRCLE_MAX_DISPLACEMENT = 0.03
+CIRCLE_MIN_SWEEP_DEG = 330.0
 
 
 @dataclass(frozen=True)
@@ -79,17 +81,35 @@ def parse_task(text: str) -> TaskSpec:
     return _spec(obj, action)
 
 
-def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose) -> tuple[bool, float, float]:
+def circle_sweep_deg(path_xy, center) -> float:
+    """How far (deg) a path of (x, y) points went round `center`: the range of its unwrapped bearing."""
+    p = np.asarray(path_xy, dtype=float).reshape(-1, 2) - np.asarray(center, dtype=float)[:2]
+    p = p[np.linalg.norm(p, axis=1) > 1e-6]
+    if len(p) < 2:
+        return 0.0
+    bearing = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
+    return float(np.degrees(bearing.max() - bearing.min()))
+
+
+def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose,
+                 path_xy=None) -> tuple[bool, float, float]:
     """(ok, displacement_m, angle_err_deg) of the object's motion from `start` to `end`.
 
     push: ok when displaced >= 0.10 m within +-30 deg of the intended direction.
-    circle: ok when the object stayed put (< 3 cm); angle_err_deg is NaN.
+    circle: ok when the object stayed put (< 3 cm) and, given the TCP's (x, y) path, that path went
+    at least 330 deg round the object's start; angle_err_deg is then the sweep's shortfall (0 when
+    it went round, NaN without a path). Without a path only the object is judged: callers whose arm
+    may not move (evaluations of learned models) must pass it.
     """
     spec = parse_task(task) if isinstance(task, str) else task
     delta = np.array([end.x - start.x, end.y - start.y], dtype=float)
     disp = float(np.linalg.norm(delta))
     if spec.kind == "circle":
-        return disp < CIRCLE_MAX_DISPLACEMENT, disp, float("nan")
+        still = disp < CIRCLE_MAX_DISPLACEMENT
+        if path_xy is None:
+            return still, disp, float("nan")
+        shortfall = max(0.0, CIRCLE_MIN_SWEEP_DEG - circle_sweep_deg(path_xy, (start.x, start.y)))
+        return still and shortfall == 0.0, disp, shortfall
     if disp < 1e-9:
         return False, disp, 180.0
     d = spec.direction_vector

@@ -612,7 +612,8 @@ class GraphEvaluator:
         if final_wp.shape == (7,):
             result.final_state_error = final_state_error(q_final, final_wp)
         if end_pose is not None:
-            ok, disp, ang = judge_task(spec, start_pose, end_pose)
+            path_xy = np.asarray(path)[:, :2] if path else np.zeros((0, 2))
+            ok, disp, ang = judge_task(spec, start_pose, end_pose, path_xy)
             result.success, result.displacement_m, result.angle_err_deg = ok, disp, ang
             result.object_end = end_pose.to_dict()
             if ok and tracker.time_to_success is None:

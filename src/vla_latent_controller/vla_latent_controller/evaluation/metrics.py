@@ -30,11 +30,12 @@ def final_state_error(q: np.ndarray, final_waypoint: np.ndarray) -> float:
     return float(np.linalg.norm(w - q))
 
 
-def judge_task(task, start, end) -> tuple[bool, float, float]:
-    """(success, displacement_m, angle_err_deg) of a task from the object's start and end poses."""
+def judge_task(task, start, end, path_xy=None) -> tuple[bool, float, float]:
+    """(success, displacement_m, angle_err_deg) of a task from the object's start and end poses; a
+    circle also needs the TCP's (x, y) path (`vla_panda_bridge.tasks.task_success`)."""
     from vla_panda_bridge.tasks import task_success
 
-    ok, disp, ang = task_success(task, start, end)
+    ok, disp, ang = task_success(task, start, end, path_xy)
     return bool(ok), float(disp), float(ang)
 
 
@@ -48,6 +49,14 @@ class SuccessTracker:
         self.last: tuple[bool, float, float] = (False, 0.0, float("nan"))
 
     def update(self, t: float, pose) -> bool:
+        """Judge the pose at time t. A circle is never judged here: an unmoved object is all it can
+        see, and that also holds for an arm that never moved; the circle is judged at the end with
+        the arm's path."""
+        from vla_panda_bridge.tasks import parse_task
+
+        spec = parse_task(self.task) if isinstance(self.task, str) else self.task
+        if spec.kind == "circle":
+            return False
         self.last = judge_task(self.task, self.start, pose)
         if self.last[0] and self.time_to_success is None:
             self.time_to_success = float(t)

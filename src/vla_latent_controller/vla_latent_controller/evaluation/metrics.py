@@ -43,8 +43,11 @@ class SuccessTracker:
     """Watches the goal object's pose during an episode and remembers when the task first held."""
 
     def __init__(self, task, start_pose) -> None:
+        from vla_panda_bridge.tasks import parse_task
+
         self.task = task
         self.start = start_pose
+        self.is_circle = (parse_task(task) if isinstance(task, str) else task).kind == "circle"
         self.time_to_success: float | None = None
         self.last: tuple[bool, float, float] = (False, 0.0, float("nan"))
 
@@ -52,10 +55,7 @@ class SuccessTracker:
         """Judge the pose at time t. A circle is never judged here: an unmoved object is all it can
         see, and that also holds for an arm that never moved; the circle is judged at the end with
         the arm's path."""
-        from vla_panda_bridge.tasks import parse_task
-
-        spec = parse_task(self.task) if isinstance(self.task, str) else self.task
-        if spec.kind == "circle":
+        if self.is_circle:
             return False
         self.last = judge_task(self.task, self.start, pose)
         if self.last[0] and self.time_to_success is None:

@@ -161,3 +161,15 @@ def test_folded_context_standardisation_takes_raw_contexts():
     assert torch.allclose(got_dec, want_dec, atol=1e-5)
     assert torch.allclose(got_enc, want_enc, atol=1e-5)
     assert not torch.allclose(model.decode(norm, q, z), want_dec, atol=1e-3)  # it did change
+
+
+def test_min_steps_scales_epochs_and_lr_step_for_small_datasets():
+    from vla_latent_controller.train import TrainConfig, scaled_schedule
+
+    cfg = TrainConfig(epochs=100, step_size=40, batch_size=6000, min_steps=1000)
+    assert scaled_schedule(cfg, 5_000) == (1000, 400)  # one batch an epoch: 10x the epochs
+    assert scaled_schedule(cfg, 13_000) == (400, 160)  # three batches an epoch: 4x
+    assert scaled_schedule(cfg, 60_000) == (100, 40)  # already 1000 updates
+    assert scaled_schedule(TrainConfig(epochs=100, step_size=40), 5_000) == (100, 40)  # off by default
+    with pytest.raises(ValueError, match="min_steps"):
+        TrainConfig(min_steps=-1).validate()

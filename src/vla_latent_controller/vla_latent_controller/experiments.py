@@ -51,6 +51,7 @@ class Plan:
     epochs: int = 100
     step_size: int = 40
     hidden: int = 30
+    min_steps: int = 0  # TrainConfig.min_steps
     fig2a: bool = True
     fig2c: bool = True
     rate: float = 20.0
@@ -177,7 +178,7 @@ def run_job(job: Job) -> list[dict]:
     demos = [_STATE["demos"][t][i] for t, idx in job.train.items() for i in idx]
     plan: Plan = _STATE["plan"]
     cfg = TrainConfig(encoder=job.encoder, epochs=plan.epochs, step_size=plan.step_size, seed=job.run,
-                      hidden=plan.hidden)
+                      hidden=plan.hidden, min_steps=plan.min_steps)
     t0 = time.perf_counter()
     tmp = Path(tempfile.mkdtemp(prefix="vla_exp_"))
     res = None
@@ -271,6 +272,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epochs", type=int, default=None, help="training epochs per model")
     p.add_argument("--layouts", type=int, default=None, help="validation layouts per task")
     p.add_argument("--jobs", type=int, default=None, help="worker processes (default: 2)")
+    p.add_argument("--min-steps", type=int, default=None,
+                   help="at least this many optimiser updates per model (epochs scaled up for few demos)")
+    p.add_argument("--counts", default=None, help="Figure 2a demo counts, comma-separated (default 1..10)")
     p.add_argument("--only", choices=("2a", "2c"), default=None, help="run one figure only")
     p.add_argument(
         "--encoders", default=None, help="comma-separated subset of detector,localization,end_to_end"
@@ -287,11 +291,13 @@ def run(args) -> int:
 
     t_all = time.monotonic()
     plan = quick_plan() if args.quick else Plan()
-    for name in ("runs", "epochs", "layouts", "jobs"):
+    for name in ("runs", "epochs", "layouts", "jobs", "min_steps"):
         if getattr(args, name) is not None:
             setattr(plan, name, getattr(args, name))
     if args.epochs is not None:
         plan.step_size = max(1, int(round(0.4 * args.epochs)))
+    if args.counts:
+        plan.demo_counts = tuple(int(c) for c in args.counts.split(",") if c.strip())
     if args.encoders:
         plan.encoders = tuple(e.strip() for e in args.encoders.split(",") if e.strip())
     if args.only:

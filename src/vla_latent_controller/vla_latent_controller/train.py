@@ -64,6 +64,9 @@ class TrainConfig:
     feature_dim: int = CNN_FEATURE_DIM
     gain_percentile: float = 95.0
     paper_exact: bool = False
+    # Optimiser updates at least this many (0: off): epochs (and the lr step) are scaled up for small
+    # datasets, where full batches of 6000 pairs leave a few demos with one update per epoch.
+    min_steps: int = 0
 
     @classmethod
     def paper(cls, **overrides) -> TrainConfig:
@@ -80,6 +83,8 @@ class TrainConfig:
             raise ValueError(f"unknown encoder {self.encoder!r}; expected one of {ENCODERS}")
         if self.epochs < 1 or self.batch_size < 1 or self.windows < 1:
             raise ValueError("epochs, batch_size and windows must be >= 1")
+        if self.min_steps < 0:
+            raise ValueError("min_steps must be >= 0")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError("val_fraction must be in [0, 1)")
 
@@ -189,6 +194,14 @@ def prepare_demos(
                 continue
         kept.append(item)
     return kept, skipped
+
+
+def scaled_schedule(cfg: TrainConfig, n_train: int) -> tuple[int, int]:
+    """(epochs, lr step in epochs) for `n_train` training pairs: the configured ones, both scaled by
+    the same whole factor when that gives fewer than `cfg.min_steps` optimiser updates."""
+    per_epoch = max(1, math.ceil(n_train / cfg.batch_size))
+    factor = max(1, math.ceil(cfg.min_steps / (cfg.epochs * per_epoch)))
+    return cfg.epochs * factor, cfg.step_size * factor
 
 
 def _fold_input_affine(model, mean: np.ndarray, std: np.ndarray) -> None:
@@ -303,7 +316,8 @@ def train_model(
     St = torch.tensor(S, dtype=f32)[:, None]
     params = list(model.parameters()) + (list(cnn.parameters()) if cnn is not None else [])
     opt = torch.optim.Adam(params, lr=cfg.lr, fused=True)  # the fused kernel: same update, less overhead
-    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=cfg.step_size, gamma=cfg.gamma)
+    epochs, step_size = scaled_schedule(cfg, len(tr_idx))
+    sched = torch.optim.lr_scheduler.StepLR(opt, step_size=step_size, gamma=cfg.gamma)
     mse = torch.nn.functional.mse_loss
 
     def loss_on(
@@ -326,7 +340,7 @@ def train_model(
     history: list[tuple[float, float]] = []
     t0 = time.perf_counter()
     bar = tqdm(
-        range(cfg.epochs), desc=f"train {cfg.encoder}", disable=not progress, leave=False, dynamic_ncols=True
+        range(epochs), desc=f"train {cfg.encoder}", disable=not progress, leave=False, dynamic_ncols=True
     )
     for epoch in bar:
         model.train()
@@ -360,7 +374,7 @@ def train_model(
                 copy.deepcopy(model.state_dict()),
                 copy.deepcopy(cnn.state_dict()) if cnn is not None else None,
             )
-        if progress and (epoch % 10 == 0 or epoch == cfg.epochs - 1):
+        if progress and (epoch % 10 == 0 or epoch == epochs - 1):
             bar.set_postfix(train=f"{train_loss:.3g}", val=f"{val_loss:.3g}")
     bar.close()
     train_time = time.perf_counter() - t0
@@ -421,6 +435,8 @@ def train_model(
         "forward_pairs": int(n_fwd),
         "train_pairs": len(tr_idx),
         "val_pairs": int(n_val),
+        "epochs": epochs,
+        "optimiser_steps": epochs * max(1, math.ceil(len(tr_idx) / cfg.batch_size)),
         "best_epoch": best[1] + 1,
         "train_loss": history[best[1]][0],
         "val_loss": history[best[1]][1],
@@ -457,7 +473,7 @@ def train_model(
     )
     summary = [
         f"Trained {cfg.encoder} CAE [{mode}] on {len(items)} demos of {len(by_task)} tasks, {n_pairs} pairs "
-        f"({len(tr_idx)} train / {n_val} val), seed {cfg.seed}, {cfg.epochs} epochs in {train_time:.1f} s",
+        f"({len(tr_idx)} train / {n_val} val), seed {cfg.seed}, {epochs} epochs in {train_time:.1f} s",
     ]
     for task in sorted(by_task):
         summary.append(f"  {task:32s} {by_task[task]:3d} demos {pairs_by_task[task]:7d} pairs")

@@ -1,6 +1,7 @@
 """`vla_latent_controller evaluate`: closed-loop evaluation with the simulated teleoperator.
 
 --mode kinematic: the paper's q <- q + phi(z*, s) dt on rendered, detected validation layouts.
+--mode physics:   the same computations with MuJoCo and the safety filter in one process (no ROS).
 --mode graph:     the full node graph (bridge, detector, controller, teleoperator) with physics.
 Writes episodes.csv, summary.csv, results.json and plots to --out, and prints a table.
 """
@@ -32,7 +33,8 @@ def task_list(spec: str) -> list[str]:
 
 def add_teleop_arguments(p: argparse.ArgumentParser, rate: float) -> None:
     g = p.add_argument_group("simulated teleoperator and controller")
-    g.add_argument("--rate", type=float, default=rate, help="control rate in Hz of simulated time")
+    g.add_argument("--rate", type=float, default=rate,
+                   help="control rate in Hz of simulated time (physics and graph: 100 unless set)")
     g.add_argument("--time-limit", type=float, default=30.0, help="episode length (s), the paper's 30")
     g.add_argument("--switch-time", type=float, default=15.0,
                    help="time on the pre-push waypoint, the paper's k")
@@ -49,7 +51,7 @@ def settings_from(args) -> TeleopSettings:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mode", choices=("kinematic", "graph"), default="kinematic")
+    p.add_argument("--mode", choices=("kinematic", "physics", "graph"), default="kinematic")
     p.add_argument("--model", type=Path, default=None,
                    help="latent model directory (default: the shipped one)")
     p.add_argument("--detector-model", type=Path, default=None,
@@ -59,9 +61,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=VALIDATION_SEED_OFFSET, help="first layout seed")
     p.add_argument("--objects", type=int, default=1, help="objects per layout (the task's + distractors)")
     p.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output folder")
-    gg = p.add_argument_group("graph mode")
-    gg.add_argument("--real-time-factor", type=float, default=2.0, help="simulated seconds per wall second")
+    gg = p.add_argument_group("physics and graph modes")
     gg.add_argument("--stop-on-success", action="store_true", help="end an episode 1 s after success")
+    gg.add_argument("--real-time-factor", type=float, default=2.0,
+                    help="graph: simulated seconds per wall second")
     gg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for the graph (default: own)")
     add_teleop_arguments(p, rate=20.0)
 
@@ -82,13 +85,15 @@ def run(args) -> int:
             return 2
     settings = settings_from(args)
     t0 = time.monotonic()
+    if args.mode != "kinematic" and args.rate == 20.0:
+        settings.rate = 100.0  # the controller node's default rate
     if args.mode == "kinematic":
         results = _kinematic(model_dir, det_path, tasks, seeds, settings, args.objects)
+    elif args.mode == "physics":
+        results = _physics(model_dir, det_path, tasks, seeds, settings, args.objects, args.stop_on_success)
     else:
         from .graph import GraphConfig, evaluate_graph
 
-        if args.rate == 20.0:
-            settings.rate = 100.0  # the controller node's default rate
         cfg = GraphConfig(model_path=str(model_dir), detector_model=str(det_path),
                           real_time_factor=args.real_time_factor, rate=settings.rate, settings=settings,
                           stop_on_success=args.stop_on_success, domain_id=args.domain_id,
@@ -114,6 +119,21 @@ def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects):
     kin = PandaKinematics()
     layouts = make_layouts(tasks, seeds, detector=Detector(det_path), kin=kin, n_objects=n_objects)
     return evaluate_kinematic(model, layouts, settings, kin=kin, label=Path(model_dir).name)
+
+
+def _physics(model_dir, det_path, tasks, seeds, settings, n_objects, stop_on_success):
+    from vla_detector.inference import Detector
+    from vla_panda_bridge.sim import PandaSim
+
+    from ..model import LatentModel
+    from .kinematic import make_layouts
+    from .physics import evaluate_physics
+
+    model = LatentModel.load(model_dir)
+    sim = PandaSim(render=True)
+    layouts = make_layouts(tasks, seeds, sim=sim, detector=Detector(det_path), n_objects=n_objects)
+    return evaluate_physics(model, layouts, settings, sim=sim, label=Path(model_dir).name,
+                            stop_on_success=stop_on_success, log=print)
 
 
 def print_table(summary: list[dict], file=None) -> None:

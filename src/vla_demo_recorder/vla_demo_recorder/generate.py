@@ -367,6 +367,7 @@ def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
     executor = MultiThreadedExecutor(num_threads=4, context=ctx)
     recorder = RecorderNode(
+        track_joint_state_stamps=True,
         context=ctx,
         parameter_overrides=[
             Parameter("use_sim_time", Parameter.Type.BOOL, True),

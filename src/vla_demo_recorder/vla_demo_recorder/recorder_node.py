@@ -51,8 +51,11 @@ def _policy_name(policy) -> str:
 class RecorderNode(Node):
     """Records the configured topics into one rosbag2 MCAP bag per episode."""
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, track_joint_state_stamps: bool = False, **kwargs) -> None:
+        """`track_joint_state_stamps`: keep `latest_stamp_ns` (deserialises every recorded joint state,
+        ~20 us each); the generator needs it to know when the recording has caught up."""
         super().__init__("recorder", **kwargs)
+        self._track_stamps = bool(track_joint_state_stamps)
         p = self._declare
         output_dir = p("output_dir", "~/vla_demos", "folder that receives one bag folder per episode")
         self.topics = list(p("topics", DEFAULT_TOPICS, "topics to record (relative names resolve in "
@@ -91,6 +94,7 @@ class RecorderNode(Node):
         self._subs: dict[str, tuple[str, list, object]] = {}  # topic -> (type, offered qos, sub)
         self._image_counts: dict[str, int] = {}
         # header stamp (ns) of the newest joint state recorded per topic: how far the recording has got
+        # (only with track_joint_state_stamps)
         self.latest_stamp_ns: dict[str, int] = {}
         self._warned: set[str] = set()
         self._prev_buttons: list[int] = []
@@ -171,7 +175,7 @@ class RecorderNode(Node):
 
     def _make_callback(self, topic: str, msgtype: str):
         is_image = msgtype in IMAGE_TYPES
-        is_joint_state = msgtype == JOINT_STATE_TYPE
+        is_joint_state = self._track_stamps and msgtype == JOINT_STATE_TYPE
         clock = self.get_clock()
 
         def callback(data: bytes) -> None:

@@ -131,6 +131,15 @@ def test_lost_states_and_jumps_are_reported(tmp_path):
     assert load_demo(_joint_state_bag(tmp_path / "clock", other_clock, start_ns=T0)).q.shape == (2, 7)
 
 
+def test_the_generator_finds_a_bag_the_loader_would_refuse(tmp_path):
+    from vla_demo_recorder.generate import recording_problem
+
+    gap = [(T0 + i * 10**7, q_of(i * 0.01)) for i in range(101) if not 20 <= i < 90]
+    assert "missing for 0.71 s" in recording_problem(_joint_state_bag(tmp_path / "gap", gap, start_ns=T0))
+    ok = write_rosbags_bag(tmp_path / "ok", episode=EpisodeInfo(task="bread/push_east", outcome="kept"))
+    assert recording_problem(ok) == ""
+
+
 def test_bgr_images_come_out_rgb(tmp_path):
     ep = EpisodeInfo(task="bread/push_east", outcome="kept")
     demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep, encoding="bgr8"))

@@ -557,8 +557,24 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord,
     res = demo.call(demo.stop_cli if rec.success else demo.discard_cli, demo.Trigger.Request(), 60, "stop")
     if not res.success:
         raise GenerateError(f"stopping the episode failed: {res.message}")
+    # 4. a kept bag must also be one the training loader accepts (on a loaded machine the recorder
+    #    can still lose states); one that is not counts as failed, so `--delete-failed` runs redo it
+    if rec.success and (problem := recording_problem(rec.bag)):
+        rec.success = False
+        rec.error = f"recording refused by the loader: {problem}"
     if not rec.success and not cfg.keep_failed:
         shutil.rmtree(rec.bag, ignore_errors=True)
+
+
+def recording_problem(bag: str | Path) -> str:
+    """Why the training loader refuses a recorded bag (lost states, a jump, no context), "" if it does not."""
+    from .dataset import DemoError, load_demo
+
+    try:
+        load_demo(bag)
+    except DemoError as err:
+        return str(err)
+    return ""
 
 
 def _raise_interrupt(signum, frame):

@@ -42,6 +42,7 @@ from vla_panda_bridge.sim_clock import SimPacer
 BACKENDS = ("mujoco", "ros2_control")
 EE_FRAMES = ("tcp", "flange")
 MAX_CAMERA_SIZE = (1920, 1440)
+STATE_QOS_DEPTH = 2000  # joint_states / ee_pose history (see where the publishers are made)
 _NO_STATE = np.full(NUM_JOINTS, np.nan)  # scene.MAX_OFFSCREEN (the offscreen buffer)
 
 
@@ -202,9 +203,10 @@ class PandaBridge(Node):
         self._kin = PandaKinematics()
         self._fk = self._kin.fk if p["ee_frame"] == "tcp" else self._kin.flange_fk
 
-        # A deep history: a reliable reader that stalls briefly (a recorder behind a simulation running
-        # faster than real time) gets the states late instead of losing them.
-        state_qos = QoSProfile(depth=200, reliability=ReliabilityPolicy.RELIABLE)
+        # A deep history: a reliable reader that stalls (a recorder behind a simulation running faster
+        # than real time on a loaded machine) gets the states late instead of losing them. 200 lost
+        # seconds of states with two training jobs on the same 2 cores; 2000 (~0.6 MB) is 10 s at 200 Hz.
+        state_qos = QoSProfile(depth=STATE_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         self._js_pub = self.create_publisher(JointState, "joint_states", state_qos)
         self._ee_pub = self.create_publisher(PoseStamped, "ee_pose", state_qos)
         self._status_pub = self.create_publisher(SafetyStatus, "~/status", 10)

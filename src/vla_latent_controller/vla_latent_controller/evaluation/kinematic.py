@@ -169,6 +169,15 @@ def layout_context(model, layout: Layout,
     return model.context(image=layout.image), None, detected
 
 
+def layout_command(model, layout: Layout, settings: TeleopSettings) -> tuple[StickToCommand, str]:
+    """The controller's stick-to-joint-velocity mapping for the layout's latched context, and the
+    detected class. ContextError / ValueError when there is no context (the controller would wait)."""
+    context, gain_class, detected = layout_context(model, layout, settings.goal_selection)
+    command = StickToCommand(model, context, gain_class, settings.deadband, settings.axis_scale,
+                             settings.action_scale, settings.max_joint_speed, settings.dq_max)
+    return command, detected
+
+
 def run_episode(model, layout: Layout, settings: TeleopSettings, kin=None, label: str = "") -> EpisodeResult:
     """One kinematic episode with the simulated teleoperator; never raises for a bad model/context."""
     result = EpisodeResult(task=layout.task, layout_seed=layout.seed, mode="kinematic",
@@ -179,10 +188,7 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, kin=None, label
     result.extra["start_error"] = round(final_state_error(q, final), 5)
     t0 = time.perf_counter()
     try:
-        context, gain_class, detected = layout_context(model, layout, settings.goal_selection)
-        result.detected_class = detected
-        command = StickToCommand(model, context, gain_class, settings.deadband, settings.axis_scale,
-                                 settings.action_scale, settings.max_joint_speed, settings.dq_max)
+        command, result.detected_class = layout_command(model, layout, settings)
     except (ContextError, ValueError) as e:
         result.note = f"no context: {e}"
         result.final_state_error = final_state_error(q, final)

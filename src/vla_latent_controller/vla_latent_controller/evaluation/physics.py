@@ -16,8 +16,8 @@ from collections.abc import Sequence
 import numpy as np
 
 from ..context import ContextError
-from ..sim_teleoperator import SimTeleoperator, StickToCommand, WaypointSchedule
-from .kinematic import Layout, TeleopSettings, layout_context
+from ..sim_teleoperator import SimTeleoperator, WaypointSchedule
+from .kinematic import Layout, TeleopSettings, layout_command
 from .metrics import EpisodeResult, LimitMonitor, SuccessTracker, final_state_error, judge_task
 
 JUDGE_EVERY_S = 0.1  # how often the goal object's pose is checked (the bridge's scene/objects rate)
@@ -43,10 +43,7 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, sim, safety_con
     result.extra["start_error"] = round(final_state_error(sim.q, final), 5)
     wall0 = time.perf_counter()
     try:
-        context, gain_class, detected = layout_context(model, layout, settings.goal_selection)
-        result.detected_class = detected
-        command = StickToCommand(model, context, gain_class, settings.deadband, settings.axis_scale,
-                                 settings.action_scale, settings.max_joint_speed, settings.dq_max)
+        command, result.detected_class = layout_command(model, layout, settings)
     except (ContextError, ValueError) as e:  # the controller would wait: nothing moves
         result.note = f"no context: {e}"
         result.success = False

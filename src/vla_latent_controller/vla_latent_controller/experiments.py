@@ -276,7 +276,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--jobs", type=int, default=None, help="worker processes (default: 2)")
     p.add_argument("--min-steps", type=int, default=None,
                    help="at least this many optimiser updates per model (epochs scaled up for few demos)")
-    p.add_argument("--counts", default=None, help="Figure 2a demo counts, comma-separated (default 1..10)")
+    p.add_argument("--counts", default=None,
+                   help="Figure 2a demo counts, comma-separated (default 1..10); subsets are drawn "
+                   "from the first max(counts) demos of each task")
     p.add_argument("--only", choices=("2a", "2c"), default=None, help="run one figure only")
     p.add_argument(
         "--encoders", default=None, help="comma-separated subset of detector,localization,end_to_end"

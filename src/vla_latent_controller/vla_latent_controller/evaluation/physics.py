@@ -24,6 +24,15 @@ JUDGE_EVERY_S = 0.1  # how often the goal object's pose is checked (the bridge's
 PATH_EVERY_S = 0.05  # TCP samples kept for the path plots and the circle's sweep
 
 
+def _servo(sim, safety, steps: int) -> None:
+    """`steps` physics steps, each with one safety-filter update on the measured state (the bridge's
+    servo loop; the filter holds the last submitted command, or brakes once it is stale)."""
+    for _ in range(steps):
+        dq, _code, _text = safety.filter(None, sim.q, sim.time)
+        sim.set_velocity_command(dq)
+        sim.step(1)
+
+
 def _goal_pose(sim, class_id: str):
     return next((o for o in sim.object_poses() if o.class_id == class_id), None)
 
@@ -64,18 +73,13 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, sim, safety_con
     path_every = max(1, int(round(PATH_EVERY_S / control_dt)))
     path: list[np.ndarray] = []
     t0 = sim.time
-    t = 0.0
     for i in range(int(round(settings.time_limit / control_dt))):
-        t = sim.time - t0
         q = sim.q
-        step = tele.act(t, q)
+        step = tele.act(sim.time - t0, q)
         if step.done:
             break
         safety.submit(command(np.array([step.axis]), q)[0], sim.time)
-        for _ in range(per_control):
-            dq, _code, _text = safety.filter(None, sim.q, sim.time)
-            sim.set_velocity_command(dq)
-            sim.step(1)
+        _servo(sim, safety, per_control)
         limits.update(sim.q, sim.dq)
         if i % path_every == 0:
             path.append(sim.tcp_pose()[0])
@@ -86,10 +90,7 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, sim, safety_con
                 break
     t_end = sim.time - t0
     # the bridge brakes to zero when commands stop; let the arm and the object come to rest
-    for _ in range(int(round(0.5 / sim.physics_dt))):
-        dq, _code, _text = safety.filter(None, sim.q, sim.time)
-        sim.set_velocity_command(dq)
-        sim.step(1)
+    _servo(sim, safety, int(round(0.5 / sim.physics_dt)))
     end = _goal_pose(sim, cls)
     path_arr = np.asarray(path) if path else np.zeros((0, 3))
     result.final_state_error = final_state_error(sim.q, final)

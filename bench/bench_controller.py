@@ -248,10 +248,12 @@ def main() -> int:
     ap.add_argument("--skip-training", action="store_true")
     ap.add_argument("--threads", type=int, default=1, help="torch threads for training")
     ap.add_argument("--rate", type=float, default=100.0, help="controller_node rate for the end-to-end test")
+    ap.add_argument("--model", type=Path, default=None,
+                    help="latent model directory to bench (default: a random 30-unit detector-context model)")
     a = ap.parse_args()
     print(f"bench_controller: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
-        model = random_model(Path(tmp) / "model")
+        model = a.model or random_model(Path(tmp) / "model")
         bench_decoder(model, 20000 if a.quick else 100000)
         if not a.skip_e2e:
             bench_e2e(model, 100 if a.quick else 500, a.rate)

@@ -56,12 +56,14 @@ def test_train_from_bags(tmp_path, capsys):
     (tmp_path / "demos" / "broken").mkdir()
     (tmp_path / "demos" / "broken" / "broken.mcap").write_bytes(b"\x89MCAP0\r\n" + b"junk" * 10)
     out = tmp_path / "model"
-    rc = main(["train", "--bags", str(tmp_path / "demos"), "--out", str(out), "--epochs", "5", "--quiet"])
+    rc = main(["train", "--bags", str(tmp_path / "demos"), "--out", str(out), "--epochs", "5", "--quiet",
+               "--hidden", "16"])
     text = capsys.readouterr()
     assert rc == 0, text
     assert "loaded 4 demos" in text.out and "bread/push_east" in text.out and "gain" in text.out
     assert "broken" in text.err  # the unusable bag is named with its reason
     cfg = json.loads((out / "config.json").read_text())
+    assert cfg["dims"]["hidden"] == 16
     assert cfg["classes"] == list(CLASSES) and cfg["training"]["demos_per_task"] == {
         t: 2 for t in tasks.values()
     }
@@ -91,6 +93,7 @@ def test_train_from_bags(tmp_path, capsys):
     assert (
         cfg2["training"]["demos_per_task"] == {"bread/push_east": 1}
         and cfg2["hyper_parameters"]["paper_exact"]
+        and cfg2["dims"]["hidden"] == 30  # --paper-exact: the paper's 30 units
     )
     assert cfg2["fingerprint"]["sha256"] != cfg["fingerprint"]["sha256"]
 

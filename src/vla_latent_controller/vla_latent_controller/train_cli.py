@@ -29,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--epochs", type=int, default=1000, help="the paper: 1000")
     p.add_argument("--batch-size", type=int, default=6000, help="the paper: 6000 (near full batch)")
     p.add_argument("--lr", type=float, default=0.01, help="Adam learning rate; the paper: 0.01")
+    p.add_argument("--hidden", type=int, default=None,
+                   help="units per hidden layer (default: 128; the paper and --paper-exact: 30)")
     p.add_argument(
         "--paper-exact",
         action="store_true",
@@ -90,6 +92,8 @@ def run(args: argparse.Namespace) -> int:
     overrides = dict(
         encoder=args.encoder, seed=args.seed, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr
     )
+    if args.hidden is not None:
+        overrides["hidden"] = args.hidden
     cfg = TrainConfig.paper(**overrides) if args.paper_exact else TrainConfig(**overrides)
     classes = list(detector.classes) if detector is not None else None
     try:

@@ -31,14 +31,15 @@ def test_push_plan_geometry(kin, name):
     assert np.all(np.diff(plan.times) > 0) and plan.duration > plan.times[-1]
     hover, pre, post = (kin.fk(q)[0] for q in plan.waypoints)
     c = obj.xy
-    half = OBJECT_SPECS[obj.class_id].half_extent_along(d, obj.yaw)
-    # Pre-push: low, on the far side of the object, clear of it; hover straight above it.
+    shape = OBJECT_SPECS[obj.class_id]
+    # Pre-push: low, on the far side of the object, clear of its footprint whatever its yaw; hover
+    # straight above it.
     assert pre[2] < 0.035
-    assert (pre[:2] - c) @ d < -half
+    assert (pre[:2] - c) @ d < -shape.footprint_radius
     assert np.linalg.norm(hover[:2] - pre[:2]) < 1e-3 and hover[2] > OBJECT_SPECS[obj.class_id].height
     # Push: along the direction, far enough to move the object >= the task distance.
     push = post[:2] - pre[:2]
-    assert push @ d >= spec.distance + 0.02
+    assert push @ d >= spec.distance + 0.02 + shape.footprint_radius - shape.min_half_extent
     assert np.linalg.norm(push - (push @ d) * d) < 1e-3
     # It ends holding the post-push pose, low (a lift would teach the latent to rise mid-push).
     q_end, dq_end = plan.reference(plan.duration)
@@ -46,6 +47,21 @@ def test_push_plan_geometry(kin, name):
     assert np.allclose(plan.reference(plan.times[-1] + 0.2)[0], plan.waypoints[-1])
     for q in plan.waypoints:
         assert np.all(q >= Q_MIN) and np.all(q <= Q_MAX)
+
+
+@pytest.mark.parametrize("name", ["bread/push_east", "milk_carton/push_south_west"])
+def test_push_waypoints_do_not_depend_on_the_yaw(kin, name):
+    """The learned model sees the object's class and (x, y), not its yaw: the demonstrated pre- and
+    post-push poses must be a function of what it sees."""
+    obj = task_layout(name, np.random.default_rng(3))[0]
+    q0 = np.asarray(READY_POSE)
+    tcps = []
+    for yaw in (0.0, 0.7, math.pi / 2):
+        turned = ObjectPose(obj.class_id, obj.x, obj.y, yaw, 0.0)
+        plan = plan_task(kin, TASKS[name], turned, q0, np.random.default_rng(5))
+        tcps.append(np.array([kin.fk(q)[0] for q in plan.waypoints[1:]]))
+    for other in tcps[1:]:
+        assert np.allclose(other, tcps[0], atol=1e-3)
 
 
 def test_circle_plan_geometry(kin):

@@ -59,6 +59,13 @@ class ObjectSpec:
             return self.size[0]
         return 0.5 * math.hypot(self.size[0], self.size[1])
 
+    @property
+    def min_half_extent(self) -> float:
+        """The smallest distance from the centre to the footprint's edge, over all directions."""
+        if self.shape == "cylinder":
+            return self.size[0]
+        return 0.5 * min(self.size[0], self.size[1])
+
     def half_extent_along(self, direction_xy: np.ndarray, yaw: float) -> float:
         """Distance from the centre to the footprint's edge along a world-frame unit direction."""
         if self.shape == "cylinder":

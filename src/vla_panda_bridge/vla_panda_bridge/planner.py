@@ -1,8 +1,9 @@
 """Scripted demonstrations: plan a task from the object's ground-truth pose with Pinocchio IK and
 execute it as a joint-velocity tracking command (the stand-in for a person backdriving the arm).
 
-Push: hover above the object's far side (opposite the push direction), descend beside it, push
-along the direction by the task distance plus a margin, hold there. No lift at the end: the
+Push: hover above the object's far side (opposite the push direction), outside the circle round
+its footprint, descend, push along the direction by the task distance plus a margin, hold there;
+the poses depend on the object's (x, y), not its yaw, which the learned model does not see. No lift at the end: the
 teleoperator's last waypoint is the post-push pose, and a lift taught the 1-D latent to rise during
 the push (measured: pushes stopped ~12 cm into a 24 cm stroke, 10-35 % success). The gripper
 points down, tilted a little so the finger tips lead (the hand is wider than the fingers).
@@ -234,8 +235,7 @@ def reference_configuration(kin: PandaKinematics, spec: TaskSpec) -> np.ndarray:
         shape = OBJECT_SPECS[spec.object_class]
         obj = ObjectPose(spec.object_class, 0.48, 0.0, 0.0, 0.0)
         d = spec.direction_vector
-        h = shape.half_extent_along(d, obj.yaw)
-        start_xy = np.array([obj.x, obj.y]) - d * (h + FINGER_HALF_THICKNESS + 0.03)
+        start_xy = np.array([obj.x, obj.y]) - d * (shape.footprint_radius + FINGER_HALF_THICKNESS + 0.03)
         hover = max(0.18, shape.height + 0.09)
         q, _rot, _c, _e = _best_push_configuration(
             kin, [*start_xy, 0.025], [*start_xy, hover], d, math.radians(sum(TILT_RANGE_DEG) / 2),
@@ -362,9 +362,15 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
             "hold": float(rng.uniform(0.3, 0.6)),  # s at the post-push pose
             "dwell": float(rng.uniform(0.1, 0.4)),
         }
-        h = shape.half_extent_along(d, obj.yaw)
-        start_xy = c - d * (h + FINGER_HALF_THICKNESS + p["approach_gap"]) + perp * p["lateral_offset"]
-        end_xy = start_xy + d * (p["approach_gap"] + spec.distance + p["extra_distance"])
+        # The pre-push and post-push poses depend on the object's (x, y) only, not its yaw: the
+        # learned model's context (class, x, y) carries no yaw, so a yaw-dependent start cannot be
+        # learned (measured: bread pushed from where the average loaf would be, off-centre, 20-39 deg
+        # off). The pusher starts outside the footprint's circle and pushes on by the circle's
+        # slack, so a loaf lying end-on is still pushed at least the task distance plus the extra.
+        standoff = shape.footprint_radius
+        start_xy = c - d * (standoff + FINGER_HALF_THICKNESS + p["approach_gap"]) + perp * p["lateral_offset"]
+        slack = standoff - shape.min_half_extent
+        end_xy = start_xy + d * (p["approach_gap"] + slack + spec.distance + p["extra_distance"])
         zp = p["push_height"]
         q_pre, rot, clearance, extra = _best_push_configuration(
             kin, [*start_xy, zp], [*start_xy, p["hover_height"]], d, math.radians(p["tilt_deg"]),

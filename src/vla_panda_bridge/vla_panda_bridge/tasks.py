@@ -120,7 +120,7 @@ def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose,
 
 
 # Where the TCP can push at table height with a tilted, vertical-ish gripper (checked with IK): the
-# object's start and end centres and the pusher's start point must all lie in this region.
+# object's start centre and the pusher's start and end points must all lie in this region.
 PUSH_REGION_X = (0.27, 0.64)
 PUSH_REGION_Y = (-0.32, 0.32)
 PUSH_REGION_R = 0.70
@@ -151,11 +151,13 @@ def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int |
             break
         d = spec.direction_vector
         c = np.array([rng.uniform(0.30, 0.66), rng.uniform(-0.30, 0.30)])
-        h = obj_spec.half_extent_along(d, yaw)
-        pusher_start = c - d * (h + 0.06)
-        end = c + d * (spec.distance + 0.06)
-        if all(_in_push_region(p) for p in (c, pusher_start, end)):
-            corridor = (pusher_start - d * 0.05, end + d * (h + 0.05))
+        # The planner's pusher starts outside the footprint's circle (whatever the yaw) and stops
+        # the task distance plus up to 6 cm past the object's nearest possible face.
+        r = obj_spec.footprint_radius
+        pusher_start = c - d * (r + 0.06)
+        pusher_end = c + d * (spec.distance + 0.06 - obj_spec.min_half_extent)
+        if all(_in_push_region(p) for p in (c, pusher_start, pusher_end)):
+            corridor = (pusher_start - d * 0.05, pusher_end + d * (2 * r + 0.05))
             break
     else:
         raise ValueError(f"could not place {spec.object_class} for {spec.name} in {max_tries} tries")

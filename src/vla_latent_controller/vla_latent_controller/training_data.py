@@ -121,6 +121,11 @@ def load_task_demos(folder: Path, task: str, detector=None, limit: int | None = 
     return out[:limit] if limit else out
 
 
+# Training seed of each shipped model. `default` was picked from seeds 0-2 by physics-mode success on
+# 20 selection layouts per task (layout seeds 120000...), kept apart from the layouts it is reported on.
+SHIPPED_TRAINING_SEEDS: dict[str, int] = {"default": 1}
+
+
 def ensure_latent_models(
     names: Sequence[str],
     target: Path,
@@ -153,7 +158,7 @@ def ensure_latent_models(
         log(f"[train] {name}: {len(demos)} demonstrations, detector encoder, {epochs} epochs")
         result = train_model(
             demos,
-            TrainConfig(encoder="detector", epochs=epochs, seed=0),
+            TrainConfig(encoder="detector", epochs=epochs, seed=SHIPPED_TRAINING_SEEDS.get(name, 0)),
             detector=detector,
             progress=True,
             log=log,

@@ -3,9 +3,9 @@ execute it as a joint-velocity tracking command (the stand-in for a person backd
 
 Push: hover above the object's far side (opposite the push direction), outside the circle round
 its footprint, descend, push along the direction by the task distance plus a margin, hold there;
-the poses depend on the object's (x, y), not its yaw, which the learned model does not see. No lift at the end: the
-teleoperator's last waypoint is the post-push pose, and a lift taught the 1-D latent to rise during
-the push (measured: pushes stopped ~12 cm into a 24 cm stroke, 10-35 % success). The gripper
+the poses depend on the object's (x, y), not its yaw, which the learned model does not see. No lift
+at the end: the teleoperator's last waypoint is the post-push pose, and a lift taught the 1-D latent
+to rise during the push (measured: pushes stopped ~12 cm into a 24 cm stroke, 10-35 % success). The gripper
 points down, tilted a little so the finger tips lead (the hand is wider than the fingers).
 Circle: a loop of waypoints around the object above its top. Every episode varies (approach
 offset and gap, push height, tilt, hover height, extra distance, speeds) through the given random

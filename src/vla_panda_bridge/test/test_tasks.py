@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 from vla_panda_bridge.layout import overlap
-from vla_panda_bridge.objects import OBJECT_CLASSES, ObjectPose, compass_vector
+from vla_panda_bridge.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose, compass_vector
 from vla_panda_bridge.tasks import (
     BASE_TASKS,
     PUSH_REGION_X,
@@ -127,3 +127,12 @@ def test_task_layouts(name):
     a = task_layout(spec, np.random.default_rng(3))
     b = task_layout(spec, np.random.default_rng(3))
     assert [(p.class_id, p.x, p.y, p.yaw) for p in a] == [(p.class_id, p.x, p.y, p.yaw) for p in b]
+
+
+def test_footprint_circle_and_short_half_side():
+    """The planner's pusher starts outside the footprint circle and pushes on by its slack over the
+    short half-side: both must be right for boxes and cylinders."""
+    bread, can = OBJECT_SPECS["bread"], OBJECT_SPECS["soda_can"]
+    assert math.isclose(bread.footprint_radius, 0.5 * math.hypot(0.20, 0.10))
+    assert math.isclose(bread.min_half_extent, 0.05)
+    assert can.footprint_radius == can.min_half_extent == can.size[0]

@@ -66,15 +66,6 @@ class ObjectSpec:
             return self.size[0]
         return 0.5 * min(self.size[0], self.size[1])
 
-    def half_extent_along(self, direction_xy: np.ndarray, yaw: float) -> float:
-        """Distance from the centre to the footprint's edge along a world-frame unit direction."""
-        if self.shape == "cylinder":
-            return self.size[0]
-        c, s = math.cos(yaw), math.sin(yaw)
-        dx, dy = float(direction_xy[0]), float(direction_xy[1])
-        lx, ly = c * dx + s * dy, -s * dx + c * dy  # direction in the object frame
-        return 0.5 * (self.size[0] * abs(lx) + self.size[1] * abs(ly))
-
 
 # Sizes are close to the real items; masses are light-but-plausible (partly empty packages) so
 # the Panda's closed fingers can push them; friction is the object/table sliding coefficient.

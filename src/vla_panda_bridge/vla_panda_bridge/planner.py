@@ -227,6 +227,15 @@ def _best_push_configuration(
 _REFERENCE: dict[str, np.ndarray] = {}
 
 
+def push_start(shape, center_xy, direction_xy, gap: float) -> np.ndarray:
+    """The TCP's (x, y) before a push: `gap` outside the circle round the object's footprint,
+    opposite the push direction. It depends on the object's (x, y), not its yaw: the learned model's
+    context (class, x, y) carries no yaw, so a yaw-dependent start cannot be learned (measured: bread
+    pushed from where the average loaf's edge would be, off-centre, 20-39 deg off)."""
+    d = np.asarray(direction_xy, dtype=float)
+    return np.asarray(center_xy, dtype=float) - d * (shape.footprint_radius + FINGER_HALF_THICKNESS + gap)
+
+
 def reference_configuration(kin: PandaKinematics, spec: TaskSpec) -> np.ndarray:
     """The task's reference pre-push configuration: planned from the ready pose for the object at
     the centre of the workspace (x 0.48 m, y 0, yaw 0) with the middle of every random range.
@@ -235,7 +244,7 @@ def reference_configuration(kin: PandaKinematics, spec: TaskSpec) -> np.ndarray:
         shape = OBJECT_SPECS[spec.object_class]
         obj = ObjectPose(spec.object_class, 0.48, 0.0, 0.0, 0.0)
         d = spec.direction_vector
-        start_xy = np.array([obj.x, obj.y]) - d * (shape.footprint_radius + FINGER_HALF_THICKNESS + 0.03)
+        start_xy = push_start(shape, (obj.x, obj.y), d, 0.03)
         hover = max(0.18, shape.height + 0.09)
         q, _rot, _c, _e = _best_push_configuration(
             kin, [*start_xy, 0.025], [*start_xy, hover], d, math.radians(sum(TILT_RANGE_DEG) / 2),
@@ -362,14 +371,10 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
             "hold": float(rng.uniform(0.3, 0.6)),  # s at the post-push pose
             "dwell": float(rng.uniform(0.1, 0.4)),
         }
-        # The pre-push and post-push poses depend on the object's (x, y) only, not its yaw: the
-        # learned model's context (class, x, y) carries no yaw, so a yaw-dependent start cannot be
-        # learned (measured: bread pushed from where the average loaf would be, off-centre, 20-39 deg
-        # off). The pusher starts outside the footprint's circle and pushes on by the circle's
-        # slack, so a loaf lying end-on is still pushed at least the task distance plus the extra.
-        standoff = shape.footprint_radius
-        start_xy = c - d * (standoff + FINGER_HALF_THICKNESS + p["approach_gap"]) + perp * p["lateral_offset"]
-        slack = standoff - shape.min_half_extent
+        # Pre- and post-push poses depend on (x, y) only (push_start); the push goes on by the
+        # footprint circle's slack, so a loaf lying end-on still moves the task distance plus the extra.
+        start_xy = push_start(shape, c, d, p["approach_gap"]) + perp * p["lateral_offset"]
+        slack = shape.footprint_radius - shape.min_half_extent
         end_xy = start_xy + d * (p["approach_gap"] + slack + spec.distance + p["extra_distance"])
         zp = p["push_height"]
         q_pre, rot, clearance, extra = _best_push_configuration(

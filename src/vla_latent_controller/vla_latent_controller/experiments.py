@@ -42,7 +42,7 @@ class Plan:
     full batch) a model on 1 demo per object gets one update an epoch: 100 epochs left the small-data
     models far from converged (final state error 1.45 rad at 1 demo/object vs 0.95 with 1000 updates,
     measured on the same demos), and the paper's 1000 epochs give every model >= 1000 updates.
-    Hidden layers are the paper's 30 units (the shipped models use 128, which costs 3.7x the training time)."""
+    Hidden layers are the paper's 30 units (the shipped models use 128, 3.7x the training time)."""
 
     encoders: Sequence[str] = ENCODERS
     demo_counts: Sequence[int] = tuple(range(1, 11))

@@ -231,7 +231,11 @@ def test_experiment_report_computes_verdicts_from_numbers(tmp_path):
                                           "settings": {"rate": 20.0}, "demo_source": "test"})
     text = files["readme"].read_text()
     assert "detector lower than localization and end_to_end at 3 of 3 demo counts" in text
-    assert "agrees with the paper" in text and "H1 holds for every encoder" in text
+    # 0.2 / 2 is above 0.6 / 10 and 0.7 / 10: the 2-demos claim is judged from the numbers too
+    assert "CNN encoders with 10 (0.066, 0.076): disagrees with the paper." in text
+    assert "H1 holds for every encoder" in text
+    assert "detector minus localization, paired by run (same demos, seed and layouts): -0.213 ± 0.066 rad " \
+        "over all 6 pairs; lower by more than 2 standard errors at 3 of 3 counts [1, 2, 10]." in text
     assert "Seen: transfer better at k = [1, 2]" in text
     for key in ("fig2a_png", "fig2c_png", "fig2a", "fig2c", "episodes"):
         assert files[key].is_file()
@@ -239,6 +243,25 @@ def test_experiment_report_computes_verdicts_from_numbers(tmp_path):
     det1 = next(r for r in back if r["encoder"] == "detector" and r["count"] == "1")
     assert float(det1["final_state_error"]) == pytest.approx(0.2 + 0.005 + 0.001, abs=1e-6)
     assert float(det1["sem"]) == pytest.approx(0.005, abs=1e-6)  # standard error across the two runs
+
+
+def test_paired_differences_pair_runs_and_flag_only_clear_gaps():
+    from vla_latent_controller.experiment_report import _h2_paired, paired_differences
+
+    runs = []
+    for run, (det1, loc1, det2, loc2) in enumerate(((0.5, 0.7, 0.60, 0.50), (0.9, 1.1, 0.50, 0.45),
+                                                    (0.7, 0.9, 0.55, 0.40))):
+        runs += [{"encoder": "detector", "count": 1, "run": run, "final_state_error": det1},
+                 {"encoder": "localization", "count": 1, "run": run, "final_state_error": loc1},
+                 {"encoder": "detector", "count": 2, "run": run, "final_state_error": det2},
+                 {"encoder": "localization", "count": 2, "run": run, "final_state_error": loc2}]
+    runs.append({"encoder": "detector", "count": 3, "run": 0, "final_state_error": 0.1})  # unpaired
+    d = paired_differences(runs, "detector", "localization")
+    assert d[1] == pytest.approx((-0.2, 0.0, 3))  # the runs differ a lot, their pairs do not
+    assert d[2][0] == pytest.approx(0.1) and d[2][2] == 3 and 3 not in d
+    assert d["all"][2] == 6
+    line = _h2_paired(runs, ["detector", "localization"])[0]
+    assert "lower by more than 2 standard errors at 1 of 2 counts [1], higher by more than 2 at [2]." in line
 
 
 def test_demo_consistency_finds_ik_branches_and_bad_starts():

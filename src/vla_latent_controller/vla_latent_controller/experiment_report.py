@@ -175,7 +175,7 @@ def write_report(rows: Sequence[dict], out: Path, meta: dict) -> dict[str, Path]
                 row[e] = f"{g['final_state_error']:.3f} ± {g['sem']:.3f}" if g else ""
             table.append(row)
         text += _table(table, ["demos/object", *encs]) + [""]
-        verdicts += _h1(a_sum, encs, counts) + _h2(grid, encs, counts)
+        verdicts += _h1(a_sum, encs, counts) + _h2(grid, a_runs, encs, counts)
         paths = [r for r in rows if r["figure"] == "2a" and "_path" in r]
         if paths:
             task = sorted({r["task"] for r in paths})[0]
@@ -329,7 +329,7 @@ def _h1(a_sum, encs, counts) -> list[str]:
     return lines + [""]
 
 
-def _h2(grid, encs, counts) -> list[str]:
+def _h2(grid, run_rows, encs, counts) -> list[str]:
     if "detector" not in encs or len(encs) < 2:
         return []
     others = [e for e in encs if e != "detector"]
@@ -361,7 +361,44 @@ def _h2(grid, encs, counts) -> list[str]:
                 f"{max(counts)} ({', '.join(format(b['final_state_error'], '.3f') for b in best10)}): "
                 f"{'agrees with' if beat else 'disagrees with'} the paper."
             )
-    return lines + [""]
+    return lines + _h2_paired(run_rows, encs) + [""]
+
+
+def paired_differences(run_rows: Sequence[dict], a: str, b: str) -> dict:
+    """Encoder `a` minus encoder `b` in final state error, paired by (count, run): a run trains both on
+    the same demonstrations with the same seed and evaluates them on the same layouts, so the pair's
+    difference cancels what the subset and the layouts contribute. Per count and pooled over counts:
+    (mean, standard error, pairs)."""
+    fse = {(r["encoder"], r["count"], r["run"]): r["final_state_error"] for r in run_rows}
+    diffs: dict = {}
+    for (enc, n, run), v in fse.items():
+        if enc == a and (b, n, run) in fse:
+            diffs.setdefault(n, []).append(v - fse[(b, n, run)])
+    out = {n: mean_sem(d) for n, d in sorted(diffs.items())}
+    out["all"] = mean_sem(x for d in diffs.values() for x in d)
+    return out
+
+
+def _h2_paired(run_rows, encs) -> list[str]:
+    """How sure each H2 comparison is: paired differences and whether they clear two standard errors."""
+    if "detector" not in encs:
+        return []
+    lines = []
+    for other in (e for e in encs if e != "detector"):
+        d = paired_differences(run_rows, "detector", other)
+        m, s, k = d.pop("all")
+        if k == 0:
+            continue
+        clear = [n for n, (dm, ds, dk) in d.items() if dk > 1 and dm + 2 * ds < 0]
+        against = [n for n, (dm, ds, dk) in d.items() if dk > 1 and dm - 2 * ds > 0]
+        lines.append(
+            f"- detector minus {other}, paired by run (same demos, seed and layouts): {m:+.3f} ± {s:.3f} rad "
+            f"over all {k} pairs; lower by more than 2 standard errors at "
+            f"{len(clear)} of {len(d)} counts {clear if clear else ''}".rstrip()
+            + (f", higher by more than 2 at {against}" if against else "")
+            + "."
+        )
+    return lines
 
 
 def _h3(grid, settings, ks) -> list[str]:

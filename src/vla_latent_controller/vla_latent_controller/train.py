@@ -40,6 +40,9 @@ from .context import (
 Q_STD_FLOOR = 1e-2  # rad: a joint the demos barely move must not blow up its normalised value
 A_SCALE_FLOOR = 1e-3  # rad
 CTX_STD_FLOOR = 0.02  # of the image size: demos with the object always in one spot
+# The spread of an image coordinate uniform over the image, sqrt(1/12) of its size: the detector
+# context's (x, y) are scaled by it by default (see position_affine).
+POSITION_PRIOR_SCALE = math.sqrt(1.0 / 12.0)
 ZERO_TERM_ROWS = 1024  # rows of each batch the z = 0 term is evaluated on
 
 
@@ -68,6 +71,10 @@ class TrainConfig:
     # Optimiser updates at least this many (0: off): epochs (and the lr step) are scaled up for small
     # datasets, where full batches of 6000 pairs leave a few demos with one update per epoch.
     min_steps: int = 0
+    # What the detector context's (x, y) are divided by (after subtracting their mean over the demos):
+    # a fixed scale (default: the spread of a coordinate over the whole image), or None for their
+    # spread over the demos. See position_affine.
+    position_scale: float | None = POSITION_PRIOR_SCALE
 
     @classmethod
     def paper(cls, **overrides) -> TrainConfig:
@@ -86,6 +93,9 @@ class TrainConfig:
             raise ValueError("epochs, batch_size and windows must be >= 1")
         if self.min_steps < 0:
             raise ValueError("min_steps must be >= 0")
+        ps = self.position_scale
+        if ps is not None and not (math.isfinite(ps) and ps > 0):
+            raise ValueError(f"position_scale must be a positive number or None, got {self.position_scale}")
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError("val_fraction must be in [0, 1)")
 
@@ -205,6 +215,23 @@ def scaled_schedule(cfg: TrainConfig, n_train: int) -> tuple[int, int]:
     return cfg.epochs * factor, cfg.step_size * factor
 
 
+def position_affine(xy: np.ndarray, scale: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """(mean, std) the detector context's normalised (x, y) are standardised by.
+
+    Dividing by the demos' own spread makes position as loud an input as the class from the first
+    demo on; with one demo per object that spread comes from a handful of points, and the decoder
+    then reads every new position as a large, never-seen input and extrapolates from it (at 1
+    demo/object it did worse than with no position at all; see the controller README). A fixed
+    scale, by default the spread a coordinate has over the whole image, keeps a new position a
+    small change until the demos show what it should do. ``scale=None``: the demos' spread, floored
+    at CTX_STD_FLOOR (how the models before this choice were trained).
+    """
+    xy = np.asarray(xy, float).reshape(-1, 2)
+    mean = xy.mean(0)
+    std = np.maximum(xy.std(0), CTX_STD_FLOOR) if scale is None else np.full(2, float(scale))
+    return mean, std
+
+
 def _fold_input_affine(model, mean: np.ndarray, std: np.ndarray) -> None:
     """Make the encoder's and decoder's first layers take raw contexts: their first len(mean) inputs
     were trained on (c - mean) / std, so W' = W / std and b' = b - W' mean. The saved model then
@@ -296,9 +323,8 @@ def train_model(
     ctx_mean, ctx_std = np.zeros(k), np.ones(k)
     if cfg.encoder == "detector":
         raw = np.stack([detector_context(it.det, it.image_size, classes) for it in items])
-        if cfg.normalise:  # the object's (x, y) varies by a few tenths: standardise it like q
-            ctx_mean[-2:] = raw[:, -2:].mean(0)
-            ctx_std[-2:] = np.maximum(raw[:, -2:].std(0), CTX_STD_FLOOR)
+        if cfg.normalise:
+            ctx_mean[-2:], ctx_std[-2:] = position_affine(raw[:, -2:], cfg.position_scale)
         static = torch.tensor((raw - ctx_mean) / ctx_std, dtype=f32)
     elif cfg.encoder == "localization":
         static = torch.tensor(np.stack([one_hot(it.class_id, classes) for it in items]), dtype=f32)

@@ -31,6 +31,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=0.01, help="Adam learning rate; the paper: 0.01")
     p.add_argument("--hidden", type=int, default=None,
                    help="units per hidden layer (default: 128; the paper and --paper-exact: 30)")
+    p.add_argument("--position-scale", default=None,
+                   help="what the detector context's (x, y) are divided by: a number (default: "
+                        "sqrt(1/12), their spread over the whole image) or 'demos' (their spread "
+                        "over the demos)")
     p.add_argument(
         "--paper-exact",
         action="store_true",
@@ -94,6 +98,15 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.hidden is not None:
         overrides["hidden"] = args.hidden
+    if args.position_scale is not None:
+        try:
+            overrides["position_scale"] = (
+                None if args.position_scale == "demos" else float(args.position_scale)
+            )
+        except ValueError:
+            print(f"error: --position-scale must be a number or 'demos', got {args.position_scale!r}",
+                  file=sys.stderr)
+            return 2
     cfg = TrainConfig.paper(**overrides) if args.paper_exact else TrainConfig(**overrides)
     classes = list(detector.classes) if detector is not None else None
     try:

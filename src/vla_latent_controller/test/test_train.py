@@ -173,3 +173,28 @@ def test_min_steps_scales_epochs_and_lr_step_for_small_datasets():
     assert scaled_schedule(TrainConfig(epochs=100, step_size=40), 5_000) == (100, 40)  # off by default
     with pytest.raises(ValueError, match="min_steps"):
         TrainConfig(min_steps=-1).validate()
+
+
+def test_position_affine_uses_a_fixed_scale_unless_asked_for_the_demos_spread():
+    from vla_latent_controller.train import CTX_STD_FLOOR, POSITION_PRIOR_SCALE, position_affine
+
+    xy = np.array([[0.40, 0.60], [0.50, 0.60], [0.60, 0.60]])
+    mean, std = position_affine(xy, POSITION_PRIOR_SCALE)
+    assert mean == pytest.approx([0.50, 0.60]) and std == pytest.approx([0.2887, 0.2887], abs=1e-4)
+    mean, std = position_affine(xy, None)  # the demos' spread; y never moved: the floor
+    assert std == pytest.approx([np.std([0.40, 0.50, 0.60]), CTX_STD_FLOOR])
+    for bad in (0.0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="position_scale"):
+            TrainConfig(position_scale=bad).validate()
+
+
+@pytest.mark.parametrize("scale", [None, 0.25])
+def test_trained_detector_context_is_standardised_as_configured(scale):
+    demos = make_demos(per_class=2)
+    res = train_model(demos, TrainConfig(epochs=2, hidden=16, position_scale=scale), classes=CLASSES,
+                      pairs_fn=make_pairs, progress=False, log=lambda s: None)
+    std = res.config["normalisation"]["context_std"][-2:]
+    xy = np.array([[d.detection["cx"] / d.image_size[0], d.detection["cy"] / d.image_size[1]] for d in demos])
+    want = np.maximum(xy.std(0), 0.02) if scale is None else [scale, scale]
+    assert std == pytest.approx(want)
+    assert res.config["hyper_parameters"]["position_scale"] == scale

@@ -98,6 +98,22 @@ def test_train_from_bags(tmp_path, capsys):
     assert cfg2["fingerprint"]["sha256"] != cfg["fingerprint"]["sha256"]
 
 
+def test_bad_position_scale_is_an_error(tmp_path, capsys):
+    rng = np.random.default_rng(0)
+    demo = make_demo("bread", rng, T=30)
+    demo.task = "bread/push_east"
+    write_bag(tmp_path / "demos" / "ep0", demo)
+    args = ["train", "--bags", str(tmp_path / "demos"), "--out", str(tmp_path / "m"), "--quiet",
+            "--epochs", "1"]
+    assert main(args + ["--position-scale", "wide"]) == 2
+    assert "--position-scale must be a number or 'demos'" in capsys.readouterr().err
+    assert main(args + ["--position-scale", "-1"]) == 1
+    assert "position_scale must be a positive number" in capsys.readouterr().err
+    assert main(args + ["--position-scale", "demos", "--hidden", "8"]) == 0
+    hp = json.loads((tmp_path / "m" / "config.json").read_text())["hyper_parameters"]
+    assert hp["position_scale"] is None
+
+
 def test_no_demos_is_an_error(tmp_path, capsys):
     (tmp_path / "empty").mkdir()
     assert main(["train", "--bags", str(tmp_path / "empty"), "--out", str(tmp_path / "m"), "--quiet"]) == 1

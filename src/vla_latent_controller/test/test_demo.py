@@ -16,6 +16,8 @@ def test_cli_has_the_subcommands_with_defaults():
     assert e.mode == "graph" and e.layouts == 20
     x = p.parse_args(["experiments", "--quick"])
     assert x.quick and x.out is None  # --quick writes to out/experiments_quick, never over docs/results
+    assert x.position_scale == pytest.approx(0.2887, abs=1e-4)  # the experiments' fixed position scale
+    assert p.parse_args(["experiments", "--position-scale", "demos"]).position_scale is None
     with pytest.raises(SystemExit):
         p.parse_args(["evaluate", "--mode", "telepathy"])
 

@@ -105,13 +105,15 @@ def test_bad_position_scale_is_an_error(tmp_path, capsys):
     write_bag(tmp_path / "demos" / "ep0", demo)
     args = ["train", "--bags", str(tmp_path / "demos"), "--out", str(tmp_path / "m"), "--quiet",
             "--epochs", "1"]
-    assert main(args + ["--position-scale", "wide"]) == 2
-    assert "--position-scale must be a number or 'demos'" in capsys.readouterr().err
-    assert main(args + ["--position-scale", "-1"]) == 1
-    assert "position_scale must be a positive number" in capsys.readouterr().err
-    assert main(args + ["--position-scale", "demos", "--hidden", "8"]) == 0
-    hp = json.loads((tmp_path / "m" / "config.json").read_text())["hyper_parameters"]
-    assert hp["position_scale"] is None
+    for bad in ("wide", "-1", "0", "inf"):
+        with pytest.raises(SystemExit) as e:
+            main(args + ["--position-scale", bad])
+        assert e.value.code == 2
+        assert "--position-scale: must be 'demos' or a positive number" in capsys.readouterr().err
+    for value, want in (([], None), (["--position-scale", "0.3"], 0.3)):  # default: the demos' spread
+        assert main(args + value + ["--hidden", "8"]) == 0
+        hp = json.loads((tmp_path / "m" / "config.json").read_text())["hyper_parameters"]
+        assert hp["position_scale"] == want
 
 
 def test_no_demos_is_an_error(tmp_path, capsys):

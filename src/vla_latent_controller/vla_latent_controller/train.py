@@ -40,8 +40,8 @@ from .context import (
 Q_STD_FLOOR = 1e-2  # rad: a joint the demos barely move must not blow up its normalised value
 A_SCALE_FLOOR = 1e-3  # rad
 CTX_STD_FLOOR = 0.02  # of the image size: demos with the object always in one spot
-# The spread of an image coordinate uniform over the image, sqrt(1/12) of its size: the detector
-# context's (x, y) are scaled by it by default (see position_affine).
+# The spread of an image coordinate uniform over the image, sqrt(1/12) of its size: a fixed scale
+# for the detector context's (x, y) (see position_affine).
 POSITION_PRIOR_SCALE = math.sqrt(1.0 / 12.0)
 ZERO_TERM_ROWS = 1024  # rows of each batch the z = 0 term is evaluated on
 
@@ -72,9 +72,8 @@ class TrainConfig:
     # datasets, where full batches of 6000 pairs leave a few demos with one update per epoch.
     min_steps: int = 0
     # What the detector context's (x, y) are divided by (after subtracting their mean over the demos):
-    # a fixed scale (default: the spread of a coordinate over the whole image), or None for their
-    # spread over the demos. See position_affine.
-    position_scale: float | None = POSITION_PRIOR_SCALE
+    # None (default) for their spread over the demos, or a fixed scale. See position_affine.
+    position_scale: float | None = None
 
     @classmethod
     def paper(cls, **overrides) -> TrainConfig:
@@ -218,13 +217,13 @@ def scaled_schedule(cfg: TrainConfig, n_train: int) -> tuple[int, int]:
 def position_affine(xy: np.ndarray, scale: float | None) -> tuple[np.ndarray, np.ndarray]:
     """(mean, std) the detector context's normalised (x, y) are standardised by.
 
-    Dividing by the demos' own spread makes position as loud an input as the class from the first
-    demo on; with one demo per object that spread comes from a handful of points, and the decoder
-    then reads every new position as a large, never-seen input and extrapolates from it (at 1
-    demo/object it did worse than with no position at all; see the controller README). A fixed
-    scale, by default the spread a coordinate has over the whole image, keeps a new position a
-    small change until the demos show what it should do. ``scale=None``: the demos' spread, floored
-    at CTX_STD_FLOOR (how the models before this choice were trained).
+    ``scale=None`` (default): the demos' spread, floored at CTX_STD_FLOOR, so position is as loud an
+    input as the class and the decoder learns quickly where each object sends the arm. A fixed
+    scale (e.g. POSITION_PRIOR_SCALE, the spread of a coordinate over the whole image, about 5x the
+    demos') makes position a quieter input: worse when the demos can show what it does (5 planner
+    demos per task: less progress toward each layout's hover pose, test_planner_tasks), better with
+    one demo per object, where each class's position is a single point, any position effect the
+    decoder learns is spurious, and a new layout's position is then extrapolated from (Figure 2a).
     """
     xy = np.asarray(xy, float).reshape(-1, 2)
     mean = xy.mean(0)

@@ -15,6 +15,19 @@ from pathlib import Path
 ENCODER_CHOICES = ("detector", "localization", "end_to_end")
 
 
+def position_scale_arg(text: str) -> float | None:
+    """--position-scale: 'demos' (None: the demos' spread) or a positive number."""
+    if text == "demos":
+        return None
+    try:
+        v = float(text)
+    except ValueError:
+        v = float("nan")
+    if not (v > 0 and v != float("inf")):
+        raise argparse.ArgumentTypeError(f"must be 'demos' or a positive number, got {text!r}")
+    return v
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bags", nargs="+", required=True, help="bag folders, .mcap files, or folders of bags")
     p.add_argument("--encoder", choices=ENCODER_CHOICES, default="detector", help="context encoder")
@@ -31,10 +44,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--lr", type=float, default=0.01, help="Adam learning rate; the paper: 0.01")
     p.add_argument("--hidden", type=int, default=None,
                    help="units per hidden layer (default: 128; the paper and --paper-exact: 30)")
-    p.add_argument("--position-scale", default=None,
-                   help="what the detector context's (x, y) are divided by: a number (default: "
-                        "sqrt(1/12), their spread over the whole image) or 'demos' (their spread "
-                        "over the demos)")
+    p.add_argument("--position-scale", type=position_scale_arg, default="demos",
+                   help="what the detector context's (x, y) are divided by: 'demos' (default: their "
+                        "spread over the demos) or a number (0.2887 = sqrt(1/12), a coordinate's spread "
+                        "over the image; quieter position, for 1-2 demos per object)")
     p.add_argument(
         "--paper-exact",
         action="store_true",
@@ -98,15 +111,7 @@ def run(args: argparse.Namespace) -> int:
     )
     if args.hidden is not None:
         overrides["hidden"] = args.hidden
-    if args.position_scale is not None:
-        try:
-            overrides["position_scale"] = (
-                None if args.position_scale == "demos" else float(args.position_scale)
-            )
-        except ValueError:
-            print(f"error: --position-scale must be a number or 'demos', got {args.position_scale!r}",
-                  file=sys.stderr)
-            return 2
+    overrides["position_scale"] = args.position_scale
     cfg = TrainConfig.paper(**overrides) if args.paper_exact else TrainConfig(**overrides)
     classes = list(detector.classes) if detector is not None else None
     try:

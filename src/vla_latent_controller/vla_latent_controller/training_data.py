@@ -124,9 +124,6 @@ def load_task_demos(folder: Path, task: str, detector=None, limit: int | None = 
 # Training seed of each shipped model. `default` was picked from seeds 0-2 by physics-mode success on
 # 20 selection layouts per task (layout seeds 120000...), kept apart from the layouts it is reported on.
 SHIPPED_TRAINING_SEEDS: dict[str, int] = {"default": 1}
-# The shipped models scale the detector's (x, y) by their spread over the demos (train.position_affine
-# with None), as they were trained and measured before the fixed scale became the default.
-SHIPPED_POSITION_SCALE: float | None = None
 
 
 def ensure_latent_models(
@@ -161,8 +158,7 @@ def ensure_latent_models(
         log(f"[train] {name}: {len(demos)} demonstrations, detector encoder, {epochs} epochs")
         result = train_model(
             demos,
-            TrainConfig(encoder="detector", epochs=epochs, seed=SHIPPED_TRAINING_SEEDS.get(name, 0),
-                        position_scale=SHIPPED_POSITION_SCALE),
+            TrainConfig(encoder="detector", epochs=epochs, seed=SHIPPED_TRAINING_SEEDS.get(name, 0)),
             detector=detector,
             progress=True,
             log=log,

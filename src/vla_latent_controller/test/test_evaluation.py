@@ -227,13 +227,15 @@ def test_experiment_report_computes_verdicts_from_numbers(tmp_path):
                 rows.append({"figure": "2c", "encoder": "detector", "setting": setting, "variant": variant,
                              "count": k, "run": 0, "task": "cereal_box/push_south", "layout_seed": 0,
                              "final_state_error": v / k, "start_error": 2.0, "note": "", "train_s": 1.0})
-    files = write_report(rows, tmp_path, {"plan": {"runs": 2, "epochs": 5, "layouts": 3}, "wall_s": 60,
+    files = write_report(rows, tmp_path, {"plan": {"runs": 2, "epochs": 5, "layouts": 3, "hidden": 30,
+                                                   "position_scale": 0.25}, "wall_s": 60,
                                           "settings": {"rate": 20.0}, "demo_source": "test"})
     text = files["readme"].read_text()
     assert "detector lower than localization and end_to_end at 3 of 3 demo counts" in text
     # 0.2 / 2 is above 0.6 / 10 and 0.7 / 10: the 2-demos claim is judged from the numbers too
     assert "CNN encoders with 10 (0.066, 0.076): disagrees with the paper." in text
     assert "H1 holds for every encoder" in text
+    assert "5 training epochs per model, 30-unit layers, the detector's (x, y) divided by 0.2500," in text
     assert "detector minus localization, paired by run (same demos, seed and layouts): -0.213 ± 0.066 rad " \
         "over all 6 pairs; lower by more than 2 standard errors at 3 of 3 counts [1, 2, 10]." in text
     assert "Seen: transfer better at k = [1, 2]" in text

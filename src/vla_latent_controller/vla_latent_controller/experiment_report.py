@@ -137,6 +137,14 @@ def write_report(rows: Sequence[dict], out: Path, meta: dict) -> dict[str, Path]
         f"{plan.get('runs')} runs per point (different demonstration subsets and training seeds), "
         f"{plan.get('epochs')} training epochs per model"
         + (f" (small sets: >= {plan['min_steps']} optimiser updates)" if plan.get("min_steps") else "")
+        + (f", {plan['hidden']}-unit layers" if plan.get("hidden") else "")
+        + (
+            f", the detector's (x, y) divided by {plan['position_scale']:.4f}"
+            if plan.get("position_scale")
+            else ", the detector's (x, y) divided by their spread over the demos"
+            if "position_scale" in plan
+            else ""
+        )
         + f", {plan.get('layouts')} validation layouts per task "
         "(seeds never used for demonstrations); the paper's kinematic teleoperator loop "
         f"(q <- q + phi(z*, s) dt at {meta.get('settings', {}).get('rate')} Hz, 41 stick values, pre-push "

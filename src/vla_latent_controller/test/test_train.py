@@ -175,7 +175,7 @@ def test_min_steps_scales_epochs_and_lr_step_for_small_datasets():
         TrainConfig(min_steps=-1).validate()
 
 
-def test_position_affine_uses_a_fixed_scale_unless_asked_for_the_demos_spread():
+def test_position_affine_divides_by_the_demos_spread_or_a_fixed_scale():
     from vla_latent_controller.train import CTX_STD_FLOOR, POSITION_PRIOR_SCALE, position_affine
 
     xy = np.array([[0.40, 0.60], [0.50, 0.60], [0.60, 0.60]])

@@ -37,10 +37,29 @@ def test_a_crashing_node_makes_launch_fail_and_stops_the_other(launch, fixtures_
     assert "process [listener-" in run.text() and "stopped" in run.text()
 
 
+def _describe(pid: int) -> str:
+    """What a surviving child was doing: its state, its command line and its kernel wait channel."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            state = f.read().rsplit(")", 1)[1].split()[0]
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            cmd = f.read().replace(b"\0", b" ").decode(errors="replace").strip()
+        with open(f"/proc/{pid}/wchan") as f:
+            wchan = f.read().strip()
+    except OSError as e:
+        return f"{pid}: {e}"
+    return f"{pid}: state {state}, waiting in {wchan!r}: {cmd}"
+
+
+# Failed once in about 30 runs (2026-11-30, a clean-clone CI run on an idle 2-core machine): one
+# node outlived the 10 s after its parent-death SIGTERM; not reproduced in 23 runs, 15 of them
+# beside three busy loops. One rerun, and the survivor described, until the cause is found.
+@pytest.mark.flaky(reruns=1)
 def test_ros_nodes_stop_when_launch_is_killed(launch):
     run = launch("vla_bringup", "demo.launch.yaml")
     run.wait_for(r"I heard: 'hello \d+'", timeout=60)
     pids = run.child_pids()
     run.send(signal.SIGKILL)
     run.finish()
-    assert launch.wait_dead(pids, 10.0) == []
+    left = launch.wait_dead(pids, 10.0)
+    assert left == [], "\n".join(_describe(p) for p in left) + "\n" + run.text()

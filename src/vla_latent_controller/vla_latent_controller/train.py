@@ -92,9 +92,7 @@ class TrainConfig:
             raise ValueError("epochs, batch_size and windows must be >= 1")
         if self.min_steps < 0:
             raise ValueError("min_steps must be >= 0")
-        ps = self.position_scale
-        if ps is not None and not (math.isfinite(ps) and ps > 0):
-            raise ValueError(f"position_scale must be a positive number or None, got {self.position_scale}")
+        check_position_scale(self.position_scale)
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError("val_fraction must be in [0, 1)")
 
@@ -212,6 +210,12 @@ def scaled_schedule(cfg: TrainConfig, n_train: int) -> tuple[int, int]:
     per_epoch = max(1, math.ceil(n_train / cfg.batch_size))
     factor = max(1, math.ceil(cfg.min_steps / (cfg.epochs * per_epoch)))
     return cfg.epochs * factor, cfg.step_size * factor
+
+
+def check_position_scale(scale: float | None) -> None:
+    """ValueError unless `scale` is None (the demos' spread) or a finite positive number."""
+    if scale is not None and not (math.isfinite(scale) and scale > 0):
+        raise ValueError(f"position_scale must be a positive number or None, got {scale}")
 
 
 def position_affine(xy: np.ndarray, scale: float | None) -> tuple[np.ndarray, np.ndarray]:

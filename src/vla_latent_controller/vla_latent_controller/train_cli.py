@@ -17,14 +17,15 @@ ENCODER_CHOICES = ("detector", "localization", "end_to_end")
 
 def position_scale_arg(text: str) -> float | None:
     """--position-scale: 'demos' (None: the demos' spread) or a positive number."""
+    from .train import check_position_scale
+
     if text == "demos":
         return None
     try:
         v = float(text)
+        check_position_scale(v)
     except ValueError:
-        v = float("nan")
-    if not (v > 0 and v != float("inf")):
-        raise argparse.ArgumentTypeError(f"must be 'demos' or a positive number, got {text!r}")
+        raise argparse.ArgumentTypeError(f"must be 'demos' or a positive number, got {text!r}") from None
     return v
 
 

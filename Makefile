@@ -19,10 +19,10 @@ lint: setup
 	@$(ENV) && ruff check src test bench
 
 demo: setup
-	@$(ENV) && vla_latent_controller demo $(DEMO_ARGS)
+	@$(ENV) && vla_evaluation demo $(DEMO_ARGS)
 
 experiments: setup
-	@$(ENV) && vla_latent_controller experiments $(EXPERIMENTS_ARGS)
+	@$(ENV) && vla_evaluation experiments $(EXPERIMENTS_ARGS)
 
 bench: setup
 	@$(ENV) && for b in bench/bench_*.py; do echo "== $$b"; python "$$b" || exit 1; done

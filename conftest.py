@@ -5,6 +5,11 @@ concurrent runs on one machine never see each other's topics.
 """
 import os
 import random
+import sys
+from pathlib import Path
+
+# test/ holds helpers the top-level tests import (package_deps, ...).
+sys.path.insert(0, str(Path(__file__).parent / "test"))
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 

@@ -14,7 +14,7 @@ pytestmark = [pytest.mark.slow, pytest.mark.ros]
 
 
 def _shipped():
-    from vla_latent_controller.evaluation.resources import detector_model_path, latent_model_dir
+    from vla_evaluation.resources import detector_model_path, latent_model_dir
 
     model, det = latent_model_dir("default"), detector_model_path()
     assert (Path(model) / "config.json").is_file(), f"shipped latent model missing at {model}"
@@ -24,8 +24,8 @@ def _shipped():
 
 @pytest.mark.timeout(420)
 def test_graph_pushes_a_base_object_to_success(tmp_path):
-    from vla_latent_controller.evaluation.graph import GraphConfig, GraphEvaluator
-    from vla_latent_controller.evaluation.kinematic import TeleopSettings
+    from vla_evaluation.graph import GraphConfig, GraphEvaluator
+    from vla_evaluation.kinematic import TeleopSettings
 
     model, det = _shipped()
     cfg = GraphConfig(model_path=str(model), detector_model=str(det), real_time_factor=2.0,

@@ -30,9 +30,6 @@ setup(
     entry_points={
         "console_scripts": [
             "controller_node = vla_latent_controller.controller_node:main",
-            "sim_teleoperator = vla_latent_controller.sim_teleoperator_node:main",
-            "joy_node = vla_latent_controller.joy_node:main",
-            "vla_latent_controller = vla_latent_controller.cli:main",
         ],
     },
 )

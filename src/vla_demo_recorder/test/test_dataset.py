@@ -6,7 +6,7 @@ import pytest
 from recorder_testing import detections, image, joint_state, string
 from rosbags.rosbag2 import StoragePlugin, Writer
 from vla_demo_recorder.bag_writer import BagWriter, EpisodeInfo
-from vla_demo_recorder.dataset import DemoError, load_demo, load_demos, make_pairs
+from vla_demo_recorder.dataset import DemoError, load_demo, load_demos
 
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 T0 = 1_700_000_000 * 10**9
@@ -132,7 +132,7 @@ def test_lost_states_and_jumps_are_reported(tmp_path):
 
 
 def test_the_generator_finds_a_bag_the_loader_would_refuse(tmp_path):
-    from vla_demo_recorder.generate import recording_problem
+    from vla_evaluation.generate import recording_problem
 
     gap = [(T0 + i * 10**7, q_of(i * 0.01)) for i in range(101) if not 20 <= i < 90]
     assert "missing for 0.71 s" in recording_problem(_joint_state_bag(tmp_path / "gap", gap, start_ns=T0))
@@ -144,25 +144,6 @@ def test_bgr_images_come_out_rgb(tmp_path):
     ep = EpisodeInfo(task="bread/push_east", outcome="kept")
     demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep, encoding="bgr8"))
     assert tuple(demo.first_image[1, 2]) == (1, 2, 3) and demo.first_image[0, 0, 0] == 200
-
-
-def test_pairs_follow_the_paper(tmp_path):
-    ep = EpisodeInfo(task="bread/push_east", outcome="kept")
-    demo = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep))
-    q_noisy, actions = make_pairs(demo, np.random.default_rng(3))
-    eps = np.random.default_rng(3).normal(0.0, 0.01, size=7)
-    T = len(demo.q)
-    assert len(q_noisy) == len(actions) == sum(T - w for w in range(1, 11))
-    expected_states = np.concatenate([demo.q[:-w] + eps for w in range(1, 11)])
-    expected_actions = np.concatenate([demo.q[w:] - (demo.q[:-w] + eps) for w in range(1, 11)])
-    assert np.allclose(q_noisy, expected_states) and np.allclose(actions, expected_actions)
-    # the noise is one draw per demonstration: the same eps in every pair of this demo
-    assert np.allclose(q_noisy[:T - 1] - demo.q[:-1], eps)
-    # ...and a different draw for the next demo from the same generator
-    rng = np.random.default_rng(3)
-    a, _ = make_pairs(demo, rng)
-    b, _ = make_pairs(demo, rng)
-    assert not np.allclose(a - b, 0)
 
 
 def test_bag_from_our_writer_and_without_metadata(tmp_path):

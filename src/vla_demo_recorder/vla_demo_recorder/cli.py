@@ -1,4 +1,5 @@
-"""`vla_demo_recorder` command line: recover, info, pairs, start/stop/discard/status, generate."""
+"""`vla_demo_recorder` command line: recover and inspect bags; start/stop/discard/status of a running
+recorder_node."""
 from __future__ import annotations
 
 import argparse
@@ -8,8 +9,8 @@ from pathlib import Path
 
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    from .bag_writer import BagError
-    from .recover import recover
+    from vla_demo_recorder.bag_writer import BagError
+    from vla_demo_recorder.recover import recover
 
     status = 0
     for bag in args.bags:
@@ -24,7 +25,7 @@ def _cmd_recover(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from .bag_writer import BagError, EpisodeInfo, read_metadata_yaml
+    from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, read_metadata_yaml
 
     status = 0
     for bag in args.bags:
@@ -45,26 +46,6 @@ def _cmd_info(args: argparse.Namespace) -> int:
             tm = t["topic_metadata"]
             print(f"  {tm['name']:<28} {tm['type']:<36} {t['message_count']:>8}")
     return status
-
-
-def _cmd_pairs(args: argparse.Namespace) -> int:
-    import numpy as np
-
-    from .dataset import load_demos, make_pairs
-
-    demos, skipped = load_demos(args.paths, require=args.require)
-    for path, reason in skipped:
-        print(f"skipped {path}: {reason}")
-    rng = np.random.default_rng(args.seed)
-    total = 0
-    for demo in demos:
-        q_noisy, _ = make_pairs(demo, rng)
-        total += len(q_noisy)
-        print(f"{demo.bag_path}: {demo.task}, {len(demo.t)} samples at 10 Hz, {len(q_noisy)} pairs, "
-              f"image {'yes' if demo.first_image is not None else 'no'}, "
-              f"detection {demo.detection['class_id'] if demo.detection else 'no'}")
-    print(f"{len(demos)} demos, {len(skipped)} skipped, {total} pairs")
-    return 0 if demos else 1
 
 
 def _cmd_episode(args: argparse.Namespace) -> int:
@@ -117,12 +98,6 @@ def _cmd_episode(args: argparse.Namespace) -> int:
         rclpy.shutdown()
 
 
-def _cmd_generate(args: argparse.Namespace) -> int:
-    from .generate import main_generate
-
-    return main_generate(args)
-
-
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vla_demo_recorder", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -137,12 +112,6 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bags", nargs="+")
     p.set_defaults(func=_cmd_info)
 
-    p = sub.add_parser("pairs", help="load demo bags and report the training pairs they give")
-    p.add_argument("paths", nargs="+", help="bag folders or folders of bags")
-    p.add_argument("--require", choices=("image", "detection"), default=None)
-    p.add_argument("--seed", type=int, default=0)
-    p.set_defaults(func=_cmd_pairs)
-
     for name, text in (("start", "start an episode on a running recorder_node"),
                        ("stop", "stop (keep) the running episode"),
                        ("discard", "stop and discard the running episode"),
@@ -155,38 +124,6 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--timeout", type=float, default=10.0)
         p.set_defaults(func=_cmd_episode)
 
-    p = sub.add_parser("generate", help="simulated kinesthetic demonstrations through the ROS graph")
-    p.add_argument("--task", action="append", default=[],
-                   help="task, e.g. bread:push_east (repeatable); default: the base tasks")
-    p.add_argument("--tasks-file", type=Path, help="file with one task per line")
-    p.add_argument("--episodes", type=int, default=10, help="episodes per task")
-    p.add_argument("--out", type=Path, default=Path("demos"), help="output folder of the bags")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument(
-        "--image-every-n",
-        type=int,
-        default=1000,
-        help="record every n-th camera frame (the first one always)",
-    )
-    p.add_argument("--camera-rate", type=float, default=5.0, help="camera frames per second (sim time)")
-    p.add_argument(
-        "--real-time-factor",
-        type=float,
-        default=1.0,
-        help="simulation speed relative to wall time (0: as fast as possible)",
-    )
-    p.add_argument(
-        "--detector-model",
-        default=None,
-        help="ONNX detector for the first-frame detections (default: the shipped model if any; '' for none)",
-    )
-    p.add_argument(
-        "--delete-failed",
-        action="store_true",
-        help="delete episodes that failed the task instead of keeping them marked discarded",
-    )
-    p.add_argument("--log-dir", type=Path, default=None, help="write the bridge's log here")
-    p.set_defaults(func=_cmd_generate)
     return parser
 
 

@@ -1,4 +1,4 @@
-"""Demonstration bags -> the paper's training pairs (plain Python, no rclpy).
+"""Demonstration bags -> demonstrations (joint trajectory + context), plain Python, no rclpy.
 
 Reads rosbag2 MCAP bags from any writer (our recorder, `ros2 bag record`, rosbags, Foxglove): the
 mcap library with the mcap-ros2 decoder decodes every message from the schema stored in the file, so
@@ -7,8 +7,7 @@ is resolved by name. Joint states are resampled to 10 Hz; the episode's context 
 frame (rgb8/bgr8/rgba8/bgra8/mono8 or compressed) and its first detection (top score). A bag without
 a usable context is reported with the reason and skipped, never silently used.
 
-Pairs follow the paper: for w = 1..10, a = q[t+w] - (q[t] + eps), with eps ~ N(0, sigma^2) drawn once
-per demonstration (the public code reuses one draw for all demos).
+Training pairs are made from these demonstrations by `vla_latent_training.pairs`.
 """
 from __future__ import annotations
 
@@ -22,11 +21,11 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from ruamel.yaml import YAML
 
-from .bag_writer import BagError, EpisodeInfo, read_metadata_yaml
-from .recover import find_mcap, has_footer
+from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, read_metadata_yaml
+from vla_demo_recorder.recover import find_mcap, has_footer
 
 try:
-    from vla_panda_bridge.panda import DQ_MAX, JOINT_NAMES
+    from vla_common.robot import DQ_MAX, JOINT_NAMES
 except ImportError:  # pragma: no cover - the workspace always has it
     JOINT_NAMES = tuple(f"panda_joint{i}" for i in range(1, 8))
     DQ_MAX = None  # no limit table: the jump check is skipped
@@ -99,7 +98,7 @@ def _class_index(class_id: str, given: int | None) -> int:
     if given is not None and given >= 0:
         return int(given)
     try:
-        from vla_panda_bridge.objects import OBJECT_CLASSES
+        from vla_common.objects import OBJECT_CLASSES
     except ImportError:
         return -1
     return OBJECT_CLASSES.index(class_id) if class_id in OBJECT_CLASSES else -1
@@ -326,24 +325,3 @@ def load_demos(paths_or_dir, require: str | None = None,
         else:
             demos.append(demo)
     return demos, skipped
-
-
-def make_pairs(demo: Demo, rng: np.random.Generator, windows: int = 10,
-               sigma: float = 0.01) -> tuple[np.ndarray, np.ndarray]:
-    """(q_noisy, actions): for w = 1..windows and every t, q[t] + eps and q[t+w] - (q[t] + eps).
-
-    eps ~ N(0, sigma^2) (7,) is drawn once for this demonstration.
-    """
-    q = np.asarray(demo.q, dtype=np.float64)
-    eps = rng.normal(0.0, sigma, size=q.shape[1])
-    states, actions = [], []
-    for w in range(1, windows + 1):
-        if len(q) <= w:
-            break
-        noisy = q[:-w] + eps
-        states.append(noisy)
-        actions.append(q[w:] - noisy)
-    if not states:
-        empty = np.zeros((0, q.shape[1]))
-        return empty, empty.copy()
-    return np.concatenate(states), np.concatenate(actions)

@@ -21,7 +21,14 @@ from pathlib import Path
 
 from rosbags.interfaces import Qos
 
-from .bag_writer import BagError, BagWriteError, BagWriter, EpisodeInfo, TypeRegistry, object_class_of
+from vla_demo_recorder.bag_writer import (
+    BagError,
+    BagWriteError,
+    BagWriter,
+    EpisodeInfo,
+    TypeRegistry,
+    object_class_of,
+)
 
 _DIR_RE = re.compile(r"^ep(\d+)_")
 
@@ -36,7 +43,7 @@ def validate_task(task: str) -> str:
     if not re.fullmatch(r"[A-Za-z0-9_]+/[A-Za-z0-9_]+", task):
         raise RecorderError(f"task {task!r} must look like '<object>/<action>', e.g. 'bread/push_east'")
     try:
-        from vla_panda_bridge.objects import OBJECT_CLASSES
+        from vla_common.objects import OBJECT_CLASSES
     except ImportError:  # the simulator package is optional for recording real robots
         return task
     if object_class_of(task) not in OBJECT_CLASSES:

@@ -27,11 +27,10 @@ from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Joy
 from std_srvs.srv import Trigger
 
+from vla_demo_recorder.bag_writer import make_qos, normalize_type
+from vla_demo_recorder.recorder import Recorder, RecorderError
 from vla_interfaces.msg import RecorderStatus
 from vla_interfaces.srv import StartEpisode
-
-from .bag_writer import make_qos, normalize_type
-from .recorder import Recorder, RecorderError
 
 DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy"]
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")

@@ -22,7 +22,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
-from .bag_writer import BagError, BagWriter, EpisodeInfo, read_metadata_yaml
+from vla_demo_recorder.bag_writer import BagError, BagWriter, EpisodeInfo, read_metadata_yaml
 
 _SCAN_ERRORS = (McapError, struct.error, EOFError, ValueError, KeyError, IndexError, OverflowError,
                 MemoryError, UnicodeDecodeError)

@@ -26,7 +26,7 @@ EXE = ROOT / "install" / "vla_detector" / "lib" / "vla_detector" / "detector_nod
 @pytest.fixture(scope="module")
 def scene():
     """A rendered scene with one soda can and one cereal box, at 320x240 and 640x480."""
-    from vla_panda_bridge.sim import PandaSim
+    from vla_sim.sim import PandaSim
 
     sim = PandaSim(320, 240)
     sim.reset(objects=[("soda_can", 0.45, 0.10, 0.0), ("cereal_box", 0.60, -0.15, 0.4)])

@@ -1,173 +1,40 @@
-"""`vla_detector` command line: synth, train, evaluate, check, export, detect.
-
-Heavy imports (torch, MuJoCo) happen inside the subcommands that need them.
-"""
+"""`vla_detector detect`: run an ONNX detector on image files and print one JSON line per image."""
 
 from __future__ import annotations
 
 import argparse
 import json
 import sys
-import time
 
-from vla_detector.dataset import DatasetError
+from vla_common.image_convert import UnsupportedImageError, read_image
 
-
-def _cmd_synth(a: argparse.Namespace) -> int:
-    from vla_detector.synth import synthesize
-
-    t = time.perf_counter()
-    counts = synthesize(a.out, a.count, a.seed, a.split, a.val_fraction, a.width, a.height, not a.quiet)
-    print(
-        f"wrote {sum(counts.values())} images to {a.out} "
-        f"({', '.join(f'{k}: {v}' for k, v in counts.items())}) "
-        f"in {time.perf_counter() - t:.1f} s"
-    )
-    return 0
-
-
-def _cmd_train(a: argparse.Namespace) -> int:
-    from vla_detector.train import TrainConfig, parse_imgsz, train
-
-    w, h = parse_imgsz(a.imgsz)
-    cfg = TrainConfig(
-        data=a.data,
-        out=a.out,
-        epochs=a.epochs,
-        batch=a.batch,
-        lr=a.lr,
-        input_width=w,
-        input_height=h,
-        width=a.width,
-        seed=a.seed,
-        threads=a.threads,
-        max_images=a.max_images,
-        augment=not a.no_augment,
-        progress=not a.quiet,
-    )
-    s = train(cfg)
-    print(f"model: {s['onnx']}")
-    return 0
-
-
-def _cmd_evaluate(a: argparse.Namespace) -> int:
-    from vla_detector.evaluate import evaluate_model
-    from vla_detector.inference import default_model_path
-
-    model = a.model or str(default_model_path())
-    t = time.perf_counter()
-    m, n, split = evaluate_model(model, a.data, a.split, a.score_threshold, a.iou_threshold, not a.quiet)
-    print(f"model: {model}")
-    print(f"data: {a.data} (split {split}, {n} images)")
-    for line in m.lines():
-        print(line)
-    for name, ap in m.per_class_ap50.items():
-        print(f"  AP@0.5 {name}: {ap:.4f}")
-    print(f"time: {time.perf_counter() - t:.1f} s")
-    return 0
-
-
-def _cmd_check(a: argparse.Namespace) -> int:
-    from vla_detector.dataset import load_data_config, load_split
-
-    cfg = load_data_config(a.data)
-    for s in cfg.splits:
-        samples = load_split(cfg, s)
-        n = sum(len(x.boxes) for x in samples)
-        print(f"{s}: {len(samples)} images, {n} boxes")
-    print(f"classes: {cfg.names}")
-    return 0
-
-
-def _cmd_export(a: argparse.Namespace) -> int:
-    from vla_detector.export import export_onnx, load_checkpoint
-
-    net, classes, extra = load_checkpoint(a.checkpoint)
-    print(f"exported {export_onnx(net, classes, a.out, {'trained': extra})}")
-    return 0
-
-
-def _cmd_detect(a: argparse.Namespace) -> int:
-    from vla_detector.dataset import read_image
-    from vla_detector.inference import Detector, default_model_path
-
-    det = Detector(a.model or default_model_path(), a.score_threshold, a.iou_threshold)
-    for path in a.images:
-        dets = det.detect(read_image(__import__("pathlib").Path(path)))
-        print(json.dumps({"image": path, "detections": [d.as_dict() for d in dets]}))
-    return 0
+from vla_detector.inference import Detector, ModelError, default_model_path
 
 
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="vla_detector", description=__doc__)
     sub = p.add_subparsers(dest="cmd", required=True)
-
-    s = sub.add_parser("synth", help="render annotated images from the MuJoCo scene (YOLO format)")
-    s.add_argument("--count", type=int, required=True)
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--out", required=True)
-    s.add_argument(
-        "--split",
-        default="auto",
-        choices=["auto", "train", "val", "test"],
-        help="auto: the last --val-fraction of the images go to val, the rest to train",
-    )
-    s.add_argument("--val-fraction", type=float, default=0.1)
-    s.add_argument("--width", type=int, default=320)
-    s.add_argument("--height", type=int, default=240)
-    s.add_argument("--quiet", action="store_true")
-    s.set_defaults(func=_cmd_synth)
-
-    t = sub.add_parser("train", help="train from scratch, validate each epoch, export the best to ONNX")
-    t.add_argument("--data", required=True, help="dataset folder with data.yaml")
-    t.add_argument("--out", required=True)
-    t.add_argument("--epochs", type=int, default=40)
-    t.add_argument("--batch", type=int, default=16)
-    t.add_argument("--lr", type=float, default=3e-3)
-    t.add_argument("--imgsz", default="320", help="input size: W (4:3) or WxH, multiples of 16")
-    t.add_argument("--width", type=int, default=24, help="network width (channels at stride 4)")
-    t.add_argument("--seed", type=int, default=0)
-    t.add_argument("--threads", type=int, default=2)
-    t.add_argument("--max-images", type=int, default=0, help="use only the first N training images")
-    t.add_argument("--no-augment", action="store_true")
-    t.add_argument("--quiet", action="store_true")
-    t.set_defaults(func=_cmd_train)
-
-    e = sub.add_parser("evaluate", help="mAP@0.5, mAP@0.5:0.95, mean centre error of an ONNX model")
-    e.add_argument("--model", default=None, help="ONNX file (default: the shipped model)")
-    e.add_argument("--data", required=True)
-    e.add_argument("--split", default=None, help="default: test, else val")
-    e.add_argument("--score-threshold", type=float, default=0.3, help="for centre error, precision, recall")
-    e.add_argument("--iou-threshold", type=float, default=0.25, help="NMS IoU")
-    e.add_argument("--quiet", action="store_true")
-    e.set_defaults(func=_cmd_evaluate)
-
-    c = sub.add_parser("check", help="validate a YOLO dataset (errors name file and line)")
-    c.add_argument("--data", required=True)
-    c.set_defaults(func=_cmd_check)
-
-    x = sub.add_parser("export", help="export a .safetensors checkpoint to ONNX + JSON sidecar")
-    x.add_argument("--checkpoint", required=True)
-    x.add_argument("--out", required=True)
-    x.set_defaults(func=_cmd_export)
-
     d = sub.add_parser("detect", help="run a model on image files, print JSON lines")
     d.add_argument("images", nargs="+")
-    d.add_argument("--model", default=None)
+    d.add_argument("--model", default=None, help="ONNX file (default: the shipped model)")
     d.add_argument("--score-threshold", type=float, default=0.3)
     d.add_argument("--iou-threshold", type=float, default=0.25)
-    d.set_defaults(func=_cmd_detect)
     return p
+
+
+def detect(a: argparse.Namespace) -> int:
+    det = Detector(a.model or default_model_path(), a.score_threshold, a.iou_threshold)
+    for path in a.images:
+        dets = det.detect(read_image(path))
+        print(json.dumps({"image": path, "detections": [d.as_dict() for d in dets]}))
+    return 0
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
-        return int(args.func(args) or 0)
-    except (DatasetError, ValueError, FileNotFoundError) as e:
-        print(f"vla_detector {args.cmd}: error: {e}", file=sys.stderr)
-        return 2
-    except RuntimeError as e:  # ModelError and friends
+        return detect(args)
+    except (UnsupportedImageError, ModelError, ValueError, FileNotFoundError) as e:
         print(f"vla_detector {args.cmd}: error: {e}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:

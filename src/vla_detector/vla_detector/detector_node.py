@@ -23,8 +23,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
+from vla_common.image_convert import UnsupportedImageError, draw_detections, to_rgb
 
-from vla_detector.image_convert import UnsupportedImageError, draw_detections, to_rgb
 from vla_detector.inference import Detector, ModelError, default_model_path
 from vla_interfaces.msg import Detection as DetectionMsg
 from vla_interfaces.msg import DetectionArray

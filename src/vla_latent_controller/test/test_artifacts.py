@@ -2,11 +2,9 @@ import json
 
 import numpy as np
 import pytest
-from synthetic import CLASSES
 from vla_latent_controller.artifacts import CONFIG_FILE, WEIGHTS_FILE, ModelError, load_model
 from vla_latent_controller.model import LatentModel
-
-from conftest import write_random_model
+from vla_latent_controller.testing import CLASSES, write_random_model
 
 
 def test_roundtrip(random_model_dir):

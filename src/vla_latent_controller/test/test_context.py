@@ -1,6 +1,5 @@
 import numpy as np
 import pytest
-from synthetic import CLASSES
 from vla_latent_controller.context import (
     ContextError,
     Det,
@@ -9,6 +8,7 @@ from vla_latent_controller.context import (
     preprocess_image,
     select_detection,
 )
+from vla_latent_controller.testing import CLASSES
 
 
 def test_detector_context_is_one_hot_and_normalised_centre():

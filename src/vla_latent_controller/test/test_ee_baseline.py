@@ -15,7 +15,7 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def kin():
-    from vla_panda_bridge.kinematics import PandaKinematics
+    from vla_common.kinematics import PandaKinematics
 
     return PandaKinematics()
 
@@ -23,7 +23,7 @@ def kin():
 @pytest.mark.parametrize("axis", EE_AXES)
 @pytest.mark.parametrize("u", [0.6, -0.6])
 def test_tcp_moves_along_the_selected_axis(kin, axis, u):
-    from vla_panda_bridge.panda import READY_POSE
+    from vla_common.robot import READY_POSE
 
     ee = EndEffectorBaseline(kin, linear_speed=0.2, angular_speed=0.5)
     ee.select(axis)

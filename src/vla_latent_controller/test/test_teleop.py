@@ -2,10 +2,10 @@ import math
 
 import numpy as np
 import pytest
-from synthetic import READY
 from vla_latent_controller.context import Det
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
+from vla_latent_controller.testing import READY
 
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 SIZE = (640, 480)
@@ -183,7 +183,7 @@ def test_fixed_goal_class(random_model_dir):
 
 
 def test_classes_unknown_to_the_model(tmp_path):
-    from conftest import write_random_model
+    from vla_latent_controller.testing import write_random_model
 
     d = write_random_model(tmp_path / "m", classes=("apple", "pear"))
     core = make_core(d)

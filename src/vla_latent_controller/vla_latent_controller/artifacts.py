@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .context import CNN_ENCODERS, ENCODERS, context_dim
+from vla_latent_controller.context import CNN_ENCODERS, ENCODERS, context_dim
 
 FORMAT = "vla_latent_controller/cae"
 FORMAT_VERSION = 1

@@ -28,14 +28,13 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
+from vla_common.camera_model import SIM_WEBCAM, look_at_rotation, project
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray
 from vla_interfaces.srv import SetMode
-
-from .artifacts import ModelError
-from .camera_model import look_at_rotation, project
-from .context import CNN_ENCODERS, GOAL_SELECTIONS, Det
-from .teleop import MODES, Code, TeleopCore, TeleopParams
+from vla_latent_controller.artifacts import ModelError
+from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS, Det
+from vla_latent_controller.teleop import MODES, Code, TeleopCore, TeleopParams
 
 NODE_NAME = "controller_node"
 
@@ -116,16 +115,11 @@ def default_model_path() -> str:
 
 
 def _sim_camera() -> dict[str, list[float]]:
-    """The simulated webcam's pose (vla_panda_bridge.scene), the default camera for nearest_to_ee."""
-    try:
-        from vla_panda_bridge.scene import CAMERA_LOOKAT, CAMERA_POS
-
-        return {
-            "camera_position": [float(v) for v in CAMERA_POS],
-            "camera_look_at": [float(v) for v in CAMERA_LOOKAT],
-        }
-    except Exception:  # no simulator installed: the user sets the real camera's pose
-        return {"camera_position": [0.0, 0.0, 0.0], "camera_look_at": [0.0, 0.0, 0.0]}
+    """The simulated webcam's pose, the default camera for nearest_to_ee (set a real camera's pose)."""
+    return {
+        "camera_position": [float(v) for v in SIM_WEBCAM.position],
+        "camera_look_at": [float(v) for v in SIM_WEBCAM.look_at],
+    }
 
 
 class ControllerNode(Node):
@@ -150,14 +144,14 @@ class ControllerNode(Node):
                 ParameterDescriptor(description=text, type=ParameterType.PARAMETER_DOUBLE_ARRAY),
             )
 
-        from vla_panda_bridge.panda import DQ_MAX, JOINT_NAMES
+        from vla_common.robot import DQ_MAX, JOINT_NAMES
 
         self.params = TeleopParams(dq_max=list(DQ_MAX))
         self._apply(self.get_parameters([n for n in _TUNABLE] + ["mode"]))
         self._intrinsics: tuple[float, float, float, float] | None = None
         self._kin = None
         try:
-            from vla_panda_bridge.kinematics import PandaKinematics
+            from vla_common.kinematics import PandaKinematics
 
             self._kin = PandaKinematics()
         except Exception as e:  # end-effector mode reports it; latent mode does not need it
@@ -204,7 +198,7 @@ class ControllerNode(Node):
         return None
 
     def _load_model(self, path: str) -> None:
-        from .model import LatentModel
+        from vla_latent_controller.model import LatentModel
 
         path = path or default_model_path()
         if not path:
@@ -266,7 +260,7 @@ class ControllerNode(Node):
         self.core.on_detections(dets, (int(msg.image_width), int(msg.image_height)), self._now())
 
     def _on_image(self, msg: Image) -> None:
-        from vla_detector.image_convert import to_rgb
+        from vla_common.image_convert import to_rgb
 
         try:
             rgb = to_rgb(msg.encoding, msg.width, msg.height, msg.step, msg.data, bool(msg.is_bigendian))

@@ -20,7 +20,7 @@ def damped_pinv(J: np.ndarray, damping: float) -> np.ndarray:
 
 class EndEffectorBaseline:
     """Cartesian jogging along the selected axis; ``kinematics`` has ``jacobian(q) -> (6, 7)``
-    (LOCAL_WORLD_ALIGNED, linear rows first), as vla_panda_bridge.kinematics.PandaKinematics."""
+    (LOCAL_WORLD_ALIGNED, linear rows first), as vla_common.kinematics.PandaKinematics."""
 
     def __init__(
         self,

@@ -12,9 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .artifacts import ModelArtifacts, ModelError, load_model
-from .context import CNN_INPUT_SIZE, ContextError, Det, detector_context, one_hot, preprocess_image
-from .decoder_np import LatentDecoder
+from vla_latent_controller.artifacts import ModelArtifacts, ModelError, load_model
+from vla_latent_controller.context import (
+    CNN_INPUT_SIZE,
+    ContextError,
+    Det,
+    detector_context,
+    one_hot,
+    preprocess_image,
+)
+from vla_latent_controller.decoder_np import LatentDecoder
 
 
 class LatentModel:

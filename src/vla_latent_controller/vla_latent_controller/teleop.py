@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .context import GOAL_SELECTIONS, ContextError, Det, select_detection
-from .ee_baseline import EE_AXES, EndEffectorBaseline
+from vla_latent_controller.context import GOAL_SELECTIONS, ContextError, Det, select_detection
+from vla_latent_controller.ee_baseline import EE_AXES, EndEffectorBaseline
 
 MODES = ("latent", "end_effector")
 

@@ -20,9 +20,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
+from vla_common.robot import READY_POSE
 from vla_panda_bridge.bridge_node import ConfigError, PandaBridge
-from vla_panda_bridge.panda import READY_POSE
-from vla_panda_bridge.sim import PandaSim
+from vla_sim.sim import PandaSim
 
 from vla_interfaces.msg import SafetyStatus, SceneObject, SceneObjectArray
 from vla_interfaces.srv import ResetScene
@@ -308,7 +308,7 @@ def test_the_shipped_parameter_file_names_every_parameter_and_starts_the_node():
 
 
 def test_pacer_advances_one_state_period_per_tick_despite_jitter_and_slips_when_behind():
-    from vla_panda_bridge.sim_clock import SimPacer
+    from vla_sim.sim_clock import SimPacer
 
     pacer = SimPacer(unit=0.005, real_time_factor=1.0)
     assert pacer.timer_period() == pytest.approx(0.005)
@@ -334,12 +334,12 @@ def test_pacer_advances_one_state_period_per_tick_despite_jitter_and_slips_when_
 
 @pytest.mark.slow
 def test_scripted_push_through_joint_velocity_cmd_moves_the_object(harness):
-    """Pinocchio IK plan from the object's pose (vla_panda_bridge.planner), executed by a client that
+    """Pinocchio IK plan from the object's pose (vla_sim.planner), executed by a client that
     turns each joint state into a joint_velocity_cmd: the object moves >= 5 cm within 30 deg."""
-    from vla_panda_bridge.kinematics import PandaKinematics
-    from vla_panda_bridge.objects import ObjectPose
-    from vla_panda_bridge.planner import plan_task
-    from vla_panda_bridge.tasks import TASKS, task_layout
+    from vla_common.kinematics import PandaKinematics
+    from vla_common.objects import ObjectPose
+    from vla_common.tasks import TASKS, task_layout
+    from vla_sim.planner import plan_task
 
     h = harness(real_time_factor=2.0, scene_rate=20.0)
     task = TASKS["soda_can/push_south"]

@@ -15,8 +15,8 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
+from vla_common.robot import DDQ_MAX, DQ_MAX, READY_POSE
 from vla_panda_bridge.bridge_node import PandaBridge
-from vla_panda_bridge.panda import DDQ_MAX, DQ_MAX, READY_POSE
 
 from vla_interfaces.msg import SafetyStatus
 from vla_interfaces.srv import ResetScene

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 import pytest
-from vla_panda_bridge.panda import DDDQ_MAX, DDQ_MAX, DQ_MAX, Q_MAX, Q_MIN, READY_POSE
+from vla_common.robot import DDDQ_MAX, DDQ_MAX, DQ_MAX, Q_MAX, Q_MIN, READY_POSE
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
 from vla_panda_bridge import safety

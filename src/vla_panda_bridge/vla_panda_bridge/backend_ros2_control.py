@@ -16,9 +16,9 @@ from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
+from vla_common.robot import JOINT_NAMES, NUM_JOINTS
 
 from vla_panda_bridge.backend import JointSample
-from vla_panda_bridge.panda import JOINT_NAMES, NUM_JOINTS
 
 
 class Ros2ControlBackend:

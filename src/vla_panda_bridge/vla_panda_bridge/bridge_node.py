@@ -30,14 +30,14 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
+from vla_common.objects import ObjectPose
+from vla_common.robot import JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN, READY_POSE
+from vla_sim.sim_clock import SimPacer
 
 from vla_interfaces.msg import SafetyStatus, SceneObject, SceneObjectArray
 from vla_interfaces.srv import ResetScene
 from vla_panda_bridge import safety
-from vla_panda_bridge.objects import ObjectPose
-from vla_panda_bridge.panda import JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN, READY_POSE
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
-from vla_panda_bridge.sim_clock import SimPacer
 
 BACKENDS = ("mujoco", "ros2_control")
 EE_FRAMES = ("tcp", "flange")
@@ -198,7 +198,7 @@ class PandaBridge(Node):
         )
         self._dt = 1.0 / p["control_rate"]
         self._base_frame = p["base_frame_id"]
-        from vla_panda_bridge.kinematics import PandaKinematics  # Pinocchio: import only when needed
+        from vla_common.kinematics import PandaKinematics  # Pinocchio: import only when needed
 
         self._kin = PandaKinematics()
         self._fk = self._kin.fk if p["ee_frame"] == "tcp" else self._kin.flange_fk
@@ -271,7 +271,9 @@ class PandaBridge(Node):
 
     # ------------------------------------------------------------------------------------- mujoco
     def _setup_mujoco(self, p: dict) -> None:
-        from vla_panda_bridge.backend_mujoco import CameraWorker, MujocoBackend
+        from vla_sim.camera_worker import CameraWorker
+
+        from vla_panda_bridge.backend_mujoco import MujocoBackend
 
         self._mj = MujocoBackend(self._dt, seed=p["seed"], q0=p["initial_positions"])
         self._dt_ns = round(1e9 * self._mj.physics_dt)

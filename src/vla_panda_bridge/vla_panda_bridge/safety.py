@@ -41,8 +41,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from vla_panda_bridge.panda import DDDQ_MAX, DDQ_MAX, DQ_MAX, JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN
+from vla_common.robot import DDDQ_MAX, DDQ_MAX, DQ_MAX, JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN
 
 # Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
 # a test checks they agree).

@@ -1,0 +1,138 @@
+"""Task definitions, parsing, success criterion and task-aware layouts."""
+import math
+
+import numpy as np
+import pytest
+from vla_common.layout import overlap
+from vla_common.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose, compass_vector
+from vla_common.tasks import (
+    BASE_TASKS,
+    PUSH_REGION_X,
+    TASKS,
+    UNSEEN_TASKS,
+    TaskSpec,
+    circle_sweep_deg,
+    parse_task,
+    task_layout,
+    task_success,
+)
+
+
+def test_task_table_matches_the_paper():
+    assert BASE_TASKS == ["bread/push_east", "soda_can/push_south", "milk_carton/push_south_west",
+                          "glass_bottle/push_west"]
+    assert UNSEEN_TASKS == ["cereal_box/push_south", "cereal_box/push_south_east", "cereal_box/circle"]
+    assert set(TASKS) == set(BASE_TASKS + UNSEEN_TASKS)
+    t = TASKS["milk_carton/push_south_west"]
+    assert (t.object_class, t.kind, t.direction, t.distance) == ("milk_carton", "push", "south_west", 0.15)
+    circle = TASKS["cereal_box/circle"]
+    assert circle.kind == "circle" and circle.direction is None
+
+
+def test_compass_convention():
+    np.testing.assert_allclose(compass_vector("north"), [1, 0])
+    np.testing.assert_allclose(compass_vector("east"), [0, -1])
+    np.testing.assert_allclose(compass_vector("south-west"), [-math.sqrt(0.5), math.sqrt(0.5)])
+
+
+@pytest.mark.parametrize("text", ["bread:push_east", "bread/push_east", " bread/push_east "])
+def test_parse_task_separators(text):
+    assert parse_task(text) is TASKS["bread/push_east"]
+
+
+def test_parse_task_outside_the_table():
+    spec = parse_task("soda_can:push_north_west")
+    assert spec == TaskSpec("soda_can/push_north_west", "soda_can", "push", "north_west")
+    assert parse_task("bread/circle").kind == "circle"
+
+
+@pytest.mark.parametrize("text, message", [
+    ("toaster/push_east", "unknown object class"),
+    ("bread/push_up", "unknown action"),
+    ("bread", "must look like"),
+    ("bread/push_east/x", "must look like"),
+    (42, "must be a string"),
+])
+def test_parse_task_errors(text, message):
+    with pytest.raises(ValueError, match=message):
+        parse_task(text)
+
+
+def _moved(start, dx, dy):
+    return ObjectPose(start.class_id, start.x + dx, start.y + dy, start.yaw)
+
+
+def test_push_success_criterion():
+    task = TASKS["bread/push_east"]  # east = -y
+    s = ObjectPose("bread", 0.5, 0.1, 0.0)
+    ok, disp, ang = task_success(task, s, _moved(s, 0.0, -0.12))
+    assert ok and disp == pytest.approx(0.12) and ang == pytest.approx(0.0, abs=1e-6)
+    assert not task_success(task, s, _moved(s, 0.0, -0.09))[0]           # too short
+    off = 0.12 * np.array([math.sin(math.radians(35)), -math.cos(math.radians(35))])
+    ok, _, ang = task_success(task, s, _moved(s, *off))
+    assert not ok and ang == pytest.approx(35.0)                          # too far off direction
+    off = 0.12 * np.array([math.sin(math.radians(25)), -math.cos(math.radians(25))])
+    assert task_success(task, s, _moved(s, *off))[0]
+    assert not task_success(task, s, _moved(s, 0.0, 0.2))[0]              # wrong way
+    assert not task_success(task, s, s)[0]
+    assert task_success("bread:push_east", s, _moved(s, 0.0, -0.15))[0]
+
+
+def test_circle_success_criterion():
+    task = TASKS["cereal_box/circle"]
+    s = ObjectPose("cereal_box", 0.5, 0.0, 0.0)
+    ok, disp, ang = task_success(task, s, _moved(s, 0.01, 0.0))
+    assert ok and math.isnan(ang)
+    assert not task_success(task, s, _moved(s, 0.05, 0.0))[0]
+
+
+def test_a_circle_needs_the_arm_to_go_round():
+    """An unmoved object alone is not a circle: an arm that never moved leaves it unmoved too."""
+    task = TASKS["cereal_box/circle"]
+    s = ObjectPose("cereal_box", 0.5, 0.1, 0.0)
+
+    def arc(deg):
+        a = np.radians(np.linspace(40.0, 40.0 + deg, 50))
+        return np.column_stack([0.5 + 0.15 * np.cos(a), 0.1 + 0.15 * np.sin(a)])
+
+    ok, _, shortfall = task_success(task, s, _moved(s, 0.01, 0.0), arc(350.0))
+    assert ok and shortfall == 0.0
+    ok, _, shortfall = task_success(task, s, _moved(s, 0.01, 0.0), arc(180.0))
+    assert not ok and shortfall == pytest.approx(150.0)
+    assert not task_success(task, s, s, np.tile([0.65, 0.1], (20, 1)))[0]  # the arm stayed put
+    assert not task_success(task, s, _moved(s, 0.05, 0.0), arc(360.0))[0]  # went round, knocked it
+    assert circle_sweep_deg(arc(720.0), (0.5, 0.1)) == pytest.approx(720.0)
+
+
+@pytest.mark.parametrize("name", sorted(TASKS))
+def test_task_layouts(name):
+    spec = TASKS[name]
+    for seed in range(20):
+        layout = task_layout(spec, np.random.default_rng(seed))
+        assert layout[0].class_id == spec.object_class
+        assert 1 <= len(layout) <= 4 and len({p.class_id for p in layout}) == len(layout)
+        assert all(p.class_id in OBJECT_CLASSES for p in layout)
+        for i, a in enumerate(layout):
+            for b in layout[i + 1:]:
+                assert not overlap(a, b, 0.0)
+        target = layout[0]
+        if spec.kind == "push":
+            end = target.xy + spec.direction_vector * spec.distance
+            assert PUSH_REGION_X[0] <= end[0] <= PUSH_REGION_X[1]
+            for other in layout[1:]:  # nothing in the way of the push
+                rel = other.xy - target.xy
+                along = rel @ spec.direction_vector
+                across = abs(rel @ np.array([-spec.direction_vector[1], spec.direction_vector[0]]))
+                assert not (0.0 < along < spec.distance + 0.1 and across < 0.12)
+    a = task_layout(spec, np.random.default_rng(3))
+    b = task_layout(spec, np.random.default_rng(3))
+    assert [(p.class_id, p.x, p.y, p.yaw) for p in a] == [(p.class_id, p.x, p.y, p.yaw) for p in b]
+
+
+def test_footprint_circle_and_short_half_side():
+    """The planner's pusher starts outside the footprint circle and pushes on by its slack over the
+    short half-side: both must be right for boxes and cylinders."""
+    bread, can = OBJECT_SPECS["bread"], OBJECT_SPECS["soda_can"]
+    assert math.isclose(bread.footprint_radius, 0.5 * math.hypot(0.20, 0.10))
+    assert math.isclose(bread.min_half_extent, 0.05)
+    assert can.footprint_radius == can.min_half_extent == can.size[0]

@@ -1,0 +1,191 @@
+"""The paper's tasks: push an object a set distance in a compass direction, or circle around it.
+
+Base set (demonstrated): bread -> east, soda can -> south, milk carton -> south-west, glass bottle ->
+west. Unseen object cereal box: south (Seen direction), south-east (Near), circle (Far).
+Pure Python (no simulator import), shared by the planner, the demo generator and evaluation.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from vla_common.layout import LAYOUT_GAP, overlap
+from vla_common.objects import (
+    COMPASS,
+    OBJECT_CLASSES,
+    OBJECT_SPECS,
+    ObjectPose,
+    compass_vector,
+    yaw_quat,
+)
+
+PUSH_SUCCESS_DISTANCE = 0.10
+PUSH_SUCCESS_ANGLE_DEG = 30.0
+# A circle succeeds when the arm went round (the TCP's bearing from the object's centre swept at
+# least CIRCLE_MIN_SWEEP_DEG) without knocking the object more than CIRCLE_MAX_DISPLACEMENT.
+CIRCLE_MAX_DISPLACEMENT = 0.03
+CIRCLE_MIN_SWEEP_DEG = 330.0
+
+
+@dataclass(frozen=True)
+class TaskSpec:
+    """One task: `kind` "push" (with a compass `direction`) or "circle" (direction None)."""
+
+    name: str
+    object_class: str
+    kind: str
+    direction: str | None
+    distance: float = 0.15
+
+    @property
+    def direction_vector(self) -> np.ndarray:
+        """Unit (x, y) push direction in the world frame (push tasks only)."""
+        if self.direction is None:
+            raise ValueError(f"task {self.name} has no push direction")
+        return compass_vector(self.direction)
+
+
+def _spec(object_class: str, action: str) -> TaskSpec:
+    name = f"{object_class}/{action}"
+    if action == "circle":
+        return TaskSpec(name, object_class, "circle", None)
+    return TaskSpec(name, object_class, "push", action.removeprefix("push_"))
+
+
+BASE_TASKS: list[str] = ["bread/push_east", "soda_can/push_south", "milk_carton/push_south_west",
+                         "glass_bottle/push_west"]
+UNSEEN_TASKS: list[str] = ["cereal_box/push_south", "cereal_box/push_south_east", "cereal_box/circle"]
+TASKS: dict[str, TaskSpec] = {n: _spec(*n.split("/")) for n in BASE_TASKS + UNSEEN_TASKS}
+
+
+def parse_task(text: str) -> TaskSpec:
+    """"bread:push_east" or "bread/push_east" -> TaskSpec. Tasks outside TASKS are accepted when
+    the object class and action are valid (push_<compass direction> or circle)."""
+    if not isinstance(text, str):
+        raise ValueError(f"task must be a string like 'bread/push_east', got {text!r}")
+    key = text.strip().replace(":", "/")
+    if key in TASKS:
+        return TASKS[key]
+    parts = key.split("/")
+    if len(parts) != 2 or not all(parts):
+        raise ValueError(f"task {text!r} must look like '<object>/<action>' or '<object>:<action>', "
+                         f"e.g. 'bread/push_east'; known tasks: {sorted(TASKS)}")
+    obj, action = parts[0].strip(), parts[1].strip().lower().replace("-", "_")
+    if obj not in OBJECT_CLASSES:
+        raise ValueError(f"task {text!r}: unknown object class {obj!r}; expected one of {OBJECT_CLASSES}")
+    if action != "circle" and not (action.startswith("push_") and action[5:] in COMPASS):
+        raise ValueError(f"task {text!r}: unknown action {action!r}; expected 'circle' or push_<direction> "
+                         f"with a direction in {sorted(COMPASS)}")
+    return _spec(obj, action)
+
+
+def circle_sweep_deg(path_xy, center) -> float:
+    """How far (deg) a path of (x, y) points went round `center`: the range of its unwrapped bearing."""
+    p = np.asarray(path_xy, dtype=float).reshape(-1, 2) - np.asarray(center, dtype=float)[:2]
+    p = p[np.linalg.norm(p, axis=1) > 1e-6]
+    if len(p) < 2:
+        return 0.0
+    bearing = np.unwrap(np.arctan2(p[:, 1], p[:, 0]))
+    return float(np.degrees(bearing.max() - bearing.min()))
+
+
+def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose,
+                 path_xy=None) -> tuple[bool, float, float]:
+    """(ok, displacement_m, angle_err_deg) of the object's motion from `start` to `end`.
+
+    push: ok when displaced >= 0.10 m within +-30 deg of the intended direction.
+    circle: ok when the object stayed put (< 3 cm) and, given the TCP's (x, y) path, that path went
+    at least 330 deg round the object's start; angle_err_deg is then the sweep's shortfall (0 when
+    it went round, NaN without a path). Without a path only the object is judged: callers whose arm
+    may not move (evaluations of learned models) must pass it.
+    """
+    spec = parse_task(task) if isinstance(task, str) else task
+    delta = np.array([end.x - start.x, end.y - start.y], dtype=float)
+    disp = float(np.linalg.norm(delta))
+    if spec.kind == "circle":
+        still = disp < CIRCLE_MAX_DISPLACEMENT
+        if path_xy is None:
+            return still, disp, float("nan")
+        shortfall = max(0.0, CIRCLE_MIN_SWEEP_DEG - circle_sweep_deg(path_xy, (start.x, start.y)))
+        return still and shortfall == 0.0, disp, shortfall
+    if disp < 1e-9:
+        return False, disp, 180.0
+    d = spec.direction_vector
+    cosang = float(np.clip(delta @ d / disp, -1.0, 1.0))
+    angle = math.degrees(math.acos(cosang))
+    ok = disp >= PUSH_SUCCESS_DISTANCE and angle <= PUSH_SUCCESS_ANGLE_DEG
+    return ok, disp, angle
+
+
+# Where the TCP can push at table height with a tilted, vertical-ish gripper (checked with IK): the
+# object's start centre and the pusher's start and end points must all lie in this region.
+PUSH_REGION_X = (0.27, 0.64)
+PUSH_REGION_Y = (-0.32, 0.32)
+PUSH_REGION_R = 0.70
+# Circles are done above the object; its centre must leave room for the loop.
+CIRCLE_REGION_X = (0.40, 0.55)
+CIRCLE_REGION_Y = (-0.15, 0.15)
+
+
+def _in_push_region(p) -> bool:
+    return (PUSH_REGION_X[0] <= p[0] <= PUSH_REGION_X[1] and PUSH_REGION_Y[0] <= p[1] <= PUSH_REGION_Y[1]
+            and math.hypot(p[0], p[1]) <= PUSH_REGION_R)
+
+
+def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int | None = None,
+                max_tries: int = 500) -> list[ObjectPose]:
+    """A random layout for one episode of `task`: the task's object (first in the list) where the
+    push (or circle) is reachable, plus 0..3 other objects kept out of the pushing corridor."""
+    spec = parse_task(task) if isinstance(task, str) else task
+    n = int(rng.integers(1, 4)) if n_objects is None else int(n_objects)
+    if not 1 <= n <= 4:
+        raise ValueError(f"n_objects must be 1..4, got {n}")
+    obj_spec = OBJECT_SPECS[spec.object_class]
+    for _ in range(max_tries):
+        yaw = float(rng.uniform(-math.pi, math.pi))
+        if spec.kind == "circle":
+            c = np.array([rng.uniform(*CIRCLE_REGION_X), rng.uniform(*CIRCLE_REGION_Y)])
+            corridor = None
+            break
+        d = spec.direction_vector
+        c = np.array([rng.uniform(0.30, 0.66), rng.uniform(-0.30, 0.30)])
+        # The planner's pusher starts outside the footprint's circle (whatever the yaw) and stops
+        # the task distance plus up to 6 cm past the object's nearest possible face.
+        r = obj_spec.footprint_radius
+        pusher_start = c - d * (r + 0.06)
+        pusher_end = c + d * (spec.distance + 0.06 - obj_spec.min_half_extent)
+        if all(_in_push_region(p) for p in (c, pusher_start, pusher_end)):
+            corridor = (pusher_start - d * 0.05, pusher_end + d * (2 * r + 0.05))
+            break
+    else:
+        raise ValueError(f"could not place {spec.object_class} for {spec.name} in {max_tries} tries")
+    target = ObjectPose(spec.object_class, float(c[0]), float(c[1]), yaw, 0.0, yaw_quat(yaw))
+    layout = [target]
+    others = [k for k in OBJECT_CLASSES if k != spec.object_class]
+    rng.shuffle(others)
+    for cls in others[:n - 1]:
+        for _ in range(max_tries):
+            yaw_o = float(rng.uniform(-math.pi, math.pi))
+            p = ObjectPose(cls, float(rng.uniform(0.30, 0.72)), float(rng.uniform(-0.35, 0.35)), yaw_o, 0.0,
+                           yaw_quat(yaw_o))
+            clear = OBJECT_SPECS[cls].footprint_radius + 0.12  # hand half-width + margin
+            if any(overlap(p, o, LAYOUT_GAP) for o in layout):
+                continue
+            if corridor is None:
+                if math.hypot(p.x - target.x, p.y - target.y) < clear + obj_spec.footprint_radius + 0.12:
+                    continue
+            elif _segment_distance(p.xy, *corridor) < clear:
+                continue
+            if math.hypot(p.x, p.y) < 0.25:
+                continue
+            layout.append(p)
+            break
+    return layout
+
+
+def _segment_distance(p: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    ab = b - a
+    t = float(np.clip((p - a) @ ab / max(ab @ ab, 1e-12), 0.0, 1.0))
+    return float(np.linalg.norm(p - (a + t * ab)))

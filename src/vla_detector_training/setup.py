@@ -1,0 +1,24 @@
+from setuptools import find_packages, setup
+
+package_name = "vla_detector_training"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml", "README.md"]),
+    ],
+    install_requires=["setuptools"],
+    zip_safe=True,
+    maintainer="VLA developers",
+    maintainer_email="dev@vla.invalid",
+    description="Detector training.",
+    license="Apache-2.0",
+    entry_points={
+        "console_scripts": [
+            "vla_detector_training = vla_detector_training.cli:main",
+        ],
+    },
+)

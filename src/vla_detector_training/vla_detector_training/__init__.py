@@ -1,0 +1,2 @@
+"""Detector training: synthetic data, datasets, the network, training, evaluation and ONNX export.
+"""

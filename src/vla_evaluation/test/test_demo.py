@@ -1,0 +1,68 @@
+"""`vla_latent_controller demo`: CLI wiring, model choice per task, video/strip and the results table."""
+import numpy as np
+import pytest
+from vla_evaluation.cli import build_parser
+from vla_evaluation.graph import EpisodeRecord
+from vla_evaluation.metrics import EpisodeResult
+
+from vla_evaluation import demo
+
+
+def test_cli_has_the_subcommands_with_defaults():
+    p = build_parser()
+    a = p.parse_args(["demo"])
+    assert str(a.out) == "out/demo" and a.tasks == "all" and a.layouts == 1 and a.rate == 100.0
+    e = p.parse_args(["evaluate", "--mode", "graph", "--layouts", "20"])
+    assert e.mode == "graph" and e.layouts == 20
+    x = p.parse_args(["experiments", "--quick"])
+    assert x.quick and x.out is None  # --quick writes to out/experiments_quick, never over docs/results
+    assert x.position_scale == pytest.approx(0.2887, abs=1e-4)  # the experiments' fixed position scale
+    assert p.parse_args(["experiments", "--position-scale", "demos"]).position_scale is None
+    with pytest.raises(SystemExit):
+        p.parse_args(["evaluate", "--mode", "telepathy"])
+
+
+def test_each_task_gets_its_model():
+    assert demo.model_name_for("bread/push_east") == "default"
+    assert demo.model_name_for("glass_bottle/push_west") == "default"
+    assert demo.model_name_for("cereal_box/push_south_east") == "cereal_box_push_south_east"
+    assert demo.model_name_for("cereal_box/circle") == "cereal_box_circle"
+
+
+def _record(task, success, frames=4):
+    r = EpisodeResult(task=task, layout_seed=1, mode="graph", model="detector", final_state_error=0.12,
+                      success=success, time_to_success=12.5 if success else None, duration_s=3.0,
+                      safety_interventions=0, limit_violations=0, detected_class="bread")
+    t = np.linspace(0, 3.0, 30)
+    tcp = np.column_stack([0.45 + 0.05 * t / 3, -0.1 * t / 3, np.full_like(t, 0.05)])
+    r.ee_path = tcp
+    imgs = [(float(i), np.full((240, 320, 3), 40 * (i + 1), np.uint8)) for i in range(frames)]
+    return EpisodeRecord(r, tcp, t, imgs)
+
+
+def test_video_and_strip_are_written_with_the_path_drawn(tmp_path):
+    import cv2
+    from vla_evaluation.demo_video import write_video_and_strip
+
+    recs = [_record("bread/push_east", True), _record("soda_can/push_south", False)]
+    files = write_video_and_strip(recs, tmp_path, size=(640, 480))
+    assert files["video"].stat().st_size > 1000
+    cap = cv2.VideoCapture(str(files["video"]))
+    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+    cap.release()
+    assert n == 8
+    strip = cv2.imread(str(files["strip"]))
+    assert strip.shape == (240, 640, 3)
+    # the path colour appears in the last frame of each tile, the flat background alone would not have it
+    tile = cv2.cvtColor(strip[:, :320], cv2.COLOR_BGR2RGB).reshape(-1, 3)
+    assert np.any(np.all(np.abs(tile.astype(int) - (255, 200, 0)) < 40, axis=1))
+
+
+def test_table_lists_every_task_with_success_and_error():
+    recs = [_record("bread/push_east", True), _record("bread/push_east", False),
+            _record("soda_can/push_south", True)]
+    lines = demo.summary_lines([r.result for r in recs])
+    assert "final state error" in lines[0]
+    bread = next(line for line in lines if line.startswith("bread/push_east"))
+    assert "50 %" in bread and "0.120" in bread
+    assert any(line.startswith("soda_can/push_south") and "100 %" in line for line in lines)

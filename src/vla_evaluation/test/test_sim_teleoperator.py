@@ -1,0 +1,281 @@
+"""The simulated teleoperator's core: candidate grid, waypoint schedule, greedy choice, closed loop."""
+import numpy as np
+import pytest
+from vla_evaluation.sim_teleoperator import (
+    SimTeleoperator,
+    WaypointSchedule,
+    axis_candidates,
+    best_candidate,
+)
+
+Q0 = np.array([0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785])
+
+
+def deadband_linear(direction, deadband=0.1, speed=0.5):
+    """A fake controller: |axis| <= deadband -> zero, else axis * speed * direction (rad/s)."""
+    d = np.asarray(direction, dtype=float) / np.linalg.norm(direction)
+
+    def command(axes, q):
+        axes = np.asarray(axes, dtype=float)
+        z = np.where(np.abs(axes) <= deadband, 0.0, axes)
+        return z[:, None] * speed * d[None, :]
+
+    return command
+
+
+def test_axis_candidates_odd_grid_with_zero_first():
+    a = axis_candidates(41)
+    assert a.shape == (41,)
+    assert a[0] == 0.0
+    assert np.isclose(a.min(), -1) and np.isclose(a.max(), 1)
+    assert np.all(np.diff(np.abs(a)) >= -1e-12)  # ordered by magnitude: ties pick the gentlest
+    with pytest.raises(ValueError):
+        axis_candidates(40)
+    with pytest.raises(ValueError):
+        axis_candidates(1)
+
+
+def test_best_candidate_batched_and_skips_nonfinite():
+    cmds = np.array([[[0.0] * 7, [1.0] * 7, [np.nan] * 7]])  # (1, 3, 7)
+    q = np.zeros((1, 7))
+    w = np.full((1, 7), 1.0)
+    idx, dist = best_candidate(cmds, q, w, horizon=1.0)
+    assert idx.tolist() == [1] and np.isclose(dist[0], 0.0)
+    cmds_bad = np.array([[[np.nan] * 7, [0.0] * 7]])
+    idx, _ = best_candidate(cmds_bad, q, w)
+    assert idx.tolist() == [1]
+
+
+def test_schedule_push_switches_at_k_and_circle_spreads_rest():
+    w1, w2 = Q0, Q0 + 0.1
+    s = WaypointSchedule([w1, w2], switch_time=15.0, time_limit=30.0)
+    assert s.index_at(0.0) == 0 and s.index_at(14.99) == 0 and s.index_at(15.0) == 1
+    assert s.index_at(29.0) == 1 and s.done(30.0) and not s.done(29.9)
+    assert np.allclose(s.final, w2)
+    circle = WaypointSchedule([Q0 + 0.01 * i for i in range(6)], switch_time=15.0, time_limit=30.0)
+    assert circle.switch_times == pytest.approx([15.0, 18.0, 21.0, 24.0, 27.0])
+    assert circle.index_at(16.0) == 1 and circle.index_at(29.0) == 5
+    with pytest.raises(ValueError):
+        WaypointSchedule([np.zeros(6)])
+    with pytest.raises(ValueError):
+        WaypointSchedule([Q0], switch_time=40.0, time_limit=30.0)
+    with pytest.raises(ValueError):
+        WaypointSchedule([Q0, Q0], switch_times=[3.0, 4.0])
+
+
+def test_picks_sign_towards_waypoint_and_zero_at_goal():
+    d = np.array([1.0, 0.5, 0, 0, 0, 0, 0])
+    sched = WaypointSchedule([Q0 + 0.3 * d / np.linalg.norm(d)])
+    tele = SimTeleoperator(deadband_linear(d), sched, horizon=1.0)
+    assert tele.act(0.0, Q0).axis > 0.1
+    behind = WaypointSchedule([Q0 - 0.3 * d / np.linalg.norm(d)])
+    assert SimTeleoperator(deadband_linear(d), behind).act(0.0, Q0).axis < -0.1
+    at_goal = SimTeleoperator(deadband_linear(d), WaypointSchedule([Q0]))
+    assert at_goal.act(0.0, Q0).axis == 0.0
+
+
+def test_zero_model_means_hands_off_and_bad_inputs_never_raise():
+    def zero(axes, q):
+        return np.zeros((len(axes), 7))
+
+    def broken(axes, q):
+        raise RuntimeError("boom")
+
+    sched = WaypointSchedule([Q0 + 0.2])
+    assert SimTeleoperator(zero, sched).act(0.0, Q0).axis == 0.0
+    step = SimTeleoperator(broken, sched).act(0.0, Q0)
+    assert step.axis == 0.0 and "boom" in step.reason
+    step = SimTeleoperator(zero, sched).act(0.0, np.full(7, np.nan))
+    assert step.axis == 0.0 and "bad joint state" in step.reason
+    step = SimTeleoperator(lambda a, q: np.zeros((3, 7)), sched).act(0.0, Q0)
+    assert step.axis == 0.0 and "shape" in step.reason
+    done = SimTeleoperator(zero, sched).act(30.0, Q0)
+    assert done.done and done.axis == 0.0
+    with pytest.raises(ValueError):
+        SimTeleoperator(zero, sched, horizon=0.0)
+
+
+def test_closed_loop_reaches_pre_then_post_push_waypoint():
+    """A decoder whose direction depends on the state (two phases) lets the greedy user reach both."""
+    d1 = np.array([0.4, 0.2, 0.0, 0.1, 0.0, 0.0, 0.0])
+    d2 = np.array([0.0, 0.0, 0.3, 0.0, 0.2, 0.0, 0.0])
+    pre, post = Q0 + d1, Q0 + d1 + d2
+
+    def two_phase(axes, q):
+        # before the pre-push point move along d1, after it along d2 (like a learned push)
+        along = float(np.dot(q - Q0, d1) / np.dot(d1, d1))
+        direction = d1 if along < 0.9 else d2
+        return deadband_linear(direction)(axes, q)
+
+    sched = WaypointSchedule([pre, post], switch_time=15.0, time_limit=30.0)
+    tele = SimTeleoperator(two_phase, sched, horizon=1.0)
+    q, dt = Q0.copy(), 0.05
+    t = 0.0
+    while True:
+        step = tele.act(t, q)
+        if step.done:
+            break
+        q = q + two_phase(np.array([step.axis]), q)[0] * dt
+        if abs(t - 14.0) < dt / 2:
+            assert np.linalg.norm(q - pre) < 0.05  # deadband: stops within half a grid step
+        t += dt
+    assert np.linalg.norm(q - post) < 0.1 * np.linalg.norm(Q0 - post) + 0.05
+
+
+def random_model(path, seed=0):
+    """A small valid detector-encoder model with random weights (no training needed)."""
+    from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
+    from vla_latent_controller.model import LatentModel
+
+    classes = ["bread", "soda_can", "milk_carton", "glass_bottle", "cereal_box"]
+    cfg = {"encoder": "detector", "classes": classes, "joint_names": [f"panda_joint{i}" for i in range(1, 8)],
+           "dims": {"context": 7, "joints": 7, "latent": 1, "hidden": 30, "cnn_feature": 0},
+           "normalisation": {"q_mean": Q0.tolist(), "q_std": [0.2] * 7, "a_scale": [0.3] * 7},
+           "latent": {"gain": {"bread": 0.8, "soda_can": -0.6}, "default_gain": 0.7}}
+    rng = np.random.default_rng(seed)
+    tensors = {k: rng.normal(0, 0.5, s) for k, s in decoder_tensor_shapes(cfg).items()}
+    return LatentModel.load(save_model(path, cfg, tensors))
+
+
+def test_stick_to_command_matches_the_controller_core(tmp_path):
+    """The teleoperator must predict exactly what the controller will command for each stick value."""
+    from vla_evaluation.sim_teleoperator import StickToCommand
+    from vla_latent_controller.context import Det
+    from vla_latent_controller.teleop import TeleopCore, TeleopParams
+
+    model = random_model(tmp_path / "m")
+    det = Det("soda_can", 0.9, 320.0, 200.0)
+    params = TeleopParams(deadband=0.1, axis_scale=1.3, action_scale=2.0, max_joint_speed=1.5)
+    core = TeleopCore(params, model)
+    core.on_joint_states([f"panda_joint{i}" for i in range(1, 8)], Q0.tolist(), 0.0)
+    core.on_detections([det], (640, 480), 0.0)
+    ctx = model.context(det=det, image_size=(640, 480))
+    stick = StickToCommand(model, ctx, "soda_can", deadband=0.1, axis_scale=1.3, action_scale=2.0,
+                           max_joint_speed=1.5)
+    axes = np.array([-1.0, -0.6, -0.1, 0.0, 0.05, 0.1, 0.11, 0.3, 0.9, 1.0, 1.7])
+    predicted = stick(axes, Q0)
+    for a, p in zip(axes, predicted):
+        core.on_joy([a, 0.0], [0, 0, 0, 0], 0.0)
+        cmd, status = core.step(0.01)
+        assert np.allclose(cmd, p, atol=1e-9), (a, cmd, p, status.reason)
+    assert np.all(predicted[2:6] == 0.0)
+    assert np.all(np.linalg.norm(predicted, axis=1) <= 1.5 + 1e-9)
+
+
+# ---------------------------------------------------------------- the ROS node, in-process
+@pytest.fixture
+def ros():
+    import rclpy
+    from rclpy.executors import SingleThreadedExecutor
+
+    ctx = rclpy.context.Context()
+    rclpy.init(context=ctx)
+    ex = SingleThreadedExecutor(context=ctx)
+    nodes = []
+    yield ctx, ex, nodes
+    for n in nodes:
+        ex.remove_node(n)
+        n.destroy_node()
+    ex.shutdown()
+    rclpy.shutdown(context=ctx)
+
+
+def _spin_until(ex, cond, timeout):
+    import time
+
+    end = time.monotonic() + timeout
+    while time.monotonic() < end and not cond():
+        ex.spin_once(timeout_sec=0.02)
+    return cond()
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_node_drives_joy_through_an_episode(ros, tmp_path):
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState, Joy
+    from vla_common.tasks import task_layout
+    from vla_evaluation.sim_teleoperator_node import SimTeleoperatorNode
+
+    from vla_interfaces.msg import ControllerStatus, SceneObject, SceneObjectArray, TeleopStatus
+    from vla_interfaces.srv import StartEpisode
+
+    ctx, ex, nodes = ros
+    random_model(tmp_path / "m")
+    P = Parameter
+    tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[
+        P("model_path", value=str(tmp_path / "m")), P("rate", value=50.0), P("time_limit", value=1.5),
+        P("switch_time", value=0.7), P("start_timeout", value=1.0)])
+    peer = Node("peer", context=ctx)
+    nodes += [tele, peer]
+    ex.add_node(tele)
+    ex.add_node(peer)
+    joys, statuses = [], []
+    peer.create_subscription(Joy, "joy", joys.append, 10)
+    peer.create_subscription(TeleopStatus, "sim_teleoperator/status", statuses.append, 10)
+    js_pub = peer.create_publisher(JointState, "joint_states", qos_profile_sensor_data)
+    obj_pub = peer.create_publisher(SceneObjectArray, "scene/objects", 10)
+    ctrl_pub = peer.create_publisher(ControllerStatus, "controller_node/status", 10)
+    start = peer.create_client(StartEpisode, "sim_teleoperator/start_episode")
+    goal = task_layout("bread/push_east", np.random.default_rng(3), n_objects=1)[0]
+
+    flags = {"ctrl": True}
+
+    def feed():
+        js = JointState(name=[f"panda_joint{i}" for i in range(1, 8)], position=Q0.tolist())
+        js_pub.publish(js)
+        objs = SceneObjectArray(objects=[SceneObject(class_id="bread", x=goal.x, y=goal.y, yaw=goal.yaw)])
+        obj_pub.publish(objs)
+        if flags["ctrl"]:
+            ctrl_pub.publish(ControllerStatus(latched_class="bread", latched_x=0.5, latched_y=0.6))
+
+    peer.create_timer(0.02, feed)
+    assert start.wait_for_service(timeout_sec=5.0)
+
+    def call(task):
+        fut = start.call_async(StartEpisode.Request(task=task))
+        assert _spin_until(ex, fut.done, 5.0)
+        return fut.result()
+
+    bad = call("bread/juggle")
+    assert not bad.success and "unknown action" in bad.message
+    ok = call("bread/push_east")
+    assert ok.success
+    assert _spin_until(ex, lambda: any(s.state == TeleopStatus.DONE for s in statuses), 10.0)
+    running = [s for s in statuses if s.state == TeleopStatus.RUNNING]
+    assert running and running[-1].waypoint_count == 2 and len(running[-1].final_waypoint) == 7
+    assert running[-1].task == "bread/push_east"
+    assert len(joys) >= 40  # ~50 Hz for 1.5 s
+    assert all(len(j.axes) >= 1 and -1.0 <= j.axes[0] <= 1.0 for j in joys)
+    assert joys[-1].axes[0] == 0.0  # stick released at the time limit
+    assert joys[-1].header.stamp.sec > 0 or joys[-1].header.stamp.nanosec > 0
+
+
+    # without the controller's latched context it gives up after start_timeout, stick released
+    flags["ctrl"] = False
+    _spin_until(ex, lambda: False, 0.3)
+    statuses.clear()
+    assert call("bread/push_east").success
+    assert _spin_until(ex, lambda: any(s.state == TeleopStatus.FAILED for s in statuses), 10.0)
+    failed = next(s for s in statuses if s.state == TeleopStatus.FAILED)
+    assert "controller_status" in failed.reason and joys[-1].axes[0] == 0.0
+
+
+def test_stick_rate_limit_moves_the_stick_gradually():
+    d = np.array([1.0, 0, 0, 0, 0, 0, 0])
+    sched = WaypointSchedule([Q0 + 5.0 * d], switch_time=1.0, time_limit=30.0)
+    free = SimTeleoperator(deadband_linear(d), sched)
+    assert free.act(0.0, Q0).axis == 1.0 and free.act(0.01, Q0).axis == 1.0
+    limited = SimTeleoperator(deadband_linear(d), sched, max_stick_rate=5.0)
+    first = limited.act(0.0, Q0).axis  # nothing to limit against yet
+    assert first == 1.0
+    behind = WaypointSchedule([Q0 - 5.0 * d], switch_time=1.0, time_limit=30.0)
+    limited.schedule = behind  # the goal flips: the hand needs 0.4 s to go from +1 to -1
+    axes = [limited.act(0.02 * k, Q0).axis for k in range(1, 25)]
+    steps = np.abs(np.diff([first, *axes]))
+    assert np.all(steps <= 5.0 * 0.02 + 1e-9)
+    assert axes[-1] == pytest.approx(-1.0) and axes[3] > 0.5
+    with pytest.raises(ValueError):
+        SimTeleoperator(deadband_linear(d), sched, max_stick_rate=-1.0)

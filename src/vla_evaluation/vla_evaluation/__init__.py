@@ -1,0 +1,3 @@
+"""Evaluation: the simulated teleoperator, the scripted demonstrator, closed-loop evaluation, the
+paper's experiments and the demo.
+"""

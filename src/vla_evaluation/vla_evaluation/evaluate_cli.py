@@ -1,0 +1,150 @@
+"""`vla_latent_controller evaluate`: closed-loop evaluation with the simulated teleoperator.
+
+--mode kinematic: the paper's q <- q + phi(z*, s) dt on rendered, detected validation layouts.
+--mode physics:   the same computations with MuJoCo and the safety filter in one process (no ROS).
+--mode graph:     the full node graph (bridge, detector, controller, teleoperator) with physics.
+Writes episodes.csv, summary.csv, results.json and plots to --out, and prints a table.
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings
+
+
+def task_list(spec: str) -> list[str]:
+    """"base", "unseen", "all" or comma-separated task names."""
+    from vla_common.tasks import BASE_TASKS, UNSEEN_TASKS, parse_task
+
+    named = {"base": BASE_TASKS, "unseen": UNSEEN_TASKS, "all": BASE_TASKS + UNSEEN_TASKS}
+    out: list[str] = []
+    for part in spec.split(","):
+        part = part.strip()
+        if not part:
+            continue
+        out.extend(named.get(part, [parse_task(part).name] if part not in named else []))
+    if not out:
+        raise ValueError(f"no tasks in {spec!r}")
+    return out
+
+
+def add_teleop_arguments(p: argparse.ArgumentParser, rate: float) -> None:
+    g = p.add_argument_group("simulated teleoperator and controller")
+    g.add_argument("--rate", type=float, default=rate,
+                   help="control rate in Hz of simulated time (physics and graph: 100 unless set)")
+    g.add_argument("--time-limit", type=float, default=30.0, help="episode length (s), the paper's 30")
+    g.add_argument("--switch-time", type=float, default=15.0,
+                   help="time on the pre-push waypoint, the paper's k")
+    g.add_argument("--horizon", type=float, default=1.0, help="look-ahead of the projected state (s)")
+    g.add_argument("--candidates", type=int, default=41, help="stick values tried over [-1, 1] (odd)")
+    g.add_argument("--action-scale", type=float, default=1.0, help="controller action_scale")
+    g.add_argument("--max-joint-speed", type=float, default=1.5, help="controller norm clamp (rad/s)")
+
+
+def settings_from(args) -> TeleopSettings:
+    return TeleopSettings(rate=args.rate, horizon=args.horizon, n_candidates=args.candidates,
+                          switch_time=args.switch_time, time_limit=args.time_limit,
+                          action_scale=args.action_scale, max_joint_speed=args.max_joint_speed)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--mode", choices=("kinematic", "physics", "graph"), default="kinematic")
+    p.add_argument("--model", type=Path, default=None,
+                   help="latent model directory (default: the shipped one)")
+    p.add_argument("--detector-model", type=Path, default=None,
+                   help="detector ONNX (default: the shipped one)")
+    p.add_argument("--tasks", default="base", help="base, unseen, all, or comma-separated task names")
+    p.add_argument("--layouts", type=int, default=10, help="fresh layouts per task")
+    p.add_argument("--seed", type=int, default=VALIDATION_SEED_OFFSET, help="first layout seed")
+    p.add_argument("--objects", type=int, default=1, help="objects per layout (the task's + distractors)")
+    p.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output folder")
+    gg = p.add_argument_group("physics and graph modes")
+    gg.add_argument("--stop-on-success", action="store_true", help="end an episode 1 s after success")
+    gg.add_argument("--real-time-factor", type=float, default=2.0,
+                    help="graph: simulated seconds per wall second")
+    gg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for the graph (default: own)")
+    add_teleop_arguments(p, rate=20.0)
+
+
+def run(args) -> int:
+    from vla_evaluation.metrics import summarize
+    from vla_evaluation.plots import write_evaluation_report
+    from vla_evaluation.resources import detector_model_path, latent_model_dir
+
+    tasks = task_list(args.tasks)
+    seeds = [args.seed + i for i in range(args.layouts)]
+    model_dir = args.model or latent_model_dir("default")
+    det_path = args.detector_model or detector_model_path()
+    for what, path in (("latent model", model_dir), ("detector model", det_path)):
+        if not Path(path).exists():
+            print(f"evaluate: {what} {path} not found (train one, or run `make demo` which trains it)",
+                  file=sys.stderr)
+            return 2
+    settings = settings_from(args)
+    t0 = time.monotonic()
+    if args.mode != "kinematic" and args.rate == 20.0:
+        settings.rate = 100.0  # the controller node's default rate
+    if args.mode == "kinematic":
+        results = _kinematic(model_dir, det_path, tasks, seeds, settings, args.objects)
+    elif args.mode == "physics":
+        results = _physics(model_dir, det_path, tasks, seeds, settings, args.objects, args.stop_on_success)
+    else:
+        from vla_evaluation.graph import GraphConfig, evaluate_graph
+
+        cfg = GraphConfig(model_path=str(model_dir), detector_model=str(det_path),
+                          real_time_factor=args.real_time_factor, rate=settings.rate, settings=settings,
+                          stop_on_success=args.stop_on_success, domain_id=args.domain_id,
+                          log_dir=args.out / "logs")
+        results = [rec.result for rec in evaluate_graph(cfg, tasks, seeds, label=Path(model_dir).name,
+                                                        n_objects=args.objects)]
+    meta = {"mode": args.mode, "model": str(model_dir), "detector_model": str(det_path), "tasks": tasks,
+            "seeds": seeds, "settings": vars(settings), "wall_s": round(time.monotonic() - t0, 1)}
+    write_evaluation_report(results, args.out, meta)
+    print_table(summarize(results, ("task",)))
+    print(f"wrote {args.out}/ (episodes.csv, summary.csv, results.json, plots) in {meta['wall_s']} s")
+    return 0
+
+
+def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects):
+    from vla_common.kinematics import PandaKinematics
+    from vla_detector.inference import Detector
+    from vla_latent_controller.model import LatentModel
+
+    from vla_evaluation.kinematic import evaluate_kinematic, make_layouts
+
+    model = LatentModel.load(model_dir)
+    kin = PandaKinematics()
+    layouts = make_layouts(tasks, seeds, detector=Detector(det_path), kin=kin, n_objects=n_objects)
+    return evaluate_kinematic(model, layouts, settings, kin=kin, label=Path(model_dir).name)
+
+
+def _physics(model_dir, det_path, tasks, seeds, settings, n_objects, stop_on_success):
+    from vla_detector.inference import Detector
+    from vla_latent_controller.model import LatentModel
+    from vla_sim.sim import PandaSim
+
+    from vla_evaluation.kinematic import make_layouts
+    from vla_evaluation.physics import evaluate_physics
+
+    model = LatentModel.load(model_dir)
+    sim = PandaSim(render=True)
+    layouts = make_layouts(tasks, seeds, sim=sim, detector=Detector(det_path), n_objects=n_objects)
+    return evaluate_physics(model, layouts, settings, sim=sim, label=Path(model_dir).name,
+                            stop_on_success=stop_on_success, log=print)
+
+
+def print_table(summary: list[dict], file=None) -> None:
+    file = file or sys.stdout
+    print(f"{'task':30s} {'episodes':>8s} {'success':>8s} {'final state error (rad)':>24s} "
+          f"{'time to success':>16s} {'interventions':>14s} {'violations':>10s}", file=file)
+    for r in summary:
+        sr = "-" if r["success_rate"] is None else f"{100 * r['success_rate']:.0f} %"
+        tts = "-" if r["time_to_success_median"] is None else f"{r['time_to_success_median']:.1f} s"
+        fse = f"{r['final_state_error']:.3f} +- {r['final_state_error_sem']:.3f}"
+        iv = "-" if r["safety_interventions"] is None else str(r["safety_interventions"])
+        lv = "-" if r["limit_violations"] is None else str(r["limit_violations"])
+        print(f"{r['task']:30s} {r['episodes']:8d} {sr:>8s} {fse:>24s} {tts:>16s} {iv:>14s} {lv:>10s}",
+              file=file)

@@ -1,0 +1,70 @@
+"""Kinematic demonstrations straight from the task planner (no simulator, no bags): for tests,
+benchmarks and quick experiments. Each is a ``vla_demo_recorder.dataset.Demo`` sampled at 10 Hz from
+the plan's reference trajectory, with the goal object's detection where the simulated webcam would see
+its centre (no image).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from vla_common.camera_model import SIM_WEBCAM
+
+IMAGE_SIZE = (640, 480)
+
+
+def webcam_projection(image_size: tuple[int, int] = IMAGE_SIZE):
+    """World point → pixel of the simulated webcam."""
+    return SIM_WEBCAM.projector(*image_size)
+
+
+def planner_demo(task: str, seed: int, kin=None, rate_hz: float = 10.0):
+    """(Demo, plan, goal ObjectPose) of one planned ``task`` episode; layout and start pose from ``seed``."""
+    from vla_common.objects import OBJECT_CLASSES
+    from vla_common.tasks import parse_task, task_layout
+    from vla_demo_recorder.dataset import Demo
+    from vla_sim.planner import plan_task, random_start_pose
+
+    if kin is None:
+        from vla_common.kinematics import PandaKinematics
+
+        kin = PandaKinematics()
+    rng = np.random.default_rng(seed)
+    spec = parse_task(task)
+    obj = task_layout(spec, rng, n_objects=1)[0]
+    plan = plan_task(kin, spec, obj, random_start_pose(rng), rng)
+    t = np.arange(0.0, plan.duration + 1e-9, 1.0 / rate_hz)
+    q = np.array([plan.reference(ti)[0] for ti in t])
+    cx, cy = webcam_projection()([obj.x, obj.y, 0.03])
+    det = {
+        "class_id": spec.object_class,
+        "class_index": OBJECT_CLASSES.index(spec.object_class),
+        "score": 0.9,
+        "cx": float(cx),
+        "cy": float(cy),
+        "width": 30.0,
+        "height": 30.0,
+    }
+    demo = Demo(
+        task=spec.name,
+        object_class=spec.object_class,
+        t=t,
+        q=q,
+        first_image=None,
+        detection=det,
+        image_size=IMAGE_SIZE,
+        bag_path="",
+    )
+    return demo, plan, obj
+
+
+def planner_demos(tasks, per_task: int, seed: int = 0, kin=None) -> list:
+    """``per_task`` demos of each task (distinct layouts), as Demo objects."""
+    if kin is None:
+        from vla_common.kinematics import PandaKinematics
+
+        kin = PandaKinematics()
+    return [
+        planner_demo(task, seed + 1000 * k + i, kin)[0]
+        for k, task in enumerate(tasks)
+        for i in range(per_task)
+    ]

@@ -1,0 +1,2 @@
+"""Joystick driver: a Linux evdev joystick as sensor_msgs/Joy.
+"""

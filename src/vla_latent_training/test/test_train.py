@@ -1,0 +1,200 @@
+import json
+
+import numpy as np
+import pytest
+from vla_latent_controller.artifacts import CONFIG_FILE, load_model
+from vla_latent_controller.context import Det
+from vla_latent_controller.model import LatentModel
+from vla_latent_controller.testing import CLASSES, class_direction, make_demos, make_pairs
+from vla_latent_training.train import TrainConfig, prepare_demos, train_model
+
+
+def _cos(a, b):
+    return float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+
+
+@pytest.mark.slow
+def test_trained_decoder_does_the_task_and_rests_at_zero(trained_model_dir):
+    model = LatentModel.load(trained_model_dir)
+    cfg = model.config
+    assert cfg["training"]["demos_per_task"] == {f"{c}/push": 3 for c in CLASSES[:4]}
+    assert len(cfg["fingerprint"]["sha256"]) == 64
+    for demo in make_demos(per_class=2, seed=7, T=30):  # unseen positions
+        model.decoder.set_context(model.context(Det.from_dict(demo.detection), demo.image_size))
+        g = model.gain(demo.object_class)
+        fwd = model.decoder.decode(demo.q[0], g).copy()
+        back = model.decoder.decode(demo.q[0], -g).copy()
+        rest = model.decoder.decode(demo.q[0], 0.0).copy()
+        v = class_direction(demo.object_class)
+        assert _cos(fwd, v) > 0.9, demo.object_class  # + does the task
+        assert _cos(back, v) < -0.5  # - retraces it
+        assert np.linalg.norm(rest) < 0.1 * np.linalg.norm(fwd)  # the z = 0 term
+
+
+@pytest.mark.slow
+def test_paper_exact_switches_the_improvements_off(tmp_path):
+    demos = make_demos(per_class=1)
+    res = train_model(
+        demos,
+        TrainConfig.paper(epochs=3),
+        classes=CLASSES,
+        pairs_fn=make_pairs,
+        progress=False,
+        log=lambda s: None,
+    )
+    hp = res.config["hyper_parameters"]
+    assert hp["paper_exact"] and hp["zero_weight"] == 0 and not hp["bounded_latent"] and not hp["normalise"]
+    assert hp["lr"] == 0.01 and hp["step_size"] == 400 and hp["gamma"] == 0.1 and hp["batch_size"] == 6000
+    assert res.config["normalisation"]["q_std"] == [1.0] * 7
+    assert all(abs(g) == 1.0 for g in res.config["latent"]["gain"].values())
+    assert res.config["training"]["pairs"] == res.config["training"]["forward_pairs"]  # no reversed pairs
+    res.save(tmp_path / "m")
+    assert json.loads((tmp_path / "m" / CONFIG_FILE).read_text())["encoder"] == "detector"
+
+
+def test_prepare_demos_skips_with_reasons():
+    demos = make_demos(per_class=1)
+    demos[0].detection = None
+    demos[1].detection = dict(demos[1].detection, class_id="teapot")
+    demos[2].q = demos[2].q[:, :6]
+    kept, skipped = prepare_demos(demos, "detector", CLASSES)
+    assert len(kept) == 1
+    reasons = " | ".join(r for _, r in skipped)
+    assert "no recorded detection" in reasons and "'teapot' not in" in reasons and "shape" in reasons
+    kept, skipped = prepare_demos(make_demos(per_class=1), "end_to_end", CLASSES)
+    assert not kept and "first image" in skipped[0][1]
+
+
+def test_detector_runs_when_the_demo_has_no_detection():
+    class FakeDetector:
+        classes = list(CLASSES)
+
+        def detect(self, rgb):
+            class D:
+                class_id, class_index, score, cx, cy, w, h = "soda_can", 1, 0.8, 100.0, 50.0, 10.0, 10.0
+
+            return [D()]
+
+    demos = make_demos(classes=["soda_can"], per_class=1, with_image=True)
+    demos[0].detection = None
+    kept, skipped = prepare_demos(demos, "detector", CLASSES, detector=FakeDetector())
+    assert not skipped and kept[0].det.cx == 100.0 and kept[0].image_size == (640, 480)
+
+
+def test_no_usable_demos_is_a_clear_error():
+    with pytest.raises(ValueError, match="no usable demos"):
+        train_model(
+            make_demos(per_class=1),
+            TrainConfig(encoder="end_to_end", epochs=1),
+            classes=CLASSES,
+            pairs_fn=make_pairs,
+            progress=False,
+            log=lambda s: None,
+        )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("encoder", ["end_to_end", "localization"])
+def test_cnn_encoders_export_onnx_matching_torch(tmp_path, encoder):
+    demos = make_demos(per_class=1, with_image=True)
+    res = train_model(
+        demos,
+        TrainConfig(encoder=encoder, epochs=3),
+        classes=CLASSES,
+        pairs_fn=make_pairs,
+        progress=False,
+        log=lambda s: None,
+    )
+    out = res.save(tmp_path / "m")
+    art = load_model(out)
+    assert art.cnn_path is not None and art.cnn_path.is_file()
+    model = LatentModel(art)
+    assert model.needs_image
+    img = demos[0].first_image
+    ctx = model.context(image=img, class_id="bread")
+    assert ctx.shape == (art.config["dims"]["context"],)
+    # the ONNX CNN reproduces the torch CNN the decoder was trained with
+    import torch
+    from vla_latent_controller.context import preprocess_image
+    from vla_latent_training.cae import ContextCNN
+
+    cnn = ContextCNN()
+    sd = {k.removeprefix("cnn."): torch.tensor(v) for k, v in art.tensors.items() if k.startswith("cnn.")}
+    cnn.load_state_dict(sd)
+    with torch.no_grad():
+        ref = cnn(torch.tensor(preprocess_image(img))[None]).numpy()[0]
+    np.testing.assert_allclose(ctx[: len(ref)], ref, atol=1e-5)
+
+
+def test_fast_tanh_is_tanh():
+    import torch
+    from vla_latent_training.cae import Tanh
+
+    x = torch.linspace(-30, 30, 20001, dtype=torch.float64, requires_grad=True)
+    y = Tanh()(x)
+    torch.testing.assert_close(y, torch.tanh(x), atol=1e-15, rtol=0)
+    y.sum().backward()
+    torch.testing.assert_close(x.grad, 1 - torch.tanh(x.detach()) ** 2, atol=1e-15, rtol=0)
+
+
+def test_folded_context_standardisation_takes_raw_contexts():
+    """The saved decoder takes raw contexts: folding (c - mean) / std into the first layers gives the
+    same outputs on raw inputs as the unfolded network on standardised ones."""
+    import torch
+    from vla_latent_training.cae import CAE
+    from vla_latent_training.train import _fold_input_affine
+
+    torch.manual_seed(0)
+    k = 7
+    model = CAE(k, 7, 1, 30)
+    mean = np.r_[np.zeros(5), 0.5, 0.6]
+    std = np.r_[np.ones(5), 0.05, 0.1]
+    ctx = torch.tensor(
+        np.c_[np.eye(5)[[0, 3, 1]], np.random.default_rng(0).uniform(0.3, 0.8, (3, 2))], dtype=torch.float32
+    )
+    q, a, z = torch.randn(3, 7), torch.randn(3, 7), torch.randn(3, 1)
+    norm = (ctx - torch.tensor(mean, dtype=torch.float32)) / torch.tensor(std, dtype=torch.float32)
+    with torch.no_grad():
+        want_dec, want_enc = model.decode(norm, q, z), model.encode(norm, q, a)
+        _fold_input_affine(model, mean, std)
+        got_dec, got_enc = model.decode(ctx, q, z), model.encode(ctx, q, a)
+    assert torch.allclose(got_dec, want_dec, atol=1e-5)
+    assert torch.allclose(got_enc, want_enc, atol=1e-5)
+    assert not torch.allclose(model.decode(norm, q, z), want_dec, atol=1e-3)  # it did change
+
+
+def test_min_steps_scales_epochs_and_lr_step_for_small_datasets():
+    from vla_latent_training.train import TrainConfig, scaled_schedule
+
+    cfg = TrainConfig(epochs=100, step_size=40, batch_size=6000, min_steps=1000)
+    assert scaled_schedule(cfg, 5_000) == (1000, 400)  # one batch an epoch: 10x the epochs
+    assert scaled_schedule(cfg, 13_000) == (400, 160)  # three batches an epoch: 4x
+    assert scaled_schedule(cfg, 60_000) == (100, 40)  # already 1000 updates
+    assert scaled_schedule(TrainConfig(epochs=100, step_size=40), 5_000) == (100, 40)  # off by default
+    with pytest.raises(ValueError, match="min_steps"):
+        TrainConfig(min_steps=-1).validate()
+
+
+def test_position_affine_divides_by_the_demos_spread_or_a_fixed_scale():
+    from vla_latent_training.train import CTX_STD_FLOOR, POSITION_PRIOR_SCALE, position_affine
+
+    xy = np.array([[0.40, 0.60], [0.50, 0.60], [0.60, 0.60]])
+    mean, std = position_affine(xy, POSITION_PRIOR_SCALE)
+    assert mean == pytest.approx([0.50, 0.60]) and std == pytest.approx([0.2887, 0.2887], abs=1e-4)
+    mean, std = position_affine(xy, None)  # the demos' spread; y never moved: the floor
+    assert std == pytest.approx([np.std([0.40, 0.50, 0.60]), CTX_STD_FLOOR])
+    for bad in (0.0, -0.1, float("nan")):
+        with pytest.raises(ValueError, match="position_scale"):
+            TrainConfig(position_scale=bad).validate()
+
+
+@pytest.mark.parametrize("scale", [None, 0.25])
+def test_trained_detector_context_is_standardised_as_configured(scale):
+    demos = make_demos(per_class=2)
+    res = train_model(demos, TrainConfig(epochs=2, hidden=16, position_scale=scale), classes=CLASSES,
+                      pairs_fn=make_pairs, progress=False, log=lambda s: None)
+    std = res.config["normalisation"]["context_std"][-2:]
+    xy = np.array([[d.detection["cx"] / d.image_size[0], d.detection["cy"] / d.image_size[1]] for d in demos])
+    want = np.maximum(xy.std(0), 0.02) if scale is None else [scale, scale]
+    assert std == pytest.approx(want)
+    assert res.config["hyper_parameters"]["position_scale"] == scale

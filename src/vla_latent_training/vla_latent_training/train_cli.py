@@ -1,0 +1,127 @@
+"""`vla_latent_controller train`: learn a latent-action model from recorded demonstration bags.
+
+Example:
+    vla_latent_controller train --bags demos/ --encoder detector --out model/
+    vla_latent_controller train --bags demos/ --encoder detector --paper-exact --seed 3 --out model_paper/
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections import Counter
+from pathlib import Path
+
+ENCODER_CHOICES = ("detector", "localization", "end_to_end")
+
+
+def position_scale_arg(text: str) -> float | None:
+    """--position-scale: 'demos' (None: the demos' spread) or a positive number."""
+    from vla_latent_training.train import check_position_scale
+
+    if text == "demos":
+        return None
+    try:
+        v = float(text)
+        check_position_scale(v)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be 'demos' or a positive number, got {text!r}") from None
+    return v
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--bags", nargs="+", required=True, help="bag folders, .mcap files, or folders of bags")
+    p.add_argument("--encoder", choices=ENCODER_CHOICES, default="detector", help="context encoder")
+    p.add_argument(
+        "--detector-model",
+        default=None,
+        help="ONNX detector run on a demo's first image when the bag has no recorded detection "
+        "(default: the shipped model, if installed)",
+    )
+    p.add_argument("--out", required=True, type=Path, help="output model directory")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--epochs", type=int, default=1000, help="the paper: 1000")
+    p.add_argument("--batch-size", type=int, default=6000, help="the paper: 6000 (near full batch)")
+    p.add_argument("--lr", type=float, default=0.01, help="Adam learning rate; the paper: 0.01")
+    p.add_argument("--hidden", type=int, default=None,
+                   help="units per hidden layer (default: 128; the paper and --paper-exact: 30)")
+    p.add_argument("--position-scale", type=position_scale_arg, default="demos",
+                   help="what the detector context's (x, y) are divided by: 'demos' (default: their "
+                        "spread over the demos) or a number (0.2887 = sqrt(1/12), a coordinate's spread "
+                        "over the image; quieter position, for 1-2 demos per object)")
+    p.add_argument(
+        "--paper-exact",
+        action="store_true",
+        help="reproduce the paper's code: no z=0 term, unbounded latent, raw units, no reversed pairs",
+    )
+    p.add_argument("--task", action="append", default=None, help="only demos of this task (repeatable)")
+    p.add_argument("--max-per-task", type=int, default=0, help="keep at most N demos per task (0: all)")
+    p.add_argument(
+        "--threads", type=int, default=1, help="torch threads (1 is fastest on a busy 2-core machine)"
+    )
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _detector(path: str | None, needed: bool):
+    """A vla_detector Detector from `path`, the shipped model when needed and available, else None."""
+    from vla_detector.inference import Detector, default_model_path
+
+    if path is None:
+        if not needed:
+            return None
+        p = default_model_path()
+        if not p.is_file():
+            return None
+        path = str(p)
+    return Detector(path)
+
+
+def run(args: argparse.Namespace) -> int:
+    from vla_demo_recorder.dataset import load_demos
+
+    from vla_latent_training.train import TrainConfig, train_model
+
+    require = "image" if args.encoder != "detector" else None
+    demos, skipped = load_demos(args.bags, require=require)
+    if args.task:
+        from vla_common.tasks import parse_task
+
+        wanted = {parse_task(t).name for t in args.task}
+        demos = [d for d in demos if d.task in wanted]
+    if args.max_per_task > 0:
+        kept, seen = [], Counter()
+        for d in sorted(demos, key=lambda d: (d.task, d.bag_path)):
+            if seen[d.task] < args.max_per_task:
+                kept.append(d)
+                seen[d.task] += 1
+        demos = kept
+    for path, reason in skipped:
+        print(f"skipped {path}: {reason}", file=sys.stderr)
+    if not demos:
+        print(f"error: no usable demonstrations in {' '.join(args.bags)}", file=sys.stderr)
+        return 1
+    print(f"loaded {len(demos)} demos from {' '.join(args.bags)} ({len(skipped)} bags skipped)")
+    try:
+        needs_detection = args.encoder == "detector" and any(d.detection is None for d in demos)
+        detector = _detector(args.detector_model, needs_detection)
+    except Exception as e:  # a bad --detector-model is the user's error, not a crash
+        print(f"error: detector: {e}", file=sys.stderr)
+        return 2
+    overrides = dict(
+        encoder=args.encoder, seed=args.seed, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr
+    )
+    if args.hidden is not None:
+        overrides["hidden"] = args.hidden
+    overrides["position_scale"] = args.position_scale
+    cfg = TrainConfig.paper(**overrides) if args.paper_exact else TrainConfig(**overrides)
+    classes = list(detector.classes) if detector is not None else None
+    try:
+        res = train_model(
+            demos, cfg, classes=classes, detector=detector, progress=not args.quiet, threads=args.threads
+        )
+    except ValueError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 1
+    out = res.save(args.out)
+    print(f"saved {out}/ (config.json, model.safetensors{', context_cnn.onnx' if res.cnn_onnx else ''})")
+    return 0

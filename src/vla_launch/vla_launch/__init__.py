@@ -1,0 +1,2 @@
+"""The launch tool: `vla run` and `vla launch` for machines without ros2cli.
+"""

@@ -1,0 +1,272 @@
+"""PandaSim: the simulated Panda, table, objects and webcam in MuJoCo, behind a small API that the
+bridge node, the demonstration generator and the detector's synthetic data all use.
+
+Velocity commands behave like a real joint-velocity interface: they are integrated into position
+targets of stiff joint servos (with velocity feedback on the command), gravity is compensated, and
+the arm holds its pose under a zero command. Rendering is optional (render=False never creates a
+GL context), headless with MUJOCO_GL=egl, without shadows.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Iterable, Sequence
+
+import mujoco
+import numpy as np
+from vla_common.camera_model import CAMERA_FRAME_ID, pinhole_intrinsics
+from vla_common.layout import (  # noqa: F401  (re-exported for callers of the simulator)
+    LAYOUT_X,
+    LAYOUT_Y,
+    random_layout,
+    validate_layout,
+)
+from vla_common.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose, quat_yaw, yaw_quat
+from vla_common.robot import DQ_MAX, JOINT_NAMES, Q_MAX, Q_MIN, READY_POSE
+
+from vla_sim.scene import (
+    CAMERA_NAME,
+    MAX_OFFSCREEN,
+    OBJECT_BODY_PREFIX,
+    TCP_SITE,
+    build_model,
+    park_position,
+)
+
+
+class PandaSim:
+    """MuJoCo Panda + table + objects + fixed camera.
+
+    Contract: reset(seed, objects, q0) -> layout; set_velocity_command(dq) (already safety-filtered);
+    step(n); time, q, dq, effort, physics_dt; object_poses(); render(); set_camera_size(w, h);
+    camera_intrinsics(); camera_frame_id; project(points).
+    """
+
+    camera_frame_id = CAMERA_FRAME_ID
+
+    def __init__(self, camera_width: int = 640, camera_height: int = 480, render: bool = True,
+                 physics_dt: float = 0.002):
+        self._check_size(camera_width, camera_height)
+        self.model = build_model(physics_dt)
+        self.data = mujoco.MjData(self.model)
+        self._render_enabled = bool(render)
+        self._renderer: mujoco.Renderer | None = None
+        self._width, self._height = int(camera_width), int(camera_height)
+        m = self.model
+        self._qadr = np.array([m.jnt_qposadr[m.joint(n).id] for n in JOINT_NAMES])
+        self._dadr = np.array([m.jnt_dofadr[m.joint(n).id] for n in JOINT_NAMES])
+        self._servo = np.array([m.actuator(f"servo_{n}").id for n in JOINT_NAMES])
+        self._damper = np.array([m.actuator(f"damper_{n}").id for n in JOINT_NAMES])
+        self._act_adr = m.actuator_actadr[self._servo]
+        self._cam_id = m.camera(CAMERA_NAME).id
+        self._tcp_site = m.site(TCP_SITE).id
+        self._obj_body = {c: m.body(OBJECT_BODY_PREFIX + c).id for c in OBJECT_CLASSES}
+        self._obj_qadr = {c: m.jnt_qposadr[m.body_jntadr[b]] for c, b in self._obj_body.items()}
+        self._obj_dadr = {c: m.jnt_dofadr[m.body_jntadr[b]] for c, b in self._obj_body.items()}
+        self._obj_geoms = {c: [g for g in range(m.ngeom) if m.geom_bodyid[g] == b]
+                           for c, b in self._obj_body.items()}
+        self._geom_contype = m.geom_contype.copy()
+        self._geom_conaffinity = m.geom_conaffinity.copy()
+        self._active: list[str] = []
+        self.reset(seed=0)
+
+    # ------------------------------------------------------------------ state
+    @property
+    def physics_dt(self) -> float:
+        return float(self.model.opt.timestep)
+
+    @property
+    def time(self) -> float:
+        return float(self.data.time)
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.data.qpos[self._qadr].copy()
+
+    @property
+    def dq(self) -> np.ndarray:
+        return self.data.qvel[self._dadr].copy()
+
+    @property
+    def effort(self) -> np.ndarray:
+        """Joint torques of the servos (including gravity compensation), like a measured tau_J."""
+        return self.data.qfrc_actuator[self._dadr].copy()
+
+    @property
+    def q_target(self) -> np.ndarray:
+        """Position targets of the joint servos (integral of the velocity commands)."""
+        return self.data.act[self._act_adr].copy()
+
+    @property
+    def active_objects(self) -> list[str]:
+        return list(self._active)
+
+    def tcp_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Simulated TCP position and rotation (equals PandaKinematics.fk(q))."""
+        mujoco.mj_kinematics(self.model, self.data)  # mj_step leaves poses of the pre-step state
+        return (self.data.site_xpos[self._tcp_site].copy(),
+                self.data.site_xmat[self._tcp_site].reshape(3, 3).copy())
+
+    # ------------------------------------------------------------------ control
+    def set_velocity_command(self, dq) -> None:
+        """Joint-velocity command (7,), already safety-filtered; integrated by the servos each step.
+        Raises ValueError on a wrong length or non-finite values (the safety layer prevents these)."""
+        cmd = np.asarray(dq, dtype=float).reshape(-1)
+        if cmd.shape != (7,) or not np.all(np.isfinite(cmd)):
+            raise ValueError(f"velocity command must be 7 finite values, got {dq!r}")
+        cmd = np.clip(cmd, -DQ_MAX, DQ_MAX)
+        self.data.ctrl[self._servo] = cmd
+        self.data.ctrl[self._damper] = cmd
+
+    def step(self, n: int = 1) -> None:
+        """Advance the physics by n steps of physics_dt."""
+        n = int(n)
+        if n < 0:
+            raise ValueError(f"step count must be >= 0, got {n}")
+        if n:
+            mujoco.mj_step(self.model, self.data, nstep=n)
+
+    # ------------------------------------------------------------------ scene
+    def reset(self, seed: int | None = None, objects: Sequence | None = None,
+              q0=None) -> list[ObjectPose]:
+        """New episode: arm at q0 (default ready pose) at rest, zero command, time 0, and either an
+        explicit object layout (ObjectPose, dict or (class, x, y, yaw) items) or a random one from
+        `seed` (1..4 distinct objects; same seed -> same layout). Returns the resulting layout.
+        Raises ValueError with a clear message on bad input, leaving the scene unchanged."""
+        q_init = self._validate_q0(q0)
+        if objects is not None:
+            layout = self.validate_layout(objects)
+        else:
+            if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
+                                     or seed < 0):
+                raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
+            layout = random_layout(np.random.default_rng(seed))
+        self._apply(layout, q_init)
+        return self.object_poses()
+
+    def _validate_q0(self, q0) -> np.ndarray:
+        if q0 is None:
+            return np.array(READY_POSE, dtype=float)
+        try:
+            q = np.asarray(q0, dtype=float).reshape(-1)
+        except (TypeError, ValueError):
+            raise ValueError(f"q0 must be 7 joint positions, got {q0!r}") from None
+        if q.shape != (7,) or not np.all(np.isfinite(q)):
+            raise ValueError(f"q0 must be 7 finite joint positions, got {q0!r}")
+        bad = np.nonzero((q < Q_MIN) | (q > Q_MAX))[0]
+        if bad.size:
+            raise ValueError(f"q0 outside the joint limits at {[JOINT_NAMES[i] for i in bad]}")
+        return q
+
+    @staticmethod
+    def validate_layout(objects: Iterable) -> list[ObjectPose]:
+        """Normalise and check an explicit layout; ValueError says what is wrong."""
+        return validate_layout(objects)
+
+    def _apply(self, layout: list[ObjectPose], q_init: np.ndarray) -> None:
+        m, d = self.model, self.data
+        mujoco.mj_resetData(m, d)
+        d.qpos[self._qadr] = q_init
+        d.act[self._act_adr] = q_init
+        d.ctrl[:] = 0.0
+        placed = {p.class_id: p for p in layout}
+        self._active = [p.class_id for p in layout]
+        for c in OBJECT_CLASSES:
+            qa, geoms = self._obj_qadr[c], self._obj_geoms[c]
+            if c in placed:
+                p = placed[c]
+                d.qpos[qa:qa + 3] = (p.x, p.y, OBJECT_SPECS[c].height / 2)
+                d.qpos[qa + 3:qa + 7] = yaw_quat(p.yaw)
+                m.body_gravcomp[self._obj_body[c]] = 0.0
+                m.geom_contype[geoms] = self._geom_contype[geoms]
+                m.geom_conaffinity[geoms] = self._geom_conaffinity[geoms]
+            else:
+                d.qpos[qa:qa + 3] = park_position(c)
+                d.qpos[qa + 3:qa + 7] = (1.0, 0.0, 0.0, 0.0)
+                m.body_gravcomp[self._obj_body[c]] = 1.0
+                m.geom_contype[geoms] = 0
+                m.geom_conaffinity[geoms] = 0
+        mujoco.mj_forward(m, d)
+
+    def object_poses(self) -> list[ObjectPose]:
+        """Ground-truth poses of the objects in the current layout (centre, yaw, full quaternion)."""
+        out = []
+        for c in self._active:
+            qa = self._obj_qadr[c]
+            x, y, z = (float(v) for v in self.data.qpos[qa:qa + 3])
+            quat = tuple(float(v) for v in self.data.qpos[qa + 3:qa + 7])
+            out.append(ObjectPose(c, x, y, quat_yaw(quat), z, quat))
+        return out
+
+    # ------------------------------------------------------------------ camera
+    @staticmethod
+    def _check_size(width: int, height: int) -> None:
+        if not (isinstance(width, (int, np.integer)) and isinstance(height, (int, np.integer))):
+            raise ValueError(f"camera size must be integers, got {width!r}x{height!r}")
+        if not (16 <= width <= MAX_OFFSCREEN[0] and 16 <= height <= MAX_OFFSCREEN[1]):
+            raise ValueError(f"camera size must be within 16x16..{MAX_OFFSCREEN[0]}x{MAX_OFFSCREEN[1]}, "
+                             f"got {width}x{height}")
+
+    @property
+    def camera_size(self) -> tuple[int, int]:
+        return self._width, self._height
+
+    @property
+    def render_enabled(self) -> bool:
+        return self._render_enabled
+
+    def set_camera_size(self, width: int, height: int) -> None:
+        """Change the rendered image size (intrinsics follow)."""
+        self._check_size(width, height)
+        if (width, height) != (self._width, self._height) and self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+        self._width, self._height = int(width), int(height)
+
+    def render(self) -> np.ndarray:
+        """(H, W, 3) uint8 RGB image from the fixed camera (row 0 at the top)."""
+        if not self._render_enabled:
+            raise RuntimeError("PandaSim was created with render=False; no camera images")
+        if self._renderer is None:
+            os.environ.setdefault("MUJOCO_GL", "egl")
+            self._renderer = mujoco.Renderer(self.model, height=self._height, width=self._width)
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+            self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        mujoco.mj_kinematics(self.model, self.data)  # draw the current qpos, not the pre-step one
+        self._renderer.update_scene(self.data, camera=self._cam_id)
+        self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_SHADOW] = 0
+        self._renderer.scene.flags[mujoco.mjtRndFlag.mjRND_REFLECTION] = 0
+        return self._renderer.render()
+
+    def camera_intrinsics(self) -> tuple[float, float, float, float]:
+        """(fx, fy, cx, cy) in pixels of the current image size (pinhole, square pixels, pixel
+        centres at integer coordinates as in ROS/OpenCV)."""
+        return pinhole_intrinsics(self._width, self._height, float(self.model.cam_fovy[self._cam_id]))
+
+    def camera_pose(self) -> tuple[np.ndarray, np.ndarray]:
+        """Position and rotation of camera_optical_frame in the world (z forward, x right, y down)."""
+        pos = self.data.cam_xpos[self._cam_id].copy()
+        rot = self.data.cam_xmat[self._cam_id].reshape(3, 3) @ np.diag([1.0, -1.0, -1.0])
+        return pos, rot
+
+    def project(self, points_world) -> np.ndarray:
+        """(N, 2) pixel coordinates (u right, v down) of world points; NaN for points behind the camera."""
+        pts = np.asarray(points_world, dtype=float).reshape(-1, 3)
+        pos, rot = self.camera_pose()
+        pc = (pts - pos) @ rot
+        fx, fy, cx, cy = self.camera_intrinsics()
+        uv = np.full((len(pts), 2), np.nan)
+        front = pc[:, 2] > 1e-9
+        uv[front, 0] = fx * pc[front, 0] / pc[front, 2] + cx
+        uv[front, 1] = fy * pc[front, 1] / pc[front, 2] + cy
+        return uv
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+    def __del__(self):  # best effort: free the GL context
+        try:
+            self.close()
+        except Exception:
+            pass

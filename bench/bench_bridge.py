@@ -116,9 +116,9 @@ def real_time_factor(label: str, params: dict, duration: float) -> None:
 
 
 def step_costs(n: int = 3000) -> None:
-    from vla_panda_bridge.panda import READY_POSE
+    from vla_common.robot import READY_POSE
     from vla_panda_bridge.safety import SafetyFilter
-    from vla_panda_bridge.sim import PandaSim
+    from vla_sim.sim import PandaSim
 
     f = SafetyFilter()
     rng = np.random.default_rng(0)

@@ -112,7 +112,7 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
     from rclpy.executors import SingleThreadedExecutor
     from sensor_msgs.msg import JointState, Joy
     from std_msgs.msg import Float64MultiArray
-    from vla_panda_bridge.panda import JOINT_NAMES, READY_POSE
+    from vla_common.robot import JOINT_NAMES, READY_POSE
 
     from vla_interfaces.msg import Detection, DetectionArray
 
@@ -215,10 +215,10 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
 
 
 def bench_training(threads: int, epochs: int, per_task: int) -> None:
+    from vla_common.tasks import BASE_TASKS
     from vla_demo_recorder.dataset import make_pairs
-    from vla_latent_controller.planner_demos import planner_demos
-    from vla_latent_controller.train import TrainConfig, train_model
-    from vla_panda_bridge.tasks import BASE_TASKS
+    from vla_evaluation.planner_demos import planner_demos
+    from vla_latent_training.train import TrainConfig, train_model
 
     demos = planner_demos(BASE_TASKS, per_task, seed=0)
     for name, cfg in (

@@ -32,7 +32,7 @@ LAYOUT = [("bread", 0.45, 0.2, 0.3), ("soda_can", 0.6, 0.0, 0.0), ("cereal_box",
 
 
 def scenes(width: int, height: int, n: int = 8) -> list[np.ndarray]:
-    from vla_panda_bridge.sim import PandaSim
+    from vla_sim.sim import PandaSim
 
     sim = PandaSim(width, height)
     out = []

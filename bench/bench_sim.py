@@ -18,7 +18,7 @@ import numpy as np
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
-from vla_panda_bridge.sim import PandaSim  # noqa: E402
+from vla_sim.sim import PandaSim  # noqa: E402
 
 LAYOUT = [("bread", 0.45, 0.2, 0.3), ("soda_can", 0.6, 0.0, 0.0), ("cereal_box", 0.5, -0.25, 1.0)]
 

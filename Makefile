@@ -16,7 +16,7 @@ test-fast: setup
 	@$(ENV) && python -m pytest -m "not slow" $(PYTEST_ARGS)
 
 lint: setup
-	@$(ENV) && ruff check src test bench
+	@$(ENV) && ruff check src test bench && lint-imports
 
 demo: setup
 	@$(ENV) && vla_evaluation demo $(DEMO_ARGS)

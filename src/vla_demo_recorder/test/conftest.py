@@ -3,10 +3,9 @@ import sys
 from pathlib import Path
 
 import pytest
+from vla_common.ros.testing import RosHarness
 
 sys.path.insert(0, str(Path(__file__).parent))
-
-from recorder_testing import RosHarness  # noqa: E402
 
 
 @pytest.fixture

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from rclpy.serialization import serialize_message
 from sensor_msgs.msg import JointState
-from vla_latent_training.cli import main
 from vla_latent_controller.testing import CLASSES, make_demo
+from vla_latent_training.cli import main
 
 from vla_interfaces.msg import Detection, DetectionArray
 

@@ -1,0 +1,129 @@
+"""The parameter table: a node's parameters declared from one list, like moveit_servo's generated
+parameters. Each entry gives the default, a description, a numeric range or a list of choices, and
+whether it may change at run time. `ParameterTable.declare(node)`:
+
+- declares every parameter with its descriptor (ranges as descriptor ranges, so `ros2 param describe`
+  shows them and rclpy refuses values outside; choices in `additional_constraints`; read-only where
+  the entry is not `dynamic`), so the node loads `/**` YAML files and `-p name:=value` overrides;
+- accepts an integer for a floating-point parameter (`state_rate: 500` in YAML);
+- refuses, at startup with `ConfigError` and at run time with a reason, a value outside the choices
+  or one the entry's `check` rejects;
+- hands each accepted run-time change to the node's `on_change(name, value)`, which either applies
+  it or returns a reason to refuse it. A parameter is therefore always either applied or refused.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+
+from vla_common.ros.node_main import ConfigError
+
+_ARRAY_TYPES = {
+    "double_array": (ParameterType.PARAMETER_DOUBLE_ARRAY, Parameter.Type.DOUBLE_ARRAY),
+    "string_array": (ParameterType.PARAMETER_STRING_ARRAY, Parameter.Type.STRING_ARRAY),
+    "integer_array": (ParameterType.PARAMETER_INTEGER_ARRAY, Parameter.Type.INTEGER_ARRAY),
+}
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter. `range` is inclusive; `choices` limits a string; `check(value)` returns a reason
+    to refuse (or None); `dynamic` parameters may change at run time, the others are read-only;
+    `array` names the element type of a list parameter whose default is empty."""
+
+    name: str
+    default: Any
+    description: str
+    range: tuple[float, float] | None = None
+    choices: tuple[str, ...] | None = None
+    dynamic: bool = False
+    check: Callable[[Any], str | None] | None = None
+    array: str | None = None  # "double_array" | "string_array" | "integer_array"
+
+    def descriptor(self) -> ParameterDescriptor:
+        d = ParameterDescriptor(description=self.description, read_only=not self.dynamic)
+        if self.choices:
+            d.additional_constraints = "one of: " + ", ".join(self.choices)
+        if self.range is not None:
+            lo, hi = self.range
+            if isinstance(self.default, float):
+                d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi))]
+            elif isinstance(self.default, int) and not isinstance(self.default, bool):
+                d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
+        if self.array is not None:
+            d.type = _ARRAY_TYPES[self.array][0]
+        return d
+
+    def refusal(self, value: Any) -> str | None:
+        """Why `value` is refused, or None (the range is rclpy's to check)."""
+        if self.choices is not None and value not in self.choices:
+            return f"parameter '{self.name}' must be one of {list(self.choices)}, got {value!r}"
+        if isinstance(value, float) and not math.isfinite(value):
+            return f"parameter '{self.name}' must be finite, got {value!r}"
+        if self.check is not None:
+            reason = self.check(value)
+            if reason:
+                return f"parameter '{self.name}': {reason}"
+        return None
+
+
+class ParameterTable:
+    """A node's parameters, declared and guarded from one list of `Param`."""
+
+    def __init__(self, params: Sequence[Param]):
+        self.params = {p.name: p for p in params}
+        if len(self.params) != len(params):
+            raise ValueError("parameter table with a name twice")
+
+    def __iter__(self):
+        return iter(self.params.values())
+
+    def declare(self, node: Node,
+                on_change: Callable[[str, Any], str | None] | None = None) -> dict[str, Any]:
+        """Declare every parameter on `node` and return their values; ConfigError names the first
+        refused one. Run-time changes go through the choices/checks, then `on_change`."""
+        overrides = getattr(node, "_parameter_overrides", {})
+        values: dict[str, Any] = {}
+        for p in self.params.values():
+            given = overrides.get(p.name)
+            if isinstance(p.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
+                overrides[p.name] = Parameter(p.name, Parameter.Type.DOUBLE, float(given.value))
+            default = _ARRAY_TYPES[p.array][1] if p.array is not None and not p.default else p.default
+            try:
+                value = node.declare_parameter(p.name, default, p.descriptor()).value
+            except Exception as exc:  # out of range or of the wrong type: refuse clearly
+                raise ConfigError(f"parameter '{p.name}': {exc}") from exc
+            if value is None and p.array is not None:
+                value = []
+            reason = p.refusal(value)
+            if reason:
+                raise ConfigError(reason)
+            values[p.name] = value
+        node.add_on_set_parameters_callback(lambda changes: self._on_set(changes, on_change))
+        return values
+
+    def _on_set(self, changes: list[Parameter],
+                on_change: Callable[[str, Any], str | None] | None) -> SetParametersResult:
+        for change in changes:
+            p = self.params.get(change.name)
+            if p is None:
+                continue  # not ours (use_sim_time and other rclpy parameters)
+            reason = p.refusal(change.value)
+            if reason is None and on_change is not None:
+                reason = on_change(change.name, change.value)
+            if reason:
+                return SetParametersResult(successful=False, reason=reason)
+        return SetParametersResult(successful=True)

@@ -40,15 +40,17 @@ def test_parse_task_separators(text):
     assert parse_task(text) is TASKS["bread/push_east"]
 
 
-def test_parse_task_outside_the_table():
-    spec = parse_task("soda_can:push_north_west")
-    assert spec == TaskSpec("soda_can/push_north_west", "soda_can", "push", "north_west")
-    assert parse_task("bread/circle").kind == "circle"
+def test_parse_task_gives_the_catalogue_task():
+    spec = parse_task("milk_carton:push_south_west")
+    assert spec == TaskSpec("milk_carton/push_south_west", "milk_carton", "push", "south_west")
+    assert parse_task("cereal_box/circle").kind == "circle"
+    assert parse_task(spec) is spec  # a parsed task travels as itself
 
 
 @pytest.mark.parametrize("text, message", [
     ("toaster/push_east", "unknown object class"),
-    ("bread/push_up", "unknown action"),
+    ("bread/push_up", "has no task 'push_up'"),
+    ("soda_can:push_north_west", "its tasks are \\['push_south'\\]"),
     ("bread", "must look like"),
     ("bread/push_east/x", "must look like"),
     (42, "must be a string"),

@@ -7,7 +7,8 @@ from collections.abc import Iterable, Sequence
 
 import numpy as np
 
-from vla_common.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose, yaw_quat
+from vla_common.catalogue import Catalogue, default_catalogue
+from vla_common.objects import ObjectPose, yaw_quat
 
 # Table top extents (the robot base is at the origin, x away from the robot).
 TABLE_X = (-0.35, 1.05)
@@ -36,19 +37,19 @@ def _as_pose(item) -> ObjectPose:
     raise ValueError(f"layout entry {item!r} is not an ObjectPose, a dict or (class, x, y[, yaw])")
 
 
-def validate_layout(objects: Iterable) -> list[ObjectPose]:
-    """Normalise an explicit layout to ObjectPose (z = 0, yaw-only quaternion) and check it: known,
-    distinct classes; finite numbers; on the table, clear of the robot base; no overlaps."""
+def validate_layout(objects: Iterable, catalogue: Catalogue | None = None) -> list[ObjectPose]:
+    """Normalise an explicit layout to ObjectPose (z = 0, yaw-only quaternion) and check it: classes
+    of the catalogue, distinct; finite numbers; on the table, clear of the robot base; no overlaps."""
+    cat = catalogue or default_catalogue()
     if isinstance(objects, (str, bytes, dict)) or not isinstance(objects, Iterable):
         raise ValueError(f"objects must be a list of object poses, got {type(objects).__name__}")
     layout = [_as_pose(it) for it in objects]
-    if len(layout) > len(OBJECT_CLASSES):
-        raise ValueError(f"at most {len(OBJECT_CLASSES)} objects (one per class), got {len(layout)}")
+    if len(layout) > len(cat.classes):
+        raise ValueError(f"at most {len(cat.classes)} objects (one per class), got {len(layout)}")
     seen = set()
     out = []
     for p in layout:
-        if not isinstance(p.class_id, str) or p.class_id not in OBJECT_CLASSES:
-            raise ValueError(f"unknown object class {p.class_id!r}; expected one of {OBJECT_CLASSES}")
+        cat.spec(p.class_id)  # CatalogueError (a ValueError) lists the known classes
         if p.class_id in seen:
             raise ValueError(f"object class {p.class_id!r} appears twice; one object per class")
         seen.add(p.class_id)
@@ -59,7 +60,7 @@ def validate_layout(objects: Iterable) -> list[ObjectPose]:
                              f"got {p.x!r}, {p.y!r}, {p.yaw!r}") from None
         if not all(math.isfinite(v) for v in (x, y, yaw)):
             raise ValueError(f"{p.class_id}: x, y, yaw must be finite, got {x}, {y}, {yaw}")
-        r = OBJECT_SPECS[p.class_id].footprint_radius
+        r = cat.spec(p.class_id).footprint_radius
         if not (TABLE_X[0] + r + TABLE_MARGIN <= x <= TABLE_X[1] - r - TABLE_MARGIN
                 and TABLE_Y[0] + r + TABLE_MARGIN <= y <= TABLE_Y[1] - r - TABLE_MARGIN):
             raise ValueError(f"{p.class_id} at ({x:.3f}, {y:.3f}) is off the table "
@@ -69,23 +70,23 @@ def validate_layout(objects: Iterable) -> list[ObjectPose]:
         out.append(ObjectPose(p.class_id, x, y, yaw, 0.0, yaw_quat(yaw)))
     for i, a in enumerate(out):
         for b in out[i + 1:]:
-            if overlap(a, b, 0.0):
+            if overlap(a, b, 0.0, cat):
                 raise ValueError(f"{a.class_id} at ({a.x:.3f}, {a.y:.3f}) overlaps {b.class_id} at "
                                  f"({b.x:.3f}, {b.y:.3f})")
     return out
 
 
-def _corners(p: ObjectPose) -> np.ndarray:
-    spec = OBJECT_SPECS[p.class_id]
+def _corners(p: ObjectPose, spec) -> np.ndarray:
     c, s = math.cos(p.yaw), math.sin(p.yaw)
     hx, hy = spec.size[0] / 2, spec.size[1] / 2
     local = np.array([[hx, hy], [-hx, hy], [-hx, -hy], [hx, -hy]])
     return local @ np.array([[c, s], [-s, c]]) + (p.x, p.y)
 
 
-def overlap(a: ObjectPose, b: ObjectPose, gap: float) -> bool:
+def overlap(a: ObjectPose, b: ObjectPose, gap: float, catalogue: Catalogue | None = None) -> bool:
     """Footprints (boxes as oriented rectangles, cylinders as discs) closer than `gap`."""
-    sa, sb = OBJECT_SPECS[a.class_id], OBJECT_SPECS[b.class_id]
+    cat = catalogue or default_catalogue()
+    sa, sb = cat.spec(a.class_id), cat.spec(b.class_id)
     d = math.hypot(a.x - b.x, a.y - b.y)
     if d >= sa.footprint_radius + sb.footprint_radius + gap:
         return False
@@ -99,7 +100,7 @@ def overlap(a: ObjectPose, b: ObjectPose, gap: float) -> bool:
             other = b if p is a else a
             shapes.append(_disc_square(p, s.size[0], other.yaw))
         else:
-            shapes.append(_corners(p))
+            shapes.append(_corners(p, s))
     axes = []
     for poly in shapes:
         for k in range(2):
@@ -119,24 +120,26 @@ def _disc_square(p: ObjectPose, r: float, yaw: float) -> np.ndarray:
 
 
 def random_layout(rng: np.random.Generator, n_objects: int | None = None,
-                  classes: Sequence[str] | None = None, max_tries: int = 200) -> list[ObjectPose]:
+                  classes: Sequence[str] | None = None, max_tries: int = 200,
+                  catalogue: Catalogue | None = None) -> list[ObjectPose]:
     """Random non-overlapping layout in the reachable workspace (x 0.35-0.70, |y| <= 0.30) with
-    random yaw. n_objects defaults to 1..4; classes (distinct) default to a random choice."""
+    random yaw. n_objects defaults to 1..4; classes (distinct) default to a random choice from the
+    catalogue."""
+    cat = catalogue or default_catalogue()
     if classes is None:
         n = int(rng.integers(1, LAYOUT_MAX_OBJECTS + 1)) if n_objects is None else int(n_objects)
-        if not 1 <= n <= len(OBJECT_CLASSES):
-            raise ValueError(f"n_objects must be 1..{len(OBJECT_CLASSES)}, got {n}")
-        classes = [OBJECT_CLASSES[i] for i in rng.permutation(len(OBJECT_CLASSES))[:n]]
+        if not 1 <= n <= len(cat.classes):
+            raise ValueError(f"n_objects must be 1..{len(cat.classes)}, got {n}")
+        classes = [cat.classes[i] for i in rng.permutation(len(cat.classes))[:n]]
     out: list[ObjectPose] = []
     for c in classes:
-        if c not in OBJECT_CLASSES:
-            raise ValueError(f"unknown object class {c!r}; expected one of {OBJECT_CLASSES}")
+        cat.spec(c)  # CatalogueError (a ValueError) lists the known classes
         for _ in range(max_tries):
             x = float(rng.uniform(*LAYOUT_X))
             y = float(rng.uniform(*LAYOUT_Y))
             yaw = float(rng.uniform(-math.pi, math.pi))
             cand = ObjectPose(c, x, y, yaw, 0.0, yaw_quat(yaw))
-            if not any(overlap(cand, o, LAYOUT_GAP) for o in out):
+            if not any(overlap(cand, o, LAYOUT_GAP, cat) for o in out):
                 out.append(cand)
                 break
         else:

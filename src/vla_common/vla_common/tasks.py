@@ -1,25 +1,19 @@
-"""The paper's tasks: push an object a set distance in a compass direction, or circle around it.
+"""Tasks: when a push or a circle succeeded, and where an episode's objects may lie.
 
-Base set (demonstrated): bread -> east, soda can -> south, milk carton -> south-west, glass bottle ->
-west. Unseen object cereal box: south (Seen direction), south-east (Near), circle (Far).
+Tasks are defined as data in the catalogue (`vla_common.catalogue`); the default one has the paper's:
+base set (demonstrated) bread -> east, soda can -> south, milk carton -> south-west, glass bottle ->
+west; unseen object cereal box: south (Seen direction), south-east (Near), circle (Far).
 Pure Python (no simulator import), shared by the planner, the demo generator and evaluation.
 """
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 
 import numpy as np
 
+from vla_common.catalogue import Catalogue, TaskSpec, default_catalogue
 from vla_common.layout import LAYOUT_GAP, overlap
-from vla_common.objects import (
-    COMPASS,
-    OBJECT_CLASSES,
-    OBJECT_SPECS,
-    ObjectPose,
-    compass_vector,
-    yaw_quat,
-)
+from vla_common.objects import ObjectPose, yaw_quat
 
 PUSH_SUCCESS_DISTANCE = 0.10
 PUSH_SUCCESS_ANGLE_DEG = 30.0
@@ -29,56 +23,18 @@ CIRCLE_MAX_DISPLACEMENT = 0.03
 CIRCLE_MIN_SWEEP_DEG = 330.0
 
 
-@dataclass(frozen=True)
-class TaskSpec:
-    """One task: `kind` "push" (with a compass `direction`) or "circle" (direction None)."""
-
-    name: str
-    object_class: str
-    kind: str
-    direction: str | None
-    distance: float = 0.15
-
-    @property
-    def direction_vector(self) -> np.ndarray:
-        """Unit (x, y) push direction in the world frame (push tasks only)."""
-        if self.direction is None:
-            raise ValueError(f"task {self.name} has no push direction")
-        return compass_vector(self.direction)
+# The default catalogue's task lists; code that takes a user's catalogue reads its task sets.
+BASE_TASKS: list[str] = [s.name for s in default_catalogue().task_set("base")]
+UNSEEN_TASKS: list[str] = [s.name for s in default_catalogue().task_set("unseen")]
+TASKS: dict[str, TaskSpec] = dict(default_catalogue().tasks)
 
 
-def _spec(object_class: str, action: str) -> TaskSpec:
-    name = f"{object_class}/{action}"
-    if action == "circle":
-        return TaskSpec(name, object_class, "circle", None)
-    return TaskSpec(name, object_class, "push", action.removeprefix("push_"))
-
-
-BASE_TASKS: list[str] = ["bread/push_east", "soda_can/push_south", "milk_carton/push_south_west",
-                         "glass_bottle/push_west"]
-UNSEEN_TASKS: list[str] = ["cereal_box/push_south", "cereal_box/push_south_east", "cereal_box/circle"]
-TASKS: dict[str, TaskSpec] = {n: _spec(*n.split("/")) for n in BASE_TASKS + UNSEEN_TASKS}
-
-
-def parse_task(text: str) -> TaskSpec:
-    """"bread:push_east" or "bread/push_east" -> TaskSpec. Tasks outside TASKS are accepted when
-    the object class and action are valid (push_<compass direction> or circle)."""
-    if not isinstance(text, str):
-        raise ValueError(f"task must be a string like 'bread/push_east', got {text!r}")
-    key = text.strip().replace(":", "/")
-    if key in TASKS:
-        return TASKS[key]
-    parts = key.split("/")
-    if len(parts) != 2 or not all(parts):
-        raise ValueError(f"task {text!r} must look like '<object>/<action>' or '<object>:<action>', "
-                         f"e.g. 'bread/push_east'; known tasks: {sorted(TASKS)}")
-    obj, action = parts[0].strip(), parts[1].strip().lower().replace("-", "_")
-    if obj not in OBJECT_CLASSES:
-        raise ValueError(f"task {text!r}: unknown object class {obj!r}; expected one of {OBJECT_CLASSES}")
-    if action != "circle" and not (action.startswith("push_") and action[5:] in COMPASS):
-        raise ValueError(f"task {text!r}: unknown action {action!r}; expected 'circle' or push_<direction> "
-                         f"with a direction in {sorted(COMPASS)}")
-    return _spec(obj, action)
+def parse_task(text: str | TaskSpec, catalogue: Catalogue | None = None) -> TaskSpec:
+    """"bread:push_east" or "bread/push_east" -> the catalogue's TaskSpec (default catalogue when None).
+    CatalogueError (a ValueError) lists the known classes or tasks and where they are defined."""
+    if isinstance(text, TaskSpec) and catalogue is None:
+        return text
+    return (catalogue or default_catalogue()).task(text)
 
 
 def circle_sweep_deg(path_xy, center) -> float:
@@ -101,7 +57,7 @@ def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose,
     it went round, NaN without a path). Without a path only the object is judged: callers whose arm
     may not move (evaluations of learned models) must pass it.
     """
-    spec = parse_task(task) if isinstance(task, str) else task
+    spec = parse_task(task)
     delta = np.array([end.x - start.x, end.y - start.y], dtype=float)
     disp = float(np.linalg.norm(delta))
     if spec.kind == "circle":
@@ -135,14 +91,16 @@ def _in_push_region(p) -> bool:
 
 
 def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int | None = None,
-                max_tries: int = 500) -> list[ObjectPose]:
+                max_tries: int = 500, catalogue: Catalogue | None = None) -> list[ObjectPose]:
     """A random layout for one episode of `task`: the task's object (first in the list) where the
-    push (or circle) is reachable, plus 0..3 other objects kept out of the pushing corridor."""
-    spec = parse_task(task) if isinstance(task, str) else task
+    push (or circle) is reachable, plus 0..3 other objects of the catalogue kept out of the pushing
+    corridor."""
+    cat = catalogue or default_catalogue()
+    spec = parse_task(task, catalogue)
     n = int(rng.integers(1, 4)) if n_objects is None else int(n_objects)
-    if not 1 <= n <= 4:
-        raise ValueError(f"n_objects must be 1..4, got {n}")
-    obj_spec = OBJECT_SPECS[spec.object_class]
+    if not 1 <= n <= min(4, len(cat.classes)):
+        raise ValueError(f"n_objects must be 1..{min(4, len(cat.classes))}, got {n}")
+    obj_spec = cat.spec(spec.object_class)
     for _ in range(max_tries):
         yaw = float(rng.uniform(-math.pi, math.pi))
         if spec.kind == "circle":
@@ -163,15 +121,15 @@ def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int |
         raise ValueError(f"could not place {spec.object_class} for {spec.name} in {max_tries} tries")
     target = ObjectPose(spec.object_class, float(c[0]), float(c[1]), yaw, 0.0, yaw_quat(yaw))
     layout = [target]
-    others = [k for k in OBJECT_CLASSES if k != spec.object_class]
+    others = [k for k in cat.classes if k != spec.object_class]
     rng.shuffle(others)
     for cls in others[:n - 1]:
         for _ in range(max_tries):
             yaw_o = float(rng.uniform(-math.pi, math.pi))
             p = ObjectPose(cls, float(rng.uniform(0.30, 0.72)), float(rng.uniform(-0.35, 0.35)), yaw_o, 0.0,
                            yaw_quat(yaw_o))
-            clear = OBJECT_SPECS[cls].footprint_radius + 0.12  # hand half-width + margin
-            if any(overlap(p, o, LAYOUT_GAP) for o in layout):
+            clear = cat.spec(cls).footprint_radius + 0.12  # hand half-width + margin
+            if any(overlap(p, o, LAYOUT_GAP, cat) for o in layout):
                 continue
             if corridor is None:
                 if math.hypot(p.x - target.x, p.y - target.y) < clear + obj_spec.footprint_radius + 0.12:

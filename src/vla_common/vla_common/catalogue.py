@@ -58,6 +58,7 @@ class ObjectSpec:
     mass: float
     friction: float
     accent_rgba: tuple[float, float, float, float] | None = None
+    style: str = ""  # how the simulated scene decorates it (vla_sim.scene.STYLES); "": by shape
 
     @property
     def height(self) -> float:
@@ -227,7 +228,8 @@ def _parse_object(name: str, body, source: str) -> tuple[ObjectSpec, list[TaskSp
     tasks = body.get("tasks") or []
     if not isinstance(tasks, list):
         raise CatalogueError(f"{where}: tasks must be a list, e.g. [push_east, circle]")
-    spec = ObjectSpec(shape, size, rgba, mass, friction, accent_rgba=accent)
+    style = str(body.get("style", ""))
+    spec = ObjectSpec(shape, size, rgba, mass, friction, accent_rgba=accent, style=style)
     return spec, [_parse_task(name, t, source) for t in tasks]
 
 

@@ -133,10 +133,11 @@ def test_object_clearance_sees_the_forearm(kin):
     q, ok = kin.ik([0.5, 0.0, 0.05], np.diag([1.0, -1.0, -1.0]), READY_POSE)
     assert ok
     far = ObjectPose("soda_can", 0.5, 0.35, 0.0)
-    assert object_clearance(kin, q, far) > 0.1
+    assert object_clearance(kin, q, far, OBJECT_SPECS["soda_can"]) > 0.1
     wrist = kin.frame_position(q, "panda_link6")
     under = ObjectPose("cereal_box", float(wrist[0]), float(wrist[1]), 0.0)
-    assert object_clearance(kin, q, under) < -0.02  # the wrist dips below the box top
+    # the wrist dips below the box top
+    assert object_clearance(kin, q, under, OBJECT_SPECS["cereal_box"]) < -0.02
 
 
 def test_push_plans_keep_the_arm_off_tall_objects(kin):
@@ -146,7 +147,7 @@ def test_push_plans_keep_the_arm_off_tall_objects(kin):
         obj = task_layout("glass_bottle/push_west", rng)[0]
         plan = plan_task(kin, TASKS["glass_bottle/push_west"], obj, random_start_pose(rng), rng)
         assert plan.params["clearance"] >= MIN_CLEARANCE
-        clearance = object_clearance(kin, plan.waypoints[1], obj)
+        clearance = object_clearance(kin, plan.waypoints[1], obj, OBJECT_SPECS[obj.class_id])
         assert clearance == pytest.approx(plan.params["clearance"], abs=0.005)
 
 
@@ -157,7 +158,7 @@ def test_push_plans_keep_one_arm_configuration(kin, name):
     which a 1-D latent action cannot represent."""
     from vla_sim.planner import reference_configuration
 
-    ref = reference_configuration(kin, TASKS[name])
+    ref = reference_configuration(kin, TASKS[name], OBJECT_SPECS[TASKS[name].object_class])
     pres = np.array([_plan(kin, name, seed)[0].waypoints[1] for seed in range(12)])
     assert np.all(np.abs(pres[:, 6] - ref[6]) < 1.2), pres[:, 6]
     spread = np.linalg.norm(pres[:, None] - pres[None], axis=2).max()

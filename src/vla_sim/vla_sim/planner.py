@@ -17,8 +17,9 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from vla_common.catalogue import Catalogue, ObjectSpec, default_catalogue
 from vla_common.kinematics import PandaKinematics
-from vla_common.objects import OBJECT_SPECS, ObjectPose
+from vla_common.objects import ObjectPose
 from vla_common.robot import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
 from vla_common.tasks import TaskSpec, parse_task
 
@@ -138,11 +139,11 @@ def push_rotation(direction_xy, tilt: float, flip: bool = False) -> np.ndarray:
 DOWN = np.diag([1.0, -1.0, -1.0])  # TCP pointing down, hand x along world x (as in the ready pose)
 
 
-def object_clearance(kin: PandaKinematics, q: np.ndarray, obj: ObjectPose, shift=(0.0, 0.0)) -> float:
+def object_clearance(kin: PandaKinematics, q: np.ndarray, obj: ObjectPose, shape: ObjectSpec,
+                     shift=(0.0, 0.0)) -> float:
     """Smallest distance (m) from the arm's links 3-7 (collision-mesh vertices) to the object's
-    volume (footprint prism up to its height; optionally shifted on the table by `shift`). The hand
-    and fingers are left out: they are meant to touch it. Negative: a link dips into the object."""
-    shape = OBJECT_SPECS[obj.class_id]
+    volume (`shape`'s footprint prism up to its height; optionally shifted on the table by `shift`).
+    The hand and fingers are left out: they are meant to touch it. Negative: a link dips into it."""
     pts = kin.link_points(q)
     rel = pts[:, :2] - (np.array([obj.x, obj.y]) + np.asarray(shift))
     if shape.shape == "cylinder":
@@ -174,7 +175,8 @@ def preferred_flip(direction_xy) -> bool:
 _TILT_PENALTY = 0.5  # rad of joint distance one radian of extra tilt is worth when choosing
 
 
-def _push_candidates(kin: PandaKinematics, pre, hover, direction_xy, tilt: float, seeds, obj: ObjectPose):
+def _push_candidates(kin: PandaKinematics, pre, hover, direction_xy, tilt: float, seeds, obj: ObjectPose,
+                     shape: ObjectSpec):
     """IK solutions of the pre-push pose (hover pose above it reachable) for the task's preferred
     hand flip, or the other flip only when the preferred one has none: (q, rot, clearance)."""
     preferred = preferred_flip(direction_xy)
@@ -187,14 +189,15 @@ def _push_candidates(kin: PandaKinematics, pre, hover, direction_xy, tilt: float
                 continue
             q_hover, ok = kin.ik(hover, rot, q)
             if ok and _joint_margin(q_hover) > 0.05:
-                found.append((q, rot, object_clearance(kin, q, obj)))
+                found.append((q, rot, object_clearance(kin, q, obj, shape)))
         if found:
             return found
     return []
 
 
 def _best_push_configuration(
-    kin: PandaKinematics, pre, hover, direction_xy, tilt: float, q_ref: np.ndarray, obj: ObjectPose
+    kin: PandaKinematics, pre, hover, direction_xy, tilt: float, q_ref: np.ndarray, obj: ObjectPose,
+    shape: ObjectSpec,
 ) -> tuple[np.ndarray, np.ndarray, float, float]:
     """Pre-push configuration nearest `q_ref` (the task's reference configuration) among IK solutions
     that keep MIN_CLEARANCE between the arm and the object, over the base tilt and the extra tilts
@@ -212,7 +215,7 @@ def _best_push_configuration(
     best = None
     for extra in _EXTRA_TILT_DEG:
         for q, rot, clearance in _push_candidates(kin, pre, hover, direction_xy,
-                                                  tilt + math.radians(extra), seeds, obj):
+                                                  tilt + math.radians(extra), seeds, obj, shape):
             key = (-min(clearance, MIN_CLEARANCE),
                    float(np.linalg.norm(q - q_ref)) + _TILT_PENALTY * math.radians(extra))
             if best is None or key < best[0]:
@@ -223,7 +226,7 @@ def _best_push_configuration(
     return best[1], best[2], best[3], best[4]
 
 
-_REFERENCE: dict[str, np.ndarray] = {}
+_REFERENCE: dict[tuple[str, ObjectSpec], np.ndarray] = {}
 
 
 def push_start(shape, center_xy, direction_xy, gap: float) -> np.ndarray:
@@ -235,21 +238,21 @@ def push_start(shape, center_xy, direction_xy, gap: float) -> np.ndarray:
     return np.asarray(center_xy, dtype=float) - d * (shape.footprint_radius + FINGER_HALF_THICKNESS + gap)
 
 
-def reference_configuration(kin: PandaKinematics, spec: TaskSpec) -> np.ndarray:
-    """The task's reference pre-push configuration: planned from the ready pose for the object at
-    the centre of the workspace (x 0.48 m, y 0, yaw 0) with the middle of every random range.
-    Cached per task; deterministic."""
-    if spec.name not in _REFERENCE:
-        shape = OBJECT_SPECS[spec.object_class]
+def reference_configuration(kin: PandaKinematics, spec: TaskSpec, shape: ObjectSpec) -> np.ndarray:
+    """The task's reference pre-push configuration: planned from the ready pose for the object
+    (`shape`) at the centre of the workspace (x 0.48 m, y 0, yaw 0) with the middle of every random
+    range. Cached per task and shape; deterministic."""
+    key = (spec.name, shape)
+    if key not in _REFERENCE:
         obj = ObjectPose(spec.object_class, 0.48, 0.0, 0.0, 0.0)
         d = spec.direction_vector
         start_xy = push_start(shape, (obj.x, obj.y), d, 0.03)
         hover = max(0.18, shape.height + 0.09)
         q, _rot, _c, _e = _best_push_configuration(
             kin, [*start_xy, 0.025], [*start_xy, hover], d, math.radians(sum(TILT_RANGE_DEG) / 2),
-            np.asarray(READY_POSE), obj)
-        _REFERENCE[spec.name] = q
-    return _REFERENCE[spec.name].copy()
+            np.asarray(READY_POSE), obj, shape)
+        _REFERENCE[key] = q
+    return _REFERENCE[key].copy()
 
 
 class _Builder:
@@ -343,17 +346,18 @@ class _Builder:
 
 
 def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_start,
-              rng: np.random.Generator) -> TaskPlan:
-    """Plan one episode of `task` for the object at `obj` starting from joint positions q_start.
-    Raises PlanError (a ValueError) when the object's pose makes the task unreachable."""
-    spec = parse_task(task) if isinstance(task, str) else task
+              rng: np.random.Generator, catalogue: Catalogue | None = None) -> TaskPlan:
+    """Plan one episode of `task` for the object at `obj` starting from joint positions q_start
+    (the object's shape from the catalogue, the default one when None). Raises PlanError (a
+    ValueError) when the object's pose makes the task unreachable."""
+    spec = parse_task(task, catalogue)
     if obj.class_id != spec.object_class:
         raise PlanError(f"task {spec.name} is about {spec.object_class}, got a pose of {obj.class_id}")
     q0 = np.asarray(q_start, dtype=float).reshape(-1)
     if q0.shape != (7,) or not np.all(np.isfinite(q0)):
         raise PlanError(f"q_start must be 7 finite joint positions, got {q_start!r}")
     b = _Builder(kin, q0)
-    shape = OBJECT_SPECS[obj.class_id]
+    shape = (catalogue or default_catalogue()).spec(obj.class_id)
     c = np.array([obj.x, obj.y])
     if spec.kind == "push":
         d = spec.direction_vector
@@ -378,7 +382,7 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         zp = p["push_height"]
         q_pre, rot, clearance, extra = _best_push_configuration(
             kin, [*start_xy, zp], [*start_xy, p["hover_height"]], d, math.radians(p["tilt_deg"]),
-            reference_configuration(kin, spec), obj)
+            reference_configuration(kin, spec, shape), obj, shape)
         p["tilt_deg"] += extra
         p["clearance"] = clearance
         b.joint_move([*start_xy, p["hover_height"]], rot, p["transit_speed"], seed=q_pre)

@@ -13,9 +13,9 @@ import re
 import mujoco
 import numpy as np
 from vla_common.camera_model import SIM_WEBCAM
+from vla_common.catalogue import Catalogue, ObjectSpec, default_catalogue
 from vla_common.kinematics import FINGER_JOINTS, panda_description_dir, panda_urdf_path
 from vla_common.layout import TABLE_X, TABLE_Y
-from vla_common.objects import OBJECT_CLASSES, OBJECT_SPECS
 from vla_common.robot import DQ_MAX, JOINT_NAMES, Q_MAX, Q_MIN, TAU_MAX
 
 # Table: the robot is mounted on the table top (z = 0) at the origin, x away from the robot.
@@ -115,10 +115,9 @@ def _add_geom(body, name, gtype, size, rgba, pos=(0, 0, 0), collide=True, fricti
     return g
 
 
-def _add_object(world, class_id: str, park_pos) -> None:
+def _add_object(world, class_id: str, spec: ObjectSpec, park_pos) -> None:
     """One object: a body on a free joint with the bounding shape's inertia, a collision geom of
-    that shape and visual-only accents that make the classes easy to tell apart on camera."""
-    spec = OBJECT_SPECS[class_id]
+    that shape and visual-only accents (the catalogue's `style`) that make classes easy to tell apart."""
     body = world.add_body()
     body.name = OBJECT_BODY_PREFIX + class_id
     body.pos = list(park_pos)
@@ -127,53 +126,83 @@ def _add_object(world, class_id: str, park_pos) -> None:
     body.iquat = [1.0, 0.0, 0.0, 0.0]
     body.mass = spec.mass
     sx, sy, sz = spec.size
-    box, cyl = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CYLINDER
     body.inertia = (_box_inertia(spec.mass, sx, sy, sz) if spec.shape == "box"
                     else _cyl_inertia(spec.mass, sx, sz))
     fj = body.add_freejoint()
     fj.name = body.name + "_joint"
-    accent = spec.accent_rgba or spec.rgba
-    n = body.name
-    if class_id == "bread":
-        _add_geom(body, n, box, (sx / 2, sy / 2, sz / 2), spec.rgba, friction=spec.friction)
-        _add_geom(body, n + "_crust", box, (sx / 2 - 0.008, sy / 2 - 0.008, 0.006), accent,
-                  pos=(0, 0, sz / 2), collide=False)
-    elif class_id == "soda_can":
-        _add_geom(body, n, cyl, (sx, sz / 2), spec.rgba, friction=spec.friction)
-        for k, zz in enumerate((sz / 2, -sz / 2)):
-            _add_geom(body, f"{n}_rim{k}", cyl, (sx - 0.004, 0.004), accent, pos=(0, 0, zz), collide=False)
-    elif class_id == "milk_carton":
-        _add_geom(body, n, box, (sx / 2, sy / 2, sz / 2), spec.rgba, friction=spec.friction)
-        _add_geom(body, n + "_band", box, (sx / 2 + 0.001, sy / 2 + 0.001, 0.035), accent,
-                  pos=(0, 0, 0.01), collide=False)
-        _add_geom(body, n + "_cap", cyl, (0.012, 0.008), accent, pos=(0.0, 0.0, sz / 2 + 0.006),
+    style = spec.style if spec.style in _STYLES else ("band" if spec.shape == "box" else "rims")
+    _STYLES[style](body, body.name, spec)
+
+
+_BOX, _CYL = mujoco.mjtGeom.mjGEOM_BOX, mujoco.mjtGeom.mjGEOM_CYLINDER
+
+
+def _loaf(body, n: str, spec: ObjectSpec) -> None:
+    sx, sy, sz = spec.size
+    _add_geom(body, n, _BOX, (sx / 2, sy / 2, sz / 2), spec.rgba, friction=spec.friction)
+    _add_geom(body, n + "_crust", _BOX, (sx / 2 - 0.008, sy / 2 - 0.008, 0.006), _accent(spec),
+              pos=(0, 0, sz / 2), collide=False)
+
+
+def _rims(body, n: str, spec: ObjectSpec) -> None:
+    sx, _, sz = spec.size
+    _add_geom(body, n, _CYL, (sx, sz / 2), spec.rgba, friction=spec.friction)
+    for k, zz in enumerate((sz / 2, -sz / 2)):
+        _add_geom(body, f"{n}_rim{k}", _CYL, (sx - 0.004, 0.004), _accent(spec), pos=(0, 0, zz),
                   collide=False)
-    elif class_id == "glass_bottle":
-        body_h = 0.65 * sz
-        _add_geom(body, n, cyl, (sx, body_h / 2), spec.rgba, pos=(0, 0, -sz / 2 + body_h / 2),
-                  friction=spec.friction)
-        neck_h = sz - body_h
-        _add_geom(body, n + "_neck", cyl, (0.013, neck_h / 2), accent,
-                  pos=(0, 0, sz / 2 - neck_h / 2), friction=spec.friction)
-        _add_geom(body, n + "_shoulder", mujoco.mjtGeom.mjGEOM_ELLIPSOID, (sx, sx, 0.03), spec.rgba,
-                  pos=(0, 0, -sz / 2 + body_h), collide=False)
-    elif class_id == "cereal_box":
-        _add_geom(body, n, box, (sx / 2, sy / 2, sz / 2), spec.rgba, friction=spec.friction)
-        for k, yy in enumerate((sy / 2, -sy / 2)):
-            _add_geom(body, f"{n}_label{k}", box, (sx / 2 - 0.02, 0.001, sz / 4), accent,
-                      pos=(0, yy, 0.02), collide=False)
-    else:  # pragma: no cover - OBJECT_SPECS and this function are kept in step
-        raise ValueError(f"no geometry for object class {class_id!r}")
 
 
-def park_position(class_id: str) -> tuple[float, float, float]:
-    """Out-of-view resting place of an object that is not part of the current layout."""
-    i = OBJECT_CLASSES.index(class_id)
-    return (PARK_X, -1.0 + 0.5 * i, 0.5)
+def _band(body, n: str, spec: ObjectSpec) -> None:
+    sx, sy, sz = spec.size
+    _add_geom(body, n, _BOX, (sx / 2, sy / 2, sz / 2), spec.rgba, friction=spec.friction)
+    _add_geom(body, n + "_band", _BOX, (sx / 2 + 0.001, sy / 2 + 0.001, min(0.035, sz / 4)), _accent(spec),
+              pos=(0, 0, 0.01 if sz > 0.1 else 0.0), collide=False)
 
 
-def build_spec(physics_dt: float = 0.002) -> mujoco.MjSpec:
-    """The whole scene as an MjSpec (compile with `.compile()`)."""
+def _carton(body, n: str, spec: ObjectSpec) -> None:
+    _band(body, n, spec)
+    _add_geom(body, n + "_cap", _CYL, (0.012, 0.008), _accent(spec),
+              pos=(0.0, 0.0, spec.size[2] / 2 + 0.006),
+              collide=False)
+
+
+def _bottle(body, n: str, spec: ObjectSpec) -> None:
+    sx, _, sz = spec.size
+    body_h = 0.65 * sz
+    _add_geom(body, n, _CYL, (sx, body_h / 2), spec.rgba, pos=(0, 0, -sz / 2 + body_h / 2),
+              friction=spec.friction)
+    neck_h = sz - body_h
+    _add_geom(body, n + "_neck", _CYL, (0.013, neck_h / 2), _accent(spec),
+              pos=(0, 0, sz / 2 - neck_h / 2), friction=spec.friction)
+    _add_geom(body, n + "_shoulder", mujoco.mjtGeom.mjGEOM_ELLIPSOID, (sx, sx, 0.03), spec.rgba,
+              pos=(0, 0, -sz / 2 + body_h), collide=False)
+
+
+def _labels(body, n: str, spec: ObjectSpec) -> None:
+    sx, sy, sz = spec.size
+    _add_geom(body, n, _BOX, (sx / 2, sy / 2, sz / 2), spec.rgba, friction=spec.friction)
+    for k, yy in enumerate((sy / 2, -sy / 2)):
+        _add_geom(body, f"{n}_label{k}", _BOX, (sx / 2 - 0.02, 0.001, sz / 4), _accent(spec),
+                  pos=(0, yy, 0.02), collide=False)
+
+
+def _accent(spec: ObjectSpec):
+    return spec.accent_rgba or spec.rgba
+
+
+# Visual styles a catalogue entry may name (`style:`); boxes default to a band, cylinders to rims.
+_STYLES = {"loaf": _loaf, "rims": _rims, "band": _band, "carton": _carton, "bottle": _bottle,
+           "labels": _labels}
+STYLES = tuple(_STYLES)
+
+
+def park_position(index: int) -> tuple[float, float, float]:
+    """Out-of-view resting place of the catalogue's `index`-th object when it is not in the layout."""
+    return (PARK_X, -1.0 + 0.5 * index, 0.5)
+
+
+def build_spec(physics_dt: float = 0.002, catalogue: Catalogue | None = None) -> mujoco.MjSpec:
+    """The whole scene as an MjSpec (compile with `.compile()`), with every object of the catalogue."""
     spec = mujoco.MjSpec.from_string(mujoco_urdf_text())
     spec.modelname = "vla_panda_scene"
     spec.compiler.discardvisual = False  # the URDF's visuals were dropped at parse time; keep ours
@@ -272,13 +301,14 @@ def build_spec(physics_dt: float = 0.002) -> mujoco.MjSpec:
     cam.quat = list(look_at_quat(SIM_WEBCAM.position, SIM_WEBCAM.look_at))
     cam.fovy = SIM_WEBCAM.fovy_deg
 
-    for class_id in OBJECT_CLASSES:
-        _add_object(world, class_id, park_position(class_id))
+    cat = catalogue or default_catalogue()
+    for i, (class_id, obj) in enumerate(cat.objects.items()):
+        _add_object(world, class_id, obj, park_position(i))
     return spec
 
 
-def build_model(physics_dt: float = 0.002) -> mujoco.MjModel:
+def build_model(physics_dt: float = 0.002, catalogue: Catalogue | None = None) -> mujoco.MjModel:
     """Compiled scene model."""
     if not (math.isfinite(physics_dt) and 1e-4 <= physics_dt <= 0.01):
         raise ValueError(f"physics_dt must be in [0.0001, 0.01] s, got {physics_dt}")
-    return build_spec(physics_dt).compile()
+    return build_spec(physics_dt, catalogue).compile()

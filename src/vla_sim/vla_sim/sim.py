@@ -14,13 +14,14 @@ from collections.abc import Iterable, Sequence
 import mujoco
 import numpy as np
 from vla_common.camera_model import CAMERA_FRAME_ID, pinhole_intrinsics
+from vla_common.catalogue import Catalogue, default_catalogue
 from vla_common.layout import (  # noqa: F401  (re-exported for callers of the simulator)
     LAYOUT_X,
     LAYOUT_Y,
     random_layout,
     validate_layout,
 )
-from vla_common.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose, quat_yaw, yaw_quat
+from vla_common.objects import ObjectPose, quat_yaw, yaw_quat
 from vla_common.robot import DQ_MAX, JOINT_NAMES, Q_MAX, Q_MIN, READY_POSE
 
 from vla_sim.scene import (
@@ -44,9 +45,10 @@ class PandaSim:
     camera_frame_id = CAMERA_FRAME_ID
 
     def __init__(self, camera_width: int = 640, camera_height: int = 480, render: bool = True,
-                 physics_dt: float = 0.002):
+                 physics_dt: float = 0.002, catalogue: Catalogue | None = None):
         self._check_size(camera_width, camera_height)
-        self.model = build_model(physics_dt)
+        self.catalogue = catalogue or default_catalogue()
+        self.model = build_model(physics_dt, self.catalogue)
         self.data = mujoco.MjData(self.model)
         self._render_enabled = bool(render)
         self._renderer: mujoco.Renderer | None = None
@@ -59,7 +61,7 @@ class PandaSim:
         self._act_adr = m.actuator_actadr[self._servo]
         self._cam_id = m.camera(CAMERA_NAME).id
         self._tcp_site = m.site(TCP_SITE).id
-        self._obj_body = {c: m.body(OBJECT_BODY_PREFIX + c).id for c in OBJECT_CLASSES}
+        self._obj_body = {c: m.body(OBJECT_BODY_PREFIX + c).id for c in self.catalogue.classes}
         self._obj_qadr = {c: m.jnt_qposadr[m.body_jntadr[b]] for c, b in self._obj_body.items()}
         self._obj_dadr = {c: m.jnt_dofadr[m.body_jntadr[b]] for c, b in self._obj_body.items()}
         self._obj_geoms = {c: [g for g in range(m.ngeom) if m.geom_bodyid[g] == b]
@@ -139,7 +141,7 @@ class PandaSim:
             if seed is not None and (isinstance(seed, bool) or not isinstance(seed, (int, np.integer))
                                      or seed < 0):
                 raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
-            layout = random_layout(np.random.default_rng(seed))
+            layout = random_layout(np.random.default_rng(seed), catalogue=self.catalogue)
         self._apply(layout, q_init)
         return self.object_poses()
 
@@ -157,10 +159,9 @@ class PandaSim:
             raise ValueError(f"q0 outside the joint limits at {[JOINT_NAMES[i] for i in bad]}")
         return q
 
-    @staticmethod
-    def validate_layout(objects: Iterable) -> list[ObjectPose]:
+    def validate_layout(self, objects: Iterable) -> list[ObjectPose]:
         """Normalise and check an explicit layout; ValueError says what is wrong."""
-        return validate_layout(objects)
+        return validate_layout(objects, self.catalogue)
 
     def _apply(self, layout: list[ObjectPose], q_init: np.ndarray) -> None:
         m, d = self.model, self.data
@@ -170,17 +171,17 @@ class PandaSim:
         d.ctrl[:] = 0.0
         placed = {p.class_id: p for p in layout}
         self._active = [p.class_id for p in layout]
-        for c in OBJECT_CLASSES:
+        for i, c in enumerate(self.catalogue.classes):
             qa, geoms = self._obj_qadr[c], self._obj_geoms[c]
             if c in placed:
                 p = placed[c]
-                d.qpos[qa:qa + 3] = (p.x, p.y, OBJECT_SPECS[c].height / 2)
+                d.qpos[qa:qa + 3] = (p.x, p.y, self.catalogue.spec(c).height / 2)
                 d.qpos[qa + 3:qa + 7] = yaw_quat(p.yaw)
                 m.body_gravcomp[self._obj_body[c]] = 0.0
                 m.geom_contype[geoms] = self._geom_contype[geoms]
                 m.geom_conaffinity[geoms] = self._geom_conaffinity[geoms]
             else:
-                d.qpos[qa:qa + 3] = park_position(c)
+                d.qpos[qa:qa + 3] = park_position(i)
                 d.qpos[qa + 3:qa + 7] = (1.0, 0.0, 0.0, 0.0)
                 m.body_gravcomp[self._obj_body[c]] = 1.0
                 m.geom_contype[geoms] = 0

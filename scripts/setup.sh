@@ -41,4 +41,7 @@ echo "[setup] colcon build"
 colcon --log-base build/log build --symlink-install --base-paths src \
   --event-handlers console_cohesion- status- summary+ \
   --cmake-args -DPython3_EXECUTABLE="$venv/bin/python" -DBUILD_TESTING=OFF -Wno-dev
+# The franka-sim robot server (libfranka protocol simulator) for the libfranka tests, in its own
+# pinned venv: it pins numpy 1.26 / mujoco < 3.3, which the project's venv cannot share.
+bash scripts/setup_franka_sim.sh "$root/.venv-franka-sim"
 echo "[setup] done: source scripts/env.sh to use the workspace"

@@ -368,7 +368,8 @@ def test_joy_node_publishes_stops_on_unplug_and_resumes():
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import Joy
-    from vla_joystick.joy_node import JoyConfigError, JoyNode
+    from vla_common.ros.node_main import ConfigError
+    from vla_joystick.joy_node import JoyNode
 
     ctx = Context()
     rclpy.init(context=ctx)
@@ -389,7 +390,7 @@ def test_joy_node_publishes_stops_on_unplug_and_resumes():
 
     node = None
     try:
-        with pytest.raises(JoyConfigError, match="deadzone"):
+        with pytest.raises(ConfigError, match="deadzone"):
             JoyNode(context=ctx, parameter_overrides=[Parameter("deadzone", value=0.95)]).destroy_node()
         node = JoyNode(
             context=ctx,

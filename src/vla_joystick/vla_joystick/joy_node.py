@@ -11,70 +11,35 @@ import sys
 import threading
 from collections.abc import Sequence
 
-import rclpy
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from sensor_msgs.msg import Joy
+from vla_common.ros.node_main import run_node
+from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_joystick.joystick import JoystickLoop, default_opener
 
+NODE_NAME = "joy_node"
 
-class JoyConfigError(ValueError):
-    """A parameter value the node cannot start with."""
-
-
-def _desc(text: str, float_range: tuple[float, float] | None = None) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=True)
-    if float_range is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1])]
-    return d
+# All read-only: they configure the device and the reader thread, which start with the node.
+PARAMETERS = ParameterTable([
+    Param("device_path", "", "event device, e.g. /dev/input/by-id/usb-...-event-joystick; empty: search "
+          "by device_name"),
+    Param("device_name", "", "open the first device whose name contains this (case-insensitive); both "
+          "empty: the first device that looks like a joystick"),
+    Param("deadzone", 0.05, "centre deadzone as a fraction of the half range; the rest is rescaled so "
+          "+-1 is still reached", range=(0.0, 0.9)),
+    Param("autorepeat_rate", 20.0, "republish the unchanged state at this rate (Hz); 0 disables",
+          range=(0.0, 1000.0)),
+    Param("coalesce_interval", 0.001, "axis changes are published at most once per this interval (s); "
+          "button changes at once", range=(0.0, 1.0)),
+    Param("frame_id", "joy", "header.frame_id of the Joy messages"),
+])
 
 
 class JoyNode(Node):
     def __init__(self, *, opener=None, **node_kwargs):
-        super().__init__("joy_node", **node_kwargs)
-        specs = {
-            "device_path": (
-                "",
-                _desc(
-                    "Event device, e.g. /dev/input/by-id/usb-…-event-joystick; empty = search by device_name"
-                ),
-            ),
-            "device_name": (
-                "",
-                _desc(
-                    "Open the first device whose name contains this (case-insensitive); "
-                    "both empty = the first device that looks like a joystick"
-                ),
-            ),
-            "deadzone": (
-                0.05,
-                _desc(
-                    "Centre deadzone as a fraction of the half range; the rest is rescaled "
-                    "so ±1 is still reached",
-                    (0.0, 0.9),
-                ),
-            ),
-            "autorepeat_rate": (
-                20.0,
-                _desc("Republish the unchanged state at this rate (Hz); 0 disables", (0.0, 1000.0)),
-            ),
-            "coalesce_interval": (
-                0.001,
-                _desc(
-                    "Axis changes are published at most once per this interval (s); button changes at once",
-                    (0.0, 1.0),
-                ),
-            ),
-            "frame_id": ("joy", _desc("header.frame_id of the Joy messages")),
-        }
-        p = {}
-        for name, (default, descriptor) in specs.items():
-            try:
-                p[name] = self.declare_parameter(name, default, descriptor).value
-            except Exception as exc:  # out of range / wrong type in an override or params file
-                raise JoyConfigError(f"parameter '{name}': {exc}") from exc
+        super().__init__(NODE_NAME, **node_kwargs)
+        p = PARAMETERS.declare(self)
         self._frame_id = p["frame_id"]
         self._pub = self.create_publisher(Joy, "joy", 10)
         self.loop = JoystickLoop(
@@ -110,35 +75,19 @@ class JoyNode(Node):
         else:
             self.get_logger().info(text)
 
-    def destroy_node(self):
+    def on_shutdown(self) -> None:
+        """Stop the reader thread. No last message: an all-zero Joy is not the released state of every
+        device (a released trigger reads +1), so consumers time out as with the standard joy node."""
         self._stop.set()
         self._thread.join(timeout=2.0)
+
+    def destroy_node(self):
+        self.on_shutdown()
         return super().destroy_node()
 
 
-def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = JoyNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        executor.spin()
-    except JoyConfigError as exc:
-        print(f"joy_node: {exc}", file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        try:
-            if node is not None:
-                node.destroy_node()
-            if rclpy.ok():
-                rclpy.shutdown()
-        except KeyboardInterrupt:  # a late Ctrl-C during cleanup is still a clean stop
-            pass
-    return code
+def main(args: list[str] | None = None) -> int:
+    return run_node(JoyNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":

@@ -14,6 +14,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
+from vla_common.ros.testing import RosHarness
 from vla_latent_controller.controller_node import ControllerNode
 from vla_latent_controller.testing import READY
 
@@ -24,17 +25,15 @@ pytestmark = pytest.mark.ros
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 
 
-class Harness:
+class Harness(RosHarness):
+    """The node under test and an io node that plays joystick, robot and detector."""
+
     def __init__(self, model_dir, **params):
-        self.ctx = rclpy.context.Context()
-        rclpy.init(context=self.ctx)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
+        super().__init__()
         overrides = [Parameter("model_path", value=str(model_dir) if model_dir else "")]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
-        self.node = ControllerNode(context=self.ctx, parameter_overrides=overrides)
-        self.io = rclpy.create_node("controller_test_io", context=self.ctx)
-        self.ex.add_node(self.node)
-        self.ex.add_node(self.io)
+        self.node = self.add(ControllerNode(context=self.context, parameter_overrides=overrides))
+        self.io = self.add(rclpy.create_node("controller_test_io", context=self.context))
         self.joy = self.io.create_publisher(Joy, "joy", 10)
         self.js = self.io.create_publisher(JointState, "joint_states", 10)
         self.det = self.io.create_publisher(DetectionArray, "detections", 10)
@@ -45,14 +44,6 @@ class Harness:
         self.io.create_subscription(ControllerStatus, "controller_node/status", self.status.append, 10)
         self.spin_until(lambda: all(p.get_subscription_count() > 0 for p in (self.joy, self.js, self.det)))
         self.spin_until(lambda: self.cmds)
-
-    def spin_until(self, cond, timeout=5.0):
-        end = time.monotonic() + timeout
-        while time.monotonic() < end:
-            self.ex.spin_once(timeout_sec=0.01)
-            if cond():
-                return True
-        return False
 
     def send(self, axis=0.8, names=NAMES, q=READY, dets=(("bread", 320.0, 240.0),)):
         js = JointState(name=list(names), position=[float(v) for v in q])
@@ -78,18 +69,11 @@ class Harness:
                 return self.status[-1], np.array(self.cmds[-1])
         raise AssertionError(f"status never {code}: {self.status[-1:] if self.status else 'none'}")
 
-    def call(self, srv_type, name, req):
-        cli = self.io.create_client(srv_type, name)
-        assert self.spin_until(cli.service_is_ready)
-        fut = cli.call_async(req)
-        self.spin_until(fut.done)
-        return fut.result()
+    def call_service(self, srv_type, name, req):
+        return self.call(self.io.create_client(srv_type, name), req)
 
     def close(self):
-        self.ex.shutdown()
-        self.node.destroy_node()
-        self.io.destroy_node()
-        rclpy.shutdown(context=self.ctx)
+        self.shutdown()
 
 
 @pytest.fixture
@@ -119,15 +103,15 @@ def test_bad_inputs_give_zero_and_status(harness):
 
 def test_services_and_parameters(harness):
     harness.settle(ControllerStatus.ACTIVE)
-    r = harness.call(Trigger, "controller_node/redetect", Trigger.Request())
+    r = harness.call_service(Trigger, "controller_node/redetect", Trigger.Request())
     assert r.success
     st, cmd = harness.settle(ControllerStatus.WAITING_FOR_DETECTION, dets=None)
     assert np.all(cmd == 0.0) and st.latched_class == ""
     st, _ = harness.settle(ControllerStatus.ACTIVE, dets=[("milk_carton", 100.0, 100.0)])
     assert st.latched_class == "milk_carton"
-    r = harness.call(SetMode, "controller_node/set_mode", SetMode.Request(mode="joint"))
+    r = harness.call_service(SetMode, "controller_node/set_mode", SetMode.Request(mode="joint"))
     assert not r.success and "unknown mode" in r.message
-    r = harness.call(SetMode, "controller_node/set_mode", SetMode.Request(mode="end_effector"))
+    r = harness.call_service(SetMode, "controller_node/set_mode", SetMode.Request(mode="end_effector"))
     assert r.success
     st, cmd = harness.settle(ControllerStatus.ACTIVE)
     assert st.mode == "end_effector" and st.ee_axis == "x" and np.linalg.norm(cmd) > 0

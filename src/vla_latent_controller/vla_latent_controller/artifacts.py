@@ -16,6 +16,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from safetensors import SafetensorError
+from safetensors.numpy import load_file, save_file
 
 from vla_latent_controller.context import CNN_ENCODERS, ENCODERS, context_dim
 
@@ -98,8 +100,6 @@ def save_model(
     cnn_onnx: str | os.PathLike | None = None,
 ) -> Path:
     """Write model.safetensors (+ context_cnn.onnx) and config.json (last, with the files' sha256)."""
-    from safetensors.numpy import save_file
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     arrays = {k: np.ascontiguousarray(v, dtype=np.float32) for k, v in tensors.items()}
@@ -211,9 +211,6 @@ def load_model(path: str | os.PathLike) -> ModelArtifacts:
         _require(
             sha256_file(w_path) == want, f"{w_path}: sha256 differs from config.json (corrupt or replaced)"
         )
-    from safetensors import SafetensorError
-    from safetensors.numpy import load_file
-
     try:
         tensors = load_file(str(w_path))
     except (SafetensorError, OSError, ValueError) as e:

@@ -12,9 +12,10 @@ image a CNN sees at run time is prepared exactly as in training.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
 
+import cv2
 import numpy as np
+from vla_common.detection import Detection
 
 ENCODERS = ("detector", "localization", "end_to_end")
 CNN_ENCODERS = ("localization", "end_to_end")
@@ -28,29 +29,9 @@ class ContextError(ValueError):
     """The context cannot be built from the given inputs (unknown class, bad image, ...)."""
 
 
-@dataclass
-class Det:
-    """One detection in pixels of an image of size ``image_size`` (w, h)."""
-
-    class_id: str
-    score: float
-    cx: float
-    cy: float
-    width: float = 0.0
-    height: float = 0.0
-    class_index: int = -1
-
-    @classmethod
-    def from_dict(cls, d: dict) -> Det:
-        return cls(
-            class_id=str(d["class_id"]),
-            score=float(d.get("score", 1.0)),
-            cx=float(d["cx"]),
-            cy=float(d["cy"]),
-            width=float(d.get("width", d.get("w", 0.0))),
-            height=float(d.get("height", d.get("h", 0.0))),
-            class_index=int(d.get("class_index", -1)),
-        )
+# The detection type of the whole project; `Det` stays as an alias for the training and evaluation
+# packages that still import it from here.
+Det = Detection
 
 
 def context_dim(encoder: str, num_classes: int, feature_dim: int = CNN_FEATURE_DIM) -> int:
@@ -75,7 +56,7 @@ def one_hot(class_id: str, classes: Sequence[str]) -> np.ndarray:
     return v
 
 
-def detector_context(det: Det, image_size: tuple[int, int], classes: Sequence[str]) -> np.ndarray:
+def detector_context(det: Detection, image_size: tuple[int, int], classes: Sequence[str]) -> np.ndarray:
     """one-hot(class) ⊕ (cx / w, cy / h): the paper's structured context."""
     w, h = image_size
     if not (w > 0 and h > 0):
@@ -88,8 +69,6 @@ def detector_context(det: Det, image_size: tuple[int, int], classes: Sequence[st
 
 def preprocess_image(rgb: np.ndarray, size: tuple[int, int] = CNN_INPUT_SIZE) -> np.ndarray:
     """(H, W, 3) uint8 RGB → (3, h, w) float32 in [0, 1], downscaled with area averaging."""
-    import cv2
-
     a = np.asarray(rgb)
     if a.ndim != 3 or a.shape[2] != 3 or a.shape[0] < 2 or a.shape[1] < 2:
         raise ContextError(f"expected an (H, W, 3) RGB image, got shape {a.shape}")
@@ -100,11 +79,11 @@ def preprocess_image(rgb: np.ndarray, size: tuple[int, int] = CNN_INPUT_SIZE) ->
 
 
 def select_detection(
-    dets: Sequence[Det],
+    dets: Sequence[Detection],
     policy: str,
     classes: Sequence[str] | None = None,
     ee_pixel: tuple[float, float] | None = None,
-) -> Det | None:
+) -> Detection | None:
     """Pick the goal object among ``dets``.
 
     ``policy``: ``highest_score``; ``nearest_to_ee`` (box centre closest to the end effector's pixel,

@@ -11,12 +11,13 @@ import os
 from pathlib import Path
 
 import numpy as np
+import onnxruntime as ort
+from vla_common.detection import Detection
 
 from vla_latent_controller.artifacts import ModelArtifacts, ModelError, load_model
 from vla_latent_controller.context import (
     CNN_INPUT_SIZE,
     ContextError,
-    Det,
     detector_context,
     one_hot,
     preprocess_image,
@@ -37,17 +38,7 @@ class LatentModel:
         self._cnn = None
         self._cnn_input = tuple(self.config.get("cnn_input_size", CNN_INPUT_SIZE))
         if artifacts.cnn_path is not None:
-            import onnxruntime as ort
-
-            opts = ort.SessionOptions()
-            opts.intra_op_num_threads = 1
-            opts.log_severity_level = 3
-            try:
-                self._cnn = ort.InferenceSession(
-                    str(artifacts.cnn_path), opts, providers=["CPUExecutionProvider"]
-                )
-            except Exception as e:  # onnxruntime raises its own exception types for corrupt graphs
-                raise ModelError(f"{artifacts.cnn_path}: cannot load the CNN ({e})") from None
+            self._cnn = _cnn_session(artifacts.cnn_path)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> LatentModel:
@@ -74,7 +65,7 @@ class LatentModel:
 
     def context(
         self,
-        det: Det | None = None,
+        det: Detection | None = None,
         image_size: tuple[int, int] | None = None,
         image: np.ndarray | None = None,
         class_id: str | None = None,
@@ -93,3 +84,14 @@ class LatentModel:
         if cls is None:
             raise ContextError("the localization encoder needs the goal class (a detection or a fixed class)")
         return np.concatenate([f, one_hot(cls, self.classes)])
+
+
+def _cnn_session(path: Path) -> ort.InferenceSession:
+    """One-thread CPU session of the context CNN; ModelError when the graph does not load."""
+    opts = ort.SessionOptions()
+    opts.intra_op_num_threads = 1
+    opts.log_severity_level = 3
+    try:
+        return ort.InferenceSession(str(path), opts, providers=["CPUExecutionProvider"])
+    except Exception as e:  # onnxruntime raises its own exception types for corrupt graphs
+        raise ModelError(f"{path}: cannot load the CNN ({e})") from None

@@ -14,8 +14,9 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from vla_common.detection import Detection
 
-from vla_latent_controller.context import GOAL_SELECTIONS, ContextError, Det, select_detection
+from vla_latent_controller.context import GOAL_SELECTIONS, ContextError, select_detection
 from vla_latent_controller.ee_baseline import EE_AXES, EndEffectorBaseline
 
 MODES = ("latent", "end_effector")
@@ -152,7 +153,7 @@ class TeleopCore:
         self._axes: list[float] | None = None
         self._buttons: list[int] = []
         self._joy_t = -math.inf
-        self._dets: list[Det] = []
+        self._dets: list[Detection] = []
         self._dets_size: tuple[int, int] | None = None
         self._dets_t = -math.inf
         self._image: np.ndarray | None = None
@@ -229,7 +230,7 @@ class TeleopCore:
             return
         self._q, self._q_t, self._q_error = q, now, None
 
-    def on_detections(self, dets: Sequence[Det], image_size: tuple[int, int], now: float) -> None:
+    def on_detections(self, dets: Sequence[Detection], image_size: tuple[int, int], now: float) -> None:
         self._dets, self._dets_size, self._dets_t = list(dets), tuple(image_size), now
 
     def on_image(self, rgb: np.ndarray, now: float) -> None:
@@ -396,7 +397,7 @@ class TeleopCore:
         self.latched = Latched(class_id=class_id, x=x, y=y, t=t, gain=m.gain(gain_class))
         return None
 
-    def _pick(self, q: np.ndarray) -> Det | None:
+    def _pick(self, q: np.ndarray) -> Detection | None:
         p = self.params
         ee_px = None
         if p.goal_selection == "nearest_to_ee" and self.ee_pixel is not None:

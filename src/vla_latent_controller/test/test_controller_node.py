@@ -92,8 +92,8 @@ def test_latent_command_deadband_and_status(harness):
 
 
 def test_bad_inputs_give_zero_and_status(harness):
-    st, cmd = harness.settle(ControllerStatus.BAD_INPUT, names=NAMES[:6], q=READY[:6])
-    assert "lacks panda_joint7" in st.reason and np.all(cmd == 0.0)
+    st, cmd = harness.settle(ControllerStatus.MODEL_ERROR, names=NAMES[:6], q=READY[:6])
+    assert "lack panda_joint7" in st.reason and np.all(cmd == 0.0)
     st, cmd = harness.settle(ControllerStatus.BAD_INPUT, axis=float("nan"))
     assert "not a finite" in st.reason and np.all(cmd == 0.0)
     st, cmd = harness.settle(ControllerStatus.ACTIVE)

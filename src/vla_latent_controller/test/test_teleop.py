@@ -1,7 +1,10 @@
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+from vla_latent_controller.artifacts import load_model, save_model
 from vla_latent_controller.context import Det
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
@@ -84,6 +87,7 @@ def test_axis_index_out_of_range(random_model_dir):
 
 
 def test_joint_states_by_name_in_any_order(random_model_dir):
+    """Extra joints are ignored; the command follows the order of joint_states' names."""
     a = make_core(random_model_dir)
     feed(a, 0.0)
     ref = a.step(0.0)[0].copy()
@@ -93,13 +97,12 @@ def test_joint_states_by_name_in_any_order(random_model_dir):
     b.on_joint_states(
         ["panda_finger_joint1"] + [NAMES[i] for i in order], [0.04] + [READY[i] for i in order], 0.0
     )
-    np.testing.assert_array_equal(b.step(0.0)[0], ref)
+    np.testing.assert_array_equal(b.step(0.0)[0], ref[order])
 
 
 @pytest.mark.parametrize(
     "names, pos, text",
     [
-        (NAMES[:6], list(READY[:6]), "lacks panda_joint7"),
         (NAMES, [*READY[:6], float("nan")], "non-finite positions for panda_joint7"),
         (NAMES, list(READY[:5]), "7 names but 5 positions"),
     ],
@@ -207,7 +210,7 @@ def test_speed_clamp_keeps_direction(random_model_dir):
     cmd = core.step(0.0)[0]
     assert np.linalg.norm(cmd) == pytest.approx(1.5)
     np.testing.assert_allclose(cmd / np.linalg.norm(cmd), raw / np.linalg.norm(raw), atol=1e-9)
-    core.params.dq_max = [0.1] * 7
+    core.params.dq_max = dict.fromkeys(NAMES, 0.1)
     assert np.max(np.abs(core.step(0.0)[0])) == pytest.approx(0.1)
 
 
@@ -279,3 +282,47 @@ def test_malformed_detection_and_joy(random_model_dir):
     core.on_detections([Det("bread", 0.9, 320, 240)], SIZE, 0.0)
     cmd, st = core.step(0.0)
     assert st.code == Code.BAD_INPUT and np.all(cmd == 0)
+
+
+def _permuted_model(src: Path, dst: Path, order: list[int]) -> Path:
+    """The same network as `src` with its joints listed in `order`: by joint name, the same function."""
+    art = load_model(src)
+    cfg = json.loads(json.dumps(art.config))
+    cfg["joint_names"] = [cfg["joint_names"][i] for i in order]
+    for key in ("q_mean", "q_std", "a_scale"):
+        cfg["normalisation"][key] = [cfg["normalisation"][key][i] for i in order]
+    t = {k: v.copy() for k, v in art.tensors.items()}
+    k = cfg["dims"]["context"]
+    t["decoder.0.weight"][:, k : k + 7] = art.tensors["decoder.0.weight"][:, k : k + 7][:, order]
+    t["decoder.4.weight"] = art.tensors["decoder.4.weight"][order]
+    t["decoder.4.bias"] = art.tensors["decoder.4.bias"][order]
+    cfg.pop("files")
+    return save_model(dst, cfg, t)
+
+
+def test_command_is_in_the_robots_joint_order(random_model_dir, tmp_path):
+    """A model that lists its joints in another order drives the same joints by name; the command is
+    in the order of the names in joint_states (the robot's)."""
+    ref = make_core(random_model_dir)
+    feed(ref, 0.0)
+    want = dict(zip(NAMES, ref.step(0.0)[0].copy()))
+    assert np.linalg.norm(list(want.values())) > 0
+    order = [6, 5, 4, 3, 2, 1, 0]
+    core = make_core(_permuted_model(random_model_dir, tmp_path / "reversed", order))
+    feed(core, 0.0)
+    np.testing.assert_allclose(core.step(0.0)[0], [want[n] for n in NAMES], rtol=1e-12, atol=1e-15)
+    robot = [NAMES[i] for i in (3, 0, 6, 2, 5, 1, 4)]  # a robot that publishes its joints in this order
+    positions = [0.04] + [READY[NAMES.index(n)] for n in robot]
+    core.on_joint_states(["panda_finger_joint1", *robot], positions, 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.ACTIVE
+    np.testing.assert_allclose(cmd, [want[n] for n in robot], rtol=1e-12, atol=1e-15)
+    assert core.command_joints == tuple(robot)
+
+
+def test_a_model_whose_joints_the_robot_lacks_is_refused(random_model_dir):
+    core = make_core(random_model_dir)
+    feed(core, 0.0)
+    core.on_joint_states(NAMES[:6], list(READY[:6]), 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.MODEL_ERROR and "lack panda_joint7" in st.reason and np.all(cmd == 0)

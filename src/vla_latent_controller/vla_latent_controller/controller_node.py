@@ -110,7 +110,8 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         values = PARAMETERS.declare(self, self._on_parameter)
-        self.params = TeleopParams(dq_max=list(DQ_MAX), **{n: values[n] for n in _CORE_PARAMS})
+        limits = dict(zip(JOINT_NAMES, (float(v) for v in DQ_MAX)))  # the Panda's; other names: none
+        self.params = TeleopParams(dq_max=limits, **{n: values[n] for n in _CORE_PARAMS})
         self._intrinsics: tuple[float, float, float, float] | None = None
         self._kin = _panda_kinematics(self.get_logger())
         self.core = TeleopCore(

@@ -10,14 +10,16 @@ from __future__ import annotations
 
 import enum
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
 from vla_common.detection import Detection
+from vla_common.robot import JOINT_NAMES
 
 from vla_latent_controller.context import GOAL_SELECTIONS, ContextError, select_detection
 from vla_latent_controller.ee_baseline import EE_AXES, EndEffectorBaseline
+from vla_latent_controller.joints import JointBinding, JointResolver
 
 MODES = ("latent", "end_effector")
 
@@ -57,7 +59,8 @@ class TeleopParams:
     detection_max_age: float = 0.0
     goal_selection: str = "highest_score"
     joint_states_timeout: float = 0.5
-    dq_max: Sequence[float] | None = None  # per-joint limits; the whole vector is scaled to respect them
+    # per-joint speed limits (rad/s) by the robot's joint name; the whole vector is scaled to respect them
+    dq_max: Mapping[str, float] | None = None
 
     def check(self, classes: Sequence[str] | None = None) -> str | None:
         """A reason the parameters are unusable, or None."""
@@ -109,6 +112,11 @@ def stick_to_unit(stick, deadband: float, axis_scale: float = 1.0):
     return float(u) if u.ndim == 0 else u
 
 
+def _pressed_now(buttons: Sequence[int], prev: Sequence[int], i: int) -> bool:
+    """Button i went from released to pressed between two joy messages."""
+    return 0 <= i < len(buttons) and buttons[i] != 0 and not (i < len(prev) and prev[i] != 0)
+
+
 def _finite(x) -> bool:
     try:
         return math.isfinite(float(x))
@@ -116,12 +124,24 @@ def _finite(x) -> bool:
         return False
 
 
+@dataclass
+class _JointStates:
+    """The latest joint_states message that names any of the controller's joints."""
+
+    names: tuple[str, ...] = ()
+    positions: np.ndarray | None = None
+    t: float = -math.inf
+    error: str | None = None  # a malformed message (BAD_INPUT)
+
+
 class TeleopCore:
     """One controller instance. Feed it inputs with ``on_*`` and call :meth:`step` at the command rate.
 
     ``model`` is a :class:`vla_latent_controller.model.LatentModel` (or None with ``model_error`` saying
-    why); ``kinematics`` has ``jacobian(q)`` (and ``fk(q)`` for ``nearest_to_ee``); ``ee_pixel`` maps q to
-    the end effector's pixel in the detector's image (or None when the camera is not calibrated).
+    why); ``kinematics`` has ``jacobian(q)`` (and ``fk(q)`` for ``nearest_to_ee``) over the joints
+    ``joint_names`` (default: the Panda's); ``ee_pixel`` maps q to the end effector's pixel in the
+    detector's image (or None when the camera is not calibrated). ``joint_map`` renames the
+    controller's joints to the robot's ({model joint: robot joint}, see :mod:`.joints`).
     """
 
     def __init__(
@@ -132,6 +152,7 @@ class TeleopCore:
         joint_names: Sequence[str] | None = None,
         model_error: str | None = None,
         ee_pixel: Callable[[np.ndarray], tuple[float, float] | None] | None = None,
+        joint_map: Mapping[str, str] | None = None,
     ):
         self.params = params
         self.kinematics = kinematics
@@ -140,16 +161,13 @@ class TeleopCore:
             kinematics, params.ee_linear_speed, params.ee_angular_speed, params.ee_damping, params.ee_debounce
         )
         self.mode = params.mode if params.mode in MODES else "latent"
+        self.kin_joints = tuple(joint_names) if joint_names is not None else JOINT_NAMES
+        self.joint_map = dict(joint_map or {})
         self.model = None
         self.model_error = model_error
-        self.joint_names: list[str] = (
-            list(joint_names) if joint_names is not None else [f"panda_joint{i}" for i in range(1, 8)]
-        )
-        self.set_model(model, model_error)
         # inputs
-        self._q: np.ndarray | None = None
-        self._q_t = -math.inf
-        self._q_error: str | None = None
+        self._js = _JointStates()
+        self._foreign: tuple[float, tuple[str, ...]] | None = None  # (time, names) naming none of ours
         self._axes: list[float] | None = None
         self._buttons: list[int] = []
         self._joy_t = -math.inf
@@ -161,16 +179,34 @@ class TeleopCore:
         # context
         self.latched: Latched | None = None
         self._latch_after = -math.inf  # a new latch needs inputs received at or after this time
+        self.set_model(model, model_error)
         self._cmd = np.zeros(len(self.joint_names))
+        self.command_joints: tuple[str, ...] = ()  # the command's joints (the robot's names and order)
+        self._limits: tuple[tuple, np.ndarray | None] = ((), None)  # ((joints, id(dq_max)), limits)
         self.status = Status(mode=self.mode, ee_axis=self.ee.axis, command=self._cmd.copy())
 
     # ----------------------------------------------------------------- configuration
     def set_model(self, model, error: str | None = None) -> None:
-        self.model, self.model_error = model, error
-        if model is not None:
-            self.joint_names = list(model.joint_names)
-            self.model_error = None
+        self.model, self.model_error = model, (None if model is not None else error)
         self.latched = None
+        self._bind_joints()
+
+    def set_joint_map(self, joint_map: Mapping[str, str]) -> None:
+        """Rename the controller's joints to the robot's ({model joint: robot joint})."""
+        self.joint_map = dict(joint_map)
+        self._bind_joints()
+
+    def _bind_joints(self) -> None:
+        model_joints = self.model.joint_names if self.model is not None else self.kin_joints
+        self._resolvers = {
+            "latent": JointResolver(model_joints, self.joint_map),
+            "end_effector": JointResolver(self.kin_joints, self.joint_map),
+        }
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        """The active mode's joints, in the order the decoder (or the kinematics) computes them."""
+        return self._resolvers[self.mode].joints
 
     def sync_params(self) -> None:
         """Apply changed end-effector parameters (the rest are read from ``params`` on every step)."""
@@ -198,37 +234,29 @@ class TeleopCore:
         except (TypeError, ValueError):  # not a sequence of numbers: BAD_INPUT via an empty axes list
             self._axes, self._buttons = [], []
         self._joy_t = now
-
-        def pressed(i: int) -> bool:
-            return (
-                0 <= i < len(self._buttons) and self._buttons[i] != 0 and not (i < len(prev) and prev[i] != 0)
-            )
-
         p = self.params
-        if pressed(p.ee_mode_button) and self.mode == "end_effector":
+        if _pressed_now(self._buttons, prev, p.ee_mode_button) and self.mode == "end_effector":
             self.ee.press(now)
-        if pressed(p.redetect_button):
+        if _pressed_now(self._buttons, prev, p.redetect_button):
             self.request_redetect(now)
 
     def on_joint_states(self, names: Sequence[str], positions: Sequence[float], now: float) -> None:
-        """Resolve by name (any order, extra joints ignored); a missing joint or NaN is a BAD_INPUT."""
+        """Keep the latest message that names any of our joints (resolved by name in :meth:`step`); one
+        naming none of them (another robot, or a gripper's own joint_states) is only remembered."""
+        names = tuple(names)
         if len(names) != len(positions):
-            self._q_error = f"joint_states has {len(names)} names but {len(positions)} positions"
-            self._q_t = now
+            error = f"joint_states has {len(names)} names but {len(positions)} positions"
+            self._js = _JointStates(names, None, now, error)
             return
-        index = {n: i for i, n in enumerate(names)}
-        missing = [n for n in self.joint_names if n not in index]
-        if missing:
-            self._q_error = f"joint_states lacks {', '.join(missing)}"
-            self._q_t = now
+        if not any(r.overlaps(names) for r in self._resolvers.values()):
+            self._foreign = (now, names)
             return
-        q = np.array([positions[index[n]] for n in self.joint_names], dtype=float)
-        if not np.all(np.isfinite(q)):
-            bad = [n for n, v in zip(self.joint_names, q) if not math.isfinite(v)]
-            self._q_error = f"joint_states has non-finite positions for {', '.join(bad)}"
-            self._q_t = now
+        try:
+            q = np.asarray(positions, dtype=float)
+        except (TypeError, ValueError):
+            self._js = _JointStates(names, None, now, "joint_states positions are not numbers")
             return
-        self._q, self._q_t, self._q_error = q, now, None
+        self._js = _JointStates(names, q, now)
 
     def on_detections(self, dets: Sequence[Detection], image_size: tuple[int, int], now: float) -> None:
         self._dets, self._dets_size, self._dets_t = list(dets), tuple(image_size), now
@@ -238,7 +266,7 @@ class TeleopCore:
 
     # ----------------------------------------------------------------- loop
     def step(self, now: float) -> tuple[np.ndarray, Status]:
-        """The command for this tick and the status; never raises."""
+        """The command for this tick (in the robot's joint order) and the status; never raises."""
         try:
             return self._step(now)
         except Exception as e:  # a control loop must not die: report and command zero
@@ -257,6 +285,78 @@ class TeleopCore:
         s.command = self._cmd.copy()
         return s
 
+    def _joint_state(self, now: float) -> tuple[np.ndarray, JointBinding] | tuple[Code, str]:
+        """(q in the active joints' order, its binding to the robot), or (code, reason) for zero."""
+        js, resolver, timeout = self._js, self._resolvers[self.mode], self.params.joint_states_timeout
+        foreign = self._foreign is not None and self._foreign[0] >= js.t
+        if foreign and (js.t == -math.inf or now - js.t > timeout):
+            return Code.MODEL_ERROR, resolver.mismatch(self._foreign[1])
+        if js.t == -math.inf:
+            return Code.WAITING_FOR_JOINT_STATES, "no joint_states yet"
+        if now - js.t > timeout:
+            return (
+                Code.WAITING_FOR_JOINT_STATES,
+                f"last joint_states {now - js.t:.2f} s ago (timeout {timeout} s)",
+            )
+        if js.error is not None:
+            return Code.BAD_INPUT, js.error
+        binding = resolver.bind(js.names)
+        if isinstance(binding, str):
+            return Code.MODEL_ERROR, binding
+        q = js.positions[binding.q_index]
+        if not np.all(np.isfinite(q)):
+            bad = [n for n, v in zip(resolver.robot_joints, q) if not math.isfinite(v)]
+            return Code.BAD_INPUT, f"joint_states has non-finite positions for {', '.join(bad)}"
+        return q, binding
+
+    def _step(self, now: float) -> tuple[np.ndarray, Status]:
+        p = self.params
+        bad = p.check(self.model.classes if self.model is not None else None)
+        if bad:
+            return self._zero(Code.MODEL_ERROR, f"bad parameters: {bad}")
+        state = self._joint_state(now)
+        if isinstance(state[0], Code):
+            return self._zero(*state)
+        q, binding = state
+        self._use_binding(binding)
+        problem = self._mode_problem(q, now)
+        if problem is not None:
+            return self._zero(*problem)
+        code, reason, u = self._stick(now)
+        if code is not None:
+            return self._zero(code, reason)
+        z, dq = self._command(q, u)
+        if not np.all(np.isfinite(dq)):
+            return self._zero(
+                Code.MODEL_ERROR, "command is not finite (model or kinematics output NaN/Inf)", z
+            )
+        np.take(dq, binding.order, out=self._cmd)
+        self._limit(self._cmd)
+        return self._cmd, self._set_status(Code.ACTIVE, "", z)
+
+    def _use_binding(self, binding: JointBinding) -> None:
+        """Size the command for the bound joints; they are the robot's, in its order."""
+        if binding.robot_names != self.command_joints:
+            self.command_joints = binding.robot_names
+            self._cmd = np.zeros(len(binding.robot_names))
+
+    def _mode_problem(self, q: np.ndarray, now: float) -> tuple[Code, str] | None:
+        """Why the active mode cannot command now (no model, no context yet, no kinematics), or None."""
+        if self.mode == "latent":
+            if self.model is None:
+                return Code.MODEL_ERROR, self.model_error or "no model loaded (set model_path)"
+            return self._ensure_context(q, now)
+        if self.kinematics is None:
+            return Code.MODEL_ERROR, "end_effector mode needs the Panda kinematics (Pinocchio)"
+        return None
+
+    def _command(self, q: np.ndarray, u: float) -> tuple[float, np.ndarray]:
+        """(latent z, joint velocities in the active joints' order) for stick value u."""
+        if self.mode == "latent":
+            z = u * self.latched.gain
+            return z, self.model.decoder.decode(q, z) * self.params.action_scale
+        return u, self.ee.command(q, u)
+
     def _stick(self, now: float) -> tuple[Code | None, str, float]:
         """(problem code or None, reason, stick value u ∈ [-1, 1] after deadband and scale)."""
         p = self.params
@@ -267,15 +367,9 @@ class TeleopCore:
             return Code.JOY_TIMEOUT, f"last joy message {age:.2f} s ago (joy_timeout {p.joy_timeout} s)", 0.0
         if not 0 <= p.axis < len(self._axes):
             return Code.BAD_INPUT, f"axis {p.axis} out of range: joy has {len(self._axes)} axes", 0.0
-        if p.enable_button >= 0:
-            if p.enable_button >= len(self._buttons):
-                return (
-                    Code.BAD_INPUT,
-                    f"enable_button {p.enable_button} out of range: joy has {len(self._buttons)} buttons",
-                    0.0,
-                )
-            if not self._buttons[p.enable_button]:
-                return Code.DEADMAN_RELEASED, f"enable button {p.enable_button} not held", 0.0
+        deadman = self._deadman()
+        if deadman is not None:
+            return (*deadman, 0.0)
         v = self._axes[p.axis]
         if not _finite(v):
             return Code.BAD_INPUT, f"joy axis {p.axis} is not a finite number ({v!r})", 0.0
@@ -283,47 +377,16 @@ class TeleopCore:
             return Code.ZERO_DEADBAND, f"stick within deadband {p.deadband}", 0.0
         return None, "", stick_to_unit(float(v), p.deadband, p.axis_scale)
 
-    def _step(self, now: float) -> tuple[np.ndarray, Status]:
-        p = self.params
-        bad = p.check(self.model.classes if self.model is not None else None)
-        if bad:
-            return self._zero(Code.MODEL_ERROR, f"bad parameters: {bad}")
-        if self._q_t == -math.inf:
-            return self._zero(Code.WAITING_FOR_JOINT_STATES, "no joint_states yet")
-        if now - self._q_t > p.joint_states_timeout:
-            return self._zero(
-                Code.WAITING_FOR_JOINT_STATES,
-                f"last joint_states {now - self._q_t:.2f} s ago (timeout {p.joint_states_timeout} s)",
-            )
-        if self._q_error is not None:
-            return self._zero(Code.BAD_INPUT, self._q_error)
-        q = self._q
-        assert q is not None
-        if self.mode == "latent":
-            if self.model is None:
-                return self._zero(Code.MODEL_ERROR, self.model_error or "no model loaded (set model_path)")
-            problem = self._ensure_context(q, now)
-            if problem is not None:
-                return self._zero(*problem)
-        elif self.kinematics is None:
-            return self._zero(Code.MODEL_ERROR, "end_effector mode needs the Panda kinematics (Pinocchio)")
-        code, reason, u = self._stick(now)
-        if code is not None:
-            return self._zero(code, reason)
-        if self.mode == "latent":
-            assert self.latched is not None
-            z = u * self.latched.gain
-            dq = self.model.decoder.decode(q, z) * p.action_scale
-        else:
-            z = u
-            dq = self.ee.command(q, u)
-        if not np.all(np.isfinite(dq)):
-            return self._zero(
-                Code.MODEL_ERROR, "command is not finite (model or kinematics output NaN/Inf)", z
-            )
-        self._cmd[:] = dq
-        self._limit(self._cmd)
-        return self._cmd, self._set_status(Code.ACTIVE, "", z)
+    def _deadman(self) -> tuple[Code, str] | None:
+        """Why the enable button does not let the stick through, or None (held, or none configured)."""
+        b = self.params.enable_button
+        if b < 0:
+            return None
+        if b >= len(self._buttons):
+            return Code.BAD_INPUT, f"enable_button {b} out of range: joy has {len(self._buttons)} buttons"
+        if self._buttons[b] != 0:
+            return None
+        return Code.DEADMAN_RELEASED, f"enable button {b} not held"
 
     def _limit(self, dq: np.ndarray) -> None:
         """Scale the whole vector (keeping its direction) to the norm clamp and the per-joint limits."""
@@ -332,13 +395,22 @@ class TeleopCore:
         scale = 1.0
         if p.max_joint_speed > 0 and n > p.max_joint_speed:
             scale = p.max_joint_speed / n
-        if p.dq_max is not None:
-            lim = np.asarray(p.dq_max, float)
+        lim = self._joint_limits()
+        if lim is not None:
             worst = float(np.max(np.abs(dq) / lim))
             if worst * scale > 1.0:
                 scale = 1.0 / worst
         if scale < 1.0:
             dq *= scale
+
+    def _joint_limits(self) -> np.ndarray | None:
+        """Per-joint speed limits of the command's joints (by the robot's names; inf where unknown)."""
+        limits = self.params.dq_max
+        key = (self.command_joints, id(limits))
+        if self._limits[0] != key:
+            lim = None if not limits else np.array([limits.get(n, math.inf) for n in self.command_joints])
+            self._limits = (key, lim)
+        return self._limits[1]
 
     # ----------------------------------------------------------------- context
     def _ensure_context(self, q: np.ndarray, now: float) -> tuple[Code, str] | None:

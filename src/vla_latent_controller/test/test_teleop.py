@@ -326,3 +326,12 @@ def test_a_model_whose_joints_the_robot_lacks_is_refused(random_model_dir):
     core.on_joint_states(NAMES[:6], list(READY[:6]), 0.0)
     cmd, st = core.step(0.0)
     assert st.code == Code.MODEL_ERROR and "lack panda_joint7" in st.reason and np.all(cmd == 0)
+
+
+@pytest.mark.parametrize("value", [-1, 2, 255])
+def test_only_a_pressed_button_holds_the_deadman(random_model_dir, value):
+    """Joy buttons are 0 or 1; any other value (a driver's -1, garbage) is not a held deadman."""
+    core = make_core(random_model_dir, enable_button=1)
+    feed(core, 0.0, buttons=(0, value))
+    cmd, st = core.step(0.0)
+    assert st.code == Code.DEADMAN_RELEASED and np.all(cmd == 0)

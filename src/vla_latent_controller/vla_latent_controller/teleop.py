@@ -113,8 +113,8 @@ def stick_to_unit(stick, deadband: float, axis_scale: float = 1.0):
 
 
 def _pressed_now(buttons: Sequence[int], prev: Sequence[int], i: int) -> bool:
-    """Button i went from released to pressed between two joy messages."""
-    return 0 <= i < len(buttons) and buttons[i] != 0 and not (i < len(prev) and prev[i] != 0)
+    """Button i went from not pressed to pressed (value 1) between two joy messages."""
+    return 0 <= i < len(buttons) and buttons[i] == 1 and not (i < len(prev) and prev[i] == 1)
 
 
 def _finite(x) -> bool:
@@ -384,9 +384,10 @@ class TeleopCore:
             return None
         if b >= len(self._buttons):
             return Code.BAD_INPUT, f"enable_button {b} out of range: joy has {len(self._buttons)} buttons"
-        if self._buttons[b] != 0:
+        v = self._buttons[b]
+        if v == 1:  # pressed; a driver's -1 or any other value is not a held deadman
             return None
-        return Code.DEADMAN_RELEASED, f"enable button {b} not held"
+        return Code.DEADMAN_RELEASED, f"enable button {b} not held" + ("" if v == 0 else f" (value {v})")
 
     def _limit(self, dq: np.ndarray) -> None:
         """Scale the whole vector (keeping its direction) to the norm clamp and the per-joint limits."""

@@ -21,6 +21,15 @@ import time
 from pathlib import Path
 
 import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import Image, JointState
+from std_srvs.srv import Trigger
+from vla_demo_recorder.bag_writer import read_metadata_yaml
+
+from vla_interfaces.srv import StartEpisode
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -41,17 +50,7 @@ def main() -> int:
     args = ap.parse_args()
 
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(30, 200)))
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.node import Node
-    from rclpy.qos import QoSProfile, ReliabilityPolicy
-    from sensor_msgs.msg import Image, JointState
-    from std_srvs.srv import Trigger
-    from vla_demo_recorder.bag_writer import read_metadata_yaml
-
-    from vla_interfaces.srv import StartEpisode
-
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by rclpy.init and the child
     exe = ROOT / "install/vla_demo_recorder/lib/vla_demo_recorder/recorder_node"
     if not exe.exists():
         print(f"{exe} missing: run `make setup`", file=sys.stderr)

@@ -14,7 +14,8 @@ setup(
     zip_safe=True,
     maintainer="VLA developers",
     maintainer_email="dev@vla.invalid",
-    description="Records kinesthetic demonstrations to rosbag2 MCAP bags and turns bags into training pairs.",
+    description="Records demonstrations to rosbag2 MCAP bags (one per episode), recovers bags of a killed "
+    "recorder and loads bags as demonstrations.",
     license="Apache-2.0",
     entry_points={
         "console_scripts": [

@@ -1,6 +1,9 @@
 """Hand-made bags for the recorder tests (rosbags' own CDR serializer; no ROS needed)."""
 from __future__ import annotations
 
+import numpy as np
+from vla_demo_recorder.bag_writer import TypeRegistry
+
 _STORE = None
 
 
@@ -8,8 +11,6 @@ def typestore():
     """rosbags Jazzy type store plus our vla_interfaces types (from their installed .msg files)."""
     global _STORE
     if _STORE is None:
-        from vla_demo_recorder.bag_writer import TypeRegistry
-
         reg = TypeRegistry()
         reg.definition("vla_interfaces/msg/DetectionArray")
         _STORE = reg._store
@@ -24,8 +25,6 @@ def stamp(t_ns: int):
 
 
 def joint_state(t_ns: int, names, positions) -> bytes:
-    import numpy as np
-
     ts = typestore()
     msg = ts.types["sensor_msgs/msg/JointState"](
         header=stamp(t_ns), name=list(names), position=np.asarray(positions, dtype=np.float64),
@@ -35,8 +34,6 @@ def joint_state(t_ns: int, names, positions) -> bytes:
 
 def image(t_ns: int, pixels, encoding: str = "rgb8", pad: int = 0) -> bytes:
     """An Image message; `pad` extra bytes per row exercise `step`."""
-    import numpy as np
-
     ts = typestore()
     h, w = pixels.shape[:2]
     rows = pixels.reshape(h, -1)

@@ -12,6 +12,7 @@ from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from recorder_testing import detections, joint_state, string
 from rosbags.highlevel import AnyReader
+from vla_demo_recorder.bag_files import find_mcap, has_footer
 from vla_demo_recorder.bag_writer import (
     BagError,
     BagWriteError,
@@ -21,7 +22,7 @@ from vla_demo_recorder.bag_writer import (
     read_metadata_yaml,
 )
 from vla_demo_recorder.recorder import Recorder, RecorderError
-from vla_demo_recorder.recover import find_mcap, has_footer, recover
+from vla_demo_recorder.recover import recover
 
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 JS = "sensor_msgs/msg/JointState"

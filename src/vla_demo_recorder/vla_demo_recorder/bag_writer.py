@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass, field, fields
 from io import StringIO
 from pathlib import Path
 
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from rosbags.interfaces import Qos, QosDurability, QosHistory, QosLiveliness, QosReliability, QosTime
 from rosbags.rosbag2 import StoragePlugin, Writer, WriterError
 from rosbags.rosbag2.metadata import dump_qos_v9
@@ -120,10 +121,6 @@ class TypeRegistry:
 
     def _msg_file(self, msgtype: str) -> Path:
         pkg, _, name = msgtype.split("/")
-        try:
-            from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-        except ImportError as err:  # pragma: no cover - the ROS environment provides it
-            raise BagError(f"unknown message type {msgtype}: ament_index_python unavailable") from err
         try:
             path = Path(get_package_share_directory(pkg)) / "msg" / f"{name}.msg"
         except PackageNotFoundError as err:

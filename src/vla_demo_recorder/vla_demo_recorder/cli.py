@@ -7,11 +7,20 @@ import sys
 import time
 from pathlib import Path
 
+import rclpy
+from rclpy.node import Node
+from std_srvs.srv import Trigger
+
+from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, read_metadata_yaml
+from vla_demo_recorder.recover import recover
+from vla_interfaces.msg import RecorderStatus
+from vla_interfaces.srv import StartEpisode
+
+# Commands that moved to the packages they belong to.
+MOVED = {"pairs": "vla_latent_training pairs", "generate": "vla_evaluation generate"}
+
 
 def _cmd_recover(args: argparse.Namespace) -> int:
-    from vla_demo_recorder.bag_writer import BagError
-    from vla_demo_recorder.recover import recover
-
     status = 0
     for bag in args.bags:
         try:
@@ -25,8 +34,6 @@ def _cmd_recover(args: argparse.Namespace) -> int:
 
 
 def _cmd_info(args: argparse.Namespace) -> int:
-    from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, read_metadata_yaml
-
     status = 0
     for bag in args.bags:
         try:
@@ -50,13 +57,6 @@ def _cmd_info(args: argparse.Namespace) -> int:
 
 def _cmd_episode(args: argparse.Namespace) -> int:
     """Call the recorder node's services (this workspace has no ros2cli)."""
-    import rclpy
-    from rclpy.node import Node
-    from std_srvs.srv import Trigger
-
-    from vla_interfaces.msg import RecorderStatus
-    from vla_interfaces.srv import StartEpisode
-
     rclpy.init()
     node = Node("vla_demo_recorder_cli")
     try:
@@ -128,6 +128,10 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    if argv and argv[0] in MOVED:
+        print(f"error: `vla_demo_recorder {argv[0]}` is now `{MOVED[argv[0]]}`", file=sys.stderr)
+        return 2
     args = build_parser().parse_args(argv)
     return int(args.func(args) or 0)
 

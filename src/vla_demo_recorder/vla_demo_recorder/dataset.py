@@ -4,31 +4,32 @@ Reads rosbag2 MCAP bags from any writer (our recorder, `ros2 bag record`, rosbag
 mcap library with the mcap-ros2 decoder decodes every message from the schema stored in the file, so
 extra topics are simply ignored, optional topics (camera, detections) may be missing, and joint order
 is resolved by name. Joint states are resampled to 10 Hz; the episode's context is its first camera
-frame (rgb8/bgr8/rgba8/bgra8/mono8 or compressed) and its first detection (top score). A bag without
-a usable context is reported with the reason and skipped, never silently used.
+frame (any encoding `vla_common.image_convert` reads, or compressed) and its first detection (top
+score, the episode's object preferred). A bag without a usable context is reported with the reason
+and skipped, never silently used.
 
 Training pairs are made from these demonstrations by `vla_latent_training.pairs`.
 """
 from __future__ import annotations
 
-from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+import cv2
 import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from ruamel.yaml import YAML
+from vla_common.detection import Detection, best
+from vla_common.image_convert import UnsupportedImageError, to_rgb
+from vla_common.objects import OBJECT_CLASSES
+from vla_common.robot import DQ_MAX, JOINT_NAMES
 
-from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, read_metadata_yaml
-from vla_demo_recorder.recover import find_mcap, has_footer
-
-try:
-    from vla_common.robot import DQ_MAX, JOINT_NAMES
-except ImportError:  # pragma: no cover - the workspace always has it
-    JOINT_NAMES = tuple(f"panda_joint{i}" for i in range(1, 8))
-    DQ_MAX = None  # no limit table: the jump check is skipped
+from vla_demo_recorder.bag_files import find_mcap, has_footer
+from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, object_class_of, read_metadata_yaml
 
 RATE_HZ = 10.0
 JOINT_STATE_TYPES = ("sensor_msgs/msg/JointState",)
@@ -47,6 +48,39 @@ class DemoError(ValueError):
     """A bag that cannot serve as a demonstration; the message says why."""
 
 
+class DemoDetection(Detection):
+    """The demo's `vla_common.detection.Detection`, also readable as the dict it used to be
+    (`d["class_id"]`, `d.get("width")`, `dict(d)`), for readers that still index it; equal to a
+    plain Detection with the same fields. Read attributes in new code."""
+
+    _KEYS = tuple(f.name for f in fields(Detection))
+
+    @classmethod
+    def of(cls, d: Detection | Mapping | None) -> DemoDetection | None:
+        if d is None or isinstance(d, DemoDetection):
+            return d
+        d = d if isinstance(d, Detection) else Detection.from_dict(d)
+        return cls(**{k: getattr(d, k) for k in cls._KEYS})
+
+    def __getitem__(self, key: str):
+        if key not in self._KEYS:
+            raise KeyError(key)
+        return getattr(self, key)
+
+    def get(self, key: str, default=None):
+        return getattr(self, key) if key in self._KEYS else default
+
+    def keys(self) -> tuple[str, ...]:
+        return self._KEYS
+
+    def __eq__(self, other) -> bool:
+        if not isinstance(other, Detection):
+            return NotImplemented
+        return all(getattr(self, k) == getattr(other, k) for k in self._KEYS)
+
+    __hash__ = Detection.__hash__
+
+
 @dataclass
 class Demo:
     task: str
@@ -54,10 +88,14 @@ class Demo:
     t: np.ndarray                 # (T,) seconds from the first joint state, 10 Hz
     q: np.ndarray                 # (T, 7) joint positions in JOINT_NAMES order
     first_image: np.ndarray | None  # (H, W, 3) uint8 RGB
-    detection: dict | None        # class_id, class_index, score, cx, cy, width, height (pixels)
+    detection: Detection | None   # box in pixels of an image of image_size
     image_size: tuple[int, int] | None  # (w, h)
     bag_path: str
     image_error: str = ""         # why first_image is None, when a camera topic was there
+
+    def __post_init__(self) -> None:
+        # callers that build demos elsewhere (planner demos) may still pass the old dict shape
+        self.detection = DemoDetection.of(self.detection)
 
 
 # -- message decoding --------------------------------------------------------------------------
@@ -67,72 +105,53 @@ def _stamp_ns(msg) -> int:
 
 
 def image_to_rgb(msg, schema: str) -> np.ndarray:
-    """sensor_msgs Image/CompressedImage -> (H, W, 3) uint8 RGB; DemoError for other encodings."""
+    """sensor_msgs Image/CompressedImage -> (H, W, 3) uint8 RGB; DemoError when it cannot be read."""
     if schema.endswith("CompressedImage"):
-        import cv2
-
         bgr = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_COLOR)
         if bgr is None:
             raise DemoError(f"cannot decode compressed image (format {msg.format!r})")
         return np.ascontiguousarray(bgr[:, :, ::-1])
-    channels = {"rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4, "mono8": 1}
-    enc = msg.encoding.lower()
-    if enc not in channels:
-        raise DemoError(f"unsupported image encoding {msg.encoding!r} (rgb8, bgr8, rgba8, bgra8, mono8)")
-    h, w, c = int(msg.height), int(msg.width), channels[enc]
-    step = int(msg.step) or w * c
-    raw = np.frombuffer(bytes(msg.data), np.uint8)
-    if h == 0 or w == 0 or step < w * c or raw.size < step * h:
-        raise DemoError(f"malformed image: {w}x{h} {enc}, step {step}, {raw.size} bytes")
-    img = raw[: step * h].reshape(h, step)[:, : w * c].reshape(h, w, c)
-    if enc == "mono8":
-        img = np.repeat(img, 3, axis=2)
-    elif enc.startswith("bgr"):
-        img = img[:, :, 2::-1]
-    else:
-        img = img[:, :, :3]
-    return np.ascontiguousarray(img)
+    try:
+        return to_rgb(msg.encoding, int(msg.width), int(msg.height), int(msg.step), bytes(msg.data),
+                      bool(getattr(msg, "is_bigendian", False)))
+    except UnsupportedImageError as err:
+        raise DemoError(f"camera image: {err}") from err
 
 
 def _class_index(class_id: str, given: int | None) -> int:
     if given is not None and given >= 0:
         return int(given)
-    try:
-        from vla_common.objects import OBJECT_CLASSES
-    except ImportError:
-        return -1
     return OBJECT_CLASSES.index(class_id) if class_id in OBJECT_CLASSES else -1
 
 
-def _detections(msg, schema: str) -> list[dict]:
-    """All detections of a vla_interfaces/DetectionArray or vision_msgs/Detection2DArray as dicts."""
-    out = []
+def _detections(msg, schema: str) -> list[Detection]:
+    """All detections of a vla_interfaces/DetectionArray or vision_msgs/Detection2DArray."""
     if schema.startswith("vla_interfaces"):
-        for d in msg.detections:
-            out.append({"class_id": d.class_id, "class_index": _class_index(d.class_id, d.class_index),
-                        "score": float(d.score), "cx": float(d.center_x), "cy": float(d.center_y),
-                        "width": float(d.size_x), "height": float(d.size_y)})
-    else:  # vision_msgs/Detection2DArray
-        for d in msg.detections:
-            c = d.bbox.center.position
-            for hyp in d.results:
-                h = hyp.hypothesis
-                out.append({"class_id": h.class_id, "class_index": _class_index(h.class_id, None),
-                            "score": float(h.score), "cx": float(c.x), "cy": float(c.y),
-                            "width": float(d.bbox.size_x), "height": float(d.bbox.size_y)})
+        return [Detection(d.class_id, float(d.score), float(d.center_x), float(d.center_y),
+                          float(d.size_x), float(d.size_y), _class_index(d.class_id, d.class_index))
+                for d in msg.detections]
+    out = []  # vision_msgs/Detection2DArray: one Detection per hypothesis
+    for d in msg.detections:
+        c = d.bbox.center.position
+        for hyp in d.results:
+            h = hyp.hypothesis
+            out.append(Detection(h.class_id, float(h.score), float(c.x), float(c.y), float(d.bbox.size_x),
+                                 float(d.bbox.size_y), _class_index(h.class_id, None)))
     return out
 
 
-def top_detection(msg, schema: str, prefer_class: str | None = None) -> dict | None:
+def top_detection(msg, schema: str, prefer_class: str | None = None) -> Detection | None:
     """The highest-score detection of a detection array, or None when empty. With `prefer_class`
     (the episode's object) the best detection of that class wins when there is one: the context of
     a demonstration is the object it manipulates, even when another object scores higher."""
-    dets = _detections(msg, schema)
-    preferred = [d for d in dets if prefer_class and d["class_id"] == prefer_class]
-    return max(preferred or dets, key=lambda d: d["score"], default=None)
+    return best(_detections(msg, schema), prefer_class)
 
 
 # -- bag reading -------------------------------------------------------------------------------
+_WANTED_TYPES = JOINT_STATE_TYPES + IMAGE_TYPES + DETECTION_TYPES
+_READ_ERRORS = (McapError, OSError, ValueError, KeyError, EOFError)
+
+
 def _episode_of(bag_dir: Path, reader) -> EpisodeInfo | None:
     try:
         return EpisodeInfo.from_custom_data(read_metadata_yaml(bag_dir).get("custom_data"))
@@ -143,9 +162,72 @@ def _episode_of(bag_dir: Path, reader) -> EpisodeInfo | None:
             try:
                 meta = YAML(typ="safe").load(record.metadata["serialized_metadata"])
                 return EpisodeInfo.from_custom_data(meta.get("custom_data"))
-            except Exception:
+            except Exception:  # garbled metadata from another writer: read it as a bag without any
                 return None
     return None
+
+
+@contextmanager
+def _mcap_bag(mcap: Path) -> Iterator[tuple[EpisodeInfo | None, Iterator[tuple[str, int, object]]]]:
+    """(episode metadata, messages as (schema name, log time ns, decoded message)) of an MCAP file."""
+    with mcap.open("rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        episode = _episode_of(mcap.parent, reader)
+        summary = reader.get_summary()
+        wanted = None if summary is None else [
+            c.topic for c in summary.channels.values() if summary.schemas[c.schema_id].name in _WANTED_TYPES]
+        yield episode, ((schema.name, message.log_time, msg)
+                        for schema, _channel, message, msg in reader.iter_decoded_messages(topics=wanted))
+
+
+@dataclass
+class _Scan:
+    """What a demonstration needs from a bag's messages, gathered in one pass."""
+
+    names: list[str]
+    prefer: str | None = None     # the episode's object: its detection wins
+    stale_before: int = 0         # frames stamped before this (ns) belong to an earlier scene
+    js_t: list[int] = field(default_factory=list)
+    js_log: list[int] = field(default_factory=list)
+    js_q: list[np.ndarray] = field(default_factory=list)
+    image: np.ndarray | None = None
+    image_err: str = ""
+    image_t: int = 0
+    detection: Detection | None = None
+    det_t: int = 0
+    det_size: tuple[int, int] | None = None
+
+    def add(self, schema: str, log_time: int, msg) -> None:
+        if schema in JOINT_STATE_TYPES:
+            self._joint_state(log_time, msg)
+        elif schema in IMAGE_TYPES and self.image is None and not self.image_err:
+            self._image(schema, log_time, msg)
+        elif schema in DETECTION_TYPES and self.detection is None:
+            self._detection(schema, log_time, msg)
+
+    def _joint_state(self, log_time: int, msg) -> None:
+        index = {n: i for i, n in enumerate(msg.name)}
+        if not all(n in index for n in self.names) or len(msg.position) < len(msg.name):
+            return  # e.g. a gripper-only JointState
+        self.js_q.append(np.array([msg.position[index[n]] for n in self.names], dtype=np.float64))
+        self.js_t.append(_stamp_ns(msg))
+        self.js_log.append(log_time)
+
+    def _image(self, schema: str, log_time: int, msg) -> None:
+        if self.stale_before and 0 < _stamp_ns(msg) < self.stale_before:
+            return  # queued before the episode started: not this episode's scene
+        try:
+            self.image = image_to_rgb(msg, schema)
+            self.image_t = log_time
+        except DemoError as err:
+            self.image_err = str(err)
+
+    def _detection(self, schema: str, log_time: int, msg) -> None:
+        self.detection = top_detection(msg, schema, prefer_class=self.prefer)
+        if self.detection is not None:
+            self.det_t = log_time
+            w, h = getattr(msg, "image_width", 0), getattr(msg, "image_height", 0)
+            self.det_size = (int(w), int(h)) if w and h else None
 
 
 def resample(t: np.ndarray, q: np.ndarray, rate_hz: float = RATE_HZ) -> tuple[np.ndarray, np.ndarray]:
@@ -169,66 +251,46 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
         raise DemoError(str(err)) from err
     if not has_footer(mcap):
         raise DemoError(f"incomplete MCAP file (writer killed?); run `vla_demo_recorder recover {path}`")
-    names = list(joint_names)
-    js_t: list[int] = []
-    js_log: list[int] = []
-    js_q: list[np.ndarray] = []
-    image = image_err = image_size = None
-    image_t = det_t = None
-    detection = None
     try:
-        with mcap.open("rb") as f:
-            reader = make_reader(f, decoder_factories=[DecoderFactory()])
-            episode = _episode_of(mcap.parent, reader)
-            if episode is not None and episode.outcome not in USABLE_OUTCOMES and not (
-                    include_incomplete and episode.outcome in ("interrupted", "recovered")):
-                raise DemoError(f"episode outcome is {episode.outcome!r}"
-                                + (f" ({episode.error})" if episode.error else ""))
-            prefer = episode.object_class if episode is not None else \
-                (task.replace(":", "/").split("/")[0] if task else None)
-            stale_before = episode.start_time_ns - int(STALE_FRAME_S * 1e9) \
-                if episode is not None and episode.start_time_ns else 0
-            summary = reader.get_summary()
-            wanted = None if summary is None else [
-                c.topic for c in summary.channels.values()
-                if summary.schemas[c.schema_id].name in JOINT_STATE_TYPES + IMAGE_TYPES + DETECTION_TYPES]
-            for schema, _channel, message, msg in reader.iter_decoded_messages(topics=wanted):
-                if schema.name in JOINT_STATE_TYPES:
-                    index = {n: i for i, n in enumerate(msg.name)}
-                    if not all(n in index for n in names) or len(msg.position) < len(msg.name):
-                        continue  # e.g. a gripper-only JointState
-                    js_q.append(np.array([msg.position[index[n]] for n in names], dtype=np.float64))
-                    js_t.append(_stamp_ns(msg))
-                    js_log.append(message.log_time)
-                elif schema.name in IMAGE_TYPES and image is None and image_err is None:
-                    if stale_before and 0 < _stamp_ns(msg) < stale_before:
-                        continue  # queued before the episode started: not this episode's scene
-                    try:
-                        image = image_to_rgb(msg, schema.name)
-                        image_size = (image.shape[1], image.shape[0])
-                        image_t = message.log_time
-                    except DemoError as err:
-                        image_err = str(err)
-                elif schema.name in DETECTION_TYPES and detection is None:
-                    detection = top_detection(msg, schema.name, prefer_class=prefer)
-                    if detection is not None:
-                        det_t = message.log_time
-                        w, h = getattr(msg, "image_width", 0), getattr(msg, "image_height", 0)
-                        if w and h:
-                            detection["image_size"] = (int(w), int(h))
+        with _mcap_bag(mcap) as (episode, messages):
+            _check_outcome(episode, include_incomplete)
+            scan = _Scan(list(joint_names))
+            if episode is not None:
+                scan.prefer = episode.object_class
+                scan.stale_before = max(0, episode.start_time_ns - int(STALE_FRAME_S * 1e9)) \
+                    if episode.start_time_ns else 0
+            elif task:
+                scan.prefer = object_class_of(task)
+            for schema, log_time, msg in messages:
+                scan.add(schema, log_time, msg)
     except DemoError:
         raise
-    except (McapError, OSError, ValueError, KeyError, EOFError) as err:
+    except _READ_ERRORS as err:
         raise DemoError(f"cannot read {mcap}: {type(err).__name__}: {err}") from err
-
     task = (episode.task if episode is not None else None) or task
     if not task:
         raise DemoError("bag has no episode metadata and no task was given")
-    if len(js_q) < 2:
+    return _demo_of(scan, episode, task, str(mcap.parent), rate_hz, context_window_s)
+
+
+def _check_outcome(episode: EpisodeInfo | None, include_incomplete: bool) -> None:
+    if episode is None or episode.outcome in USABLE_OUTCOMES:
+        return
+    if include_incomplete and episode.outcome in ("interrupted", "recovered"):
+        return
+    reason = f" ({episode.error})" if episode.error else ""
+    raise DemoError(f"episode outcome is {episode.outcome!r}{reason}")
+
+
+def _demo_of(scan: _Scan, episode: EpisodeInfo | None, task: str, bag_path: str, rate_hz: float,
+             context_window_s: float) -> Demo:
+    """The 10 Hz trajectory and the context that arrived near its start."""
+    names = scan.names
+    if len(scan.js_q) < 2:
         raise DemoError(f"fewer than 2 joint_states messages with {names[0]}..{names[-1]}")
-    stamps = np.array(js_t if all(js_t) else js_log, dtype=np.int64)
+    stamps = np.array(scan.js_t if all(scan.js_t) else scan.js_log, dtype=np.int64)
     order = np.argsort(stamps, kind="stable")
-    stamps, q = stamps[order], np.stack(js_q)[order]
+    stamps, q = stamps[order], np.stack(scan.js_q)[order]
     keep = np.concatenate([[True], np.diff(stamps) > 0])
     stamps, q = stamps[keep], q[keep]
     if episode is not None:
@@ -237,19 +299,20 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
     if len(t_s) < 2:
         raise DemoError("joint_states have no time span")
     grid, q10 = resample(t_s, q, rate_hz)
-    start_log = min(js_log)
-    if image is not None and (image_t - start_log) / 1e9 > context_window_s:
-        image_err = f"first camera frame arrives {(image_t - start_log) / 1e9:.1f} s after the start"
-        image = image_size = None
-    if detection is not None and (det_t - start_log) / 1e9 > context_window_s:
+    start_log = min(scan.js_log)
+    image, image_err = scan.image, scan.image_err
+    if image is not None and (scan.image_t - start_log) / 1e9 > context_window_s:
+        image_err = f"first camera frame arrives {(scan.image_t - start_log) / 1e9:.1f} s after the start"
+        image = None
+    detection = scan.detection
+    if detection is not None and (scan.det_t - start_log) / 1e9 > context_window_s:
         detection = None
+    image_size = (image.shape[1], image.shape[0]) if image is not None else None
     if detection is not None:
-        det_size = detection.pop("image_size", None)
-        image_size = image_size or det_size
-    object_class = episode.object_class if episode is not None else task.replace(":", "/").split("/")[0]
+        image_size = image_size or scan.det_size
+    object_class = episode.object_class if episode is not None else object_class_of(task)
     return Demo(task=task, object_class=object_class, t=grid, q=q10, first_image=image,
-                detection=detection, image_size=image_size, bag_path=str(mcap.parent),
-                image_error=image_err or "")
+                detection=detection, image_size=image_size, bag_path=bag_path, image_error=image_err)
 
 
 def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -260,7 +323,7 @@ def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[n
     bounds apply only when the stamps and the recorder's clock agree (the stamps straddle the start),
     so bags whose writer used another clock are read unchanged. DemoError when states are missing
     (a gap) or jump faster than the arm can move. (A lost tail cannot be told from an early stop:
-    `vla_demo_recorder generate` stops only once the recorder has recorded the plan's end.)
+    `vla_evaluation generate` stops only once the recorder has recorded the plan's end.)
     """
     same_clock = bool(start_ns) and stamps[0] - 60e9 < start_ns <= stamps[-1]
     if same_clock:
@@ -274,8 +337,6 @@ def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[n
         at = (stamps[i] - stamps[0]) / 1e9
         raise DemoError(f"joint_states are missing for {dt[i]:.2f} s at {at:.1f} s into the episode "
                         "(messages lost while recording)")
-    if DQ_MAX is None:
-        return stamps, q
     steps = np.abs(np.diff(q, axis=0))
     ratio = steps / np.maximum(dt, 1e-6)[:, None] / (MAX_SPEED_SHARE * np.asarray(DQ_MAX)[: q.shape[1]])
     k = int(np.argmax(ratio.max(axis=1)))

@@ -10,11 +10,9 @@ episode is open; the episode's bag is written by the core Recorder (recorder.py)
 from __future__ import annotations
 
 import importlib
+import sys
 import time
 
-import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -26,6 +24,8 @@ from rclpy.qos import (
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Joy
 from std_srvs.srv import Trigger
+from vla_common.ros.node_main import run_node
+from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_demo_recorder.bag_writer import make_qos, normalize_type
 from vla_demo_recorder.recorder import Recorder, RecorderError
@@ -35,6 +35,32 @@ from vla_interfaces.srv import StartEpisode
 DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy"]
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
+
+
+PARAMETERS = ParameterTable([
+    Param("output_dir", "~/vla_demos", "folder that receives one bag folder per episode"),
+    Param("topics", DEFAULT_TOPICS, "topics to record (relative names resolve in the node's namespace)",
+          array="string_array"),
+    Param("image_every_n", 1, "record every n-th image (1 = all; the paper needs only the first frame "
+          "of an episode)", range=(1, 10000)),
+    Param("flush_period_s", 0.5, "complete MCAP chunks are flushed and fsynced at least this often",
+          range=(0.05, 1.0)),
+    Param("fsync", True, "fsync at every flush (crash safety against power loss)"),
+    Param("qos_depth", 1000, "subscription queue depth (messages)", range=(1, 100000)),
+    Param("max_queue_mb", 1024, "writer queue bound; beyond it messages are counted as dropped",
+          range=(16, 65536)),
+    Param("delete_discarded", False, "delete discarded episodes instead of keeping them marked 'discarded'"),
+    Param("topic_poll_period_s", 0.5, "how often to look for publishers of unsubscribed topics",
+          range=(0.05, 10.0)),
+    Param("status_period_s", 0.5, "period of ~/status", range=(0.02, 10.0)),
+    Param("joy_topic", "joy", "sensor_msgs/Joy topic carrying the episode buttons"),
+    Param("joy_task", "", "task of episodes started with the joystick (e.g. bread/push_east)"),
+    Param("start_button", 0, "joystick button that starts an episode (-1: none)", range=(-1, 127)),
+    Param("stop_button", 1, "joystick button that stops and keeps the episode (-1: none)", range=(-1, 127)),
+    Param("discard_button", 2, "joystick button that stops and discards the episode (-1: none)",
+          range=(-1, 127)),
+    Param("button_debounce_s", 0.5, "ignore repeated presses within this time", range=(0.0, 5.0)),
+])
 
 
 def import_message(msgtype: str) -> type:
@@ -55,37 +81,17 @@ class RecorderNode(Node):
         ~20 us each); the generator needs it to know when the recording has caught up."""
         super().__init__("recorder", **kwargs)
         self._track_stamps = bool(track_joint_state_stamps)
-        p = self._declare
-        output_dir = p("output_dir", "~/vla_demos", "folder that receives one bag folder per episode")
-        self.topics = list(p("topics", DEFAULT_TOPICS, "topics to record (relative names resolve in "
-                                                      "the node's namespace)"))
-        self.image_every_n = p("image_every_n", 1, "record every n-th image (1 = all; the paper needs "
-                                                   "only the first frame of an episode)",
-                               int_range=(1, 10000))
-        flush = p("flush_period_s", 0.5, "complete MCAP chunks are flushed and fsynced at least this often",
-                  float_range=(0.05, 1.0))
-        fsync = p("fsync", True, "fsync at every flush (crash safety against power loss)")
-        self.qos_depth = p("qos_depth", 1000, "subscription queue depth (messages)", int_range=(1, 100000))
-        max_queue_mb = p("max_queue_mb", 1024, "writer queue bound; beyond it messages are counted as "
-                                               "dropped", int_range=(16, 65536))
-        delete_discarded = p("delete_discarded", False, "delete discarded episodes instead of keeping "
-                                                        "them marked 'discarded'")
-        poll = p("topic_poll_period_s", 0.5, "how often to look for publishers of unsubscribed topics",
-                 float_range=(0.05, 10.0))
-        status_period = p("status_period_s", 0.5, "period of ~/status", float_range=(0.02, 10.0))
-        self.joy_topic = p("joy_topic", "joy", "sensor_msgs/Joy topic carrying the episode buttons")
-        self.joy_task = p("joy_task", "", "task of episodes started with the joystick "
-                                          "(e.g. bread/push_east)")
-        self.buttons = {
-            "start": p("start_button", 0, "joystick button that starts an episode (-1: none)",
-                       int_range=(-1, 127)),
-            "stop": p("stop_button", 1, "joystick button that stops and keeps the episode (-1: none)",
-                      int_range=(-1, 127)),
-            "discard": p("discard_button", 2, "joystick button that stops and discards the episode "
-                                              "(-1: none)", int_range=(-1, 127)),
-        }
-        self.debounce_s = p("button_debounce_s", 0.5, "ignore repeated presses within this time",
-                            float_range=(0.0, 5.0))
+        p = PARAMETERS.declare(self)
+        self.topics = list(p["topics"])
+        self.image_every_n = p["image_every_n"]
+        self.qos_depth = p["qos_depth"]
+        self.joy_topic = p["joy_topic"]
+        self.joy_task = p["joy_task"]
+        self.buttons = {"start": p["start_button"], "stop": p["stop_button"], "discard": p["discard_button"]}
+        self.debounce_s = p["button_debounce_s"]
+        output_dir, flush, fsync = p["output_dir"], p["flush_period_s"], p["fsync"]
+        max_queue_mb, delete_discarded = p["max_queue_mb"], p["delete_discarded"]
+        poll, status_period = p["topic_poll_period_s"], p["status_period_s"]
 
         self.recorder = Recorder(output_dir, flush_period_s=flush, fsync=fsync,
                                  max_queue_bytes=max_queue_mb << 20, delete_discarded=delete_discarded,
@@ -111,16 +117,6 @@ class RecorderNode(Node):
             self.get_logger().error(f"{problem}; episodes cannot start until this is fixed")
         self.get_logger().info(f"recording {', '.join(self._resolved(t) for t in self.topics)} into "
                                f"{self.recorder.output_dir} (idle; call ~/start_episode)")
-
-    # -- parameters ----------------------------------------------------------------------------
-    def _declare(self, name, default, description, int_range=None, float_range=None):
-        desc = ParameterDescriptor(description=description)
-        if int_range:
-            desc.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
-        if float_range:
-            desc.floating_point_range = [FloatingPointRange(from_value=float(float_range[0]),
-                                                            to_value=float(float_range[1]))]
-        return self.declare_parameter(name, default, desc).value
 
     def _log(self, level: str, text: str) -> None:
         {"error": self.get_logger().error, "warn": self.get_logger().warning}.get(
@@ -255,25 +251,20 @@ class RecorderNode(Node):
         msg.messages_dropped, msg.last_error = st.messages_dropped, st.last_error
         self.status_pub.publish(msg)
 
-    def destroy_node(self) -> None:
+    def on_shutdown(self) -> None:
+        """Close a running episode (outcome `interrupted`) while the logger still works."""
         result = self.recorder.shutdown()
         if result is not None:
             self.get_logger().warning(f"shut down while recording: {result.summary()}")
+
+    def destroy_node(self) -> None:
+        self.on_shutdown()  # again for callers that destroy the node without run_node (idempotent)
         super().destroy_node()
 
 
-def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = RecorderNode()
-    try:
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+def main(args: list[str] | None = None) -> int:
+    return run_node(RecorderNode, "recorder_node", args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

@@ -22,6 +22,7 @@ from mcap.stream_reader import StreamReader, breakup_chunk
 from rosbags.rosbag2.metadata import parse_qos
 from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 
+from vla_demo_recorder.bag_files import find_mcap, has_footer
 from vla_demo_recorder.bag_writer import BagError, BagWriter, EpisodeInfo, read_metadata_yaml
 
 _SCAN_ERRORS = (McapError, struct.error, EOFError, ValueError, KeyError, IndexError, OverflowError,
@@ -49,36 +50,6 @@ class RecoveryReport:
         if self.stop_reason:
             text += f" ({self.stop_reason})"
         return text
-
-
-def find_mcap(bag: Path) -> Path:
-    """The bag's MCAP file: from metadata.yaml if readable, else the single *.mcap in the folder."""
-    if bag.is_file():
-        return bag
-    if not bag.is_dir():
-        raise BagError(f"{bag} does not exist")
-    try:
-        names = read_metadata_yaml(bag)["relative_file_paths"]
-        files = [bag / Path(n).name for n in names if (bag / Path(n).name).is_file()]
-        if len(files) == 1:
-            return files[0]
-    except (BagError, KeyError, TypeError):
-        pass
-    files = sorted(bag.glob("*.mcap"))
-    if len(files) != 1:
-        raise BagError(f"{bag}: expected exactly one .mcap file, found {len(files)}")
-    return files[0]
-
-
-def has_footer(mcap: Path) -> bool:
-    """True when the file ends with a footer and the closing magic (a cleanly finished file)."""
-    size = mcap.stat().st_size
-    if size < 8 + 29 + 8:
-        return False
-    with mcap.open("rb") as f:
-        f.seek(size - 8 - 29)
-        tail = f.read()
-    return tail[0] == 0x02 and tail[-8:] == b"\x89MCAP0\r\n"
 
 
 def _rihs01(schema: Schema, known: dict[str, str]) -> str:

@@ -293,10 +293,10 @@ def test_the_shipped_parameter_file_names_every_parameter_and_starts_the_node():
 
     path = _bringup_yaml()
     with open(path) as f:
-        values = yaml.safe_load(f)["panda_bridge"]["ros__parameters"]
-    assert set(values) == set(PARAMETERS)
+        values = yaml.safe_load(f)["/**"]["ros__parameters"]
+    assert set(values) == {p.name for p in PARAMETERS}
     for name, value in values.items():                    # the file restates the defaults
-        assert value == pytest.approx(PARAMETERS[name][0]), name
+        assert value == pytest.approx(PARAMETERS.params[name].default), name
     ctx = Context()
     rclpy.init(context=ctx, args=["--ros-args", "--params-file", path, "-p", "camera_rate:=0.0"])
     try:

@@ -1,48 +1,230 @@
-"""The simulated Panda as a bridge backend (plain Python, no ROS): PandaSim stepped in fixed physics
-increments by the bridge. Its camera is rendered by vla_sim.camera_worker in a thread of its own."""
+"""The simulated Panda as a bridge backend: PandaSim stepped by the bridge in fixed physics increments
+that equal the filter's period, paced to `real_time_factor` by vla_sim.sim_clock.SimPacer on a
+steady-clock timer (so it runs with use_sim_time too), with /clock, the camera (rendered by
+vla_sim.camera_worker in a thread of its own) and the ground-truth scene.
+
+The only module of the runtime packages that imports the simulator. No rclpy: ROS goes through the
+host (the node).
+"""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import sys
+import time
 
 import numpy as np
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import CameraInfo, Image
 from vla_common.objects import ObjectPose
+from vla_common.ros.convert import pose_msg, stamp_from_ns
+from vla_sim.camera_worker import CameraWorker
 from vla_sim.sim import PandaSim
+from vla_sim.sim_clock import SimPacer
 
-from vla_panda_bridge.backend import JointSample
+from vla_interfaces.msg import SceneObject, SceneObjectArray
+from vla_panda_bridge.backend import RESET, BackendBase, BackendError, Host, JointSample
+
+CAMERA_QOS_DEPTH = 5   # reliable keep-last (the default QoS): matched by SensorDataQoS readers too
 
 
-class MujocoBackend:
-    """PandaSim behind the Backend protocol. The bridge calls write() then step() once per control
-    period (physics_dt), so the safety filter's period is the physics step."""
+def scene_object_msg(o: ObjectPose) -> SceneObject:
+    s = SceneObject(class_id=o.class_id, x=float(o.x), y=float(o.y), yaw=float(o.yaw))
+    s.pose = pose_msg((o.x, o.y, o.z), quat_wxyz=o.quat)
+    return s
+
+
+class MujocoBackend(BackendBase):
+    """PandaSim behind the Backend protocol. Each tick of the pacing timer advances whole state
+    periods; each physics step is one control period (host.control_step(), then mj_step)."""
 
     kind = "mujoco"
+    capabilities = frozenset({RESET})
 
-    def __init__(self, physics_dt: float, seed: int = 0, q0: Sequence[float] | None = None):
-        self.sim = PandaSim(render=False, physics_dt=physics_dt)
-        self.physics_dt = self.sim.physics_dt
-        self.layout: list[ObjectPose] = self.sim.reset(seed=seed, q0=q0)
+    def __init__(self, host: Host):
+        p = host.params
+        self._host = host
+        self._rtf = p["real_time_factor"]
+        self._dt = 1.0 / p["control_rate"]
+        self._base_frame = host.base_frame
+        try:
+            self.sim = PandaSim(render=False, physics_dt=self._dt)
+            self.layout: list[ObjectPose] = self.sim.reset(seed=p["seed"], q0=p["initial_positions"])
+        except ValueError as exc:
+            raise BackendError(f"parameter 'initial_positions': {exc}") from exc
+        self._dt_ns = round(1e9 * self.sim.physics_dt)
+        self._steps = 0                               # physics steps since start: the sim clock
+        self._clock_origin_ns = time.time_ns()        # sim time starts at the wall time of startup
+        self._steps_per_state = max(1, round(p["control_rate"] / p["state_rate"]))
+        self.state_rate = p["control_rate"] / self._steps_per_state
+        if abs(self.state_rate - p["state_rate"]) > 1e-3 * p["state_rate"]:
+            host.get_logger().warn(
+                f"state_rate {p['state_rate']:g} Hz is not a divisor of control_rate; "
+                f"publishing every {self._steps_per_state} steps = {self.state_rate:.4g} Hz")
+        self._pacer = SimPacer(self._steps_per_state * self._dt, self._rtf)
+        self._frame_steps = p["control_rate"] / p["camera_rate"] if p["camera_rate"] > 0 else 0.0
+        self._frame_index = 0
+        self._scene_steps = p["control_rate"] / p["scene_rate"] if p["scene_rate"] > 0 else 0.0
+        self._scene_index = 0
+        self._measure = True                          # give the filter a position this period
+        self._closed = False
+        self._scene_pub = host.create_publisher(SceneObjectArray, "scene/objects", 10)
+        self._clock_pub = host.create_publisher(Clock, "/clock", 10) if p["publish_clock"] else None
+        self._camera: CameraWorker | None = None
+        if p["camera_rate"] > 0:
+            self._image_pub = host.create_publisher(Image, "camera/image_raw", CAMERA_QOS_DEPTH)
+            self._info_pub = host.create_publisher(CameraInfo, "camera/camera_info", CAMERA_QOS_DEPTH)
+            self._camera = CameraWorker(p["camera_width"], p["camera_height"], self.sim.physics_dt,
+                                        self._publish_frame,
+                                        lambda m: host.get_logger().error(m, throttle_duration_sec=2.0))
+            self._camera_info = self._make_camera_info()
 
-    def read(self) -> JointSample:
+    # ---------------------------------------------------------------------------------- protocol
+    def start(self, host: Host) -> None:
+        self.publish_scene()
+        host.publish_state()
+        self._request_frame()
+        self._wall_start = time.monotonic()
+        self._pacer.start(self._wall_start, 0.0)
+        self._timer = host.create_wall_timer(self._pacer.timer_period(), self._tick)
+
+    def now(self) -> float:
+        return self._steps * self._dt
+
+    def now_ns(self) -> int:
+        return self._clock_origin_ns + self._steps * self._dt_ns
+
+    def filter_position(self) -> np.ndarray | None:
+        # The servo targets integrate exactly what the filter integrates: measure once a state period.
+        if self._measure:
+            self._measure = False
+            return self.sim.q_target
+        return None
+
+    def position(self) -> np.ndarray:
+        return self.sim.q_target
+
+    def latest(self) -> JointSample:
         sim = self.sim
-        return JointSample(sim.q, sim.dq, sim.effort, sim.time, reference=sim.q_target)
+        return JointSample(sim.q, sim.dq, sim.effort, self.now_ns())
 
     def write(self, dq: np.ndarray) -> None:
         self.sim.set_velocity_command(dq)
 
-    def step(self, n: int = 1) -> None:
-        self.sim.step(n)
+    def advance(self, dt: float) -> None:
+        self.sim.step(1)
+        self._steps += 1
 
-    def reset(self, seed: int | None = None, objects=None, q0=None) -> list[ObjectPose]:
-        """PandaSim.reset: ValueError (scene unchanged) on an unknown class or malformed layout."""
-        self.layout = self.sim.reset(seed=seed, objects=objects, q0=q0)
-        return self.layout
-
-    def object_poses(self) -> list[ObjectPose]:
-        return self.sim.object_poses()
-
-    def qpos(self) -> np.ndarray:
-        return self.sim.data.qpos.copy()
-
-    def close(self) -> None:
+    def close(self) -> bool:
+        if self._closed:
+            return True
+        self._closed = True
+        if self._camera is not None:
+            self._camera.close()
         self.sim.set_velocity_command(np.zeros(7))
+        wall = time.monotonic() - getattr(self, "_wall_start", time.monotonic())
+        cam = (f", camera {self._camera.frames} frames ({self._camera.dropped} dropped while rendering)"
+               if self._camera is not None else "")
+        sim_s = self.now()
+        print(f"panda_bridge: {sim_s:.1f} s simulated in {wall:.1f} s (x{sim_s / max(wall, 1e-9):.2f}, "
+              f"fell behind {self._pacer.lag_events} times){cam}; command zeroed", file=sys.stderr)
+        return True
+
+    def describe(self) -> str:
+        p = self._host.params
+        cam = (f"camera {p['camera_width']}x{p['camera_height']} at {p['camera_rate']:g} Hz"
+               if self._camera else "camera off")
+        rtf = "as fast as possible" if self._rtf == 0 else f"x{self._rtf:g}"
+        return (f"mujoco Panda: {p['control_rate']} Hz physics+safety, joint_states {self.state_rate:g} Hz, "
+                f"real time {rtf}, {cam}; {len(self.layout)} objects "
+                f"({', '.join(o.class_id for o in self.layout)})")
+
+    def reset(self, request, response):
+        """~/reset: ValueError-free; a refused layout or pose leaves the scene unchanged."""
+        try:
+            objects = [ObjectPose(o.class_id, float(o.x), float(o.y), float(o.yaw))
+                       for o in request.objects] or None
+            seed = int(request.seed) if request.use_seed and objects is None else None
+            q0 = list(request.initial_positions) or None
+            self.layout = self.sim.reset(seed=seed, objects=objects, q0=q0)
+        except ValueError as exc:
+            response.success = False
+            response.message = f"reset refused, scene unchanged: {exc}"
+            response.objects = [scene_object_msg(o) for o in self.sim.object_poses()]
+            return response
+        self._measure = True
+        self.publish_scene()
+        self._host.publish_state()
+        self._request_frame()
+        response.success = True
+        response.objects = [scene_object_msg(o) for o in self.layout]
+        response.message = f"reset: {', '.join(o.class_id for o in self.layout) or 'no objects'}"
+        return response
+
+    # ------------------------------------------------------------------------------------- time
+    def _tick(self) -> None:
+        """Timer: advance whole state periods of simulated time (see SimPacer), publishing as it goes."""
+        if self._closed:
+            return
+        host, sim = self._host, self.sim
+        units = self._pacer.units_due(time.monotonic(), self.now())
+        for _ in range(units):
+            self._measure = True
+            for _ in range(self._steps_per_state):
+                host.control_step()
+                sim.step(1)
+                self._steps += 1
+                if self._frame_steps and self._steps >= (self._frame_index + 1) * self._frame_steps - 1e-9:
+                    self._frame_index += 1
+                    self._request_frame()
+                if self._scene_steps and self._steps >= (self._scene_index + 1) * self._scene_steps - 1e-9:
+                    self._scene_index += 1
+                    self.publish_scene()
+            host.publish_state()
+        if self._clock_pub is not None and units:
+            self._clock_pub.publish(Clock(clock=stamp_from_ns(self.now_ns())))
+
+    # ------------------------------------------------------------------------------ publishing
+    def publish_scene(self) -> None:
+        msg = SceneObjectArray()
+        msg.header.stamp = stamp_from_ns(self.now_ns())
+        msg.header.frame_id = self._base_frame
+        msg.objects = [scene_object_msg(o) for o in self.sim.object_poses()]
+        self._scene_pub.publish(msg)
+
+    def _request_frame(self) -> None:
+        if self._camera is None:
+            return
+        if self._rtf == 0.0:
+            self._camera.wait_idle(timeout=5.0)  # as fast as possible, but every frame
+        self._camera.request(self.sim.data.qpos.copy(), self.now_ns())
+
+    def _publish_frame(self, rgb: np.ndarray, stamp_ns: int) -> None:
+        """Camera worker thread: publish one rendered frame and its camera info."""
+        if self._closed:
+            return
+        h, w = rgb.shape[:2]
+        img = Image()
+        img.header.stamp = stamp_from_ns(stamp_ns)
+        img.header.frame_id = self._camera.frame_id
+        img.height, img.width = h, w
+        img.encoding = "rgb8"
+        img.is_bigendian = 0
+        img.step = 3 * w
+        img.data = rgb.tobytes()
+        info = self._camera_info
+        info.header.stamp = img.header.stamp
+        self._image_pub.publish(img)
+        self._info_pub.publish(info)
+
+    def _make_camera_info(self) -> CameraInfo:
+        fx, fy, cx, cy = self._camera.intrinsics
+        w, h = self._camera.size
+        info = CameraInfo()
+        info.header.frame_id = self._camera.frame_id
+        info.width, info.height = w, h
+        info.distortion_model = "plumb_bob"
+        info.d = [0.0] * 5
+        info.k = [fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]
+        info.r = [1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0]
+        info.p = [fx, 0.0, cx, 0.0, 0.0, fy, cy, 0.0, 0.0, 0.0, 1.0, 0.0]
+        return info

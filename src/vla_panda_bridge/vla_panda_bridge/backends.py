@@ -1,0 +1,39 @@
+"""The backend table: which robots each backend can drive and how to make it.
+
+A backend's module is imported only when it is chosen: the MuJoCo one needs MuJoCo and the
+simulator, which a bridge in front of a real arm must not require.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from vla_panda_bridge.backend import Backend, Host
+
+
+def _mujoco(host: Host) -> Backend:
+    from vla_panda_bridge.backend_mujoco import MujocoBackend  # MuJoCo: only when chosen
+
+    return MujocoBackend(host)
+
+
+def _ros2_control(host: Host) -> Backend:
+    from vla_panda_bridge.backend_ros2_control import Ros2ControlBackend
+
+    return Ros2ControlBackend(host)
+
+
+@dataclass(frozen=True)
+class BackendRow:
+    name: str
+    robots: tuple[str, ...]          # robot models (vla_common.robot.ROBOTS) it can drive
+    summary: str
+    make: Callable[[Host], Backend]
+
+
+BACKENDS: dict[str, BackendRow] = {row.name: row for row in (
+    BackendRow("mujoco", ("panda",), "the simulated Panda (MuJoCo), stepped by the bridge", _mujoco),
+    BackendRow("ros2_control", ("panda", "fr3"),
+               "a ros2_control arm behind a JointGroupVelocityController", _ros2_control),
+)}

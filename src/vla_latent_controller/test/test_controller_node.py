@@ -14,9 +14,10 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
+from vla_common.ros.node_main import StartupError
 from vla_common.ros.testing import RosHarness
 from vla_latent_controller.controller_node import ControllerNode
-from vla_latent_controller.testing import READY
+from vla_latent_controller.testing import READY, write_random_model
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
 from vla_interfaces.srv import SetMode
@@ -32,7 +33,11 @@ class Harness(RosHarness):
         super().__init__()
         overrides = [Parameter("model_path", value=str(model_dir) if model_dir else "")]
         overrides += [Parameter(k, value=v) for k, v in params.items()]
-        self.node = self.add(ControllerNode(context=self.context, parameter_overrides=overrides))
+        try:
+            self.node = self.add(ControllerNode(context=self.context, parameter_overrides=overrides))
+        except Exception:
+            self.shutdown()
+            raise
         self.io = self.add(rclpy.create_node("controller_test_io", context=self.context))
         self.joy = self.io.create_publisher(Joy, "joy", 10)
         self.js = self.io.create_publisher(JointState, "joint_states", 10)
@@ -126,14 +131,23 @@ def test_services_and_parameters(harness):
     assert not res[0].successful
 
 
-def test_without_a_model_latent_mode_reports_model_error(tmp_path):
+def test_a_model_that_does_not_load_stops_the_node_at_startup(tmp_path):
     (tmp_path / "config.json").write_text("{broken")
-    h = Harness(tmp_path)
-    try:
-        st, cmd = h.settle(ControllerStatus.MODEL_ERROR)
-        assert "corrupt JSON" in st.reason and np.all(cmd == 0.0)
-    finally:
-        h.close()
+    with pytest.raises(StartupError, match="corrupt JSON"):
+        Harness(tmp_path)
+
+
+def test_a_failed_reload_keeps_the_model_and_refuses_the_parameter(harness, tmp_path):
+    before = harness.node.core.model
+    (tmp_path / "config.json").write_text("{broken")
+    res = harness.node.set_parameters([Parameter("model_path", value=str(tmp_path))])
+    assert not res[0].successful and "corrupt JSON" in res[0].reason
+    assert harness.node.core.model is before
+    assert harness.node.get_parameter("model_path").value != str(tmp_path)
+    harness.settle(ControllerStatus.ACTIVE)
+    other = write_random_model(tmp_path / "other", seed=3)
+    res = harness.node.set_parameters([Parameter("model_path", value=str(other))])
+    assert res[0].successful and harness.node.core.model.artifacts.path == other
 
 
 def _installed(exe: str) -> Path:
@@ -231,3 +245,14 @@ def test_image_encoder_latches_a_camera_frame(tmp_path):
         assert np.linalg.norm(cmd) > 0 and st.latched_class == ""
     finally:
         h.close()
+
+
+@pytest.mark.slow
+def test_process_exits_non_zero_when_its_model_does_not_load(tmp_path):
+    exe = _installed("controller_node")
+    if not exe.exists():
+        pytest.skip("controller_node not installed (make setup)")
+    (tmp_path / "config.json").write_text("{broken")
+    r = subprocess.run([str(exe), "--ros-args", "-p", f"model_path:={tmp_path}"], capture_output=True,
+                       text=True, timeout=30, env=os.environ.copy())
+    assert r.returncode == 1 and "corrupt JSON" in r.stderr and "Traceback" not in r.stderr

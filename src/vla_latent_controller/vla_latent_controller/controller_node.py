@@ -24,7 +24,7 @@ from vla_common.image_convert import to_rgb
 from vla_common.kinematics import PandaKinematics
 from vla_common.robot import DQ_MAX, JOINT_NAMES
 from vla_common.ros.convert import detections_from_array
-from vla_common.ros.node_main import run_node
+from vla_common.ros.node_main import StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray
@@ -117,7 +117,8 @@ class ControllerNode(Node):
         self.core = TeleopCore(
             self.params, kinematics=self._kin, joint_names=JOINT_NAMES, ee_pixel=self._ee_pixel
         )
-        self._load_model(values["model_path"])
+        self._image_sub = None  # camera/image_raw, for a CNN-encoder model only
+        self._start_model(values["model_path"], values["mode"])
         self._msg = Float64MultiArray()
         self._last_code: int | None = None
         self._last_status_t = -math.inf
@@ -136,8 +137,6 @@ class ControllerNode(Node):
         self.create_subscription(JointState, "joint_states", self._on_joint_states, sensor)
         self.create_subscription(DetectionArray, "detections", self._on_detections, sensor)
         self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, sensor)
-        self._image_sub = None
-        self._update_image_subscription()
         self.create_service(SetMode, "~/set_mode", self._on_set_mode)
         self.create_service(Trigger, "~/redetect", self._on_redetect)
 
@@ -152,28 +151,45 @@ class ControllerNode(Node):
         if name == "mode":
             self.core.set_mode(value)
         elif name == "model_path":
-            self._load_model(value)
-            self._update_image_subscription()
+            return self._reload_model(value)
         elif name == "status_rate":
             self._status_period = 1.0 / float(value)
         return None
 
-    def _load_model(self, path: str) -> None:
+    def _start_model(self, path: str, mode: str) -> None:
+        """Load the model at startup; StartupError when it does not load (a launch must not run on with
+        a controller that can only command zero). End-effector mode may start without one."""
         path = path or default_model_path()
         if not path:
+            if mode == "latent":
+                raise StartupError("no model: set model_path to a trained model directory")
             self.core.set_model(None, "no model: set the model_path parameter to a trained model directory")
-            self.get_logger().warn("no model_path set: latent mode will command zero (MODEL_ERROR)")
             return
+        try:
+            self._use_model(LatentModel.load(path))
+        except (ModelError, OSError, ValueError) as e:
+            raise StartupError(f"cannot load model {path!r}: {e}") from None
+
+    def _reload_model(self, path: str) -> str | None:
+        """Switch to the model at `path`, or keep the current one and return why not."""
+        path = path or default_model_path()
+        if not path:
+            return "no model to load: empty model_path and no shipped default installed"
         try:
             model = LatentModel.load(path)
         except (ModelError, OSError, ValueError) as e:
-            self.core.set_model(None, f"cannot load model: {e}")
-            self.get_logger().error(f"cannot load model {path!r}: {e}")
-            return
+            self.get_logger().error(f"model_path refused, keeping the current model: {e}")
+            return f"cannot load model {path!r}: {e}"
+        self._use_model(model)
+        return None
+
+    def _use_model(self, model: LatentModel) -> None:
         self.core.set_model(model)
+        self._update_image_subscription()
         self.get_logger().info(
-            f"model {path}: encoder {model.encoder}, classes {model.classes}, "
-            f"trained on {model.config.get('training', {}).get('demos', '?')} demos"
+            f"model {model.artifacts.path}: encoder {model.encoder}, classes {model.classes}, "
+            f"joints {list(model.joint_names)}, trained on "
+            f"{model.config.get('training', {}).get('demos', '?')} demos"
         )
 
     def _update_image_subscription(self) -> None:

@@ -14,7 +14,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
-from vla_common.ros.node_main import StartupError
+from vla_common.ros.node_main import ConfigError, StartupError
 from vla_common.ros.testing import RosHarness
 from vla_latent_controller.controller_node import ControllerNode
 from vla_latent_controller.testing import READY, write_random_model
@@ -129,6 +129,33 @@ def test_services_and_parameters(harness):
     assert not res[0].successful  # outside the descriptor's range
     res = harness.node.set_parameters([Parameter("rate", value=10.0)])
     assert not res[0].successful
+
+
+def test_services_and_parameters_agree(harness):
+    r = harness.call_service(SetMode, "controller_node/set_mode", SetMode.Request(mode="end_effector"))
+    assert r.success and harness.node.get_parameter("mode").value == "end_effector"
+    r = harness.call_service(SetMode, "controller_node/set_mode", SetMode.Request(mode="joint"))
+    assert not r.success and harness.node.get_parameter("mode").value == "end_effector"
+    res = harness.node.set_parameters([Parameter("mode", value="latent")])
+    assert res[0].successful and harness.node.core.mode == "latent"
+
+
+def test_an_unknown_goal_selection_is_refused_with_the_valid_ones(harness, random_model_dir):
+    res = harness.node.set_parameters([Parameter("goal_selection", value="teapot")])
+    assert not res[0].successful
+    assert "highest_score" in res[0].reason and "milk_carton" in res[0].reason
+    assert harness.node.get_parameter("goal_selection").value == "highest_score"
+    for ok in ("milk_carton", "nearest_to_ee", "highest_score"):
+        assert harness.node.set_parameters([Parameter("goal_selection", value=ok)])[0].successful
+    with pytest.raises(ConfigError, match="goal_selection"):
+        Harness(random_model_dir, goal_selection="teapot")
+
+
+def test_a_model_without_the_goal_class_is_refused(harness, tmp_path):
+    assert harness.node.set_parameters([Parameter("goal_selection", value="bread")])[0].successful
+    other = write_random_model(tmp_path / "fruit", classes=("apple", "pear"))
+    res = harness.node.set_parameters([Parameter("model_path", value=str(other))])
+    assert not res[0].successful and "bread" in res[0].reason
 
 
 def test_a_model_that_does_not_load_stops_the_node_at_startup(tmp_path):

@@ -15,6 +15,7 @@ import numpy as np
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 from rclpy.duration import Duration
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
@@ -24,7 +25,7 @@ from vla_common.image_convert import to_rgb
 from vla_common.kinematics import PandaKinematics
 from vla_common.robot import DQ_MAX, JOINT_NAMES
 from vla_common.ros.convert import detections_from_array
-from vla_common.ros.node_main import StartupError, run_node
+from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray
@@ -87,6 +88,16 @@ PARAMETERS = ParameterTable([
 _CORE_PARAMS = tuple(name for name in TeleopParams.__dataclass_fields__ if name in PARAMETERS.params)
 
 
+def goal_refusal(value: str, model: LatentModel | None) -> str | None:
+    """Why `value` cannot be the goal_selection with this model, or None."""
+    if value in GOAL_SELECTIONS:
+        return None
+    classes = list(model.classes) if model is not None else []
+    if value in classes:
+        return None
+    return f"{value!r} is neither one of {list(GOAL_SELECTIONS)} nor a class of the model {classes}"
+
+
 def default_model_path() -> str:
     """share/vla_latent_controller/models/default if a model is installed there, else ''."""
     try:
@@ -119,6 +130,9 @@ class ControllerNode(Node):
         )
         self._image_sub = None  # camera/image_raw, for a CNN-encoder model only
         self._start_model(values["model_path"], values["mode"])
+        reason = goal_refusal(values["goal_selection"], self.core.model)
+        if reason:
+            raise ConfigError(f"parameter 'goal_selection': {reason}")
         self._msg = Float64MultiArray()
         self._last_code: int | None = None
         self._last_status_t = -math.inf
@@ -143,8 +157,10 @@ class ControllerNode(Node):
     # ------------------------------------------------------------------ parameters and model
     def _on_parameter(self, name: str, value: Any) -> str | None:
         """Apply one run-time parameter change, or return why it is refused."""
-        if name == "goal_selection" and not value:
-            return f"must be one of {GOAL_SELECTIONS} or a class name"
+        if name == "goal_selection":
+            reason = goal_refusal(value, self.core.model)
+            if reason:
+                return reason
         if name in _CORE_PARAMS:
             setattr(self.params, name, value)
             self.core.sync_params()
@@ -180,6 +196,9 @@ class ControllerNode(Node):
         except (ModelError, OSError, ValueError) as e:
             self.get_logger().error(f"model_path refused, keeping the current model: {e}")
             return f"cannot load model {path!r}: {e}"
+        reason = goal_refusal(self.params.goal_selection, model)
+        if reason:
+            return f"the model at {path!r} does not fit goal_selection: {reason}"
         self._use_model(model)
         return None
 
@@ -235,10 +254,13 @@ class ControllerNode(Node):
         return project(self._kin.fk(q)[0], pos, rot, self._intrinsics)
 
     def _on_set_mode(self, req: SetMode.Request, resp: SetMode.Response) -> SetMode.Response:
-        ok, text = self.core.set_mode(req.mode)
-        if ok:
-            self.params.mode = req.mode
-        resp.success, resp.message = ok, text
+        """Through the `mode` parameter, so that it always reads the mode in use."""
+        if req.mode not in MODES:
+            resp.success, resp.message = False, f"unknown mode {req.mode!r}; expected one of {MODES}"
+            return resp
+        result = self.set_parameters([Parameter("mode", value=req.mode)])[0]
+        resp.success = result.successful
+        resp.message = f"mode {req.mode}" if result.successful else result.reason
         return resp
 
     def _on_redetect(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:

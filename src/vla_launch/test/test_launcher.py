@@ -1,8 +1,10 @@
 """`vla launch` process supervision with plain processes (fast): output, exit codes, teardown."""
 import os
+import re
 import signal
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -108,6 +110,45 @@ def test_children_die_when_launch_is_killed(tmp_path, fixtures_dir, launch):
     run.send(signal.SIGKILL)
     run.finish()
     assert launch.wait_dead(pids, 5.0) == []
+
+
+def test_a_child_that_ignores_its_parent_death_signal_is_reaped(tmp_path, fixtures_dir, launch):
+    """The launch is SIGKILLed and its child ignores the SIGTERM of PR_SET_PDEATHSIG (as a node stuck
+    in its DDS teardown does): the reaper SIGKILLs it `sigkill_timeout` later, with its grandchild."""
+    run = launch("--sigkill-timeout", "2",
+                 launch_file(tmp_path, fixtures_dir, proc("stuck", "--ignore TERM --grandchild")))
+    run.wait_for(r"ready \d+")
+    grandchild = int(run.wait_for(r"grandchild (\d+)")[0].group(1))
+    pids = run.child_pids()
+    run.send(signal.SIGKILL)
+    run.proc.wait()
+    time.sleep(0.5)
+    assert all(launch.alive(p) for p in pids + [grandchild])  # SIGTERM ignored: only the reaper helps
+    assert launch.wait_dead(pids + [grandchild], 6.0) == []
+    run.finish()  # the reaper held the launch's stderr; it has said what it did
+    assert "SIGKILLed [" in run.text("err")
+
+
+def test_shutdown_goes_one_process_at_a_time_in_reverse_start_order(tmp_path, fixtures_dir, launch):
+    f = launch_file(tmp_path, fixtures_dir, proc("first", ""), proc("second", ""), proc("third", ""))
+    run = launch(f)
+    run.wait_for(r"ready \d+", count=3)
+    run.send(signal.SIGINT)
+    assert run.finish() == 0, run.text()
+    rx = re.compile(r"process \[(\w+)-\d+\] stopped")
+    stopped = [m.group(1) for _, line in run.lines if (m := rx.search(line))]
+    assert stopped == ["third", "second", "first"], run.text()
+
+
+def test_a_stuck_process_delays_the_next_one_by_the_stagger_only(tmp_path, fixtures_dir, launch):
+    f = launch_file(tmp_path, fixtures_dir, proc("first", ""), proc("stuck", "--ignore INT"))
+    run = launch("--sigterm-timeout", "3", f)
+    run.wait_for(r"ready \d+", count=2)
+    t0 = time.monotonic()
+    run.send(signal.SIGINT)
+    run.wait_for(r"process \[first-\d+\] stopped")
+    assert time.monotonic() - t0 < 2.9  # signalled 1 s (the stagger) after `stuck`, not after its SIGTERM
+    assert run.finish() == 0, run.text()  # `stuck` stopped by the SIGTERM at 3 s
 
 
 def test_respawn(tmp_path, fixtures_dir, launch):

@@ -13,10 +13,11 @@ import shutil
 import sys
 import tempfile
 
+from vla_launch import plan as plan_mod
 from vla_launch import run as run_mod
-from vla_launch.launch_file import LaunchFileError, declared_arguments, load_launch_file
-from vla_launch.launcher import Launcher, ProcessSpec
-from vla_launch.node_command import build_command
+from vla_launch.launch_file import LaunchFileError, declared_arguments
+from vla_launch.launcher import Launcher
+from vla_launch.plan import parse_launch_arguments, resolve_launch_file
 from vla_launch.run import RunError
 from vla_launch.substitutions import SubstitutionError
 
@@ -45,46 +46,12 @@ def _parser() -> argparse.ArgumentParser:
                     help="seconds after SIGINT before SIGTERM (default 5)")
     lp.add_argument("--sigkill-timeout", type=float, default=5.0, metavar="S",
                     help="seconds after SIGTERM before SIGKILL (default 5)")
+    lp.add_argument("--stop-stagger", type=float, default=1.0, metavar="S",
+                    help="at shutdown, longest wait for a process to end before the next one is "
+                         "signalled (default 1)")
     lp.add_argument("launch_args", nargs="+", metavar="ARG",
                     help="<file.launch.yaml> | <package> <file.launch.yaml>, then name:=value ...")
     return p
-
-
-def resolve_launch_file(words: list[str]) -> tuple[str, list[str]]:
-    """Split `file [a:=b ...]` or `package file [a:=b ...]`; find the file like ros2 launch."""
-    first = words[0]
-    if os.path.isfile(first) or ":=" in first or len(words) == 1 or ":=" in words[1]:
-        if not os.path.isfile(first):
-            raise LaunchFileError(f"launch file not found: {first}")
-        return first, words[1:]
-    package, name = words[0], words[1]
-    try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-
-        share = get_package_share_directory(package)
-    except (PackageNotFoundError, ValueError) as e:
-        raise LaunchFileError(f"Package '{package}' not found") from e
-    matches = []
-    for dirpath, dirnames, filenames in os.walk(share):
-        dirnames.sort()
-        if name in filenames:
-            matches.append(os.path.join(dirpath, name))
-    if not matches:
-        raise LaunchFileError(f"file '{name}' was not found in the share directory of package '{package}' "
-                              f"({share})")
-    if len(matches) > 1:
-        raise LaunchFileError(f"file '{name}' is ambiguous in package '{package}': {matches}")
-    return matches[0], words[2:]
-
-
-def parse_launch_arguments(words: list[str]) -> dict[str, str]:
-    out = {}
-    for w in words:
-        name, sep, value = w.partition(":=")
-        if not sep or not name:
-            raise LaunchFileError(f"launch arguments are written name:=value, got {w!r}")
-        out[name] = value
-    return out
 
 
 def _show_args(path: str) -> int:
@@ -107,12 +74,8 @@ def launch_main(ns: argparse.Namespace) -> int:
         path, rest = resolve_launch_file(ns.launch_args)
         if ns.show_args:
             return _show_args(path)
-        plan = load_launch_file(path, parse_launch_arguments(rest))
         tmpdir = tempfile.mkdtemp(prefix="vla_launch_")
-        specs = [ProcessSpec(label=p.label, cmd=build_command(p, tmpdir), env=p.env, cwd=p.cwd,
-                             on_exit_shutdown=p.on_exit_shutdown, respawn=p.respawn,
-                             respawn_delay=p.respawn_delay, sigterm_timeout=p.sigterm_timeout,
-                             sigkill_timeout=p.sigkill_timeout) for p in plan.processes]
+        plan, specs = plan_mod.load(path, parse_launch_arguments(rest), tmpdir)
         for m in plan.messages:
             print(f"[INFO] [launch.user]: {m}", file=sys.stderr)
         if ns.dry_run:
@@ -123,7 +86,7 @@ def launch_main(ns: argparse.Namespace) -> int:
             print("[INFO] [launch]: nothing to launch", file=sys.stderr)
             return 0
         return Launcher(specs, sigterm_timeout=ns.sigterm_timeout, sigkill_timeout=ns.sigkill_timeout,
-                        keep_going=ns.keep_going).run()
+                        keep_going=ns.keep_going, stop_stagger=ns.stop_stagger).run()
     except (LaunchFileError, SubstitutionError, RunError) as e:
         print(f"vla launch: error: {e}", file=sys.stderr)
         return 1

@@ -5,11 +5,17 @@ output, exits and Ctrl-C are handled as they happen without polling threads.
 
 - Every child runs in its own process group (a terminal's Ctrl-C reaches only `vla launch`, which
   forwards it) and gets PR_SET_PDEATHSIG=SIGTERM, so it is stopped even if `vla launch` is killed.
+  A dead-man reaper (`reaper.py`) SIGKILLs a child that outlives a killed launch by its
+  `sigkill_timeout`, which a live launch would have done.
 - Each output line is printed as `[label-pid] line` (stdout to stdout, stderr to stderr).
-- Shutdown (Ctrl-C, SIGTERM, SIGHUP, or a node dying): the signal is sent to every child's group;
-  after `sigterm_timeout` SIGTERM follows, after `sigkill_timeout` SIGKILL. Another Ctrl-C (a
-  second or more later) escalates at once. At the end every child group is SIGKILLed, catching
-  stray grandchildren.
+- Shutdown (Ctrl-C, SIGTERM, SIGHUP, or a node dying): the signal goes to the children's groups one
+  at a time, in reverse start order; the next one is signalled when the previous one has exited, or
+  `stop_stagger` s after it was signalled. Nodes that leave the DDS graph together can hang in Fast
+  DDS 2.14's participant deletion (eProsima/Fast-DDS#6513, busy-waiting on discovery callbacks of
+  the others' departure); one after the other they do not, and the robot side (started first)
+  stops last. After `sigterm_timeout` SIGTERM follows, after `sigkill_timeout` SIGKILL. Another
+  Ctrl-C (a second or more later) escalates every child at once. At the end every child group is
+  SIGKILLed, catching stray grandchildren.
 - By default a process exiting with a non-zero code tears the others down (`keep_going` disables
   this); one exiting with 0 just ends (unless it has `on_exit: shutdown`); `respawn` restarts.
 - Exit code: 0 when every process ended cleanly (0, or stopped by our SIGINT/SIGTERM), otherwise the
@@ -26,8 +32,11 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TextIO
+
+from vla_launch import reaper
 
 _PR_SET_PDEATHSIG = 1
 try:
@@ -60,6 +69,7 @@ class _Child:
     partial: dict[int, bytearray] = field(default_factory=dict)
     stage: int = 0  # 0 running, 1 SIGINT sent, 2 SIGTERM sent, 3 SIGKILL sent
     deadline: float | None = None
+    signalled_at: float | None = None
 
     @property
     def pid(self) -> int:
@@ -90,18 +100,27 @@ class Launcher:
     """Runs a list of processes until they end or a shutdown; `run()` returns the exit code."""
 
     def __init__(self, specs: list[ProcessSpec], *, sigterm_timeout: float = 5.0,
-                 sigkill_timeout: float = 5.0, keep_going: bool = False,
-                 stdout: TextIO | None = None, stderr: TextIO | None = None) -> None:
+                 sigkill_timeout: float = 5.0, keep_going: bool = False, stop_stagger: float = 1.0,
+                 stdout: TextIO | None = None, stderr: TextIO | None = None,
+                 env: Mapping[str, str] | None = None, use_reaper: bool = True) -> None:
         self.specs = specs
         self.sigterm_timeout = sigterm_timeout
         self.sigkill_timeout = sigkill_timeout
         self.keep_going = keep_going
+        self.stop_stagger = stop_stagger
         self.out = stdout or sys.stdout
         self.err = stderr or sys.stderr
+        self.env = dict(os.environ if env is None else env)  # the children's base environment
+        self.use_reaper = use_reaper
         self.children: list[_Child] = []
         self.all_pids: list[int] = []
+        self.labels: dict[int, str] = {}  # pid -> label, of every process started
         self.failures: list[tuple[str, int]] = []
+        self.ended: list[tuple[str, int]] = []  # (label, exit code) of every process that ended
         self.shutting_down = False
+        self._stop_signal = signal.SIGINT
+        self._stop_queue: list[_Child] = []
+        self._reaper: subprocess.Popen | None = None
         self._signals: list[int] = []
         self._last_escalation = 0.0
         self._wake_w: int | None = None
@@ -155,7 +174,7 @@ class Launcher:
 
     # --------------------------------------------------------------------------------- start
     def _start(self, spec: ProcessSpec) -> None:
-        env = dict(os.environ)
+        env = dict(self.env)
         env.setdefault("PYTHONUNBUFFERED", "1")
         for k, v in spec.env.items():
             if v is None:
@@ -181,7 +200,54 @@ class Launcher:
             self._sel.register(fd, selectors.EVENT_READ, (child, fd))
         self.children.append(child)
         self.all_pids.append(child.pid)
+        self.labels[child.pid] = spec.label
+        self._tell_reaper(f"{child.pid} {self._grace(spec):g}")
         self.log(f"process started with pid [{child.pid}]: {spec.label}: {' '.join(spec.cmd)}")
+
+    # ---------------------------------------------------------------------------------- reaper
+    def _grace(self, spec: ProcessSpec) -> float:
+        """How long a child may outlive a killed launch (its SIGTERM) before the reaper kills it."""
+        return self.sigkill_timeout if spec.sigkill_timeout is None else spec.sigkill_timeout
+
+    def _start_reaper(self) -> None:
+        if not self.use_reaper:
+            return
+        try:
+            self._reaper = subprocess.Popen(
+                [sys.executable, "-I", "-S", reaper.__file__], stdin=subprocess.PIPE,
+                stdout=subprocess.DEVNULL, stderr=self._fileno(self.err), close_fds=True,
+                process_group=0, text=True)
+        except OSError as e:
+            self.log(f"cannot start the reaper ({e}); a child may outlive a killed launch", error=True)
+
+    @staticmethod
+    def _fileno(stream: TextIO) -> int | None:
+        try:
+            return stream.fileno()
+        except (AttributeError, OSError, ValueError):  # e.g. io.StringIO
+            return subprocess.DEVNULL
+
+    def _tell_reaper(self, line: str) -> None:
+        if self._reaper is None:
+            return
+        try:
+            self._reaper.stdin.write(line + "\n")
+            self._reaper.stdin.flush()
+        except (OSError, ValueError):
+            self._reaper = None
+
+    def _stop_reaper(self) -> None:
+        if self._reaper is None:
+            return
+        self._tell_reaper("exit")
+        with contextlib.suppress(OSError, ValueError):
+            self._reaper.stdin.close()
+        try:
+            self._reaper.wait(5.0)
+        except subprocess.TimeoutExpired:
+            self._reaper.kill()
+            self._reaper.wait()
+        self._reaper = None
 
     # ------------------------------------------------------------------------------ shutdown
     def _send(self, child: _Child, sig: int) -> None:
@@ -191,6 +257,7 @@ class Launcher:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.kill(child.pid, sig)
         now = time.monotonic()
+        child.signalled_at = now
         if sig == signal.SIGINT:
             child.stage = 1
             t = child.spec.sigterm_timeout
@@ -217,9 +284,28 @@ class Launcher:
         self.shutting_down = True
         self._respawns.clear()
         self.log(f"shutting down ({reason}): sending {_signal_name(first_signal)} to "
-                 f"{len(self.children)} process(es)")
-        for child in self.children:
-            self._send(child, first_signal)
+                 f"{len(self.children)} process(es), one at a time in reverse start order")
+        self._stop_signal = first_signal
+        self._stop_queue = list(reversed(self.children))
+        self._advance_stop(time.monotonic())
+
+    def _advance_stop(self, now: float) -> None:
+        """Signal the next child once the one signalled before has ended or had `stop_stagger` s."""
+        while self._stop_queue:
+            busy = [c for c in self.children if c.stage > 0 and c.signalled_at is not None
+                    and now - c.signalled_at < self.stop_stagger]
+            if busy:
+                return
+            child = self._stop_queue.pop(0)
+            if child in self.children and child.stage == 0:
+                self._send(child, self._stop_signal)
+
+    def _next_stop_due(self, now: float) -> float | None:
+        if not self._stop_queue:
+            return None
+        times = [c.signalled_at + self.stop_stagger for c in self.children
+                 if c.stage > 0 and c.signalled_at is not None]
+        return max(times) if times else now
 
     def _on_signal(self, signum: int, frame: object) -> None:
         self._signals.append(signum)
@@ -238,6 +324,7 @@ class Launcher:
                 # A repeated Ctrl-C escalates; one signal delivered twice (e.g. by `timeout`, which
                 # signals the child and then its own group) must not.
                 self._last_escalation = now
+                self._stop_queue.clear()
                 for child in self.children:
                     self._escalate(child)
 
@@ -255,6 +342,7 @@ class Launcher:
     def _on_exit(self, child: _Child, rc: int) -> None:
         how = f"exit code {rc}" if rc >= 0 else f"killed by {_signal_name(-rc)}"
         spec = child.spec
+        self.ended.append((spec.label, rc))
         if self.shutting_down:
             if child.stage == 3 or rc not in _CLEAN_STOP_CODES:
                 self.failures.append((spec.label, rc))
@@ -297,10 +385,14 @@ class Launcher:
                 self._respawns.remove(r)
                 if not self.shutting_down:
                     self._start(r[1])
+            if self.shutting_down:
+                self._advance_stop(now)
             if not self.children and not self._respawns:
                 return
             waits = [c.deadline - now for c in self.children if c.deadline is not None]
             waits += [t - now for t, _ in self._respawns]
+            if (due_stop := self._next_stop_due(now)) is not None:
+                waits.append(due_stop - now)
             timeout = max(0.0, min([0.5] + waits))
             for key, _ in self._sel.select(timeout):
                 if key.data is None:
@@ -337,6 +429,7 @@ class Launcher:
             old = {s: signal.signal(s, self._on_signal)
                    for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGCHLD)}
         try:
+            self._start_reaper()
             for spec in self.specs:
                 self._handle_signals()
                 if self.shutting_down:
@@ -350,6 +443,7 @@ class Launcher:
             for pid in self.all_pids:  # stray grandchildren left in our children's groups
                 with contextlib.suppress(ProcessLookupError, PermissionError):
                     os.killpg(pid, signal.SIGKILL)
+            self._stop_reaper()
             if in_main:
                 for s, h in old.items():
                     signal.signal(s, h)

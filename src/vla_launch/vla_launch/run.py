@@ -9,14 +9,14 @@ import os
 import shlex
 import sys
 
+from ament_index_python.packages import PackageNotFoundError, get_package_prefix
+
 
 class RunError(RuntimeError):
     """Package or executable not found; the message is what `ros2 run` would print."""
 
 
 def package_prefix(package: str) -> str:
-    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
-
     try:
         return get_package_prefix(package)
     except (PackageNotFoundError, ValueError) as e:

@@ -20,6 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from vla_latent_controller.teleop import stick_to_unit
 
 # (axes (N,), q (7,)) -> (N, 7) joint velocities (rad/s) the controller would command for each axis.
 AxisCommandFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -231,8 +232,6 @@ class StickToCommand:
     def stick(self, axes: np.ndarray) -> np.ndarray:
         """Stick values after deadband, rescaling and axis_scale, in [-1, 1] (the controller's own
         mapping function)."""
-        from vla_latent_controller.teleop import stick_to_unit
-
         return np.atleast_1d(stick_to_unit(np.asarray(axes, dtype=float), self.deadband, self.axis_scale))
 
     def __call__(self, axes: np.ndarray, q: np.ndarray) -> np.ndarray:

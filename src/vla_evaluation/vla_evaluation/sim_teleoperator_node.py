@@ -1,4 +1,4 @@
-"""`ros2 run vla_latent_controller sim_teleoperator`: the paper's simulated user on a real joystick topic.
+"""`ros2 run vla_evaluation sim_teleoperator`: the paper's simulated user on a real joystick topic.
 
 It publishes `sensor_msgs/Joy` on `joy` at the controller's rate, choosing each stick value greedily
 (see `sim_teleoperator.py`) so that the controller's decoded command brings the arm nearest the
@@ -10,21 +10,34 @@ image of the episode).
 
 Episodes start with `~/start_episode` (vla_interfaces/StartEpisode, field `task`) or the `task`
 parameter at startup; `~/stop` ends one early. Stick released (0) at the time limit and on shutdown.
+Every parameter except `rate`, `task` and `controller_status_topic` may change at run time; the
+episode settings apply from the next episode, and `model_path` is refused while an episode runs.
 """
 from __future__ import annotations
 
 import math
+import sys
+from typing import Any
 
 import numpy as np
-import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
-from vla_common.robot import DQ_MAX
+from vla_common.detection import Detection
+from vla_common.kinematics import PandaKinematics
+from vla_common.objects import ObjectPose
+from vla_common.robot import DQ_MAX, JOINT_NAMES
+from vla_common.ros.node_main import StartupError, run_node
+from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.tasks import parse_task
+from vla_latent_controller.artifacts import ModelError
+from vla_latent_controller.context import ContextError
+from vla_latent_controller.model import LatentModel
+from vla_sim.planner import plan_task
 
+from vla_evaluation.resources import latent_model_dir
 from vla_evaluation.sim_teleoperator import (
     DEFAULT_CANDIDATES,
     DEFAULT_HORIZON,
@@ -38,83 +51,87 @@ from vla_evaluation.sim_teleoperator import (
 from vla_interfaces.msg import ControllerStatus, SceneObjectArray, TeleopStatus
 from vla_interfaces.srv import StartEpisode
 
-JOINT_NAMES = tuple(f"panda_joint{i}" for i in range(1, 8))
+NODE_NAME = "sim_teleoperator"
+ACTIVE = (TeleopStatus.RUNNING, TeleopStatus.WAITING)
+
+
+def _odd(n: int) -> str | None:
+    return None if n % 2 == 1 else f"must be odd (0 must be a candidate), got {n}"
+
+
+PARAMETERS = ParameterTable([
+    Param("model_path", "", "latent-action model directory (the controller's); empty: the shipped one; "
+          "refused while an episode runs", dynamic=True),
+    Param("task", "", "task to start at once, e.g. bread/push_east; empty: wait for ~/start_episode"),
+    Param("rate", 100.0, "stick publishing rate (Hz): the controller's rate", range=(1.0, 1000.0)),
+    Param("axis", 0, "index of the stick axis in Joy.axes (the controller's `axis`)", range=(0, 15),
+          dynamic=True),
+    Param("num_axes", 2, "length of Joy.axes", range=(1, 16), dynamic=True),
+    Param("enable_button", -1, "deadman button held pressed during an episode (-1: none)", range=(-1, 31),
+          dynamic=True),
+    Param("num_buttons", 4, "length of Joy.buttons", range=(0, 32), dynamic=True),
+    Param("deadband", 0.1, "the controller's stick deadband", range=(0.0, 0.9), dynamic=True),
+    Param("axis_scale", 1.0, "the controller's axis_scale", range=(-10.0, 10.0), dynamic=True),
+    Param("action_scale", 1.0, "the controller's action_scale (decoder output -> rad/s)", range=(0.0, 100.0),
+          dynamic=True),
+    Param("max_joint_speed", 1.5, "the controller's joint-speed norm clamp (rad/s)", range=(0.01, 5.0),
+          dynamic=True),
+    Param("n_candidates", DEFAULT_CANDIDATES, "stick values tried over [-1, 1] (odd)", range=(3, 401),
+          dynamic=True, check=_odd),
+    Param("horizon", DEFAULT_HORIZON, "look-ahead of the projected state, the paper's dt (s)",
+          range=(0.01, 10.0), dynamic=True),
+    Param("switch_time", DEFAULT_SWITCH_TIME, "time on the pre-push waypoint, the paper's k (s)",
+          range=(0.0, 600.0), dynamic=True),
+    Param("time_limit", DEFAULT_TIME_LIMIT, "episode length (s)", range=(0.1, 3600.0), dynamic=True),
+    Param("max_stick_rate", 0.0, "how fast the simulated hand moves the stick (units/s); 0: unlimited "
+          "(the paper's choice)", range=(0.0, 1000.0), dynamic=True),
+    Param("plan_seed", 0, "seed of the planner's waypoint variation", range=(0, 2**31 - 1), dynamic=True),
+    Param("start_timeout", 10.0, "give up starting when inputs are missing this long (s)",
+          range=(0.1, 600.0), dynamic=True),
+    Param("controller_status_topic", "controller_node/status",
+          "the controller's ~/status topic (ControllerStatus)"),
+    Param("use_controller_context", True, "take the latched class and position from controller_status "
+          "(false: the detector encoder needs them, so it fails)", dynamic=True),
+])
 
 
 def default_model_path() -> str:
-    """The model shipped with the package (share/vla_latent_controller/models/default)."""
-    from vla_evaluation.resources import latent_model_dir
-
+    """The model shipped with the controller (share/vla_latent_controller/models/default)."""
     return str(latent_model_dir("default"))
 
 
-def _desc(text: str, lo: float | None = None, hi: float | None = None, integer: bool = False,
-          read_only: bool = False) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=read_only)
-    if lo is not None:
-        if integer:
-            d.integer_range = [IntegerRange(from_value=int(lo), to_value=int(hi), step=1)]
-        else:
-            d.floating_point_range = [FloatingPointRange(from_value=float(lo), to_value=float(hi), step=0.0)]
-    return d
+def load_model(path: str) -> LatentModel:
+    return LatentModel.load(path or default_model_path())
 
 
 class SimTeleoperatorNode(Node):
     def __init__(self, **kwargs) -> None:
-        super().__init__("sim_teleoperator", **kwargs)
-        p = self.declare_parameter
-        p("model_path", "", _desc("latent-action model directory (the controller's); empty: the shipped one",
-                                  read_only=True))
-        p("task", "", _desc("task to start at once, e.g. bread/push_east; empty: wait for ~/start_episode"))
-        p("rate", 100.0, _desc("stick publishing rate (Hz): the controller's rate", 1.0, 1000.0))
-        p("axis", 0, _desc("index of the stick axis in Joy.axes (the controller's `axis`)", 0, 15, True))
-        p("num_axes", 2, _desc("length of Joy.axes", 1, 16, True))
-        p("enable_button", -1, _desc("deadman button to hold pressed (-1: none)", -1, 31, True))
-        p("num_buttons", 4, _desc("length of Joy.buttons", 0, 32, True))
-        p("deadband", 0.1, _desc("the controller's stick deadband", 0.0, 0.9))
-        p("axis_scale", 1.0, _desc("the controller's axis_scale", -10.0, 10.0))
-        p("action_scale", 1.0, _desc("the controller's action_scale (decoder output -> rad/s)", 0.0, 100.0))
-        p("max_joint_speed", 1.5, _desc("the controller's joint-speed norm clamp (rad/s)", 0.01, 5.0))
-        p("n_candidates", DEFAULT_CANDIDATES, _desc("stick values tried over [-1, 1] (odd)", 3, 401, True))
-        p("horizon", DEFAULT_HORIZON,
-          _desc("look-ahead of the projected state, the paper's dt (s)", 0.01, 10.0))
-        p("switch_time", DEFAULT_SWITCH_TIME,
-          _desc("time on the pre-push waypoint, the paper's k (s)", 0.0, 600.0))
-        p("time_limit", DEFAULT_TIME_LIMIT, _desc("episode length (s)", 0.1, 3600.0))
-        p("max_stick_rate", 0.0, _desc("how fast the simulated hand moves the stick (units/s); 0: unlimited "
-                                      "(the paper's choice)", 0.0, 1000.0))
-        p("plan_seed", 0, _desc("seed of the planner's waypoint variation", 0, 2**31 - 1, True))
-        p("start_timeout", 10.0, _desc("give up starting when inputs are missing this long (s)", 0.1, 600.0))
-        p("controller_status_topic", "controller_node/status",
-          _desc("the controller's ~/status topic (ControllerStatus)", read_only=True))
-        p("use_controller_context", True, _desc("take the latched class and position from controller_status "
-                                                "(false: the detector encoder needs them, so it fails)"))
-        self._read_params()
-        self.add_on_set_parameters_callback(self._on_params)
-
-        from vla_common.kinematics import PandaKinematics
-        from vla_latent_controller.model import LatentModel
-
-        path = self.get_parameter("model_path").value or default_model_path()
-        self.model = LatentModel.load(path)  # ModelError with the reason: stops the node at startup
+        super().__init__(NODE_NAME, **kwargs)
+        self.p = PARAMETERS.declare(self, self._on_parameter)
+        path = self.p["model_path"] or default_model_path()
+        try:
+            self.model = load_model(path)
+        except (ModelError, OSError, ValueError) as e:
+            raise StartupError(f"cannot load model {path!r}: {e}") from e
         self.kin = PandaKinematics()
-        self.get_logger().info(f"model {path} ({self.model.encoder}, classes {self.model.classes})")
+        self.get_logger().info(f"model {self.model.artifacts.path} ({self.model.encoder}, "
+                               f"classes {self.model.classes})")
 
         self.q: np.ndarray | None = None
-        self.objects: dict[str, object] = {}
+        self.objects: dict[str, ObjectPose] = {}
         self.ctrl: ControllerStatus | None = None
         self.ctrl_time: Time | None = None
         self.image: np.ndarray | None = None
         self.image_time: Time | None = None
+        self._image_sub = None
 
         self.joy_pub = self.create_publisher(Joy, "joy", 10)
         self.status_pub = self.create_publisher(TeleopStatus, "~/status", 10)
         self.create_subscription(JointState, "joint_states", self._on_joints, qos_profile_sensor_data)
         self.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, qos_profile_sensor_data)
-        self.create_subscription(ControllerStatus, self.get_parameter("controller_status_topic").value,
-                                 self._on_ctrl, qos_profile_sensor_data)
-        if self.model.needs_image:
-            self.create_subscription(Image, "camera/image_raw", self._on_image, qos_profile_sensor_data)
+        self.create_subscription(ControllerStatus, self.p["controller_status_topic"], self._on_ctrl,
+                                 qos_profile_sensor_data)
+        self._update_image_subscription()
         self.create_service(StartEpisode, "~/start_episode", self._srv_start)
         self.create_service(Trigger, "~/stop", self._srv_stop)
 
@@ -125,33 +142,35 @@ class SimTeleoperatorNode(Node):
         self.t0: Time | None = None
         self.tele: SimTeleoperator | None = None
         self.last_step = None
-        self._status_every = max(1, int(round(self.rate / 10.0)))
+        rate = float(self.p["rate"])
+        self._status_every = max(1, int(round(rate / 10.0)))
         self._ticks = 0
-        self.timer = self.create_timer(1.0 / self.rate, self._tick)
-        if self.get_parameter("task").value:
-            self._request(self.get_parameter("task").value)
+        self.timer = self.create_timer(1.0 / rate, self._tick)
+        if self.p["task"]:
+            try:
+                self._request(self.p["task"])
+            except ValueError as e:
+                raise StartupError(f"parameter 'task': {e}") from e
 
     # ------------------------------------------------------------------ parameters
-    def _read_params(self) -> None:
-        g = self.get_parameter
-        self.rate = float(g("rate").value)
-        self.axis = int(g("axis").value)
-        self.num_axes = max(int(g("num_axes").value), self.axis + 1)
-        self.enable_button = int(g("enable_button").value)
-        self.num_buttons = max(int(g("num_buttons").value), self.enable_button + 1)
-        self.n_candidates = int(g("n_candidates").value)
-        if self.n_candidates % 2 == 0:
-            raise ValueError(f"n_candidates must be odd (0 must be a candidate), got {self.n_candidates}")
+    def _on_parameter(self, name: str, value: Any) -> str | None:
+        """Apply a run-time change (episode settings: from the next episode on), or say why not."""
+        if name == "model_path":
+            if self.state in ACTIVE:
+                return f"an episode ({self.task}) is running; stop it first"
+            try:
+                self.model = load_model(value)
+            except (ModelError, OSError, ValueError) as e:
+                return f"cannot load model {value!r}: {e}"
+            self._update_image_subscription()
+            self.get_logger().info(f"model {self.model.artifacts.path} ({self.model.encoder})")
+        self.p[name] = value
+        return None
 
-    def _on_params(self, params):
-        from rcl_interfaces.msg import SetParametersResult
-
-        for prm in params:
-            if prm.name == "n_candidates" and int(prm.value) % 2 == 0:
-                return SetParametersResult(successful=False, reason="n_candidates must be odd")
-            if prm.name == "rate":
-                return SetParametersResult(successful=False, reason="rate is fixed at startup")
-        return SetParametersResult(successful=True)
+    def _update_image_subscription(self) -> None:
+        if self.model.needs_image and self._image_sub is None:
+            self._image_sub = self.create_subscription(Image, "camera/image_raw", self._on_image,
+                                                       qos_profile_sensor_data)
 
     # ------------------------------------------------------------------ inputs
     def _on_joints(self, msg: JointState) -> None:
@@ -164,8 +183,6 @@ class SimTeleoperatorNode(Node):
             self.q = q
 
     def _on_objects(self, msg: SceneObjectArray) -> None:
-        from vla_common.objects import ObjectPose
-
         self.objects = {o.class_id: ObjectPose(o.class_id, o.x, o.y, o.yaw) for o in msg.objects}
 
     def _on_ctrl(self, msg: ControllerStatus) -> None:
@@ -193,13 +210,10 @@ class SimTeleoperatorNode(Node):
     def _srv_stop(self, req: Trigger.Request, res: Trigger.Response):
         was = self.state
         self._finish(TeleopStatus.DONE if was == TeleopStatus.RUNNING else TeleopStatus.IDLE, "stopped")
-        active = was in (TeleopStatus.RUNNING, TeleopStatus.WAITING)
-        res.success, res.message = True, "stopped" if active else "idle"
+        res.success, res.message = True, "stopped" if was in ACTIVE else "idle"
         return res
 
     def _request(self, task: str) -> None:
-        from vla_common.tasks import parse_task
-
         parse_task(task)  # ValueError with the known tasks
         self.task = task
         self.state = TeleopStatus.WAITING
@@ -211,45 +225,35 @@ class SimTeleoperatorNode(Node):
     def _fresh(self, stamp: Time | None) -> bool:
         return stamp is not None and self.request_time is not None and stamp >= self.request_time
 
-    def _try_start(self) -> None:
-        from vla_common.tasks import parse_task
-        from vla_latent_controller.context import ContextError, Det
-        from vla_sim.planner import plan_task
-
-        now = self.get_clock().now()
-        waited = (now - self.request_time).nanoseconds * 1e-9
-        spec = parse_task(self.task)
+    def _missing_inputs(self, spec) -> list[str]:
         missing = []
         if self.q is None:
             missing.append("joint_states")
         if spec.object_class not in self.objects:
             missing.append(f"{spec.object_class} in scene/objects")
-        need_ctrl = self.get_parameter("use_controller_context").value and self.model.needs_class
-        ctrl = self.ctrl if self._fresh(self.ctrl_time) else None
-        if need_ctrl and (ctrl is None or not ctrl.latched_class):
+        if self.p["use_controller_context"] and self.model.needs_class and self._latched() is None:
             missing.append("a latched detection on controller_status")
         if self.model.needs_image and not self._fresh(self.image_time):
             missing.append("a camera image")
+        return missing
+
+    def _latched(self) -> ControllerStatus | None:
+        """The controller's status since this episode's request, if it has latched a class."""
+        ctrl = self.ctrl if self._fresh(self.ctrl_time) else None
+        return ctrl if ctrl is not None and ctrl.latched_class else None
+
+    def _try_start(self) -> None:
+        now = self.get_clock().now()
+        spec = parse_task(self.task)
+        missing = self._missing_inputs(spec)
         if missing:
             self.reason = "waiting for " + ", ".join(missing)
-            if waited > float(self.get_parameter("start_timeout").value):
+            if (now - self.request_time).nanoseconds * 1e-9 > float(self.p["start_timeout"]):
                 self._finish(TeleopStatus.FAILED, "gave up: " + self.reason)
                 self.get_logger().warn(f"{self.task}: {self.reason}")
             return
         try:
-            cls = ctrl.latched_class if ctrl is not None and ctrl.latched_class else None
-            det = Det(cls, 1.0, float(ctrl.latched_x), float(ctrl.latched_y)) if cls else None
-            context = self.model.context(det=det, image_size=(1, 1), image=self.image, class_id=cls)
-            g = self.get_parameter
-            command = StickToCommand(self.model, context, cls, g("deadband").value, g("axis_scale").value,
-                                     g("action_scale").value, g("max_joint_speed").value, DQ_MAX)
-            plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
-                             np.random.default_rng(int(g("plan_seed").value)))
-            waypoints = teleop_waypoints(plan)
-            schedule = WaypointSchedule(waypoints, float(g("switch_time").value),
-                                        float(g("time_limit").value))
-            self.tele = SimTeleoperator(command, schedule, float(g("horizon").value), self.n_candidates,
-                                        float(g("max_stick_rate").value))
+            self.tele, cls = self._make_teleoperator(spec)
         except (ContextError, ValueError, RuntimeError) as e:
             self._finish(TeleopStatus.FAILED, f"cannot start: {e}")
             self.get_logger().error(f"{self.task}: {self.reason}")
@@ -257,10 +261,27 @@ class SimTeleoperatorNode(Node):
         self.t0 = now
         self.state = TeleopStatus.RUNNING
         self.reason = f"context {cls or self.model.encoder}"
-        self.get_logger().info(f"{self.task}: running ({len(waypoints)} waypoints, {self.reason})")
+        self.get_logger().info(f"{self.task}: running ({len(self.tele.schedule.waypoints)} waypoints, "
+                               f"{self.reason})")
+
+    def _make_teleoperator(self, spec) -> tuple[SimTeleoperator, str | None]:
+        """The episode's simulated user: the controller's mapping with the latched context, aiming at
+        the planner's waypoints for the object where it is now."""
+        p, ctrl = self.p, self._latched()
+        cls = ctrl.latched_class if ctrl is not None else None
+        det = Detection(cls, 1.0, float(ctrl.latched_x), float(ctrl.latched_y)) if cls else None
+        context = self.model.context(det=det, image_size=(1, 1), image=self.image, class_id=cls)
+        command = StickToCommand(self.model, context, cls, p["deadband"], p["axis_scale"], p["action_scale"],
+                                 p["max_joint_speed"], DQ_MAX)
+        plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
+                         np.random.default_rng(int(p["plan_seed"])))
+        schedule = WaypointSchedule(teleop_waypoints(plan), float(p["switch_time"]), float(p["time_limit"]))
+        tele = SimTeleoperator(command, schedule, float(p["horizon"]), int(p["n_candidates"]),
+                               float(p["max_stick_rate"]))
+        return tele, cls
 
     def _finish(self, state: int, reason: str) -> None:
-        if self.state in (TeleopStatus.RUNNING, TeleopStatus.WAITING):
+        if self.state in ACTIVE:
             self._publish_joy(0.0)  # release the stick
         self.state = state
         self.reason = reason
@@ -284,15 +305,16 @@ class SimTeleoperatorNode(Node):
             self._publish_status()
 
     def _publish_joy(self, value: float) -> None:
+        axis = int(self.p["axis"])
+        enable = int(self.p["enable_button"])
         msg = Joy()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = "sim_teleoperator"
-        axes = [0.0] * self.num_axes
-        axes[self.axis] = float(value)
-        buttons = [0] * self.num_buttons
-        if self.enable_button >= 0:
-            held = self.state in (TeleopStatus.RUNNING, TeleopStatus.WAITING)
-            buttons[self.enable_button] = 1 if held else 0
+        msg.header.frame_id = NODE_NAME
+        axes = [0.0] * max(int(self.p["num_axes"]), axis + 1)
+        axes[axis] = float(value)
+        buttons = [0] * max(int(self.p["num_buttons"]), enable + 1)
+        if enable >= 0:
+            buttons[enable] = 1 if self.state in ACTIVE else 0
         msg.axes, msg.buttons = axes, buttons
         self.joy_pub.publish(msg)
 
@@ -314,36 +336,14 @@ class SimTeleoperatorNode(Node):
                 msg.distance = float(d) if math.isfinite(d) else 0.0
         self.status_pub.publish(msg)
 
-    def release(self) -> None:
-        """Zero stick on shutdown."""
-        try:
-            self._publish_joy(0.0)
-        except Exception:  # noqa: BLE001 - context may already be gone
-            pass
+    def on_shutdown(self) -> None:
+        """Release the stick (run_node calls this while the context is still valid)."""
+        self._publish_joy(0.0)
 
 
-def main(args=None) -> None:
-    rclpy.init(args=args)
-    node = None
-    from rclpy.executors import ExternalShutdownException
-
-    try:
-        node = SimTeleoperatorNode()
-        rclpy.spin(node)
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    except Exception as e:  # noqa: BLE001 - a startup error (bad model, bad parameter) ends with a message
-        import sys
-
-        print(f"sim_teleoperator: {e}", file=sys.stderr)
-        raise SystemExit(1) from None
-    finally:
-        if node is not None:
-            node.release()
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
+def main(args: list[str] | None = None) -> int:
+    return run_node(SimTeleoperatorNode, NODE_NAME, args)
 
 
 if __name__ == "__main__":
-    main()
+    sys.exit(main())

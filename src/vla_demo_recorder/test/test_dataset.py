@@ -19,12 +19,13 @@ def q_of(t: float) -> np.ndarray:
 
 
 def write_rosbags_bag(path: Path, *, seconds=2.0, rate=100.0, with_image=True, with_detection=True,
-                      encoding="rgb8", episode: EpisodeInfo | None = None, image_delay_s=0.0) -> Path:
+                      encoding="rgb8", episode: EpisodeInfo | None = None, image_delay_s=0.0,
+                      storage=StoragePlugin.MCAP) -> Path:
     """A bag written by rosbags directly (not our writer): shuffled joint order, an extra joint and
     an extra topic, padded image rows."""
     ts = typestore()
     names = ["finger_joint", *NAMES[::-1]]  # reversed plus an extra joint: resolved by name
-    with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
+    with Writer(path, version=9, storage_plugin=storage) as w:
         if episode is not None:
             for k, v in episode.to_custom_data().items():
                 w.set_custom_data(k, v)
@@ -78,6 +79,28 @@ def test_the_detection_still_reads_as_the_old_dict(tmp_path):
     built = Demo("bread/push_east", "bread", np.zeros(2), np.zeros((2, 7)), None,
                  {"class_id": "bread", "cx": 1.0, "cy": 2.0}, (640, 480), "")
     assert built.detection == Detection("bread", 1.0, 1.0, 2.0)  # the old dict shape is converted
+
+
+def test_a_sqlite3_bag_loads_like_its_mcap_twin(tmp_path):
+    """rosbag2's other storage (`ros2 bag record -s sqlite3`), written by rosbags: same demo."""
+    ep = EpisodeInfo(task="soda_can/push_south", index=1, outcome="kept")
+    mcap = load_demo(write_rosbags_bag(tmp_path / "m", episode=ep))
+    db3 = load_demo(write_rosbags_bag(tmp_path / "s", episode=ep, storage=StoragePlugin.SQLITE3))
+    assert (tmp_path / "s" / "s.db3").is_file()
+    assert db3.task == mcap.task and np.array_equal(db3.q, mcap.q) and np.array_equal(db3.t, mcap.t)
+    assert np.array_equal(db3.first_image, mcap.first_image) and db3.image_size == mcap.image_size
+    assert db3.detection == mcap.detection
+    assert load_demo(tmp_path / "s" / "s.db3").task == "soda_can/push_south"  # the file alone
+    plain = write_rosbags_bag(tmp_path / "p", storage=StoragePlugin.SQLITE3)  # no episode metadata
+    assert load_demo(plain, task="bread/push_east").detection.class_id == "bread"
+
+
+def test_a_file_of_another_kind_is_named_as_such(tmp_path):
+    bag = tmp_path / "junk"
+    bag.mkdir()
+    (bag / "junk.mcap").write_bytes(b"not a bag at all, just text")
+    with pytest.raises(DemoError, match="neither an MCAP nor a sqlite3"):
+        load_demo(bag)
 
 
 def test_detection_of_the_task_object_is_preferred(tmp_path):

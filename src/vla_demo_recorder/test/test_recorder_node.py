@@ -13,6 +13,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
+from vla_common.ros.node_main import ConfigError
 from vla_demo_recorder.bag_files import find_mcap, has_footer
 from vla_demo_recorder.bag_writer import EpisodeInfo, read_metadata_yaml
 from vla_demo_recorder.recorder_node import RecorderNode
@@ -262,3 +263,96 @@ def test_sigint_mid_episode_closes_the_bag_and_exits_0(ros, tmp_path, sim_time):
     assert has_footer(find_mcap(bag))
     ep = EpisodeInfo.from_custom_data(read_metadata_yaml(bag)["custom_data"])
     assert ep.outcome == "interrupted" and ep.task == "bread/push_east"
+
+
+def test_an_unexpected_error_in_a_service_is_replied_not_fatal(ros, tmp_path, monkeypatch):
+    rec = make_recorder(ros, tmp_path)
+    c = Client(ros)
+
+    def fail(*args, **kwargs):
+        raise RuntimeError("injected failure")
+
+    monkeypatch.setattr(rec.recorder, "start", fail)
+    res = c.start()
+    assert not res.success and "start_episode failed: RuntimeError: injected failure" in res.message
+    assert ros.spin_until(lambda: any("injected failure" in s.last_error for s in c.status))
+    monkeypatch.undo()
+    assert c.start().success and c.stop().success  # the node lives on
+
+
+def test_recorder_processes_racing_on_one_folder_all_start(ros, tmp_path):
+    """Several recorder processes on one output_dir, episodes started at the same moment: none dies,
+    each gets its own folder and index."""
+    exe = _installed("recorder_node")
+    n = 4
+    procs = [subprocess.Popen([exe, "--ros-args", "-r", f"__node:=race{i}", "-p", f"output_dir:={tmp_path}"],
+                              stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(n)]
+    try:
+        node = ros.add(Node("race_client", context=ros.context))
+        clients = [node.create_client(StartEpisode, f"/race{i}/start_episode") for i in range(n)]
+        assert all(cl.wait_for_service(timeout_sec=60) for cl in clients)
+        futures = [cl.call_async(StartEpisode.Request(task="bread/push_east")) for cl in clients]
+        assert ros.spin_until(lambda: all(f.done() for f in futures), 60)
+        results = [f.result() for f in futures]
+        assert all(r.success for r in results), [r.message for r in results]
+        assert sorted(Path(r.bag_path).name[:6] for r in results) == [f"ep{i:04d}" for i in range(1, n + 1)]
+        assert all(p.poll() is None for p in procs)
+    finally:
+        for p in procs:
+            if p.poll() is None:
+                p.send_signal(signal.SIGINT)
+        outputs = [p.communicate(timeout=30)[0] for p in procs]
+    assert [p.returncode for p in procs] == [0] * n, outputs
+
+
+def _set(node, name, value) -> tuple[bool, str]:
+    result = node.set_parameters([Parameter(name, value=value)])[0]
+    return result.successful, result.reason
+
+
+def test_parameters_are_applied_or_refused_at_run_time(ros, tmp_path):
+    rec = make_recorder(ros, tmp_path / "a", joy_task="bread/push_east", button_debounce_s=0.0)
+    c = Client(ros)
+    c.wait_subscribed(c.joy)
+    # read-only: the subscriptions are made at startup
+    for name, value in (("topics", ["joint_states"]), ("qos_depth", 5), ("joy_topic", "other_joy")):
+        ok, reason = _set(rec, name, value)
+        assert not ok and "read-only" in reason, (name, reason)
+        assert rec.get_parameter(name).value != value
+    # refused with the reason, nothing changed
+    ok, reason = _set(rec, "joy_task", "spaceship/fly")
+    assert not ok and "unknown object class 'spaceship'" in reason
+    blocker = tmp_path / "a_file"
+    blocker.write_text("x")
+    ok, reason = _set(rec, "output_dir", str(blocker / "demos"))
+    assert not ok and "cannot create output_dir" in reason
+    assert rec.get_parameter("output_dir").value == str(tmp_path / "a")
+    assert rec.recorder.output_dir == tmp_path / "a"
+
+    # applied: the next episode goes to the new folder, with the new task and buttons
+    assert _set(rec, "output_dir", str(tmp_path / "b")) == (True, "")
+    assert _set(rec, "joy_task", "soda_can:push_south") == (True, "")
+    assert _set(rec, "start_button", 3) == (True, "")
+    assert _set(rec, "status_period_s", 0.25) == (True, "")
+    assert rec._status_timer.timer_period_ns == 250_000_000
+    pressed = [0] * 4
+    pressed[3] = 1
+    c.joy.publish(Joy(buttons=pressed))
+    assert ros.spin_until(lambda: rec.recorder.recording)
+    path = Path(rec.recorder.state().bag_path)
+    assert path.parent == tmp_path / "b" and "soda_can_push_south" in path.name
+
+    # while recording, what shapes the bag waits for the next episode; the rest applies at once
+    for name, value in (("output_dir", str(tmp_path / "c")), ("flush_period_s", 0.1), ("fsync", True)):
+        ok, reason = _set(rec, name, value)
+        assert not ok and "between episodes" in reason, (name, reason)
+    assert rec.recorder.output_dir == tmp_path / "b" and rec.recorder.flush_period_s == 0.2
+    assert _set(rec, "image_every_n", 4) == (True, "") and rec.image_every_n == 4
+    assert _set(rec, "max_queue_mb", 32) == (True, "") and rec.recorder.max_queue_bytes == 32 << 20
+    assert c.stop().success
+    assert _set(rec, "flush_period_s", 0.1) == (True, "") and rec.recorder.flush_period_s == 0.1
+
+
+def test_a_bad_joy_task_is_refused_at_startup(ros, tmp_path):
+    with pytest.raises(ConfigError, match="joy_task"):
+        make_recorder(ros, tmp_path, joy_task="bread/fly_away")

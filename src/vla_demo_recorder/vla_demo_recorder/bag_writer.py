@@ -42,6 +42,10 @@ class BagError(RuntimeError):
     """The bag cannot be created or used (bad folder, existing path, unknown type)."""
 
 
+class BagExistsError(BagError):
+    """The bag's folder exists already (another recorder may have just created it)."""
+
+
 class BagWriteError(BagError):
     """Writing failed mid-episode (e.g. disk full); everything flushed before stays readable."""
 
@@ -266,12 +270,15 @@ class BagWriter:
             raise BagError(f"output folder {parent} is not a directory")
         if not os.access(parent, os.W_OK | os.X_OK):
             raise BagError(f"output folder {parent} is not writable")
+        exists = BagExistsError(f"{self.path} exists already; episode folders are never overwritten")
         if self.path.exists():
-            raise BagError(f"{self.path} exists already; episode folders are never overwritten")
-        writer = _Rosbag2Writer(self.path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
-        try:
+            raise exists
+        try:  # the folder is created by one mkdir: of two writers racing for a name, one gets it
+            writer = _Rosbag2Writer(self.path, version=ROSBAG2_VERSION, storage_plugin=StoragePlugin.MCAP)
             writer.open()
         except (OSError, WriterError) as err:
+            if isinstance(err, FileExistsError) or (isinstance(err, WriterError) and "exists" in str(err)):
+                raise exists from err
             raise BagError(f"cannot create bag {self.path}: {_reason(err)}") from err
         self._writer = writer
         try:

@@ -24,7 +24,7 @@ def _cmd_recover(args: argparse.Namespace) -> int:
     status = 0
     for bag in args.bags:
         try:
-            report = recover(bag, keep_original=args.keep_original, force=args.force)
+            report = recover(bag, force=args.force)
         except BagError as err:
             print(f"error: {err}", file=sys.stderr)
             status = 1
@@ -102,9 +102,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="vla_demo_recorder", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
 
-    p = sub.add_parser("recover", help="make a bag whose writer was killed readable again")
+    p = sub.add_parser("recover", help="make a bag whose writer was killed readable again (the original "
+                                       "is kept as .orig; exit 1 when nothing was recovered)")
     p.add_argument("bags", nargs="+", help="bag folders (or .mcap files)")
-    p.add_argument("--keep-original", action="store_true", help="keep the damaged file as .mcap.orig")
+    p.add_argument("--keep-original", action="store_true", help=argparse.SUPPRESS)  # always, now
     p.add_argument("--force", action="store_true", help="rewrite even a complete bag")
     p.set_defaults(func=_cmd_recover)
 

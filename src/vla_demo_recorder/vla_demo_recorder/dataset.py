@@ -1,17 +1,18 @@
 """Demonstration bags -> demonstrations (joint trajectory + context), plain Python, no rclpy.
 
-Reads rosbag2 MCAP bags from any writer (our recorder, `ros2 bag record`, rosbags, Foxglove): the
-mcap library with the mcap-ros2 decoder decodes every message from the schema stored in the file, so
-extra topics are simply ignored, optional topics (camera, detections) may be missing, and joint order
-is resolved by name. Joint states are resampled to 10 Hz; the episode's context is its first camera
-frame (any encoding `vla_common.image_convert` reads, or compressed) and its first detection (top
-score, the episode's object preferred). A bag without a usable context is reported with the reason
-and skipped, never silently used.
+Reads rosbag2 bags from any writer (our recorder, `ros2 bag record`, rosbags, Foxglove): MCAP with
+the mcap library and its mcap-ros2 decoder, sqlite3 (.db3) with rosbags, each decoding messages from
+the definitions stored in the bag, so extra topics are simply ignored, optional topics (camera,
+detections) may be missing, and joint order is resolved by name. Joint states are resampled to
+10 Hz; the episode's context is its first camera frame (any encoding `vla_common.image_convert`
+reads, or compressed) and its first detection (top score, the episode's object preferred). A bag
+without a usable context is reported with the reason and skipped, never silently used.
 
 Training pairs are made from these demonstrations by `vla_latent_training.pairs`.
 """
 from __future__ import annotations
 
+import sqlite3
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field, fields
@@ -22,13 +23,15 @@ import numpy as np
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
+from rosbags.highlevel import AnyReader, AnyReaderError
+from rosbags.typesys import Stores, get_typestore
 from ruamel.yaml import YAML
 from vla_common.detection import Detection, best
 from vla_common.image_convert import UnsupportedImageError, to_rgb
 from vla_common.objects import OBJECT_CLASSES
 from vla_common.robot import DQ_MAX, JOINT_NAMES
 
-from vla_demo_recorder.bag_files import find_mcap, has_footer
+from vla_demo_recorder.bag_files import DATA_SUFFIXES, bag_file, has_footer, storage_of
 from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, object_class_of, read_metadata_yaml
 
 RATE_HZ = 10.0
@@ -149,7 +152,7 @@ def top_detection(msg, schema: str, prefer_class: str | None = None) -> Detectio
 
 # -- bag reading -------------------------------------------------------------------------------
 _WANTED_TYPES = JOINT_STATE_TYPES + IMAGE_TYPES + DETECTION_TYPES
-_READ_ERRORS = (McapError, OSError, ValueError, KeyError, EOFError)
+_READ_ERRORS = (McapError, OSError, ValueError, KeyError, EOFError, AnyReaderError, sqlite3.Error)
 
 
 def _episode_of(bag_dir: Path, reader) -> EpisodeInfo | None:
@@ -178,6 +181,21 @@ def _mcap_bag(mcap: Path) -> Iterator[tuple[EpisodeInfo | None, Iterator[tuple[s
             c.topic for c in summary.channels.values() if summary.schemas[c.schema_id].name in _WANTED_TYPES]
         yield episode, ((schema.name, message.log_time, msg)
                         for schema, _channel, message, msg in reader.iter_decoded_messages(topics=wanted))
+
+
+@contextmanager
+def _rosbag2_bag(file: Path) -> Iterator[tuple[EpisodeInfo | None, Iterator[tuple[str, int, object]]]]:
+    """The same for a sqlite3 (.db3) bag, read with rosbags: types from the bag's own message
+    definitions, else rosbags' Jazzy type store."""
+    try:
+        episode = EpisodeInfo.from_custom_data(read_metadata_yaml(file.parent).get("custom_data"))
+        source = file.parent
+    except BagError:
+        episode, source = None, file
+    with AnyReader([source], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        wanted = [c for c in reader.connections if c.msgtype in _WANTED_TYPES]
+        yield episode, ((c.msgtype, t, reader.deserialize(raw, c.msgtype))
+                        for c, t, raw in reader.messages(connections=wanted))
 
 
 @dataclass
@@ -239,20 +257,16 @@ def resample(t: np.ndarray, q: np.ndarray, rate_hz: float = RATE_HZ) -> tuple[np
 def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequence[str] = JOINT_NAMES,
               rate_hz: float = RATE_HZ, context_window_s: float = 2.0,
               include_incomplete: bool = False) -> Demo:
-    """Read one demonstration bag (folder or .mcap). Raises DemoError with a clear reason.
+    """Read one demonstration bag (folder, .mcap or .db3 file; MCAP or sqlite3 storage). Raises
+    DemoError with a clear reason.
 
     `task` is used when the bag carries no episode metadata (bags from other writers); the context
     (first image / detection) must arrive within `context_window_s` of the first joint state.
     """
     path = Path(path)
+    file, open_bag = _opener(path)
     try:
-        mcap = find_mcap(path)
-    except BagError as err:
-        raise DemoError(str(err)) from err
-    if not has_footer(mcap):
-        raise DemoError(f"incomplete MCAP file (writer killed?); run `vla_demo_recorder recover {path}`")
-    try:
-        with _mcap_bag(mcap) as (episode, messages):
+        with open_bag(file) as (episode, messages):
             _check_outcome(episode, include_incomplete)
             scan = _Scan(list(joint_names))
             if episode is not None:
@@ -266,11 +280,27 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
     except DemoError:
         raise
     except _READ_ERRORS as err:
-        raise DemoError(f"cannot read {mcap}: {type(err).__name__}: {err}") from err
+        raise DemoError(f"cannot read {file}: {type(err).__name__}: {err}") from err
     task = (episode.task if episode is not None else None) or task
     if not task:
         raise DemoError("bag has no episode metadata and no task was given")
-    return _demo_of(scan, episode, task, str(mcap.parent), rate_hz, context_window_s)
+    return _demo_of(scan, episode, task, str(file.parent), rate_hz, context_window_s)
+
+
+def _opener(path: Path):
+    """(data file, reader for its storage); DemoError saying what the file is when it is unusable."""
+    try:
+        file = bag_file(path)
+        kind = storage_of(file)
+    except (BagError, OSError) as err:
+        raise DemoError(str(err)) from err
+    if kind == "sqlite3":
+        return file, _rosbag2_bag
+    if kind != "mcap":
+        raise DemoError(f"{file} is neither an MCAP nor a sqlite3 rosbag2 file")
+    if not has_footer(file):
+        raise DemoError(f"incomplete MCAP file (writer killed?); run `vla_demo_recorder recover {path}`")
+    return file, _mcap_bag
 
 
 def _check_outcome(episode: EpisodeInfo | None, include_incomplete: bool) -> None:
@@ -347,13 +377,16 @@ def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[n
     return stamps, q
 
 
+def _is_bag_dir(path: Path) -> bool:
+    return (path / "metadata.yaml").exists() or any(p.suffix in DATA_SUFFIXES for p in path.iterdir())
+
+
 def _bag_paths(paths_or_dir: str | Path | Iterable[str | Path]) -> list[Path]:
     items = [paths_or_dir] if isinstance(paths_or_dir, (str, Path)) else list(paths_or_dir)
     out: list[Path] = []
     for item in map(Path, items):
-        if item.is_dir() and not (item / "metadata.yaml").exists() and not list(item.glob("*.mcap")):
-            out.extend(sorted(p for p in item.iterdir()
-                              if p.is_dir() and ((p / "metadata.yaml").exists() or list(p.glob("*.mcap")))))
+        if item.is_dir() and not _is_bag_dir(item):
+            out.extend(sorted(p for p in item.iterdir() if p.is_dir() and _is_bag_dir(p)))
         else:
             out.append(item)
     return out

@@ -8,13 +8,15 @@ A write error (disk full) ends the episode with a clear error; earlier bags are 
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import queue
 import re
 import shutil
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
@@ -24,6 +26,7 @@ from vla_common.tasks import parse_task
 
 from vla_demo_recorder.bag_writer import (
     BagError,
+    BagExistsError,
     BagWriteError,
     BagWriter,
     EpisodeInfo,
@@ -32,6 +35,37 @@ from vla_demo_recorder.bag_writer import (
 
 _DIR_RE = re.compile(r"^ep(\d+)_")
 _TASK_RE = re.compile(r"[A-Za-z0-9_]+/[A-Za-z0-9_]+")
+_MAX_INDEX_TRIES = 1000
+LOCK_NAME = ".recorder.lock"
+LOCK_WAIT_S = 2.0
+
+
+@contextmanager
+def _folder_lock(folder: Path) -> Iterator[None]:
+    """Hold `folder/.recorder.lock` (flock) while an episode index is chosen and its folder made, so
+    recorders (threads or processes) sharing one output_dir number their episodes 1, 2, 3, ...
+    Without the lock (a filesystem without flock, a stopped holder after LOCK_WAIT_S) the folder is
+    still created atomically; only two episodes could then share an index."""
+    try:
+        fd = os.open(folder / LOCK_NAME, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield
+        return
+    try:
+        deadline = time.monotonic() + LOCK_WAIT_S
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    break
+                time.sleep(0.005)
+            except OSError:
+                break
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 class RecorderError(RuntimeError):
@@ -48,6 +82,17 @@ def validate_task(task: str) -> str:
         return parse_task(text).name
     except ValueError as err:
         raise RecorderError(str(err)) from err
+
+
+def _folder_problem(folder: Path) -> str:
+    """'' when `folder` exists (it is created if needed) and is writable, else why not."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        return f"cannot create output_dir {folder}: {err.strerror or err}"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return f"output_dir {folder} is not writable"
+    return ""
 
 
 def next_episode_index(output_dir: Path) -> int:
@@ -139,13 +184,19 @@ class Recorder:
 
     def check_output_dir(self) -> str:
         """'' when output_dir can take episodes, else the reason (reported at startup)."""
-        try:
-            self.output_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as err:
-            return f"cannot create output_dir {self.output_dir}: {err.strerror or err}"
-        if not os.access(self.output_dir, os.W_OK | os.X_OK):
-            return f"output_dir {self.output_dir} is not writable"
-        return ""
+        return _folder_problem(self.output_dir)
+
+    def set_output_dir(self, output_dir: str | Path) -> None:
+        """Record the next episodes into `output_dir`; RecorderError (nothing changed) while recording
+        or when the folder cannot be created or written."""
+        path = Path(output_dir).expanduser().absolute()
+        with self._lock:
+            if self._episode is not None:
+                raise RecorderError(f"recording episode {self._episode.info.index}; output_dir changes "
+                                    "between episodes")
+            if problem := _folder_problem(path):
+                raise RecorderError(problem)
+            self.output_dir = path
 
     def _start(self, task: str, note: str, topics: dict[str, tuple[str, list[Qos]]] | None,
                start_time_ns: int | None) -> Path:
@@ -156,17 +207,9 @@ class Recorder:
                                     f"{ep.writer.path}; stop or discard it first")
             if problem := self.check_output_dir():
                 raise RecorderError(problem)
-            index = next_episode_index(self.output_dir)
-            now = datetime.now()
-            while (path := self.output_dir / episode_dir_name(index, task, now)).exists():
-                index += 1
-            info = EpisodeInfo(task=task, index=index, note=note,
-                               start_time_ns=int(start_time_ns if start_time_ns is not None
-                                                 else time.time_ns()))
-            writer = BagWriter(path, info, flush_period_s=self.flush_period_s, fsync=self.fsync,
-                               registry=self._registry)
+            with _folder_lock(self.output_dir):
+                writer, info = self._open_episode(task, note, start_time_ns)
             try:
-                writer.open()
                 for topic, (msgtype, qos) in (topics or {}).items():
                     try:
                         writer.add_topic(topic, msgtype, qos)
@@ -179,7 +222,25 @@ class Recorder:
                 raise RecorderError(str(err)) from err
             self._episode = _Episode(writer, info)
             self._last_error = ""
-            return path
+            return writer.path
+
+    def _open_episode(self, task: str, note: str, start_time_ns: int | None) -> tuple[BagWriter, EpisodeInfo]:
+        """Create the next episode's bag. A folder another recorder created first is skipped (its
+        index is taken): recorders sharing output_dir never write into each other's episodes."""
+        index = next_episode_index(self.output_dir)
+        now = datetime.now()
+        start_ns = int(start_time_ns if start_time_ns is not None else time.time_ns())
+        for _attempt in range(_MAX_INDEX_TRIES):
+            info = EpisodeInfo(task=task, index=index, note=note, start_time_ns=start_ns)
+            writer = BagWriter(self.output_dir / episode_dir_name(index, task, now), info,
+                               flush_period_s=self.flush_period_s, fsync=self.fsync, registry=self._registry)
+            try:
+                return writer.open(), info
+            except BagExistsError:
+                index = max(index + 1, next_episode_index(self.output_dir))
+            except BagError as err:
+                raise RecorderError(str(err)) from err
+        raise RecorderError(f"no free episode folder in {self.output_dir} after {_MAX_INDEX_TRIES} tries")
 
     def record(self, topic: str, msgtype: str, qos: list[Qos], t_ns: int, data: bytes) -> bool:
         """Queue one serialized message for the current episode; False if idle or dropped."""
@@ -212,6 +273,10 @@ class Recorder:
             raise RecorderError(f"episode {ep.info.index} is still being written after {timeout} s")
         assert ep.result is not None
         return ep.result
+
+    def report_error(self, text: str) -> None:
+        """Show an error found outside the recorder (e.g. by its node) as `state().last_error`."""
+        self._last_error = text
 
     @property
     def recording(self) -> bool:

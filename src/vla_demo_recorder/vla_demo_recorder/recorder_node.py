@@ -12,6 +12,7 @@ from __future__ import annotations
 import importlib
 import sys
 import time
+from collections.abc import Callable
 
 from rclpy.node import Node
 from rclpy.qos import (
@@ -28,7 +29,7 @@ from vla_common.ros.node_main import run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_demo_recorder.bag_writer import make_qos, normalize_type
-from vla_demo_recorder.recorder import Recorder, RecorderError
+from vla_demo_recorder.recorder import Recorder, RecorderError, validate_task
 from vla_interfaces.msg import RecorderStatus
 from vla_interfaces.srv import StartEpisode
 
@@ -37,30 +38,49 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
 
+def _task_refusal(task: str) -> str | None:
+    """Why `task` cannot be joy_task ('' is allowed: no joystick-started episodes)."""
+    if not task:
+        return None
+    try:
+        validate_task(task)
+    except RecorderError as err:
+        return str(err)
+    return None
+
+
+# dynamic: applied at once, or (BETWEEN_EPISODES) when idle; the others are read-only (restart)
 PARAMETERS = ParameterTable([
-    Param("output_dir", "~/vla_demos", "folder that receives one bag folder per episode"),
+    Param("output_dir", "~/vla_demos", "folder that receives one bag folder per episode", dynamic=True),
     Param("topics", DEFAULT_TOPICS, "topics to record (relative names resolve in the node's namespace)",
           array="string_array"),
     Param("image_every_n", 1, "record every n-th image (1 = all; the paper needs only the first frame "
-          "of an episode)", range=(1, 10000)),
+          "of an episode)", range=(1, 10000), dynamic=True),
     Param("flush_period_s", 0.5, "complete MCAP chunks are flushed and fsynced at least this often",
-          range=(0.05, 1.0)),
-    Param("fsync", True, "fsync at every flush (crash safety against power loss)"),
+          range=(0.05, 1.0), dynamic=True),
+    Param("fsync", True, "fsync at every flush (crash safety against power loss)", dynamic=True),
     Param("qos_depth", 1000, "subscription queue depth (messages)", range=(1, 100000)),
     Param("max_queue_mb", 1024, "writer queue bound; beyond it messages are counted as dropped",
-          range=(16, 65536)),
-    Param("delete_discarded", False, "delete discarded episodes instead of keeping them marked 'discarded'"),
+          range=(16, 65536), dynamic=True),
+    Param("delete_discarded", False, "delete discarded episodes instead of keeping them marked 'discarded'",
+          dynamic=True),
     Param("topic_poll_period_s", 0.5, "how often to look for publishers of unsubscribed topics",
-          range=(0.05, 10.0)),
-    Param("status_period_s", 0.5, "period of ~/status", range=(0.02, 10.0)),
+          range=(0.05, 10.0), dynamic=True),
+    Param("status_period_s", 0.5, "period of ~/status", range=(0.02, 10.0), dynamic=True),
     Param("joy_topic", "joy", "sensor_msgs/Joy topic carrying the episode buttons"),
-    Param("joy_task", "", "task of episodes started with the joystick (e.g. bread/push_east)"),
-    Param("start_button", 0, "joystick button that starts an episode (-1: none)", range=(-1, 127)),
-    Param("stop_button", 1, "joystick button that stops and keeps the episode (-1: none)", range=(-1, 127)),
+    Param("joy_task", "", "task of episodes started with the joystick (e.g. bread/push_east)",
+          dynamic=True, check=_task_refusal),
+    Param("start_button", 0, "joystick button that starts an episode (-1: none)", range=(-1, 127),
+          dynamic=True),
+    Param("stop_button", 1, "joystick button that stops and keeps the episode (-1: none)", range=(-1, 127),
+          dynamic=True),
     Param("discard_button", 2, "joystick button that stops and discards the episode (-1: none)",
-          range=(-1, 127)),
-    Param("button_debounce_s", 0.5, "ignore repeated presses within this time", range=(0.0, 5.0)),
+          range=(-1, 127), dynamic=True),
+    Param("button_debounce_s", 0.5, "ignore repeated presses within this time", range=(0.0, 5.0),
+          dynamic=True),
 ])
+# They shape an episode's bag: a change while recording is refused.
+BETWEEN_EPISODES = ("output_dir", "flush_period_s", "fsync")
 
 
 def import_message(msgtype: str) -> type:
@@ -81,7 +101,7 @@ class RecorderNode(Node):
         ~20 us each); the generator needs it to know when the recording has caught up."""
         super().__init__("recorder", **kwargs)
         self._track_stamps = bool(track_joint_state_stamps)
-        p = PARAMETERS.declare(self)
+        p = PARAMETERS.declare(self, self._on_parameter)
         self.topics = list(p["topics"])
         self.image_every_n = p["image_every_n"]
         self.qos_depth = p["qos_depth"]
@@ -110,13 +130,50 @@ class RecorderNode(Node):
         self.create_service(Trigger, "~/discard_episode", lambda req, res: self._on_stop(res, keep=False))
         self.status_pub = self.create_publisher(RecorderStatus, "~/status", 10)
         self.create_subscription(Joy, self.joy_topic, self._on_joy, qos_profile_sensor_data)
-        self.create_timer(poll, self._poll_topics)
-        self.create_timer(status_period, self._publish_status)
+        self._poll_timer = self.create_timer(poll, self._poll_topics)
+        self._status_timer = self.create_timer(status_period, self._publish_status)
+        self._apply = self._appliers()
         self._poll_topics()
         if problem := self.recorder.check_output_dir():
             self.get_logger().error(f"{problem}; episodes cannot start until this is fixed")
         self.get_logger().info(f"recording {', '.join(self._resolved(t) for t in self.topics)} into "
                                f"{self.recorder.output_dir} (idle; call ~/start_episode)")
+
+    def _on_parameter(self, name: str, value) -> str | None:
+        """Apply a run-time change of a dynamic parameter, or return why it is refused."""
+        if name in BETWEEN_EPISODES and self.recorder.recording:
+            return (f"{name} changes between episodes; stop or discard episode "
+                    f"{self.recorder.state().episode_index} first")
+        if name == "output_dir":
+            try:
+                self.recorder.set_output_dir(value)
+            except RecorderError as err:
+                return str(err)
+            return None
+        self._apply[name](value)
+        return None
+
+    def _appliers(self) -> dict[str, Callable[[object], None]]:
+        """How each dynamic parameter other than output_dir takes effect."""
+        rec, buttons = self.recorder, self.buttons
+
+        def period(timer):
+            return lambda v: setattr(timer, "timer_period_ns", int(v * 1e9))
+
+        return {
+            "image_every_n": lambda v: setattr(self, "image_every_n", int(v)),
+            "flush_period_s": lambda v: setattr(rec, "flush_period_s", float(v)),
+            "fsync": lambda v: setattr(rec, "fsync", bool(v)),
+            "max_queue_mb": lambda v: setattr(rec, "max_queue_bytes", int(v) << 20),
+            "delete_discarded": lambda v: setattr(rec, "delete_discarded", bool(v)),
+            "topic_poll_period_s": period(self._poll_timer),
+            "status_period_s": period(self._status_timer),
+            "joy_task": lambda v: setattr(self, "joy_task", str(v)),
+            "start_button": lambda v: buttons.__setitem__("start", int(v)),
+            "stop_button": lambda v: buttons.__setitem__("stop", int(v)),
+            "discard_button": lambda v: buttons.__setitem__("discard", int(v)),
+            "button_debounce_s": lambda v: setattr(self, "debounce_s", float(v)),
+        }
 
     def _log(self, level: str, text: str) -> None:
         {"error": self.get_logger().error, "warn": self.get_logger().warning}.get(
@@ -211,12 +268,26 @@ class RecorderNode(Node):
         (self.get_logger().info if result.outcome != "failed" else self.get_logger().error)(message)
         return result.outcome in ("kept", "discarded"), message
 
+    def _guarded(self, what: str, action: Callable[[], tuple]) -> tuple:
+        """Run an episode action; an unexpected error is logged, shown in ~/status and returned as
+        (False, reason): no request or button press can take the node down."""
+        try:
+            return action()
+        except Exception as err:  # reported to the caller instead of killing the node
+            message = f"{what} failed: {type(err).__name__}: {err}"
+            self.get_logger().error(message)
+            self.recorder.report_error(message)
+            return False, message
+
     def _on_start(self, request: StartEpisode.Request, response: StartEpisode.Response):
-        response.success, response.message, response.bag_path = self.start_episode(request.task, request.note)
+        result = self._guarded("start_episode", lambda: self.start_episode(request.task, request.note))
+        response.success, response.message = result[0], result[1]
+        response.bag_path = result[2] if len(result) > 2 else ""
         return response
 
     def _on_stop(self, response: Trigger.Response, keep: bool):
-        response.success, response.message = self.stop_episode(keep)
+        what = "stop_episode" if keep else "discard_episode"
+        response.success, response.message = self._guarded(what, lambda: self.stop_episode(keep))
         return response
 
     def _on_joy(self, msg: Joy) -> None:
@@ -236,9 +307,10 @@ class RecorderNode(Node):
                 if not self.joy_task:
                     self.get_logger().error("start button pressed but parameter joy_task is empty")
                     continue
-                self.start_episode(self.joy_task, note="started with the joystick")
+                self._guarded("start button", lambda: self.start_episode(self.joy_task,
+                                                                         note="started with the joystick"))
             elif action in ("stop", "discard") and recording:
-                self.stop_episode(keep=action == "stop")
+                self._guarded(f"{action} button", lambda keep=action == "stop": self.stop_episode(keep))
 
     # -- status --------------------------------------------------------------------------------
     def _publish_status(self) -> None:

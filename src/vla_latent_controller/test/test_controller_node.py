@@ -283,3 +283,52 @@ def test_process_exits_non_zero_when_its_model_does_not_load(tmp_path):
     r = subprocess.run([str(exe), "--ros-args", "-p", f"model_path:={tmp_path}"], capture_output=True,
                        text=True, timeout=30, env=os.environ.copy())
     assert r.returncode == 1 and "corrupt JSON" in r.stderr and "Traceback" not in r.stderr
+
+
+def _start_and_wait(exe: Path, model_dir, *args: str):
+    """Start the node process and a probe that subscribes to its command; return when it is up."""
+    probe = RosHarness()
+    node = probe.add(rclpy.create_node("signal_probe", context=probe.context))
+    cmds = []
+    node.create_subscription(Float64MultiArray, "joint_velocity_cmd", lambda m: cmds.append(list(m.data)), 10)
+    proc = subprocess.Popen(
+        [str(exe), "--ros-args", "-p", f"model_path:={model_dir}", *args],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(),
+    )
+    up = probe.spin_until(lambda: node.count_publishers("joint_velocity_cmd") > 0, timeout=30)
+    probe.spin_for(0.5)  # discovery both ways, so the zero command on shutdown reaches the probe
+    return proc, probe, cmds, up
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "sig, twice", [(signal.SIGINT, False), (signal.SIGTERM, False), (signal.SIGINT, True)]
+)
+def test_process_stops_on_a_signal_with_sim_time_and_no_clock(random_model_dir, sig, twice):
+    """With use_sim_time and no /clock no timer ever fires; the node must still stop on the first signal,
+    send the zero command, exit 0, and a second signal during cleanup prints no traceback."""
+    exe = _installed("controller_node")
+    if not exe.exists():
+        pytest.skip("controller_node not installed (make setup)")
+    proc, probe, cmds, up = _start_and_wait(exe, random_model_dir, "-p", "use_sim_time:=true")
+    try:
+        assert up, "controller_node never came up"
+        t0 = time.monotonic()
+        proc.send_signal(sig)
+        if twice:
+            time.sleep(0.05)
+            proc.send_signal(sig)
+        try:
+            code = proc.wait(timeout=10)  # a hang detector; the node itself takes about 0.1 s
+        except subprocess.TimeoutExpired:
+            pytest.fail("controller_node ignored the signal with use_sim_time and no /clock")
+        elapsed = time.monotonic() - t0
+        probe.spin_until(lambda: cmds, timeout=2.0)
+        stderr = proc.stderr.read()
+        assert code == 0, stderr
+        assert "Traceback" not in stderr, stderr
+        assert cmds and cmds[-1] == [0.0] * 7, f"no zero command on shutdown ({elapsed:.2f} s)"
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        probe.shutdown()

@@ -158,6 +158,36 @@ def test_a_model_without_the_goal_class_is_refused(harness, tmp_path):
     assert not res[0].successful and "bread" in res[0].reason
 
 
+FR3 = [f"fr3_joint{i}" for i in range(1, 8)]
+
+
+def test_a_panda_model_on_an_fr3_needs_a_joint_map(random_model_dir):
+    h = Harness(random_model_dir)
+    try:
+        _, ref = h.settle(ControllerStatus.ACTIVE)
+    finally:
+        h.close()
+    h = Harness(random_model_dir)
+    try:
+        st, cmd = h.settle(ControllerStatus.MODEL_ERROR, names=FR3)
+        assert "lack panda_joint1" in st.reason and "joint_map" in st.reason and np.all(cmd == 0.0)
+        res = h.node.set_parameters([Parameter("joint_map", value=["fr3_joint1"])])
+        assert not res[0].successful and "robot_joint:model_joint" in res[0].reason
+        mapping = [f"fr3_joint{i}:panda_joint{i}" for i in range(1, 8)]
+        assert h.node.set_parameters([Parameter("joint_map", value=mapping)])[0].successful
+        order = [6, 5, 4, 3, 2, 1, 0]  # an FR3 driver that lists its joints backwards
+        st, cmd = h.settle(ControllerStatus.ACTIVE, names=[FR3[i] for i in order], q=READY[order])
+        np.testing.assert_allclose(cmd, ref[order], rtol=1e-12)
+    finally:
+        h.close()
+    h = Harness(random_model_dir, joint_map=mapping)  # also from the start (a parameter file)
+    try:
+        st, cmd = h.settle(ControllerStatus.ACTIVE, names=FR3)
+        np.testing.assert_allclose(cmd, ref, rtol=1e-12)
+    finally:
+        h.close()
+
+
 def test_a_model_that_does_not_load_stops_the_node_at_startup(tmp_path):
     (tmp_path / "config.json").write_text("{broken")
     with pytest.raises(StartupError, match="corrupt JSON"):

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from vla_latent_controller.artifacts import load_model, save_model
 from vla_latent_controller.context import Det
+from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
 from vla_latent_controller.testing import READY
@@ -335,3 +336,56 @@ def test_only_a_pressed_button_holds_the_deadman(random_model_dir, value):
     feed(core, 0.0, buttons=(0, value))
     cmd, st = core.step(0.0)
     assert st.code == Code.DEADMAN_RELEASED and np.all(cmd == 0)
+
+
+FR3_NAMES = [f"fr3_joint{i}" for i in range(1, 8)]
+FR3_MAP = {f"panda_joint{i}": f"fr3_joint{i}" for i in range(1, 8)}
+
+
+def test_a_panda_model_is_refused_on_an_fr3_unless_mapped(random_model_dir):
+    ref = make_core(random_model_dir)
+    feed(ref, 0.0)
+    want = dict(zip(NAMES, ref.step(0.0)[0].copy()))
+    core = make_core(random_model_dir)
+    core.on_joy([0.8, 0.0], [0, 0, 0], 0.0)
+    core.on_detections(list(BREAD), SIZE, 0.0)
+    core.on_joint_states(FR3_NAMES, list(READY), 0.0)  # the FR3 publishes only its own joints
+    cmd, st = core.step(0.0)
+    assert st.code == Code.MODEL_ERROR and np.all(cmd == 0)
+    assert "lack panda_joint1" in st.reason and "fr3_joint1" in st.reason and "joint_map" in st.reason
+    core.set_joint_map(FR3_MAP)
+    robot = [FR3_NAMES[i] for i in (6, 0, 1, 2, 3, 4, 5)]  # in whatever order the FR3 lists them
+    core.on_joint_states(robot, [READY[FR3_NAMES.index(n)] for n in robot], 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.ACTIVE and core.command_joints == tuple(robot)
+    np.testing.assert_array_equal(cmd, [want[n.replace("fr3", "panda")] for n in robot])
+
+
+def test_the_fr3_limits_apply_to_its_joints(random_model_dir):
+    core = make_core(random_model_dir, action_scale=1000.0, max_joint_speed=0.0,
+                     dq_max={"fr3_joint1": 0.1, "panda_joint1": 9.0})
+    core.set_joint_map(FR3_MAP)
+    core.on_joy([0.8, 0.0], [0, 0, 0], 0.0)
+    core.on_detections(list(BREAD), SIZE, 0.0)
+    core.on_joint_states(FR3_NAMES, list(READY), 0.0)
+    cmd, st = core.step(0.0)
+    assert st.code == Code.ACTIVE and abs(cmd[0]) == pytest.approx(0.1)
+
+
+@pytest.mark.parametrize(
+    "entries, match",
+    [
+        (["fr3_joint1"], "not 'robot_joint:model_joint'"),
+        (["fr3_joint1:panda_joint1", "fr3_joint2:panda_joint1"], "twice"),
+        (["fr3_joint1:panda_joint1", "fr3_joint1:panda_joint2"], "twice"),
+        ([":panda_joint1"], "not 'robot_joint:model_joint'"),
+    ],
+)
+def test_bad_joint_maps_are_refused(entries, match):
+    with pytest.raises(ValueError, match=match):
+        parse_joint_map(entries)
+
+
+def test_joint_map_parses_robot_to_model_pairs():
+    assert parse_joint_map([" fr3_joint1 : panda_joint1", "b:a"]) == {"panda_joint1": "fr3_joint1", "a": "b"}
+    assert parse_joint_map([]) == {}

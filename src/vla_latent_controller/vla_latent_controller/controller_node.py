@@ -23,7 +23,7 @@ from std_srvs.srv import Trigger
 from vla_common.camera_model import SIM_WEBCAM, look_at_rotation, project
 from vla_common.image_convert import to_rgb
 from vla_common.kinematics import PandaKinematics
-from vla_common.robot import DQ_MAX, JOINT_NAMES
+from vla_common.robot import JOINT_NAMES, ROBOTS
 from vla_common.ros.convert import detections_from_array
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
@@ -32,6 +32,7 @@ from vla_interfaces.msg import ControllerStatus, DetectionArray
 from vla_interfaces.srv import SetMode
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
+from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import MODES, Code, Status, TeleopCore, TeleopParams
 
@@ -40,6 +41,14 @@ NODE_NAME = "controller_node"
 
 def _xyz(value: Any) -> str | None:
     return None if len(value) == 3 else f"needs 3 numbers (x, y, z), got {len(value)}"
+
+
+def _joint_map_refusal(value: Any) -> str | None:
+    try:
+        parse_joint_map(value)
+    except ValueError as e:
+        return str(e)
+    return None
 
 
 PARAMETERS = ParameterTable([
@@ -63,6 +72,9 @@ PARAMETERS = ParameterTable([
           range=(0.0, 5.0), dynamic=True),
     Param("joint_states_timeout", 0.5, "no joint_states for this long (s) -> zero command",
           range=(0.01, 10.0), dynamic=True),
+    Param("joint_map", [], "robot joints that stand for the model's: 'robot_joint:model_joint' entries, "
+          "e.g. fr3_joint1:panda_joint1 for a Panda model on an FR3; unmapped joints keep their names",
+          dynamic=True, check=_joint_map_refusal, array="string_array"),
     Param("goal_selection", "highest_score", "which detection is the goal: highest_score, nearest_to_ee "
           "or a class of the model", dynamic=True),
     Param("detection_max_age", 0.0, "re-latch when the latched detection is older (s); 0: latch once "
@@ -98,6 +110,11 @@ def goal_refusal(value: str, model: LatentModel | None) -> str | None:
     return f"{value!r} is neither one of {list(GOAL_SELECTIONS)} nor a class of the model {classes}"
 
 
+def joint_speed_limits() -> dict[str, float]:
+    """dq_max of every known arm's joints by name (their names differ: panda_joint1, fr3_joint1, ...)."""
+    return {n: float(v) for spec in ROBOTS.values() for n, v in zip(spec.joint_names, spec.dq_max)}
+
+
 def default_model_path() -> str:
     """share/vla_latent_controller/models/default if a model is installed there, else ''."""
     try:
@@ -121,12 +138,12 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         values = PARAMETERS.declare(self, self._on_parameter)
-        limits = dict(zip(JOINT_NAMES, (float(v) for v in DQ_MAX)))  # the Panda's; other names: none
-        self.params = TeleopParams(dq_max=limits, **{n: values[n] for n in _CORE_PARAMS})
+        self.params = TeleopParams(dq_max=joint_speed_limits(), **{n: values[n] for n in _CORE_PARAMS})
         self._intrinsics: tuple[float, float, float, float] | None = None
         self._kin = _panda_kinematics(self.get_logger())
         self.core = TeleopCore(
-            self.params, kinematics=self._kin, joint_names=JOINT_NAMES, ee_pixel=self._ee_pixel
+            self.params, kinematics=self._kin, joint_names=JOINT_NAMES, ee_pixel=self._ee_pixel,
+            joint_map=parse_joint_map(values["joint_map"]),
         )
         self._image_sub = None  # camera/image_raw, for a CNN-encoder model only
         self._start_model(values["model_path"], values["mode"])
@@ -168,6 +185,8 @@ class ControllerNode(Node):
             self.core.set_mode(value)
         elif name == "model_path":
             return self._reload_model(value)
+        elif name == "joint_map":
+            self.core.set_joint_map(parse_joint_map(value))
         elif name == "status_rate":
             self._status_period = 1.0 / float(value)
         return None

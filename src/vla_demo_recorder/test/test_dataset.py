@@ -182,6 +182,9 @@ def test_bag_from_our_writer_and_without_metadata(tmp_path):
     with pytest.raises(DemoError, match="no task"):
         load_demo(plain)
     assert load_demo(plain, task="bread/push_east").task == "bread/push_east"
+    own = load_demo(plain, task="spam:push_south")  # an object of a lab's own catalogue
+    assert (own.task, own.object_class) == ("spam/push_south", "spam")
+    assert own.detection.class_id == "soda_can"  # no spam detected: the top detection
 
 
 def test_unusable_bags_are_reported_and_skipped(tmp_path):

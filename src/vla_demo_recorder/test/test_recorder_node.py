@@ -356,3 +356,55 @@ def test_parameters_are_applied_or_refused_at_run_time(ros, tmp_path):
 def test_a_bad_joy_task_is_refused_at_startup(ros, tmp_path):
     with pytest.raises(ConfigError, match="joy_task"):
         make_recorder(ros, tmp_path, joy_task="bread/fly_away")
+
+
+MY_LAB = """extends: default
+objects:
+  spam:
+    shape: box
+    size: [0.10, 0.06, 0.08]
+    rgba: [0.80, 0.08, 0.10, 1.0]
+    mass: 0.34
+    friction: 0.5
+    tasks: [push_south]
+"""
+
+
+def test_tasks_come_from_the_catalogue(ros, tmp_path):
+    """Bring your own objects: a lab's catalogue defines spam/push_south; an unknown task is refused
+    with the known ones and the files that define them."""
+    default = make_recorder(ros, tmp_path / "default")
+    c = Client(ros)
+    refused = c.start("spam/push_south")
+    assert not refused.success and "unknown object class 'spam'" in refused.message
+    assert "catalogue.yaml" in refused.message and "bread" in refused.message
+    ros.executor.remove_node(default)
+    ros.nodes.remove(default)
+    default.destroy_node()
+
+    lab = tmp_path / "my_lab.yaml"
+    lab.write_text(MY_LAB)
+    rec = make_recorder(ros, tmp_path / "lab", catalogue=str(lab), joy_task="spam/push_south")
+    res = c.start("spam:push_south")
+    assert res.success, res.message
+    assert c.stop().success
+    ep = EpisodeInfo.from_custom_data(read_metadata_yaml(Path(res.bag_path))["custom_data"])
+    assert (ep.task, ep.object_class) == ("spam/push_south", "spam") and str(lab) in ep.extra["catalogue"]
+    unknown = c.start("teapot/push_south")
+    assert not unknown.success and "known classes" in unknown.message and str(lab) in unknown.message
+    assert "spam" in unknown.message
+    wrong_action = c.start("spam/push_north")
+    assert not wrong_action.success and "['push_south']" in wrong_action.message
+
+    # at run time: a catalogue without joy_task's task is refused; the default one after joy_task moves
+    ok, reason = _set(rec, "catalogue", "")
+    assert not ok and "joy_task 'spam/push_south'" in reason
+    assert _set(rec, "joy_task", "bread/push_east") == (True, "") and _set(rec, "catalogue", "") == (True, "")
+    assert not c.start("spam/push_south").success
+    ok, reason = _set(rec, "catalogue", str(tmp_path / "missing.yaml"))
+    assert not ok and "missing.yaml" in reason
+
+
+def test_a_bad_catalogue_is_refused_at_startup(ros, tmp_path):
+    with pytest.raises(ConfigError, match="catalogue.*missing.yaml"):
+        make_recorder(ros, tmp_path, catalogue=str(tmp_path / "missing.yaml"))

@@ -49,6 +49,8 @@ def _cmd_info(args: argparse.Namespace) -> int:
             print(f"  episode {episode.index}: task {episode.task} ({episode.object_class}), "
                   f"outcome {episode.outcome}" + (f", note: {episode.note}" if episode.note else "")
                   + (f", error: {episode.error}" if episode.error else ""))
+            for key, value in episode.extra.items():
+                print(f"  {key}: {value}")
         for t in meta["topics_with_message_count"]:
             tm = t["topic_metadata"]
             print(f"  {tm['name']:<28} {tm['type']:<36} {t['message_count']:>8}")

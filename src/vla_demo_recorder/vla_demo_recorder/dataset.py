@@ -281,7 +281,7 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
         raise
     except _READ_ERRORS as err:
         raise DemoError(f"cannot read {file}: {type(err).__name__}: {err}") from err
-    task = (episode.task if episode is not None else None) or task
+    task = (episode.task if episode is not None else None) or (task or "").strip().replace(":", "/")
     if not task:
         raise DemoError("bag has no episode metadata and no task was given")
     return _demo_of(scan, episode, task, str(file.parent), rate_hz, context_window_s)

@@ -22,6 +22,7 @@ from datetime import datetime
 from pathlib import Path
 
 from rosbags.interfaces import Qos
+from vla_common.catalogue import Catalogue, default_catalogue
 from vla_common.tasks import parse_task
 
 from vla_demo_recorder.bag_writer import (
@@ -72,15 +73,16 @@ class RecorderError(RuntimeError):
     """A request the recorder cannot honour (already recording, idle, bad task, bad folder)."""
 
 
-def validate_task(task: str) -> str:
-    """The task's name (`bread:push_east` -> `bread/push_east`) when `vla_common.tasks` knows its
-    object class and action; RecorderError says why not. The one check of every episode's task."""
+def validate_task(task: str, catalogue: Catalogue | None = None) -> str:
+    """The task's name (`bread:push_east` -> `bread/push_east`) when the catalogue (default: the
+    default one) defines it; RecorderError says why not, listing the known classes or tasks and the
+    files that define them. The one check of every episode's task."""
     text = task.strip().replace(":", "/")
     if not _TASK_RE.fullmatch(text):  # it names the episode's folder
         raise RecorderError(f"task {task!r} must look like '<object>/<action>', e.g. 'bread/push_east'")
     try:
-        return parse_task(text).name
-    except ValueError as err:
+        return parse_task(text, catalogue).name
+    except ValueError as err:  # CatalogueError
         raise RecorderError(str(err)) from err
 
 
@@ -155,8 +157,10 @@ class Recorder:
 
     def __init__(self, output_dir: str | Path, *, flush_period_s: float = 0.5, fsync: bool = True,
                  max_queue_bytes: int = 1 << 30, delete_discarded: bool = False,
-                 log: Callable[[str, str], None] | None = None) -> None:
+                 catalogue: Catalogue | None = None, log: Callable[[str, str], None] | None = None) -> None:
+        """`catalogue`: where episode tasks are defined (None: the default catalogue)."""
         self.output_dir = Path(output_dir).expanduser().absolute()
+        self.catalogue = catalogue
         self.flush_period_s = flush_period_s
         self.fsync = fsync
         self.max_queue_bytes = int(max_queue_bytes)
@@ -177,7 +181,7 @@ class Recorder:
               start_time_ns: int | None = None) -> Path:
         """Open a new episode bag; `topics` maps topic -> (type, offered QoS) known at start."""
         try:
-            return self._start(validate_task(task), note, topics, start_time_ns)
+            return self._start(validate_task(task, self.catalogue), note, topics, start_time_ns)
         except RecorderError as err:
             self._last_error = str(err)
             raise
@@ -231,7 +235,7 @@ class Recorder:
         now = datetime.now()
         start_ns = int(start_time_ns if start_time_ns is not None else time.time_ns())
         for _attempt in range(_MAX_INDEX_TRIES):
-            info = EpisodeInfo(task=task, index=index, note=note, start_time_ns=start_ns)
+            info = EpisodeInfo(task=task, index=index, note=note, start_time_ns=start_ns, extra=self._extra())
             writer = BagWriter(self.output_dir / episode_dir_name(index, task, now), info,
                                flush_period_s=self.flush_period_s, fsync=self.fsync, registry=self._registry)
             try:
@@ -241,6 +245,12 @@ class Recorder:
             except BagError as err:
                 raise RecorderError(str(err)) from err
         raise RecorderError(f"no free episode folder in {self.output_dir} after {_MAX_INDEX_TRIES} tries")
+
+    def _extra(self) -> dict[str, str]:
+        """Episode metadata beyond the fields: the catalogue that defines the task, unless the default."""
+        if self.catalogue is None or self.catalogue is default_catalogue():
+            return {}
+        return {"catalogue": self.catalogue.where}
 
     def record(self, topic: str, msgtype: str, qos: list[Qos], t_ns: int, data: bytes) -> bool:
         """Queue one serialized message for the current episode; False if idle or dropped."""

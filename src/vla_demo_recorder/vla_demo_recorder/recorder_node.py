@@ -25,7 +25,8 @@ from rclpy.qos import (
 from rclpy.serialization import deserialize_message
 from sensor_msgs.msg import JointState, Joy
 from std_srvs.srv import Trigger
-from vla_common.ros.node_main import run_node
+from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_demo_recorder.bag_writer import make_qos, normalize_type
@@ -38,19 +39,10 @@ IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
 
-def _task_refusal(task: str) -> str | None:
-    """Why `task` cannot be joy_task ('' is allowed: no joystick-started episodes)."""
-    if not task:
-        return None
-    try:
-        validate_task(task)
-    except RecorderError as err:
-        return str(err)
-    return None
-
-
 # dynamic: applied at once, or (BETWEEN_EPISODES) when idle; the others are read-only (restart)
 PARAMETERS = ParameterTable([
+    Param("catalogue", "", "YAML file of the object classes and tasks episodes may have ('': the default "
+          "catalogue, vla_common/data/catalogue.yaml)", dynamic=True),
     Param("output_dir", "~/vla_demos", "folder that receives one bag folder per episode", dynamic=True),
     Param("topics", DEFAULT_TOPICS, "topics to record (relative names resolve in the node's namespace)",
           array="string_array"),
@@ -68,8 +60,8 @@ PARAMETERS = ParameterTable([
           range=(0.05, 10.0), dynamic=True),
     Param("status_period_s", 0.5, "period of ~/status", range=(0.02, 10.0), dynamic=True),
     Param("joy_topic", "joy", "sensor_msgs/Joy topic carrying the episode buttons"),
-    Param("joy_task", "", "task of episodes started with the joystick (e.g. bread/push_east)",
-          dynamic=True, check=_task_refusal),
+    Param("joy_task", "", "task of episodes started with the joystick (e.g. bread/push_east); "
+          "checked against the catalogue", dynamic=True),
     Param("start_button", 0, "joystick button that starts an episode (-1: none)", range=(-1, 127),
           dynamic=True),
     Param("stop_button", 1, "joystick button that stops and keeps the episode (-1: none)", range=(-1, 127),
@@ -102,11 +94,19 @@ class RecorderNode(Node):
         super().__init__("recorder", **kwargs)
         self._track_stamps = bool(track_joint_state_stamps)
         p = PARAMETERS.declare(self, self._on_parameter)
+        try:
+            catalogue = load_catalogue(p["catalogue"])
+        except CatalogueError as err:
+            raise ConfigError(f"parameter 'catalogue': {err}") from err
+        try:
+            joy_task = validate_task(p["joy_task"], catalogue) if p["joy_task"] else ""
+        except RecorderError as err:
+            raise ConfigError(f"parameter 'joy_task': {err}") from err
         self.topics = list(p["topics"])
         self.image_every_n = p["image_every_n"]
         self.qos_depth = p["qos_depth"]
         self.joy_topic = p["joy_topic"]
-        self.joy_task = p["joy_task"]
+        self.joy_task = joy_task
         self.buttons = {"start": p["start_button"], "stop": p["stop_button"], "discard": p["discard_button"]}
         self.debounce_s = p["button_debounce_s"]
         output_dir, flush, fsync = p["output_dir"], p["flush_period_s"], p["fsync"]
@@ -115,7 +115,7 @@ class RecorderNode(Node):
 
         self.recorder = Recorder(output_dir, flush_period_s=flush, fsync=fsync,
                                  max_queue_bytes=max_queue_mb << 20, delete_discarded=delete_discarded,
-                                 log=self._log)
+                                 catalogue=catalogue, log=self._log)
         self._subs: dict[str, tuple[str, list, object]] = {}  # topic -> (type, offered qos, sub)
         self._image_counts: dict[str, int] = {}
         # header stamp (ns) of the newest joint state recorded per topic: how far the recording has got
@@ -144,17 +144,32 @@ class RecorderNode(Node):
         if name in BETWEEN_EPISODES and self.recorder.recording:
             return (f"{name} changes between episodes; stop or discard episode "
                     f"{self.recorder.state().episode_index} first")
-        if name == "output_dir":
-            try:
+        try:
+            if name == "output_dir":
                 self.recorder.set_output_dir(value)
-            except RecorderError as err:
-                return str(err)
-            return None
-        self._apply[name](value)
+            elif name == "catalogue":
+                self._set_catalogue(value)
+            elif name == "joy_task":
+                self.joy_task = validate_task(value, self.recorder.catalogue) if value else ""
+            else:
+                self._apply[name](value)
+        except (RecorderError, CatalogueError) as err:
+            return str(err)
         return None
 
+    def _set_catalogue(self, path: str) -> None:
+        """Tasks of the next episodes come from `path`; refused when joy_task is not one of them."""
+        catalogue = load_catalogue(path)
+        if self.joy_task:
+            try:
+                validate_task(self.joy_task, catalogue)
+            except RecorderError as err:
+                raise RecorderError(f"joy_task {self.joy_task!r} is not a task of {path!r} ({err}); "
+                                    "change joy_task first") from err
+        self.recorder.catalogue = catalogue
+
     def _appliers(self) -> dict[str, Callable[[object], None]]:
-        """How each dynamic parameter other than output_dir takes effect."""
+        """How each dynamic parameter other than output_dir, catalogue and joy_task takes effect."""
         rec, buttons = self.recorder, self.buttons
 
         def period(timer):
@@ -168,7 +183,6 @@ class RecorderNode(Node):
             "delete_discarded": lambda v: setattr(rec, "delete_discarded", bool(v)),
             "topic_poll_period_s": period(self._poll_timer),
             "status_period_s": period(self._status_timer),
-            "joy_task": lambda v: setattr(self, "joy_task", str(v)),
             "start_button": lambda v: buttons.__setitem__("start", int(v)),
             "stop_button": lambda v: buttons.__setitem__("stop", int(v)),
             "discard_button": lambda v: buttons.__setitem__("discard", int(v)),

@@ -416,46 +416,53 @@ class TeleopCore:
     # ----------------------------------------------------------------- context
     def _ensure_context(self, q: np.ndarray, now: float) -> tuple[Code, str] | None:
         """Latch or re-latch the context; a (code, reason) when the command must be zero."""
-        p, m = self.params, self.model
-        lat = self.latched
-        if lat is not None and p.detection_max_age > 0 and now - lat.t > p.detection_max_age:
-            self.latched = None
-            self._latch_after = max(self._latch_after, now - p.detection_max_age)
+        self._expire_latch(now)
         if self.latched is not None:
             return None
-        need_det = m.encoder == "detector" or (
-            m.encoder == "localization" and p.goal_selection in GOAL_SELECTIONS
-        )
-        det = None
-        if need_det:
-            if self._dets_t < self._latch_after or self._dets_t == -math.inf:
-                return (
-                    Code.WAITING_FOR_DETECTION,
-                    "no detections received yet"
-                    if self._dets_t == -math.inf
-                    else "waiting for a new detection to latch",
-                )
-            det = self._pick(q)
-            if det is None:
-                seen = sorted({d.class_id for d in self._dets})
-                if seen and not any(c in m.classes for c in seen):
-                    return (
-                        Code.MODEL_ERROR,
-                        f"detected classes {seen} are not in the model's classes "
-                        f"{m.classes} (model and detector disagree)",
-                    )
-                want = "" if p.goal_selection in GOAL_SELECTIONS else f" of class {p.goal_selection!r}"
-                return Code.WAITING_FOR_DETECTION, f"no detection{want} in the latest detections"
+        det, problem = self._goal_detection(q)
+        if problem is not None:
+            return problem
         image = None
-        if m.needs_image:
+        if self.model.needs_image:
             if self._image is None or self._image_t < self._latch_after:
                 return Code.WAITING_FOR_DETECTION, "waiting for a camera image to latch the context"
             image = self._image
-        class_id = (
-            det.class_id
-            if det is not None
-            else (p.goal_selection if p.goal_selection not in GOAL_SELECTIONS else None)
-        )
+        return self._latch(det, image)
+
+    def _expire_latch(self, now: float) -> None:
+        """Drop a latch older than detection_max_age (0: never); the next one must be newer."""
+        p, lat = self.params, self.latched
+        if lat is not None and p.detection_max_age > 0 and now - lat.t > p.detection_max_age:
+            self.latched = None
+            self._latch_after = max(self._latch_after, now - p.detection_max_age)
+
+    def _goal_detection(self, q: np.ndarray) -> tuple[Detection | None, tuple[Code, str] | None]:
+        """(the goal's detection, None), (None, None) when the encoder needs none, or (None, problem)."""
+        p, m = self.params, self.model
+        fixed_class = p.goal_selection not in GOAL_SELECTIONS
+        if not (m.encoder == "detector" or (m.encoder == "localization" and not fixed_class)):
+            return None, None
+        if self._dets_t == -math.inf:
+            return None, (Code.WAITING_FOR_DETECTION, "no detections received yet")
+        if self._dets_t < self._latch_after:
+            return None, (Code.WAITING_FOR_DETECTION, "waiting for a new detection to latch")
+        det = self._pick(q)
+        if det is not None:
+            return det, None
+        seen = sorted({d.class_id for d in self._dets})
+        if seen and not any(c in m.classes for c in seen):
+            reason = (f"detected classes {seen} are not in the model's classes {m.classes} "
+                      "(model and detector disagree)")
+            return None, (Code.MODEL_ERROR, reason)
+        want = f" of class {p.goal_selection!r}" if fixed_class else ""
+        return None, (Code.WAITING_FOR_DETECTION, f"no detection{want} in the latest detections")
+
+    def _latch(self, det: Detection | None, image: np.ndarray | None) -> tuple[Code, str] | None:
+        """Build the context from the goal's detection and/or image and fold it into the decoder."""
+        p, m = self.params, self.model
+        class_id = det.class_id if det is not None else None
+        if class_id is None and p.goal_selection not in GOAL_SELECTIONS:
+            class_id = p.goal_selection
         try:
             ctx = m.context(det=det, image_size=self._dets_size, image=image, class_id=class_id)
             m.decoder.set_context(ctx)

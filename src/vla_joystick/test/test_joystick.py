@@ -2,8 +2,10 @@
 
 import os
 import queue
+import subprocess
 import threading
 import time
+from pathlib import Path
 
 import pytest
 from vla_joystick.joystick import (
@@ -493,3 +495,39 @@ def test_uinput_device_end_to_end():
         stop.set()
         thread.join(timeout=2.0)
         ui.close()
+
+
+# -- the installed process: refused parameters and signals -----------------------------------------
+def _joy_exe():
+    exe = Path(__file__).resolve().parents[3] / "install" / "vla_joystick" / "lib" / "vla_joystick"
+    exe = exe / "joy_node"
+    if not exe.exists():
+        pytest.skip("joy_node not installed (make setup)")
+    return str(exe)
+
+
+@pytest.mark.slow
+def test_joy_node_process_refuses_a_bad_parameter_with_exit_code_2():
+    r = subprocess.run([_joy_exe(), "--ros-args", "-p", "deadzone:=0.95"], capture_output=True, text=True,
+                       timeout=60)
+    assert r.returncode == 2 and "deadzone" in r.stderr and "Traceback" not in r.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("signum", [2, 15])
+def test_joy_node_process_stops_on_a_signal_without_a_device(signum):
+    """No joystick here: the reader thread keeps retrying; a signal still ends the process cleanly."""
+    proc = subprocess.Popen([_joy_exe(), "--ros-args", "-p", "device_path:=/dev/input/event_none_99"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        log = ""
+        for line in proc.stdout:  # wait until it is up: its first retry warning
+            log += line
+            if "retrying" in line:
+                break
+        proc.send_signal(signum)
+        assert proc.wait(timeout=10) == 0, log + proc.stdout.read()
+        assert "Traceback" not in log + proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()

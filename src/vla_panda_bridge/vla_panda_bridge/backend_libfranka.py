@@ -1,0 +1,193 @@
+"""A real Franka arm through libfranka as a bridge backend (no rclpy: ROS goes through the host).
+
+The robot's 1 kHz loop runs in a process of its own (libfranka_loop, started and supervised by
+libfranka_process.LoopProcess): pylibfranka holds the GIL inside readOnce, so a thread beside rclpy
+would miss robot cycles. The node keeps its one control path: a steady-clock timer at control_rate
+runs host.control_step() (the node's SafetyFilter: validation, watchdog, e-stop, limits), and
+`write()` hands the filtered velocity to the loop, which runs the same SafetyFilter again at the
+robot's rate. So the robot gets a command every millisecond that is continuous in velocity and
+acceleration even when the node is late, and the loop's own watchdog brakes the arm if the node
+stops writing altogether.
+
+Every few control ticks (state_rate) the latest robot state is published, and only a new one: a
+silent robot (a lost network, a server restart) produces no joint_states, and its position counts as
+invalid for the node's filter (it brakes). Robot errors (a reflex, a lost connection) reach the node
+through host.on_fault with libfranka's text; ~/recover and ~/set_teaching go to the loop.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from vla_panda_bridge.backend import TEACHING, BackendBase, BackendError, Host, JointSample
+from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
+from vla_panda_bridge.libfranka_loop import LOOP_CONNECTING, LOOP_NAMES, LOOP_OK, LoopSettings
+from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
+
+REQUEST_TIMEOUT = 5.0   # s to wait for the loop to answer ~/recover or ~/set_teaching
+SAFETY_PARAMS = ("velocity_scale", "acceleration_scale", "jerk_scale", "position_margin", "command_timeout",
+                 "position_sync_tolerance")
+LENGTHS = {"lower_torque_thresholds": 7, "upper_torque_thresholds": 7, "lower_force_thresholds": 6,
+           "upper_force_thresholds": 6, "joint_impedance": 7, "teaching_damping": 7}
+
+
+def loop_settings(params, robot_model: str) -> LoopSettings:
+    """The loop process' settings from the bridge's parameters; BackendError names a bad one."""
+    if not params["robot_ip"]:
+        raise BackendError("parameter 'robot_ip' must be set for backend libfranka (the robot's FCI address)")
+    if params["driver"] not in DRIVERS:
+        raise BackendError(f"parameter 'driver' must be one of {list(DRIVERS)}, got {params['driver']!r}")
+    if params["realtime_config"] not in REALTIME:
+        raise BackendError(f"parameter 'realtime_config' must be one of {list(REALTIME)}, "
+                           f"got {params['realtime_config']!r}")
+    robot = {"robot_ip": params["robot_ip"], "realtime": params["realtime_config"]}
+    for name, n in LENGTHS.items():
+        values = [float(v) for v in params[name]]
+        if len(values) != n or not all(math.isfinite(v) and v >= 0.0 for v in values):
+            raise BackendError(f"parameter '{name}' must be {n} finite values >= 0, got {list(params[name])}")
+        robot[name] = values
+    DriverSettings(**robot)
+    return LoopSettings(driver=params["driver"], robot=robot, robot_model=robot_model,
+                        safety={k: params[k] for k in SAFETY_PARAMS}, priority=int(params["loop_priority"]))
+
+
+class LibfrankaBackend(BackendBase):
+    kind = "libfranka"
+    capabilities = frozenset({TEACHING})
+
+    def __init__(self, host: Host):
+        p = host.params
+        self._host = host
+        self._dt = 1.0 / p["control_rate"]
+        self._ticks_per_state = max(1, round(p["control_rate"] / p["state_rate"]))
+        self._state_timeout = p["state_timeout"]
+        self._no_state = np.full(host.spec.num_joints, np.nan)  # invalid on purpose: the filter brakes
+        self.settings = loop_settings(p, host.spec.name)
+        if p["realtime_config"] == "ignore":
+            host.get_logger().warn("realtime_config 'ignore': the loop runs without a real-time kernel "
+                                   "(fine for franka-sim and tests; on a real arm expect lost cycles)")
+        self.process = LoopProcess(self.settings, loop_prefix=p["loop_prefix"])
+        self._latest: JointSample | None = None
+        self._status = LibfrankaStatus(LOOP_CONNECTING, LOOP_NAMES[LOOP_CONNECTING], "", 0, "", -1, 0.0,
+                                       math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
+        self._reported = (LOOP_CONNECTING, "")
+        self._ticks = 0
+
+    # ---------------------------------------------------------------------------------- protocol
+    def start(self, host: Host) -> None:
+        self.process.start()
+        host.create_wall_timer(self._dt, self._tick)
+
+    def _tick(self) -> None:
+        """One control period: the node's filter -> the loop; every state period a new robot state."""
+        self._host.control_step()
+        self._ticks += 1
+        if self._ticks % self._ticks_per_state:
+            return
+        note = self.process.poll()
+        if note:
+            self._host.get_logger().warn(note)
+        sample = self.process.fresh_sample()
+        if sample is not None:
+            self._latest = sample
+            self._host.publish_state()
+        self._watch_status()
+
+    def _watch_status(self) -> None:
+        """Report the loop's status when it changes (a fault through host.on_fault)."""
+        st = self._status = self.process.status()
+        key = (st.code, st.text)
+        if key == self._reported:
+            return
+        self._reported = key
+        text = f"{st.name}: {st.text}" if st.text else st.name
+        if st.code in (LOOP_OK, LOOP_CONNECTING):
+            self._host.get_logger().info(f"libfranka {text}")
+            return
+        on_fault = getattr(self._host, "on_fault", None)
+        if on_fault is not None:
+            on_fault(f"libfranka {text}")
+        else:
+            self._host.get_logger().error(f"libfranka {text}")
+
+    @property
+    def status(self) -> LibfrankaStatus:
+        return self._status
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def now_ns(self) -> int:
+        return self._host.get_clock().now().nanoseconds
+
+    def filter_position(self) -> np.ndarray:
+        """The robot's latest position while it talks and is fine; invalid (brake) otherwise."""
+        st = self._status
+        if self._latest is None or st.code != LOOP_OK or st.silent_for > self._state_timeout:
+            return self._no_state
+        return self._latest.position
+
+    def position(self) -> np.ndarray | None:
+        sample = self.process.read()
+        return None if sample is None else sample.position
+
+    def latest(self) -> JointSample | None:
+        return self._latest
+
+    def write(self, dq: np.ndarray) -> None:
+        self.process.submit(dq)
+
+    def advance(self, dt: float) -> None:
+        time.sleep(dt)                                  # the loop runs on the robot's clock by itself
+
+    def close(self) -> bool:
+        """The loop brakes to zero, ends the motion (motion_finished) and exits; killed after 1 s."""
+        return self.process.close(timeout=1.0)
+
+    def describe(self) -> str:
+        p = self._host.params
+        prio = f", SCHED_FIFO {p['loop_priority']}" if p["loop_priority"] else ""
+        state_hz = p["control_rate"] / self._ticks_per_state
+        return (f"libfranka: {p['driver']} driver -> {p['robot_ip']} ({self._host.spec.name}), 1 kHz loop in "
+                f"process {self.process.pid}{prio} with the safety filter at the robot's rate; node filter "
+                f"at {p['control_rate']} Hz, joint_states at {state_hz:g} Hz")
+
+    # ---------------------------------------------------------------------------------- services
+    def recover(self) -> str:
+        """Automatic error recovery (after a reflex) or an immediate reconnection; RuntimeError with
+        libfranka's text if it fails."""
+        token = self.process.request_recover()
+        result = _wait(lambda: self.process.recover_result(token))
+        if result is None:
+            raise RuntimeError(f"the libfranka loop did not answer within {REQUEST_TIMEOUT:g} s")
+        ok, text = result
+        self._watch_status()
+        if not ok:
+            raise RuntimeError(f"recovery failed: {text}")
+        return text
+
+    def set_teaching(self, active: bool) -> str:
+        """Torque control with tau = -teaching_damping * dq (the robot compensates gravity), or back to
+        velocity control holding the pose; RuntimeError if the loop refused (an error, e-stop, no robot)."""
+        token = self.process.request_teaching(active)
+        result = _wait(lambda: self.process.teaching_result(token))
+        if result is None:
+            raise RuntimeError(f"the libfranka loop did not answer within {REQUEST_TIMEOUT:g} s")
+        if result != bool(active):
+            st = self.process.status()
+            raise RuntimeError(f"teaching mode {'refused' if active else 'still on'}: {st.name} {st.text}")
+        return ("teaching: the arm follows the hand (torque control, the robot compensates gravity)"
+                if active else "teaching off: holding the pose; velocity commands move the arm again")
+
+
+def _wait(poll, timeout: float = REQUEST_TIMEOUT):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        result = poll()
+        if result is not None:
+            return result
+        time.sleep(0.002)
+    return None

@@ -1,0 +1,270 @@
+"""The libfranka loop process as seen from the bridge (plain Python, no ROS): start, supervise, and
+exchange the latest command and the latest state with it.
+
+The 1 kHz loop runs in a process of its own (`libfranka_loop`); this side and the loop share only
+latest-value slots (`libfranka_slots`), so nothing the ROS node does can cost the loop a robot cycle.
+The loop runs the bridge's SafetyFilter at the robot's rate on every command it gets; this side
+forwards commands, reads the latest robot state, and passes on e-stop, teaching and recover
+requests (each answered through the state slot).
+
+`fresh_sample()` returns a state only once, and only while the robot is talking: a silent robot
+(lost network, a server restart, a loop stuck in libfranka's 1 s UDP timeout) produces no samples,
+so joint_states are never republished as fresh. `poll()` supervises the loop process: one that
+exits is restarted with back-off, one whose slots stay unchanged for `stuck_timeout` is killed and
+restarted.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import shlex
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vla_panda_bridge.backend import JointSample
+from vla_panda_bridge.libfranka_loop import (
+    LOOP_CONNECTING,
+    LOOP_NAMES,
+    LOOP_OK,
+    MODE_TORQUE,
+    LoopSettings,
+)
+from vla_panda_bridge.libfranka_slots import CONTROL, STATE, Slots, StateView
+
+RESTART_MIN = 0.5   # s before restarting a loop process that exited, doubled up to RESTART_MAX
+RESTART_MAX = 10.0
+
+
+@dataclass
+class LibfrankaSample(JointSample):
+    """A joint state from the robot, with the robot's own end-effector pose (O_T_EE, 4x4)."""
+
+    ee_matrix: np.ndarray | None = None
+    cycle: int = 0
+
+
+@dataclass
+class LibfrankaStatus:
+    """What the loop reports, as read on this side."""
+
+    code: int                    # libfranka_loop LOOP_* (LOOP_OK also while teaching)
+    name: str
+    text: str                    # the loop's status text (libfranka's error text on an error)
+    filter_code: int             # the safety filter's code of the loop's last cycle
+    filter_text: str
+    robot_mode: int              # franka RobotMode as an int (-1 before any state)
+    success_rate: float          # control_command_success_rate of the last state
+    silent_for: float            # s since the last new robot state (inf before the first)
+    teaching: bool
+    estop_active: bool
+    interventions: int
+    last_intervention: int
+    connects: int
+    errors: int
+    missed: int
+    latency: float               # s from the last command's arrival to the robot command with it
+    process: str = ""            # the loop process' supervision note ("" while it runs normally)
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def connected(self) -> bool:
+        return self.code == LOOP_OK and self.silent_for < 0.1
+
+
+class LoopProcess:
+    """One libfranka loop process and its slots; see the module docstring."""
+
+    def __init__(self, settings: LoopSettings, loop_prefix: str | Sequence[str] = "",
+                 stuck_timeout: float = 3.0, python: str = sys.executable):
+        self.settings = settings
+        self._prefix = shlex.split(loop_prefix) if isinstance(loop_prefix, str) else list(loop_prefix)
+        self._python = python
+        self.stuck_timeout = stuck_timeout
+        self.slots = Slots.create()
+        self.slots.control[CONTROL["parent_pid"]] = os.getpid()
+        self._proc: subprocess.Popen | None = None
+        self._restart_at = 0.0
+        self._restart_wait = RESTART_MIN
+        self.restarts = 0
+        self.process_note = ""
+        self._last_cycle = -1.0
+        self._fresh_cycle = -1.0
+        self._cycle_seen_at = -math.inf
+        self._seq = -1.0
+        self._seq_seen_at = time.monotonic()
+        self._state: StateView | None = None
+        self._closed = False
+        self.commands_sent = 0
+
+    # ------------------------------------------------------------------------------ the process
+    def start(self) -> None:
+        """Start the loop process (it connects to the robot on its own and keeps retrying)."""
+        cmd = [*self._prefix, self._python, "-m", "vla_panda_bridge.libfranka_loop",
+               "--slots", self.slots.path, "--settings", self.settings.to_json(),
+               "--parent-pid", str(os.getpid())]
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
+        self._seq_seen_at = time.monotonic()
+
+    @property
+    def pid(self) -> int | None:
+        return None if self._proc is None else self._proc.pid
+
+    def poll(self) -> str:
+        """Supervise the loop process; returns a note when something happened to it, else ""."""
+        if self._proc is None or self._closed:
+            return ""
+        now = time.monotonic()
+        code = self._proc.poll()
+        if code is None:
+            self._watch_progress(now)
+            if now - self._seq_seen_at > self.stuck_timeout:
+                self._proc.kill()
+                self._proc.wait()
+                self.process_note = (f"the libfranka loop process wrote nothing for {self.stuck_timeout:g} s "
+                                     "and was killed; restarting it")
+                self._schedule_restart(now)
+                return self.process_note
+            return ""
+        if self._restart_at == 0.0:
+            self.process_note = f"the libfranka loop process exited with code {code}; restarting it"
+            self._schedule_restart(now)
+            return self.process_note
+        if now >= self._restart_at:
+            self._restart_at = 0.0
+            self.restarts += 1
+            self.start()
+            self.process_note = f"libfranka loop process restarted ({self.restarts} restarts)"
+            return self.process_note
+        return ""
+
+    def _schedule_restart(self, now: float) -> None:
+        self._restart_at = now + self._restart_wait
+        self._restart_wait = min(2.0 * self._restart_wait, RESTART_MAX)
+
+    def _watch_progress(self, now: float) -> None:
+        seq = self.slots.state_seq
+        if seq != self._seq:
+            self._seq = seq
+            self._seq_seen_at = now
+            if self.process_note:
+                self._restart_wait = RESTART_MIN
+                self.process_note = ""
+
+    # ------------------------------------------------------------------------------- commands
+    def submit(self, values: Sequence[float]) -> int:
+        """Hand the loop its next command (the loop's filter validates it; a malformed one is treated
+        as zero there). Returns its sequence number."""
+        self.commands_sent += 1
+        return self.slots.write_command(values, time.monotonic())
+
+    def set_estop(self, active: bool) -> None:
+        self.slots.control[CONTROL["estop"]] = float(bool(active))
+
+    def request_recover(self) -> int:
+        """Ask the loop for error recovery (or an immediate reconnection); `recover_result` answers."""
+        c = self.slots.control
+        c[CONTROL["recover_req"]] += 1.0
+        return int(c[CONTROL["recover_req"]])
+
+    def recover_result(self, token: int) -> tuple[bool, str] | None:
+        """None while the request is pending, else (success, the loop's status text)."""
+        s = self._read()
+        if s is None or s.recover_ack < token:
+            return None
+        return bool(s.recover_ok), self.slots.read_text("status")
+
+    def request_teaching(self, active: bool) -> int:
+        c = self.slots.control
+        c[CONTROL["teaching"]] = float(bool(active))
+        c[CONTROL["teaching_req"]] += 1.0
+        return int(c[CONTROL["teaching_req"]])
+
+    def teaching_result(self, token: int) -> bool | None:
+        """None while the request is pending, else whether the arm is in teaching mode now."""
+        s = self._read()
+        if s is None or s.teaching_ack < token:
+            return None
+        return int(s.mode) == MODE_TORQUE
+
+    # ----------------------------------------------------------------------------------- state
+    def _read(self) -> StateView | None:
+        try:
+            s = self.slots.read_state()
+        except TimeoutError:
+            return self._state
+        if s.pid == 0:
+            return None                                  # no loop process has written yet
+        self._state = s
+        now = time.monotonic()
+        if s.cycle != self._last_cycle:
+            self._last_cycle = s.cycle
+            self._cycle_seen_at = now
+        self._watch_progress(now)
+        return s
+
+    def read(self) -> LibfrankaSample | None:
+        """The latest robot state (also when it is old), or None before the first."""
+        s = self._read()
+        if s is None or s.cycle <= 0:
+            return None
+        return self._sample(s)
+
+    def fresh_sample(self) -> LibfrankaSample | None:
+        """The latest robot state if it is newer than the one returned last time, else None."""
+        s = self._read()
+        if s is None or s.cycle <= 0 or s.cycle == self._fresh_cycle:
+            return None
+        self._fresh_cycle = s.cycle
+        return self._sample(s)
+
+    @staticmethod
+    def _sample(s: StateView) -> LibfrankaSample:
+        r = s.raw
+        return LibfrankaSample(
+            position=r[STATE["q"]].copy(), velocity=r[STATE["dq"]].copy(), effort=r[STATE["tau_J"]].copy(),
+            stamp_ns=int(r[STATE["stamp"]] * 1e9), ee_matrix=r[STATE["O_T_EE"]].reshape(4, 4).T.copy(),
+            cycle=int(r[STATE["cycle"]]),
+        )
+
+    def status(self) -> LibfrankaStatus:
+        s = self._read()
+        silent = time.monotonic() - self._cycle_seen_at
+        if s is None:
+            return LibfrankaStatus(LOOP_CONNECTING, LOOP_NAMES[LOOP_CONNECTING], "loop process starting",
+                                   0, "", -1, 0.0, math.inf, False, False, 0, 0, 0, 0, 0, math.nan,
+                                   self.process_note)
+        code = int(s.status)
+        return LibfrankaStatus(
+            code=code, name=LOOP_NAMES.get(code, str(code)), text=self.slots.read_text("status"),
+            filter_code=int(s.filter_code), filter_text=self.slots.read_text("filter"),
+            robot_mode=int(s.robot_mode) if s.cycle > 0 else -1, success_rate=s.success_rate,
+            silent_for=silent, teaching=int(s.mode) == MODE_TORQUE, estop_active=bool(s.estop_active),
+            interventions=int(s.interventions), last_intervention=int(s.last_intervention),
+            connects=int(s.connects), errors=int(s.errors), missed=int(s.missed), latency=s.latency,
+            process=self.process_note,
+        )
+
+    # -------------------------------------------------------------------------------- shutdown
+    def close(self, timeout: float = 1.5) -> bool:
+        """Ask the loop to brake to zero, end the motion and exit; kill it after `timeout`.
+        Returns True if it stopped by itself."""
+        if self._closed:
+            return True
+        self._closed = True
+        self.slots.control[CONTROL["shutdown"]] = 1.0
+        clean = True
+        if self._proc is not None and self._proc.poll() is None:
+            try:
+                self._proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                clean = False
+                self._proc.kill()
+                self._proc.wait()
+        self.slots.close()
+        return clean

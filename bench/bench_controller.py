@@ -2,6 +2,8 @@
 
 1. decoder call latency: the NumPy decoder the node runs vs a torch nn.Sequential of the same shape,
    one sample per call, in the same run (targets: p99 <= 15 us, >= 3x faster than torch);
+   the controller core's tick (`TeleopCore.step`: joint mapping, stick, decoder, limits) and its
+   joint_states input (`on_joint_states`, called at the robot's state rate);
 2. end-to-end latency across processes: a Joy publish -> the matching joint_velocity_cmd from
    controller_node (includes the wait for the node's fixed-rate timer);
 3. training time for 40 demos (10 per base task, planner trajectories) with the paper's settings
@@ -105,6 +107,34 @@ def bench_decoder(model_dir: Path, n: int) -> None:
         f"  speed-up: median {np.median(t_th) / np.median(t_np):.1f}x, p99 "
         f"{np.percentile(t_th, 99) / np.percentile(t_np, 99):.1f}x   (targets: numpy p99 <= 15 us, >= 3x)"
     )
+
+
+def bench_core(model_dir: Path, n: int) -> None:
+    from vla_common.robot import JOINT_NAMES, READY_POSE
+    from vla_latent_controller.context import Det
+    from vla_latent_controller.controller_node import joint_speed_limits
+    from vla_latent_controller.model import LatentModel
+    from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
+
+    core = TeleopCore(TeleopParams(dq_max=joint_speed_limits()), model=LatentModel.load(model_dir))
+    names = ["panda_finger_joint1", *JOINT_NAMES]  # a robot that also reports its gripper
+    positions = [0.04, *(float(v) for v in READY_POSE)]
+    core.on_detections([Det("bread", 0.9, 320.0, 240.0)], (640, 480), 0.0)
+    clock = time.perf_counter_ns
+    t_js, t_step = np.empty(n), np.empty(n)
+    for i in range(n):
+        now = i * 1e-3
+        t0 = clock()
+        core.on_joint_states(names, positions, now)
+        t1 = clock()
+        core.on_joy([0.8], [], now)
+        t2 = clock()
+        _, st = core.step(now)
+        t_step[i], t_js[i] = clock() - t2, t1 - t0
+    assert st.code == Code.ACTIVE, st.reason
+    print("controller core (one tick, 8 joints in joint_states, active latent mode):")
+    print(f"  TeleopCore.step           : {stats(t_step[n // 10:] / 1e3)}")
+    print(f"  on_joint_states           : {stats(t_js[n // 10:] / 1e3)}")
 
 
 def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
@@ -255,6 +285,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         model = a.model or random_model(Path(tmp) / "model")
         bench_decoder(model, 20000 if a.quick else 100000)
+        bench_core(model, 20000 if a.quick else 100000)
         if not a.skip_e2e:
             bench_e2e(model, 100 if a.quick else 500, a.rate)
     if not a.skip_training:

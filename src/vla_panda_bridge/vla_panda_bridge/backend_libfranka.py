@@ -103,7 +103,9 @@ class LibfrankaBackend(BackendBase):
         if key == self._reported:
             return
         self._reported = key
-        text = f"{st.name}: {st.text}" if st.text else st.name
+        if not st.text:
+            return                                      # a text follows (the loop writes it next)
+        text = f"{st.name}: {st.text}"
         if st.code in (LOOP_OK, LOOP_CONNECTING):
             self._host.get_logger().info(f"libfranka {text}")
             return

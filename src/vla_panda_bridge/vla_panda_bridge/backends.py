@@ -24,6 +24,12 @@ def _ros2_control(host: Host) -> Backend:
     return Ros2ControlBackend(host)
 
 
+def _libfranka(host: Host) -> Backend:
+    from vla_panda_bridge.backend_libfranka import LibfrankaBackend  # pylibfranka/panda-py: in its process
+
+    return LibfrankaBackend(host)
+
+
 @dataclass(frozen=True)
 class BackendRow:
     name: str
@@ -36,4 +42,7 @@ BACKENDS: dict[str, BackendRow] = {row.name: row for row in (
     BackendRow("mujoco", ("panda",), "the simulated Panda (MuJoCo), stepped by the bridge", _mujoco),
     BackendRow("ros2_control", ("panda", "fr3"),
                "a ros2_control arm behind a JointGroupVelocityController", _ros2_control),
+    BackendRow("libfranka", ("fr3", "panda"),
+               "a Franka arm through libfranka (pylibfranka or panda-py), 1 kHz loop in its own process",
+               _libfranka),
 )}

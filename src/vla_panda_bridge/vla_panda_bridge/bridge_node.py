@@ -31,6 +31,7 @@ from vla_interfaces.srv import ResetScene
 from vla_panda_bridge import safety
 from vla_panda_bridge.backend import BackendError, UnsupportedError
 from vla_panda_bridge.backends import BACKENDS
+from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
 EE_FRAMES = ("tcp", "flange")
@@ -87,8 +88,28 @@ PARAMETERS = ParameterTable([
           "ros2_control: JointGroupVelocityController command topic", check=_not_empty),
     Param("robot_joint_states_topic", "/joint_states", "ros2_control: the arm's sensor_msgs/JointState",
           check=_not_empty),
-    Param("state_timeout", 0.25, "ros2_control: brake when the arm's joint state is older than this (s)",
-          range=(0.01, 10.0)),
+    Param("state_timeout", 0.25, "ros2_control, libfranka: brake when the arm's joint state is older than "
+          "this (s)", range=(0.01, 10.0)),
+    Param("robot_ip", "", "libfranka: the robot's FCI address (e.g. 172.16.0.2)"),
+    Param("driver", "auto", "libfranka: 'pylibfranka' (FR3, server protocol 10), 'panda_py' (Panda, "
+          "protocol 5) or 'auto' (chosen from the robot's answer)", choices=DRIVERS),
+    Param("realtime_config", "enforce", "libfranka: 'enforce' needs a real-time kernel; 'ignore' is for "
+          "franka-sim and tests (warns)", choices=REALTIME),
+    Param("lower_torque_thresholds", list(DriverSettings.lower_torque_thresholds),
+          "libfranka: contact torque thresholds (7, Nm; set_collision_behavior)"),
+    Param("upper_torque_thresholds", list(DriverSettings.upper_torque_thresholds),
+          "libfranka: collision (reflex) torque thresholds (7, Nm)"),
+    Param("lower_force_thresholds", list(DriverSettings.lower_force_thresholds),
+          "libfranka: contact force/torque thresholds at the end effector (6, N and Nm)"),
+    Param("upper_force_thresholds", list(DriverSettings.upper_force_thresholds),
+          "libfranka: collision (reflex) force/torque thresholds at the end effector (6, N and Nm)"),
+    Param("joint_impedance", list(DriverSettings.joint_impedance),
+          "libfranka: stiffness of the robot's joint impedance controller (7, Nm/rad)"),
+    Param("teaching_damping", list(DriverSettings.teaching_damping),
+          "libfranka: teaching mode damping, tau = -d * dq (7, Nm s/rad)"),
+    Param("loop_prefix", "", "libfranka: command words before the loop process (e.g. 'ip netns exec NS')"),
+    Param("loop_priority", 0, "libfranka: SCHED_FIFO priority of the 1 kHz loop process (0 = normal; "
+          "80 on a real-time kernel)", range=(0, 99)),
 ])
 
 

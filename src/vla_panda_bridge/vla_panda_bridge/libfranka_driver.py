@@ -82,7 +82,7 @@ class DriverSettings:
     lower_force_thresholds: Sequence[float] = (20.0, 20.0, 20.0, 25.0, 25.0, 25.0)
     upper_force_thresholds: Sequence[float] = (20.0, 20.0, 20.0, 25.0, 25.0, 25.0)
     joint_impedance: Sequence[float] = (3000.0, 3000.0, 3000.0, 2500.0, 2500.0, 2000.0, 2000.0)
-    teaching_damping: Sequence[float] = (0.0,) * 7
+    teaching_damping: Sequence[float] = (2.0, 2.0, 2.0, 2.0, 1.0, 1.0, 1.0)
     extra: dict = field(default_factory=dict)
 
 

@@ -47,7 +47,7 @@ class State:
     q: list
     dq: list
     tau_J: list  # noqa: N815 (libfranka's field names)
-    O_T_EE: list  # noqa: N815
+    O_T_EE: list
     robot_mode: int
     control_command_success_rate: float
     time: Duration

@@ -531,3 +531,11 @@ def test_joy_node_process_stops_on_a_signal_without_a_device(signum):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_every_parameter_has_a_readme_row():
+    from vla_joystick.joy_node import PARAMETERS
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    missing = [p.name for p in PARAMETERS if f"| `{p.name}` |" not in readme]
+    assert not missing, f"README lacks parameter rows for {missing}"

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+import yaml
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Joy
@@ -16,7 +17,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from vla_common.ros.node_main import ConfigError, StartupError
 from vla_common.ros.testing import RosHarness
-from vla_latent_controller.controller_node import ControllerNode
+from vla_latent_controller.controller_node import PARAMETERS, ControllerNode
 from vla_latent_controller.testing import READY, write_random_model
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
@@ -186,6 +187,31 @@ def test_a_panda_model_on_an_fr3_needs_a_joint_map(random_model_dir):
         np.testing.assert_allclose(cmd, ref, rtol=1e-12)
     finally:
         h.close()
+
+
+CONTROLLER_YAML = Path(__file__).resolve().parents[2] / "vla_bringup" / "config" / "controller.yaml"
+
+
+def test_the_shipped_parameter_file_names_declared_parameters_and_loads():
+    values = yaml.safe_load(CONTROLLER_YAML.read_text())["/**"]["ros__parameters"]
+    assert set(values) <= set(PARAMETERS.params), set(values) - set(PARAMETERS.params)
+    h = RosHarness()
+    try:
+        node = h.add(ControllerNode(context=h.context, cli_args=["--ros-args", "--params-file",
+                                                                    str(CONTROLLER_YAML)]))
+        for name, value in values.items():
+            if value == []:  # an empty array parameter is declared by type only: it reads as unset
+                continue
+            assert node.get_parameter(name).value == value, name
+        assert node.core.joint_map == {}
+    finally:
+        h.shutdown()
+
+
+def test_every_parameter_has_a_readme_row():
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    missing = [p.name for p in PARAMETERS if f"| `{p.name}` |" not in readme]
+    assert not missing, f"README lacks parameter rows for {missing}"
 
 
 def test_a_model_that_does_not_load_stops_the_node_at_startup(tmp_path):

@@ -158,7 +158,8 @@ class ControllerNode(Node):
         self.timer = self.create_timer(1.0 / values["rate"], self._tick)
         m = self.core.model
         what = f"{m.encoder} model from {m.artifacts.path}" if m is not None else "no model"
-        self.get_logger().info(f"mode {self.core.mode}, {what}, {values['rate']:g} Hz")
+        mapped = f", joint_map {self.core.joint_map}" if self.core.joint_map else ""
+        self.get_logger().info(f"mode {self.core.mode}, {what}, {values['rate']:g} Hz{mapped}")
 
     def _create_interfaces(self) -> None:
         self.cmd_pub = self.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)

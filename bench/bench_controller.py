@@ -23,6 +23,18 @@ import time
 from pathlib import Path
 
 import numpy as np
+import rclpy
+from rclpy.executors import SingleThreadedExecutor
+from sensor_msgs.msg import JointState, Joy
+from std_msgs.msg import Float64MultiArray
+from vla_common.robot import JOINT_NAMES, READY_POSE
+from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
+from vla_latent_controller.context import Det, context_dim
+from vla_latent_controller.controller_node import joint_speed_limits
+from vla_latent_controller.model import LatentModel
+from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
+
+from vla_interfaces.msg import Detection, DetectionArray
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -32,8 +44,6 @@ def stats(us: np.ndarray) -> str:
 
 
 def random_model(out: Path) -> Path:
-    from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
-    from vla_latent_controller.context import context_dim
 
     classes = ["bread", "soda_can", "milk_carton", "glass_bottle", "cereal_box"]
     cfg = {
@@ -62,8 +72,7 @@ def random_model(out: Path) -> Path:
 
 
 def bench_decoder(model_dir: Path, n: int) -> None:
-    import torch
-    from vla_latent_controller.model import LatentModel
+    import torch  # heavy and optional: only this part of the bench needs it
 
     torch.set_num_threads(1)
     m = LatentModel.load(model_dir)
@@ -110,11 +119,6 @@ def bench_decoder(model_dir: Path, n: int) -> None:
 
 
 def bench_core(model_dir: Path, n: int) -> None:
-    from vla_common.robot import JOINT_NAMES, READY_POSE
-    from vla_latent_controller.context import Det
-    from vla_latent_controller.controller_node import joint_speed_limits
-    from vla_latent_controller.model import LatentModel
-    from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
 
     core = TeleopCore(TeleopParams(dq_max=joint_speed_limits()), model=LatentModel.load(model_dir))
     names = ["panda_finger_joint1", *JOINT_NAMES]  # a robot that also reports its gripper
@@ -138,13 +142,7 @@ def bench_core(model_dir: Path, n: int) -> None:
 
 
 def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
-    import rclpy
-    from rclpy.executors import SingleThreadedExecutor
-    from sensor_msgs.msg import JointState, Joy
-    from std_msgs.msg import Float64MultiArray
-    from vla_common.robot import JOINT_NAMES, READY_POSE
 
-    from vla_interfaces.msg import Detection, DetectionArray
 
     exe = ROOT / "install" / "vla_latent_controller" / "lib" / "vla_latent_controller" / "controller_node"
     if not exe.exists():
@@ -245,6 +243,7 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
 
 
 def bench_training(threads: int, epochs: int, per_task: int) -> None:
+    # training needs torch (vla_latent_training): optional, imported only for this part
     from vla_common.tasks import BASE_TASKS
     from vla_demo_recorder.dataset import make_pairs
     from vla_evaluation.planner_demos import planner_demos

@@ -238,7 +238,7 @@ class EvdevJoystick:
 def open_joystick(device_path: str = "", device_name: str = "") -> EvdevJoystick:
     """Open ``device_path``; else the first device whose name contains ``device_name``; else the first
     device that looks like a joystick. Raises :class:`JoystickUnavailableError` with the reason."""
-    try:
+    try:  # optional here: the core and its tests run without it; opening a device needs it
         import evdev
     except ImportError as exc:  # pragma: no cover - evdev is in requirements.txt
         raise JoystickUnavailableError(f"python-evdev is not installed ({exc})") from exc

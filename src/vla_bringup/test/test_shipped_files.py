@@ -14,6 +14,7 @@ CONFIG_FILES = {
     "detector_node": "detector",
     "controller_node": "controller",
     "recorder_node": "recorder",
+    "sim_teleoperator": "sim_teleoperator",
 }
 
 
@@ -32,6 +33,7 @@ def _stub_ctx(tmp_path):
         ("sim", ["panda_bridge"]),
         ("teleop", ["panda_bridge", "detector_node", "controller_node"]),
         ("record", ["panda_bridge", "detector_node", "recorder_node"]),
+        ("demo", ["panda_bridge", "detector_node", "controller_node", "sim_teleoperator"]),
     ],
 )
 def test_shipped_launch_files(tmp_path, name, execs):
@@ -45,8 +47,12 @@ def test_shipped_launch_files(tmp_path, name, execs):
         assert p.params[0].path.endswith(f"config/{CONFIG_FILES[p.executable]}.yaml")
         for d in p.params[1:]:
             assert isinstance(d, ParamDict)
-        if p.executable in ("detector_node", "controller_node", "recorder_node"):
-            assert {"use_sim_time": False} in [d.values for d in p.params if isinstance(d, ParamDict)]
+        inline = {k: v for d in p.params if isinstance(d, ParamDict) for k, v in d.values.items()}
+        if p.executable != "panda_bridge":
+            assert inline["use_sim_time"] is (name == "demo")  # the demo runs on simulated time
+        # one BLAS thread per graph process unless the user's environment says otherwise
+        blas = None if name == "sim" else os.environ.get("OPENBLAS_NUM_THREADS", "1")
+        assert p.env.get("OPENBLAS_NUM_THREADS") == blas
     for a in declared_arguments(path):
         assert a.description, f"{name}: argument {a.name} has no description"
 
@@ -86,7 +92,7 @@ def test_config_files_are_ros_parameter_files():
             assert isinstance(body["ros__parameters"], dict), (path, node)
 
 
-@pytest.mark.parametrize("name", ["sim", "teleop", "record"])
+@pytest.mark.parametrize("name", ["sim", "teleop", "record", "demo"])
 def test_shipped_launch_files_with_the_real_config_files(name):
     """Every parameter file the launch file names exists in config/ (once its owner has written it)."""
     path = os.path.join(PKG_DIR, "launch", f"{name}.launch.yaml")
@@ -99,3 +105,29 @@ def test_shipped_launch_files_with_the_real_config_files(name):
         pytest.skip(f"config files not written yet by their owners: {missing}")
     plan = load_launch_file(path, {}, src_share)
     assert all(isinstance(p.params[0], ParamFile) for p in plan.processes)
+
+
+# launch argument -> (parameter file, parameter) whose shipped value the argument's default must be
+ARGUMENT_DEFAULTS = {
+    "real_time_factor": ("panda_bridge", "real_time_factor"),
+    "state_rate": ("panda_bridge", "state_rate"),
+    "camera_rate": ("panda_bridge", "camera_rate"),
+    "rate": ("controller", "rate"),
+    "image_every_n": ("recorder", "image_every_n"),
+}
+
+
+@pytest.mark.parametrize("name", ["sim", "teleop", "record", "demo"])
+def test_argument_defaults_are_the_shipped_parameter_values(name):
+    """An argument that overrides a parameter defaults to the parameter file's value, so a launch
+    without arguments runs with the shipped configuration."""
+    import yaml
+
+    path = os.path.join(PKG_DIR, "launch", f"{name}.launch.yaml")
+    for a in declared_arguments(path):
+        if a.name not in ARGUMENT_DEFAULTS:
+            continue
+        config, param = ARGUMENT_DEFAULTS[a.name]
+        with open(os.path.join(PKG_DIR, "config", f"{config}.yaml")) as f:
+            shipped = yaml.safe_load(f)["/**"]["ros__parameters"][param]
+        assert yaml.safe_load(a.default) == shipped, (name, a.name, a.default, shipped)

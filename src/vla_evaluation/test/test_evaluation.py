@@ -173,20 +173,28 @@ def test_kinematic_teleoperator_drives_trained_model_to_the_demo_goal(trained):
 
 # ---------------------------------------------------------------- graph config, experiments plumbing
 def test_graph_config_gives_each_node_consistent_parameters():
-    from vla_evaluation.graph import BRIDGE, CONTROLLER, DETECTOR, TELEOP, GraphConfig
+    from vla_evaluation.graph import CONTROLLER, TELEOP, GraphConfig
     from vla_evaluation.kinematic import TeleopSettings
 
     settings = TeleopSettings(rate=100.0, deadband=0.15, action_scale=1.2, max_stick_rate=4.0)
     cfg = GraphConfig(model_path="/m", detector_model="/d.onnx", real_time_factor=3.0, settings=settings,
                       extra_params={CONTROLLER: {"status_rate": 20.0}})
-    p = cfg.node_params()
-    assert p[BRIDGE]["real_time_factor"] == 3.0 and "use_sim_time" not in p[BRIDGE]
-    assert all(p[n]["use_sim_time"] for n in (DETECTOR, CONTROLLER, TELEOP))
+    args = cfg.launch_arguments()
+    assert args["real_time_factor"] == 3.0 and args["use_sim_time"] is True
+    assert args["controller_model"] == "/m" and args["detector_model"] == "/d.onnx"
+    p = cfg.node_parameters()
     for key in ("deadband", "action_scale", "max_joint_speed", "axis_scale"):
         assert p[CONTROLLER][key] == p[TELEOP][key]  # the simulated user predicts what the controller does
-    assert p[TELEOP]["model_path"] == p[CONTROLLER]["model_path"] == "/m"
-    assert p[TELEOP]["controller_status_topic"] == f"{CONTROLLER}/status"
     assert p[TELEOP]["max_stick_rate"] == 4.0 and p[CONTROLLER]["status_rate"] == 20.0
+
+
+def test_graph_launch_arguments_are_declared_by_the_shipped_demo_launch_file():
+    from vla_evaluation.graph import LAUNCH_FILE, GraphConfig
+    from vla_launch.launch_file import declared_arguments
+    from vla_launch.plan import find_launch_file
+
+    declared = {a.name for a in declared_arguments(find_launch_file(*LAUNCH_FILE))}
+    assert set(GraphConfig(model_path="/m", detector_model="/d").launch_arguments()) <= declared
 
 
 def test_experiment_jobs_cover_the_figures_with_distinct_subsets():

@@ -1,12 +1,12 @@
-"""`make demo` / `vla_latent_controller demo`: the project's main job.
+"""`make demo` / `vla_evaluation demo`: the project's main job.
 
-Starts the node graph on the simulated Panda (bridge with MuJoCo physics and camera, detector,
-latent-action controller, simulated teleoperator) with the models shipped in the repository, runs
-the simulated user over the base tasks and the unseen-object (cereal box) tasks on fresh layouts,
-prints a table (task, success, final state error, time), saves it as results.json in --out, and
-writes a video and an image strip of the camera view with the end-effector path drawn.
+Launches the graph users launch, `vla_bringup demo.launch.yaml` (bridge with MuJoCo physics and
+camera, detector, latent-action controller, simulated teleoperator), with the models shipped in the
+repository, runs the simulated user over the base tasks and the unseen-object (cereal box) tasks on
+fresh layouts, prints a table (task, success, final state error, time), saves it as results.json in
+--out, and writes a video and an image strip of the camera view with the end-effector path drawn.
 
-Models: base tasks use the shipped `default` model (detector encoder, 10 demos per base object);
+Models: base tasks use the shipped `default` model (detector encoder, 30 demos per base object);
 each cereal-box task uses its few-shot transfer model (base demos + 5 new ones), as in the paper's
 Figure 2c. A missing model is trained first (demonstrations generated through the graph, progress
 shown).
@@ -18,21 +18,24 @@ import argparse
 import json
 import sys
 import time
+from io import StringIO
 from pathlib import Path
+
+from vla_common.tasks import BASE_TASKS
+
+from vla_evaluation.evaluate_cli import add_teleop_arguments, print_table, settings_from, task_list
+from vla_evaluation.metrics import summarize, write_json
+from vla_evaluation.resources import SOURCE_MODELS, detector_model_path, latent_model_dir
 
 BASE_MODEL = "default"  # the controller node's default model (detector encoder, base tasks)
 
 
 def model_name_for(task: str) -> str:
     """Shipped model directory name used for a task."""
-    from vla_common.tasks import BASE_TASKS
-
     return BASE_MODEL if task in BASE_TASKS else task.replace("/", "_")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    from vla_evaluation.evaluate_cli import add_teleop_arguments
-
     p.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder")
     p.add_argument("--tasks", default="all", help="base, unseen, all, or comma-separated task names")
     p.add_argument("--layouts", type=int, default=1, help="fresh layouts per task")
@@ -58,10 +61,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from vla_evaluation.evaluate_cli import print_table, settings_from, task_list
-    from vla_evaluation.graph import GraphConfig, GraphError, GraphEvaluator
-    from vla_evaluation.metrics import summarize, write_json
-    from vla_evaluation.resources import SOURCE_MODELS, detector_model_path, latent_model_dir
+    # rclpy and the training side only for this command (the CLI lists it without loading them)
+    from vla_evaluation.graph import CAMERA_SIZE, GraphConfig, GraphError, GraphEvaluator
     from vla_evaluation.training_data import ensure_detector, ensure_latent_models
 
     t_all = time.monotonic()
@@ -120,7 +121,7 @@ def run(args) -> int:
     if not args.no_video:
         from vla_evaluation.demo_video import write_video_and_strip
 
-        files = write_video_and_strip(records, out, size=(cfg.camera_size[0], cfg.camera_size[1]))
+        files = write_video_and_strip(records, out, size=CAMERA_SIZE)
     base = [r for r in results if model_name_for(r.task) == BASE_MODEL]
     data = {
         "summary": summary,
@@ -177,11 +178,6 @@ def _log_episode(r) -> None:
 
 def summary_lines(results) -> list[str]:
     """Plain-text table lines (used by tests)."""
-    from io import StringIO
-
-    from vla_evaluation.evaluate_cli import print_table
-    from vla_evaluation.metrics import summarize
-
     buf = StringIO()
     print_table(summarize(results, ("task",)), file=buf)
     return buf.getvalue().splitlines()

@@ -1,11 +1,14 @@
-"""`--mode graph`: the full node graph in separate processes, driven like a person would drive it.
+"""`--mode graph`: the graph users launch, `vla_bringup demo.launch.yaml`, driven like a person drives it.
 
-Processes (installed executables, as `ros2 run` would start them):
+The launch file starts, through vla_launch (the same Launcher, parameter files and commands as
+`vla launch vla_bringup demo.launch.yaml`):
   panda_bridge (MuJoCo physics, safety layer, camera rendering, /clock at `real_time_factor`)
   detector_node (ONNX detector on the rendered images)
   controller_node (latent-action decoder; joy -> joint_velocity_cmd)
   sim_teleoperator (the paper's simulated user; publishes joy)
-all with use_sim_time, so the graph runs faster than real time and stays consistent.
+all but the bridge on simulated time, so the graph runs faster than real time and stays consistent.
+What is fixed at startup (rates, real-time factor, models) goes in as launch arguments; the
+teleoperator's and the controller's settings and a model change go through their parameter services.
 
 This process hosts a small orchestrator node: per episode it resets the scene to a fresh layout
 through the bridge's `~/reset`, waits for detections of the new scene, asks the controller to latch
@@ -18,8 +21,6 @@ from __future__ import annotations
 import math
 import os
 import random
-import signal
-import subprocess
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -27,17 +28,43 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import rclpy
+from rcl_interfaces.srv import SetParameters
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import qos_profile_sensor_data
+from sensor_msgs.msg import Image, JointState
+from std_srvs.srv import Trigger
+from vla_common.catalogue import TaskSpec
+from vla_common.kinematics import PandaKinematics
+from vla_common.objects import ObjectPose
+from vla_common.robot import JOINT_NAMES, READY_POSE
+from vla_common.tasks import parse_task
+from vla_launch.session import LaunchError, LaunchSession
 
-from vla_evaluation.kinematic import TeleopSettings
-from vla_evaluation.metrics import EpisodeResult, LimitMonitor, SafetyTally, SuccessTracker, final_state_error
+from vla_evaluation.kinematic import TeleopSettings, _plannable_layout, plan_waypoints
+from vla_evaluation.metrics import (
+    EpisodeResult,
+    LimitMonitor,
+    SafetyTally,
+    SuccessTracker,
+    final_state_error,
+    judge_task,
+)
+from vla_interfaces.msg import (
+    ControllerStatus,
+    DetectionArray,
+    SafetyStatus,
+    SceneObject,
+    SceneObjectArray,
+    TeleopStatus,
+)
+from vla_interfaces.srv import ResetScene, StartEpisode
 
 BRIDGE, DETECTOR, CONTROLLER, TELEOP = "panda_bridge", "detector_node", "controller_node", "sim_teleoperator"
-EXECUTABLES = {
-    BRIDGE: ("vla_panda_bridge", "panda_bridge"),
-    DETECTOR: ("vla_detector", "detector_node"),
-    CONTROLLER: ("vla_latent_controller", "controller_node"),
-    TELEOP: ("vla_evaluation", "sim_teleoperator"),
-}
+LAUNCH_FILE = ("vla_bringup", "demo.launch.yaml")
+CAMERA_SIZE = (640, 480)  # the bridge's camera (config/panda_bridge.yaml)
 
 
 class GraphError(RuntimeError):
@@ -52,7 +79,6 @@ class GraphConfig:
     rate: float = 100.0  # controller and teleoperator (Hz of sim time)
     state_rate: float = 100.0
     camera_rate: float = 5.0
-    camera_size: tuple[int, int] = (640, 480)
     settle_time: float = 0.5  # sim seconds after a reset before the first detection counts
     settings: TeleopSettings = field(default_factory=lambda: TeleopSettings(rate=100.0))
     stop_on_success: bool = False  # end an episode early (after `linger` s) once the task succeeded
@@ -64,131 +90,36 @@ class GraphConfig:
     # The controller's joy timeout (sim s): above its 0.1 s default so that a busy 2-core machine
     # stalling a process for a moment does not zero the command mid-episode.
     joy_timeout: float = 0.25
-    extra_params: dict[str, dict] = field(default_factory=dict)
+    log_level: str = "info"
+    extra_params: dict[str, dict] = field(default_factory=dict)  # node -> run-time parameters
 
-    def node_params(self) -> dict[str, dict]:
+    def launch_arguments(self) -> dict[str, object]:
+        """demo.launch.yaml's arguments: what the nodes read once, at startup."""
+        return {"use_sim_time": True, "real_time_factor": float(self.real_time_factor),
+                "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
+                "rate": float(self.rate), "detector_model": str(self.detector_model),
+                "controller_model": str(self.model_path), "log_level": self.log_level}
+
+    def node_parameters(self) -> dict[str, dict]:
+        """Run-time parameters set through the nodes' parameter services once the graph is up. The
+        teleoperator's stick mapping is the controller's, so that it predicts what the controller does."""
         s = self.settings
-        stick = {"deadband": s.deadband, "axis_scale": s.axis_scale, "action_scale": s.action_scale,
-                 "max_joint_speed": s.max_joint_speed}
+        stick = {"deadband": float(s.deadband), "axis_scale": float(s.axis_scale),
+                 "action_scale": float(s.action_scale), "max_joint_speed": float(s.max_joint_speed)}
         params = {
-            BRIDGE: {"backend": "mujoco", "real_time_factor": float(self.real_time_factor),
-                     "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
-                     "camera_width": int(self.camera_size[0]), "camera_height": int(self.camera_size[1])},
-            DETECTOR: {"model_path": str(self.detector_model)},
-            CONTROLLER: {"model_path": str(self.model_path), "rate": float(self.rate),
-                         "goal_selection": s.goal_selection, "joy_timeout": float(self.joy_timeout), **stick},
-            TELEOP: {"model_path": str(self.model_path), "rate": float(self.rate), "horizon": s.horizon,
-                     "n_candidates": int(s.n_candidates), "switch_time": s.switch_time,
-                     "time_limit": s.time_limit, "controller_status_topic": f"{CONTROLLER}/status",
+            CONTROLLER: {"goal_selection": s.goal_selection, "joy_timeout": float(self.joy_timeout), **stick},
+            TELEOP: {"horizon": float(s.horizon), "n_candidates": int(s.n_candidates),
+                     "switch_time": float(s.switch_time), "time_limit": float(s.time_limit),
                      "max_stick_rate": float(s.max_stick_rate), **stick},
         }
         for node, extra in self.extra_params.items():
             params.setdefault(node, {}).update(extra)
-        for node in params:
-            if node != BRIDGE:
-                params[node]["use_sim_time"] = True
         return params
 
 
-def executable(package: str, name: str) -> str:
-    """Path of an installed executable, resolved through the ament index like `ros2 run`."""
-    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
-
-    try:
-        prefix = get_package_prefix(package)
-    except PackageNotFoundError:
-        raise GraphError(f"package {package!r} is not installed (run `make setup`)") from None
-    path = os.path.join(prefix, "lib", package, name)
-    if not os.access(path, os.X_OK):
-        raise GraphError(f"executable {path} not found (run `make setup`)")
-    return path
-
-
-def _yaml_params(node: str, params: dict) -> str:
-    import yaml
-
-    return yaml.safe_dump({node: {"ros__parameters": params}}, sort_keys=True)
-
-
-class NodeProcesses:
-    """Starts the four nodes as child processes and tears them down (SIGINT, then SIGTERM/SIGKILL)."""
-
-    def __init__(self, config: GraphConfig, env: dict[str, str], workdir: Path,
-                 log: Callable[[str], None] = print) -> None:
-        self.config = config
-        self.env = env
-        self.workdir = workdir
-        self.log = log
-        self.procs: dict[str, subprocess.Popen] = {}
-        self._logs: dict = {}
-
-    def start(self, nodes: Sequence[str] = (BRIDGE, DETECTOR, CONTROLLER, TELEOP)) -> None:
-        params = self.config.node_params()
-        self.workdir.mkdir(parents=True, exist_ok=True)
-        for node in nodes:
-            pkg, exe = EXECUTABLES[node]
-            pfile = self.workdir / f"{node}.params.yaml"
-            pfile.write_text(_yaml_params(node, params[node]))
-            cmd = [executable(pkg, exe), "--ros-args", "-r", f"__node:={node}", "--params-file", str(pfile)]
-            logf = open(self.workdir / f"{node}.log", "a")  # noqa: SIM115 - closed in stop()
-            self._logs[node] = logf
-            self.procs[node] = subprocess.Popen(
-                cmd, env=self.env, stdout=logf, stderr=subprocess.STDOUT, start_new_session=True
-            )
-
-    def check_alive(self) -> None:
-        for node, p in self.procs.items():
-            if p.poll() is not None:
-                raise GraphError(f"{node} exited with code {p.returncode}; last log lines:\n"
-                                 f"{self.tail(node)}")
-
-    def tail(self, node: str, lines: int = 15) -> str:
-        f = self.workdir / f"{node}.log"
-        try:
-            return "\n".join(f.read_text(errors="replace").splitlines()[-lines:])
-        except OSError:
-            return ""
-
-    def stop(self, nodes: Sequence[str] | None = None, timeout: float = 5.0) -> None:
-        """SIGINT (the nodes command zero and exit), then SIGTERM, then SIGKILL; all nodes by default.
-
-        In reverse start order, one after the other: the teleoperator and the controller go first,
-        while the bridge still publishes /clock (a node on sim time may only notice a signal when a
-        timer fires), and the robot side goes last."""
-        order = [n for n in (TELEOP, CONTROLLER, DETECTOR, BRIDGE) if n in self.procs]
-        order += [n for n in self.procs if n not in order]
-        names = [n for n in order if nodes is None or n in nodes]
-        for node in names:
-            p = self.procs.pop(node)
-            if p.poll() is None:
-                try:
-                    os.killpg(p.pid, signal.SIGINT)
-                except ProcessLookupError:
-                    pass
-            try:
-                p.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.log(f"[graph] {node} ignored SIGINT; terminating")
-                try:
-                    os.killpg(p.pid, signal.SIGTERM)
-                    p.wait(3.0)
-                except (ProcessLookupError, subprocess.TimeoutExpired):
-                    try:
-                        os.killpg(p.pid, signal.SIGKILL)
-                    except ProcessLookupError:
-                        pass
-                    p.wait()
-            f = self._logs.pop(node, None)
-            if f is not None:
-                f.close()
-
-    def returncodes(self) -> dict[str, int | None]:
-        return {n: p.poll() for n, p in self.procs.items()}
-
-
 def isolated_env(domain_id: int | None) -> dict[str, str]:
-    """The children's environment: this one (ROS bootstrap variables kept), a ROS domain of our own
-    unless one is set, localhost-only discovery."""
+    """The graph's environment: ROS bootstrap variables kept, a ROS domain of our own unless one is
+    set, localhost-only discovery."""
     env = dict(os.environ)
     if domain_id is not None:
         env["ROS_DOMAIN_ID"] = str(domain_id)
@@ -201,34 +132,30 @@ def isolated_env(domain_id: int | None) -> dict[str, str]:
     return env
 
 
+def _stamp(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+def image_to_rgb(msg: Image) -> np.ndarray | None:
+    """An rgb8/bgr8 Image as an (H, W, 3) RGB array, or None for another encoding."""
+    if msg.encoding not in ("rgb8", "bgr8"):
+        return None
+    a = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)[:, :msg.width * 3]
+    a = a.reshape(msg.height, msg.width, 3)
+    return (a[:, :, ::-1] if msg.encoding == "bgr8" else a).copy()
+
+
 class _Observer:
     """The orchestrator's ROS side: subscriptions, service clients and the latest values seen."""
 
     def __init__(self, ctx, keep_frames: bool) -> None:
-        from rclpy.node import Node
-        from rclpy.parameter import Parameter
-        from rclpy.qos import qos_profile_sensor_data as sensor
-        from sensor_msgs.msg import Image, JointState
-        from std_srvs.srv import Trigger
-
-        from vla_interfaces.msg import (
-            ControllerStatus,
-            DetectionArray,
-            SafetyStatus,
-            SceneObjectArray,
-            TeleopStatus,
-        )
-        from vla_interfaces.srv import ResetScene, StartEpisode
-
         self.node = Node("vla_evaluation", context=ctx,
                          parameter_overrides=[Parameter("use_sim_time", Parameter.Type.BOOL, True)])
-        self.lock = threading.Lock()
-        self.cond = threading.Condition(self.lock)
-        self.keep_frames = keep_frames
+        self.cond = threading.Condition()
         self.q = None
         self.dq = None
         self.q_stamp = -math.inf
-        self.objects: dict = {}
+        self.objects: dict[str, ObjectPose] = {}
         self.objects_stamp = -math.inf
         self.detections = None
         self.detections_stamp = -math.inf
@@ -237,13 +164,8 @@ class _Observer:
         self.teleop = None
         self.teleop_recv = -math.inf
         self.safety = None
-        self.frame = None
-        self.frame_stamp = -math.inf
-        self.on_joint_state: Callable | None = None
-        self.on_objects: Callable | None = None
-        self.on_safety: Callable | None = None
-        self.on_frame: Callable | None = None
-        n = self.node
+        self.monitor: EpisodeMonitor | None = None
+        n, sensor = self.node, qos_profile_sensor_data
         n.create_subscription(JointState, "joint_states", self._joints, sensor)
         n.create_subscription(SceneObjectArray, "scene/objects", self._objects, sensor)
         n.create_subscription(DetectionArray, "detections", self._dets, sensor)
@@ -256,42 +178,37 @@ class _Observer:
         self.redetect_cli = n.create_client(Trigger, f"{CONTROLLER}/redetect")
         self.start_cli = n.create_client(StartEpisode, f"{TELEOP}/start_episode")
         self.stop_cli = n.create_client(Trigger, f"{TELEOP}/stop")
-        self.ResetScene, self.StartEpisode, self.Trigger = ResetScene, StartEpisode, Trigger
+        self.param_clis = {name: n.create_client(SetParameters, f"{name}/set_parameters")
+                           for name in (CONTROLLER, TELEOP)}
 
     def now(self) -> float:
         return self.node.get_clock().now().nanoseconds * 1e-9
 
-    @staticmethod
-    def _stamp(msg) -> float:
-        return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-
     def _joints(self, msg) -> None:
         names = list(msg.name)
         try:
-            idx = [names.index(f"panda_joint{i}") for i in range(1, 8)]
+            idx = [names.index(n) for n in JOINT_NAMES]
         except ValueError:
             return
         q = np.array([msg.position[i] for i in idx])
         dq = np.array([msg.velocity[i] for i in idx]) if len(msg.velocity) == len(names) else None
         with self.cond:
-            self.q, self.dq, self.q_stamp = q, dq, self._stamp(msg)
+            self.q, self.dq, self.q_stamp = q, dq, _stamp(msg)
             self.cond.notify_all()
-        if self.on_joint_state is not None:
-            self.on_joint_state(self.q_stamp, q, dq)
+        if (m := self.monitor) is not None:
+            m.on_joint_state(self.q_stamp, q, dq, self.teleop)
 
     def _objects(self, msg) -> None:
-        from vla_common.objects import ObjectPose
-
         objs = {o.class_id: ObjectPose(o.class_id, o.x, o.y, o.yaw) for o in msg.objects}
         with self.cond:
-            self.objects, self.objects_stamp = objs, self._stamp(msg)
+            self.objects, self.objects_stamp = objs, _stamp(msg)
             self.cond.notify_all()
-        if self.on_objects is not None:
-            self.on_objects(self.objects_stamp, objs)
+        if (m := self.monitor) is not None:
+            m.on_objects(self.objects_stamp, objs)
 
     def _dets(self, msg) -> None:
         with self.cond:
-            self.detections, self.detections_stamp = msg, self._stamp(msg)
+            self.detections, self.detections_stamp = msg, _stamp(msg)
             self.cond.notify_all()
 
     def _ctrl(self, msg) -> None:
@@ -307,20 +224,13 @@ class _Observer:
     def _safety(self, msg) -> None:
         with self.cond:
             self.safety = msg
-        if self.on_safety is not None:
-            self.on_safety(msg)
+        if (m := self.monitor) is not None:
+            m.on_safety(msg)
 
     def _image(self, msg) -> None:
-        if msg.encoding not in ("rgb8", "bgr8"):
-            return
-        a = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)[:, :msg.width * 3]
-        a = a.reshape(msg.height, msg.width, 3)
-        if msg.encoding == "bgr8":
-            a = a[:, :, ::-1]
-        with self.cond:
-            self.frame, self.frame_stamp = a.copy(), self._stamp(msg)
-        if self.on_frame is not None:
-            self.on_frame(self.frame_stamp, self.frame)
+        m = self.monitor
+        if m is not None and m.keep_frames and (frame := image_to_rgb(msg)) is not None:
+            m.on_frame(_stamp(msg), frame)
 
     def wait_for(self, predicate: Callable[[], bool], timeout: float, what: str,
                  alive: Callable[[], None] | None = None) -> None:
@@ -348,6 +258,15 @@ class _Observer:
             raise GraphError(f"service {client.srv_name} did not answer within {timeout:.0f} s ({what})")
         return fut.result()
 
+    def set_parameters(self, node: str, values: dict, timeout: float = 10.0) -> None:
+        """Set run-time parameters of a node through its parameter service; GraphError if refused."""
+        req = SetParameters.Request()
+        req.parameters = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+        res = self.call(self.param_clis[node], req, timeout, f"setting {sorted(values)}")
+        refused = [f"{k}: {r.reason}" for k, r in zip(values, res.results) if not r.successful]
+        if refused:
+            raise GraphError(f"{node} refused parameters: {'; '.join(refused)}")
+
 
 @dataclass
 class EpisodeRecord:
@@ -360,18 +279,61 @@ class EpisodeRecord:
     trace: np.ndarray | None = None  # (T, 11): t, q1..q7, stick, waypoint index, projected distance
 
 
+class EpisodeMonitor:
+    """What an episode is measured by, fed from the observer's callbacks from `t_start` on: limit
+    violations and the TCP path on joint_states, success on scene/objects, safety on the bridge's
+    status, and the camera frames."""
+
+    def __init__(self, spec: TaskSpec, start_pose: ObjectPose, kin, path_every: int, keep_frames: bool):
+        self.spec, self.kin, self.keep_frames = spec, kin, keep_frames
+        self.tracker = SuccessTracker(spec, start_pose)
+        self.limits = LimitMonitor()
+        self.tally = SafetyTally()
+        self.path: list[np.ndarray] = []
+        self.path_t: list[float] = []
+        self.trace: list[list[float]] = []  # t, q1..q7, stick, waypoint index, projected distance
+        self.frames: list[tuple[float, np.ndarray]] = []
+        self.t_start = math.inf
+        self.every = max(1, int(path_every))
+        self._count = 0
+
+    def on_joint_state(self, stamp: float, q: np.ndarray, dq: np.ndarray | None, teleop) -> None:
+        if stamp < self.t_start:
+            return
+        self.limits.update(q, dq)
+        self._count += 1
+        if self._count % self.every == 0:
+            t = stamp - self.t_start
+            self.path.append(self.kin.fk(q)[0])
+            self.path_t.append(t)
+            if teleop is not None:
+                self.trace.append([t, *q, teleop.axis, teleop.waypoint_index, teleop.distance])
+
+    def on_objects(self, stamp: float, objs: dict[str, ObjectPose]) -> None:
+        if stamp >= self.t_start and self.spec.object_class in objs:
+            self.tracker.update(stamp - self.t_start, objs[self.spec.object_class])
+
+    def on_safety(self, msg) -> None:
+        self.tally.update(int(msg.code), int(msg.interventions), bool(msg.estop_active),
+                          int(msg.commands_rejected))
+
+    def on_frame(self, stamp: float, frame: np.ndarray) -> None:
+        if stamp >= self.t_start:
+            self.frames.append((stamp - self.t_start, frame))
+
+
 class GraphEvaluator:
     """Runs evaluation episodes on the live graph (use as a context manager)."""
 
     def __init__(self, config: GraphConfig, log: Callable[[str], None] = print) -> None:
         self.config = config
         self.log = log
-        self.procs: NodeProcesses | None = None
+        self.session: LaunchSession | None = None
         self.ctx = None
         self.executor = None
         self.obs: _Observer | None = None
         self._spin_thread: threading.Thread | None = None
-        self.kin = None
+        self.kin = PandaKinematics()
         self._saved_env: dict[str, str | None] = {}
 
     # ------------------------------------------------------------------ lifecycle
@@ -383,66 +345,74 @@ class GraphEvaluator:
         self.close()
 
     def start(self) -> None:
-        import tempfile
-
-        import rclpy
-        from rclpy.executors import SingleThreadedExecutor
-        from vla_common.kinematics import PandaKinematics
-
+        """Launch demo.launch.yaml, join its ROS domain, wait until every node answers, configure."""
         cfg = self.config
         env = isolated_env(cfg.domain_id)
-        # this process joins the same domain before its rclpy context exists
-        for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):
+        for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):  # before our context exists
             self._saved_env[key] = os.environ.get(key)
             os.environ[key] = env[key]
-        workdir = Path(cfg.log_dir) if cfg.log_dir else Path(tempfile.mkdtemp(prefix="vla_graph_"))
-        self.kin = PandaKinematics()
-        self.procs = NodeProcesses(cfg, env, workdir, self.log)
-        self.log(f"[graph] starting bridge, detector, controller, teleoperator (ROS_DOMAIN_ID "
-                 f"{env['ROS_DOMAIN_ID']}, logs in {workdir})")
-        self.procs.start()
-        self.ctx = rclpy.context.Context()
-        rclpy.init(context=self.ctx)
-        self.obs = _Observer(self.ctx, cfg.keep_frames)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.obs.node)
-        self._spin_thread = threading.Thread(target=self._spin, daemon=True)
-        self._spin_thread.start()
+        log_path = Path(cfg.log_dir) / "graph.log" if cfg.log_dir else None
+        self.session = LaunchSession(*LAUNCH_FILE, cfg.launch_arguments(), env=env, log_path=log_path)
         try:
+            self.session.start()
+            self.log(f"[graph] vla launch {' '.join(LAUNCH_FILE)} (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
+                     f"output in {self.session.log_path})")
+            self.ctx = rclpy.context.Context()
+            rclpy.init(context=self.ctx)
+            self.obs = _Observer(self.ctx, cfg.keep_frames)
+            self.executor = SingleThreadedExecutor(context=self.ctx)
+            self.executor.add_node(self.obs.node)
+            self._spin_thread = threading.Thread(target=self._spin, daemon=True)
+            self._spin_thread.start()
             self._wait_ready()
+            self.configure()
         except BaseException:
             self.close()
             raise
 
     def _spin(self) -> None:
-        from rclpy.executors import ExternalShutdownException
-
         try:
             while self.ctx is not None and self.ctx.ok():
                 self.executor.spin_once(timeout_sec=0.1)
         except (ExternalShutdownException, RuntimeError):
             pass
 
+    def alive(self) -> None:
+        """GraphError when a process of the launch has ended, with its last output lines."""
+        try:
+            self.session.check()
+        except LaunchError as e:
+            raise GraphError(str(e)) from None
+
     def _wait_ready(self) -> None:
         obs, t = self.obs, self.config.startup_timeout
-        alive = self.procs.check_alive
         t0 = time.monotonic()
-        for cli in (obs.reset_cli, obs.redetect_cli, obs.start_cli):
+        clients = (obs.reset_cli, obs.redetect_cli, obs.start_cli, *obs.param_clis.values())
+        for cli in clients:
             while not cli.wait_for_service(timeout_sec=0.5):
-                alive()
+                self.alive()
                 if time.monotonic() - t0 > t:
                     raise GraphError(f"service {cli.srv_name} did not appear within {t:.0f} s")
-        obs.wait_for(lambda: obs.q is not None, t, "joint_states from the bridge", alive)
-        obs.wait_for(lambda: obs.detections is not None, t, "detections from the detector", alive)
-        obs.wait_for(lambda: obs.ctrl is not None, t, "the controller's status", alive)
-        obs.wait_for(lambda: obs.teleop is not None, t, "the teleoperator's status", alive)
+        obs.wait_for(lambda: obs.q is not None, t, "joint_states from the bridge", self.alive)
+        obs.wait_for(lambda: obs.detections is not None, t, "detections from the detector", self.alive)
+        obs.wait_for(lambda: obs.ctrl is not None, t, "the controller's status", self.alive)
+        obs.wait_for(lambda: obs.teleop is not None, t, "the teleoperator's status", self.alive)
         self.log(f"[graph] up in {time.monotonic() - t0:.1f} s")
 
-    def close(self) -> None:
-        import rclpy
+    def configure(self) -> None:
+        """Set the controller's and the teleoperator's run-time parameters from the config."""
+        for node, values in self.config.node_parameters().items():
+            self.obs.set_parameters(node, values)
 
-        if self.procs is not None:
-            self.procs.stop()
+    def close(self) -> None:
+        if self.session is not None:
+            session, self.session = self.session, None
+            try:
+                rc = session.stop()
+                if rc != 0:
+                    self.log(f"[graph] the launch ended with exit code {rc}; see {session.log_path}")
+            except LaunchError as e:
+                self.log(f"[graph] {e}")
         if self.ctx is not None:
             ctx, self.ctx = self.ctx, None
             try:
@@ -462,185 +432,76 @@ class GraphEvaluator:
                 os.environ[key] = val
 
     def set_model(self, model_path: str) -> None:
-        """Use another latent model: restart the controller and the teleoperator with it (the bridge
-        and the detector keep running)."""
+        """Use another latent model: the controller and the teleoperator load it (their model_path)."""
         if str(model_path) == str(self.config.model_path):
             return
+        for node in (CONTROLLER, TELEOP):
+            self.obs.set_parameters(node, {"model_path": str(model_path)}, timeout=30.0)
         self.config.model_path = str(model_path)
-        obs = self.obs
-        self.procs.stop([CONTROLLER, TELEOP])
-        t0 = obs.now()
-        self.log(f"[graph] controller + teleoperator restarted with {model_path}")
-        self.procs.start([CONTROLLER, TELEOP])
-        alive = self.procs.check_alive
-        for cli in (obs.redetect_cli, obs.start_cli):
-            deadline = time.monotonic() + self.config.startup_timeout
-            while not cli.wait_for_service(timeout_sec=0.5):
-                alive()
-                if time.monotonic() > deadline:
-                    raise GraphError(f"service {cli.srv_name} did not come back")
-        obs.wait_for(
-            lambda: obs.ctrl_recv > t0 and obs.teleop_recv > t0,
-            self.config.startup_timeout,
-            "the restarted controller and teleoperator",
-            alive,
-        )
+        self.log(f"[graph] controller and teleoperator now use {model_path}")
 
     # ------------------------------------------------------------------ episodes
     def run_episode(self, task: str, seed: int, label: str = "", n_objects: int = 1) -> EpisodeRecord:
         """Reset to the seeded layout of `task`, latch the context, let the teleoperator drive."""
-        from vla_common.robot import READY_POSE
-        from vla_common.tasks import parse_task
-
-        from vla_evaluation.kinematic import _plannable_layout
-        from vla_evaluation.metrics import judge_task
-
-        cfg, obs, alive = self.config, self.obs, self.procs.check_alive
-        spec = parse_task(task)
         wall0 = time.monotonic()
-        objects, _goal, _wps, used_seed = _plannable_layout(self.kin, task, spec.object_class, int(seed),
+        spec = parse_task(task)
+        used_seed, start_pose, q_now = self._reset(spec, int(seed), n_objects)
+        result = EpisodeResult(task=task, layout_seed=used_seed, mode="graph", model=label,
+                               object_start=start_pose.to_dict())
+        no_latch = self._latch()
+        if no_latch:
+            self._score_unlatched(result, spec, start_pose, q_now, no_latch)
+            result.extra["wall_s"] = round(time.monotonic() - wall0, 2)
+            return EpisodeRecord(result, np.zeros((0, 3)), np.zeros(0), [], np.zeros((0, 11)))
+        result.detected_class = self.obs.ctrl.latched_class
+        monitor = EpisodeMonitor(spec, start_pose, self.kin, round(self.config.state_rate / 20.0),
+                                 self.config.keep_frames)
+        self.obs.monitor = monitor
+        try:
+            final_wp, q_final, end_pose, duration = self._drive(task, monitor)
+        finally:
+            self.obs.monitor = None
+        self._score(result, spec, monitor, start_pose, final_wp, q_final, end_pose, duration)
+        result.extra["wall_s"] = round(time.monotonic() - wall0, 2)
+        tcp = result.ee_path if result.ee_path is not None else np.zeros((0, 3))
+        return EpisodeRecord(result, tcp, np.asarray(monitor.path_t[: len(tcp)]), monitor.frames,
+                             np.asarray(monitor.trace))
+
+    def _reset(self, spec: TaskSpec, seed: int, n_objects: int) -> tuple[int, ObjectPose, np.ndarray]:
+        """A fresh plannable layout through the bridge's ~/reset, settled and detected; (the layout's
+        seed, the goal object's pose, the arm's joint positions)."""
+        obs, cfg = self.obs, self.config
+        objects, _goal, _wps, used_seed = _plannable_layout(self.kin, spec.name, spec.object_class, seed,
                                                             np.asarray(READY_POSE), n_objects)
-        result = EpisodeResult(task=task, layout_seed=used_seed, mode="graph", model=label)
-        # 1. fresh layout through the bridge
-        req = obs.ResetScene.Request()
+        req = ResetScene.Request()
         req.use_seed = False
-        req.objects = [self._scene_object(o) for o in objects]
+        req.objects = [SceneObject(class_id=o.class_id, x=float(o.x), y=float(o.y), yaw=float(o.yaw))
+                       for o in objects]
         req.initial_positions = [float(v) for v in READY_POSE]
         res = obs.call(obs.reset_cli, req, 30.0, "reset")
         if not res.success:
             raise GraphError(f"reset refused: {res.message}")
-        t_reset = obs.now()
-        # 2. detections of the new scene (after objects settled)
-        settle_until = t_reset + cfg.settle_time
-        obs.wait_for(lambda: obs.detections_stamp >= settle_until and obs.objects_stamp >= settle_until,
-                     30.0, "detections of the new scene", alive)
-        # 3. the controller latches them
-        no_latch = self._latch(alive)
+        settled = obs.now() + cfg.settle_time
+        obs.wait_for(lambda: obs.detections_stamp >= settled and obs.objects_stamp >= settled,
+                     30.0, "detections of the new scene", self.alive)
         with obs.cond:
             start_pose = obs.objects.get(spec.object_class)
             q_now = obs.q.copy()
         if start_pose is None:
             raise GraphError(f"{spec.object_class} missing from scene/objects after reset")
-        result.object_start = start_pose.to_dict()
-        if no_latch:
-            # Like a person facing a controller that waits for a detection: nothing moves. The
-            # episode counts as failed, its error measured against the planner's final waypoint.
-            from vla_evaluation.kinematic import plan_waypoints
+        return used_seed, start_pose, q_now
 
-            result.note = f"no detection latched: {no_latch}"
-            result.success = False
-            final_wp = plan_waypoints(self.kin, task, start_pose, q_now)[-1]
-            result.final_state_error = final_state_error(q_now, final_wp)
-            result.extra["wall_s"] = round(time.monotonic() - wall0, 2)
-            self.log(f"[graph] {task}: {result.note}")
-            return EpisodeRecord(result, np.zeros((0, 3)), np.zeros(0), [], np.zeros((0, 11)))
-        result.detected_class = obs.ctrl.latched_class
-        # 4. monitors
-        tracker = SuccessTracker(spec, start_pose)
-        limits = LimitMonitor()
-        tally = SafetyTally()
-        path: list[np.ndarray] = []
-        path_t: list[float] = []
-        trace: list[list[float]] = []  # t, q1..q7, stick, waypoint index, projected distance
-        frames: list[tuple[float, np.ndarray]] = []
-        t_start = [math.inf]
-        every = max(1, int(round(cfg.state_rate / 20.0)))
-        counter = [0]
-
-        def on_js(stamp, q, dq):
-            if stamp < t_start[0]:
-                return
-            limits.update(q, dq)
-            counter[0] += 1
-            if counter[0] % every == 0:
-                path.append(self.kin.fk(q)[0])
-                path_t.append(stamp - t_start[0])
-                st = obs.teleop
-                if st is not None:
-                    trace.append([stamp - t_start[0], *q, st.axis, st.waypoint_index, st.distance])
-
-        def on_objects(stamp, objs):
-            if stamp >= t_start[0] and spec.object_class in objs:
-                tracker.update(stamp - t_start[0], objs[spec.object_class])
-
-        def on_safety(msg):
-            tally.update(int(msg.code), int(msg.interventions), bool(msg.estop_active),
-                         int(msg.commands_rejected))
-
-        def on_frame(stamp, frame):
-            if stamp >= t_start[0]:
-                frames.append((stamp - t_start[0], frame))
-
-        obs.on_joint_state, obs.on_objects, obs.on_safety = on_js, on_objects, on_safety
-        obs.on_frame = on_frame if cfg.keep_frames else None
-        try:
-            # 5. the simulated user takes the stick
-            t_request = obs.now()
-            sreq = obs.StartEpisode.Request()
-            sreq.task = task
-            res = obs.call(obs.start_cli, sreq, 10.0, "start_episode")
-            if not res.success:
-                raise GraphError(f"teleoperator refused {task}: {res.message}")
-            obs.wait_for(lambda: obs.teleop_recv > t_request and obs.teleop.task == task
-                         and obs.teleop.state in (2, 3, 4), 30.0, "the teleoperator to start", alive)
-            if obs.teleop.state == 4:
-                raise GraphError(f"teleoperator failed to start {task}: {obs.teleop.reason}")
-            t_start[0] = obs.now() - float(obs.teleop.elapsed)
-            wall_limit = cfg.settings.time_limit / max(cfg.real_time_factor, 0.05) * 4 + 60
-
-            def finished() -> bool:
-                st = obs.teleop
-                if st.state in (3, 4) and obs.teleop_recv > t_request:
-                    return True
-                if cfg.stop_on_success and tracker.time_to_success is not None:
-                    return obs.now() - t_start[0] >= tracker.time_to_success + cfg.linger
-                return False
-
-            obs.wait_for(finished, wall_limit, f"the end of the {task} episode", alive)
-            if obs.teleop.state == 2:  # stopped early on success
-                obs.call(obs.stop_cli, obs.Trigger.Request(), 10.0, "stop")
-            final_wp = np.asarray(obs.teleop.final_waypoint, float)
-            t_end = obs.now()
-            # let the arm come to rest and the last scene state arrive
-            obs.wait_for(lambda: obs.objects_stamp > t_end and obs.q_stamp > t_end, 10.0,
-                         "final state", alive)
-            with obs.cond:
-                q_final = obs.q.copy()
-                end_pose = obs.objects.get(spec.object_class)
-        finally:
-            obs.on_joint_state = obs.on_objects = obs.on_safety = obs.on_frame = None
-        if final_wp.shape == (7,):
-            result.final_state_error = final_state_error(q_final, final_wp)
-        if end_pose is not None:
-            path_xy = np.asarray(path)[:, :2] if path else np.zeros((0, 2))
-            ok, disp, ang = judge_task(spec, start_pose, end_pose, path_xy)
-            result.success, result.displacement_m, result.angle_err_deg = ok, disp, ang
-            result.object_end = end_pose.to_dict()
-            if ok and tracker.time_to_success is None:
-                tracker.time_to_success = t_end - t_start[0]
-        result.time_to_success = tracker.time_to_success if result.success else None
-        result.duration_s = round(t_end - t_start[0], 3)
-        result.safety_interventions = tally.interventions
-        result.limit_violations = limits.violations
-        result.extra.update({"wall_s": round(time.monotonic() - wall0, 2),
-                             "max_speed_ratio": round(limits.max_speed_ratio, 3),
-                             "estop": tally.estop_seen, "commands_rejected": tally.rejected,
-                             "position_violations": limits.position_violations,
-                             "velocity_violations": limits.velocity_violations,
-                             "interventions_by_code": dict(tally.by_code)})
-        result.ee_path = np.asarray(path) if path else None
-        tcp = result.ee_path if result.ee_path is not None else np.zeros((0, 3))
-        return EpisodeRecord(result, tcp, np.asarray(path_t[: len(tcp)]), frames, np.asarray(trace))
-
-    def _latch(self, alive, attempts: int = 3, timeout: float = 10.0) -> str:
+    def _latch(self, attempts: int = 3, timeout: float = 10.0) -> str:
         """Ask the controller to latch the new scene's detection (retried); "" when it did, else why not."""
         obs = self.obs
+        why = ""
         for attempt in range(attempts):
             t_redetect = obs.now()
-            obs.call(obs.redetect_cli, obs.Trigger.Request(), 10.0, "redetect")
+            obs.call(obs.redetect_cli, Trigger.Request(), 10.0, "redetect")
             try:
                 obs.wait_for(lambda t0=t_redetect: obs.ctrl_recv > t0 and bool(obs.ctrl.latched_class)
-                             and obs.ctrl.code != 5, timeout, "the controller to latch a detection", alive)
+                             and obs.ctrl.code != ControllerStatus.WAITING_FOR_DETECTION, timeout,
+                             "the controller to latch a detection", self.alive)
                 return ""
             except GraphError:
                 with obs.cond:
@@ -652,13 +513,75 @@ class GraphEvaluator:
                 self.log(f"[graph] no latch after redetect (attempt {attempt + 1}/{attempts}): {why}")
         return why
 
-    @staticmethod
-    def _scene_object(pose):
-        from vla_interfaces.msg import SceneObject
+    def _score_unlatched(self, result: EpisodeResult, spec: TaskSpec, start_pose: ObjectPose,
+                         q_now: np.ndarray, why: str) -> None:
+        """Like a person facing a controller that waits for a detection: nothing moves. The episode
+        fails, its error measured against the planner's final waypoint."""
+        result.note = f"no detection latched: {why}"
+        result.success = False
+        final_wp = plan_waypoints(self.kin, spec.name, start_pose, q_now)[-1]
+        result.final_state_error = final_state_error(q_now, final_wp)
+        self.log(f"[graph] {spec.name}: {result.note}")
 
-        o = SceneObject()
-        o.class_id, o.x, o.y, o.yaw = pose.class_id, float(pose.x), float(pose.y), float(pose.yaw)
-        return o
+    def _drive(self, task: str, monitor: EpisodeMonitor):
+        """The simulated user takes the stick until the time limit (or success + linger); returns the
+        final waypoint, the arm's and the object's final state, and the episode's duration (sim s)."""
+        obs, cfg = self.obs, self.config
+        t_request = obs.now()
+        res = obs.call(obs.start_cli, StartEpisode.Request(task=task), 10.0, "start_episode")
+        if not res.success:
+            raise GraphError(f"teleoperator refused {task}: {res.message}")
+        started = (TeleopStatus.RUNNING, TeleopStatus.DONE, TeleopStatus.FAILED)
+        obs.wait_for(lambda: obs.teleop_recv > t_request and obs.teleop.task == task
+                     and obs.teleop.state in started, 30.0, "the teleoperator to start", self.alive)
+        if obs.teleop.state == TeleopStatus.FAILED:
+            raise GraphError(f"teleoperator failed to start {task}: {obs.teleop.reason}")
+        monitor.t_start = obs.now() - float(obs.teleop.elapsed)
+
+        def finished() -> bool:
+            if obs.teleop.state in (TeleopStatus.DONE, TeleopStatus.FAILED) and obs.teleop_recv > t_request:
+                return True
+            tts = monitor.tracker.time_to_success
+            return cfg.stop_on_success and tts is not None and obs.now() - monitor.t_start >= tts + cfg.linger
+
+        wall_limit = cfg.settings.time_limit / max(cfg.real_time_factor, 0.05) * 4 + 60
+        obs.wait_for(finished, wall_limit, f"the end of the {task} episode", self.alive)
+        if obs.teleop.state == TeleopStatus.RUNNING:  # stopped early on success
+            obs.call(obs.stop_cli, Trigger.Request(), 10.0, "stop")
+        final_wp = np.asarray(obs.teleop.final_waypoint, float)
+        t_end = obs.now()
+        # let the arm come to rest and the last scene state arrive
+        obs.wait_for(lambda: obs.objects_stamp > t_end and obs.q_stamp > t_end, 10.0, "final state",
+                     self.alive)
+        with obs.cond:
+            q_final = obs.q.copy()
+            end_pose = obs.objects.get(monitor.spec.object_class)
+        return final_wp, q_final, end_pose, t_end - monitor.t_start
+
+    @staticmethod
+    def _score(result: EpisodeResult, spec: TaskSpec, m: EpisodeMonitor, start_pose: ObjectPose,
+               final_wp: np.ndarray, q_final: np.ndarray, end_pose: ObjectPose | None,
+               duration: float) -> None:
+        """The episode's metrics from its final state and what the monitor saw."""
+        if final_wp.shape == (7,):
+            result.final_state_error = final_state_error(q_final, final_wp)
+        if end_pose is not None:
+            path_xy = np.asarray(m.path)[:, :2] if m.path else np.zeros((0, 2))
+            ok, disp, ang = judge_task(spec, start_pose, end_pose, path_xy)
+            result.success, result.displacement_m, result.angle_err_deg = ok, disp, ang
+            result.object_end = end_pose.to_dict()
+            if ok and m.tracker.time_to_success is None:
+                m.tracker.time_to_success = duration
+        result.time_to_success = m.tracker.time_to_success if result.success else None
+        result.duration_s = round(duration, 3)
+        result.safety_interventions = m.tally.interventions
+        result.limit_violations = m.limits.violations
+        result.extra.update({"max_speed_ratio": round(m.limits.max_speed_ratio, 3),
+                             "estop": m.tally.estop_seen, "commands_rejected": m.tally.rejected,
+                             "position_violations": m.limits.position_violations,
+                             "velocity_violations": m.limits.velocity_violations,
+                             "interventions_by_code": dict(m.tally.by_code)})
+        result.ee_path = np.asarray(m.path) if m.path else None
 
 
 def evaluate_graph(config: GraphConfig, tasks: Sequence[str], seeds: Sequence[int], label: str = "",

@@ -244,6 +244,9 @@ class SimTeleoperatorNode(Node):
 
     def _try_start(self) -> None:
         now = self.get_clock().now()
+        if self.request_time is None or self.request_time.nanoseconds == 0:
+            # requested before the first /clock (use_sim_time): the wait starts with simulated time
+            self.request_time = now
         spec = parse_task(self.task)
         missing = self._missing_inputs(spec)
         if missing:

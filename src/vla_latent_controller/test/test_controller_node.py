@@ -12,13 +12,13 @@ import rclpy
 import yaml
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from sensor_msgs.msg import JointState, Joy
+from sensor_msgs.msg import Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from vla_common.ros.node_main import ConfigError, StartupError
 from vla_common.ros.testing import RosHarness
 from vla_latent_controller.controller_node import PARAMETERS, ControllerNode
-from vla_latent_controller.testing import READY, write_random_model
+from vla_latent_controller.testing import CLASSES, READY, make_demos, make_pairs, write_random_model
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
 from vla_interfaces.srv import SetMode
@@ -292,8 +292,6 @@ def test_process_publishes_zero_on_shutdown(random_model_dir):
 
 @pytest.mark.slow
 def test_image_encoder_latches_a_camera_frame(tmp_path):
-    from sensor_msgs.msg import Image
-    from vla_latent_controller.testing import CLASSES, make_demos, make_pairs
     pytest.importorskip("vla_latent_training", reason="the image-encoder model is trained here (torch)")
     from vla_latent_training.train import TrainConfig, train_model
 

@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from vla_common.kinematics import PandaKinematics
+from vla_common.robot import READY_POSE
 from vla_latent_controller.ee_baseline import EE_AXES, EndEffectorBaseline, damped_pinv
 
 
@@ -15,16 +17,12 @@ def _rotvec(R: np.ndarray) -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def kin():
-    from vla_common.kinematics import PandaKinematics
-
     return PandaKinematics()
 
 
 @pytest.mark.parametrize("axis", EE_AXES)
 @pytest.mark.parametrize("u", [0.6, -0.6])
 def test_tcp_moves_along_the_selected_axis(kin, axis, u):
-    from vla_common.robot import READY_POSE
-
     ee = EndEffectorBaseline(kin, linear_speed=0.2, angular_speed=0.5)
     ee.select(axis)
     q = np.array(READY_POSE, float)

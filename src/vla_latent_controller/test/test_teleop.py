@@ -8,8 +8,10 @@ from vla_latent_controller.artifacts import load_model, save_model
 from vla_latent_controller.context import Det
 from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
-from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
-from vla_latent_controller.testing import READY
+from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams, stick_to_unit
+from vla_latent_controller.testing import READY, write_random_model
+
+from vla_interfaces.msg import ControllerStatus
 
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 SIZE = (640, 480)
@@ -187,8 +189,6 @@ def test_fixed_goal_class(random_model_dir):
 
 
 def test_classes_unknown_to_the_model(tmp_path):
-    from vla_latent_controller.testing import write_random_model
-
     d = write_random_model(tmp_path / "m", classes=("apple", "pear"))
     core = make_core(d)
     feed(core, 0.0, dets=[Det("bread", 0.9, 1, 1)])
@@ -248,8 +248,6 @@ def test_end_effector_mode_follows_selected_axis():
 
 
 def test_status_codes_match_message_constants():
-    from vla_interfaces.msg import ControllerStatus
-
     for c in Code:
         assert getattr(ControllerStatus, c.name) == c.value
 
@@ -263,8 +261,6 @@ def test_mode_switch_rejects_unknown():
 
 
 def test_stick_to_unit_vectorised_matches_scalar():
-    from vla_latent_controller.teleop import stick_to_unit
-
     s = np.array([-2.0, -1.0, -0.5, -0.1, 0.0, 0.05, 0.1, 0.55, 1.0, 3.0])
     u = stick_to_unit(s, 0.1, 1.0)
     np.testing.assert_allclose(u, [-1, -1, -0.4 / 0.9, 0, 0, 0, 0, 0.5, 1, 1])

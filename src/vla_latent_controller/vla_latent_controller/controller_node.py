@@ -318,7 +318,7 @@ class ControllerNode(Node):
     def on_shutdown(self, ack_timeout: float = 1.0) -> bool:
         """Publish the zero command and wait (bounded) until the reliable subscribers have it: the
         process exits right after, and a sample still in the writer's queue would die with it."""
-        self._msg.data = [0.0] * len(self.core.joint_names)
+        self._msg.data = [0.0] * len(self.core.command_joints or self.core.joint_names)
         self.cmd_pub.publish(self._msg)
         return self.cmd_pub.wait_for_all_acked(Duration(seconds=ack_timeout))
 

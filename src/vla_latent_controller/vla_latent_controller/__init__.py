@@ -1,2 +1,2 @@
-"""Maps a 1-D joystick through the learned conditional-autoencoder decoder to Panda joint
-velocities; end-effector baseline; simulated teleoperator."""
+"""Maps a 1-D joystick through the learned conditional-autoencoder decoder to Franka joint velocities;
+the end-effector baseline."""

@@ -68,13 +68,12 @@ class Client:
             self.img.publish(Image(height=2, width=2, encoding="rgb8", step=6, data=bytes([i % 256]) * 12))
 
 
-def make_recorder(ros, out, track_joint_state_stamps=False, **params):
+def make_recorder(ros, out, **params):
     overrides = [Parameter("output_dir", value=str(out)), Parameter("topic_poll_period_s", value=0.1),
                  Parameter("fsync", value=False), Parameter("flush_period_s", value=0.2),
                  Parameter("status_period_s", value=0.1)]
     overrides += [Parameter(k, value=v) for k, v in params.items()]
-    return ros.add(RecorderNode(track_joint_state_stamps=track_joint_state_stamps, context=ros.context,
-                                parameter_overrides=overrides))
+    return ros.add(RecorderNode(context=ros.context, parameter_overrides=overrides))
 
 
 def rosbags_counts(path):
@@ -140,19 +139,7 @@ def test_start_stop_discard_round_trip(ros, tmp_path):
         positions = [reader.deserialize(raw, conn.msgtype).position[0]
                      for conn, _t, raw in reader.messages() if conn.topic == "/joint_states"]
     assert positions == [float(i) for i in range(200)]  # nothing lost, in order
-    assert rec.latest_stamp_ns == {}  # stamps are tracked only on request (the generator's)
     assert rosbags_counts(res2.bag_path) == {"/joint_states": 30}
-
-
-def test_newest_recorded_joint_state_stamp_is_tracked_on_request(ros, tmp_path):
-    rec = make_recorder(ros, tmp_path, track_joint_state_stamps=True)
-    c = Client(ros)
-    c.wait_subscribed(c.js)
-    c.publish_joints(5)  # not recording: not tracked
-    assert c.start().success
-    c.publish_joints(30, start=10)
-    assert ros.spin_until(lambda: rec.latest_stamp_ns.get("/joint_states") == 39 * 1_000_000_000, 10)
-    assert c.stop().success
 
 
 def test_image_every_n_and_joystick_buttons(ros, tmp_path):

@@ -22,8 +22,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
-from rclpy.serialization import deserialize_message
-from sensor_msgs.msg import JointState, Joy
+from sensor_msgs.msg import Joy
 from std_srvs.srv import Trigger
 from vla_common.catalogue import CatalogueError, load_catalogue
 from vla_common.ros.node_main import ConfigError, run_node
@@ -36,7 +35,6 @@ from vla_interfaces.srv import StartEpisode
 
 DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy"]
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
-JOINT_STATE_TYPE = "sensor_msgs/msg/JointState"
 
 
 # dynamic: applied at once, or (BETWEEN_EPISODES) when idle; the others are read-only (restart)
@@ -88,11 +86,8 @@ def _policy_name(policy) -> str:
 class RecorderNode(Node):
     """Records the configured topics into one rosbag2 MCAP bag per episode."""
 
-    def __init__(self, track_joint_state_stamps: bool = False, **kwargs) -> None:
-        """`track_joint_state_stamps`: keep `latest_stamp_ns` (deserialises every recorded joint state,
-        ~20 us each); the generator needs it to know when the recording has caught up."""
+    def __init__(self, **kwargs) -> None:
         super().__init__("recorder", **kwargs)
-        self._track_stamps = bool(track_joint_state_stamps)
         p = PARAMETERS.declare(self, self._on_parameter)
         try:
             catalogue = load_catalogue(p["catalogue"])
@@ -118,9 +113,6 @@ class RecorderNode(Node):
                                  catalogue=catalogue, log=self._log)
         self._subs: dict[str, tuple[str, list, object]] = {}  # topic -> (type, offered qos, sub)
         self._image_counts: dict[str, int] = {}
-        # header stamp (ns) of the newest joint state recorded per topic: how far the recording has got
-        # (only with track_joint_state_stamps)
-        self.latest_stamp_ns: dict[str, int] = {}
         self._warned: set[str] = set()
         self._prev_buttons: list[int] = []
         self._last_press: dict[str, float] = {}
@@ -241,7 +233,6 @@ class RecorderNode(Node):
 
     def _make_callback(self, topic: str, msgtype: str):
         is_image = msgtype in IMAGE_TYPES
-        is_joint_state = self._track_stamps and msgtype == JOINT_STATE_TYPE
         clock = self.get_clock()
 
         def callback(data: bytes) -> None:
@@ -252,10 +243,7 @@ class RecorderNode(Node):
                 self._image_counts[topic] = n + 1
                 if n % self.image_every_n:
                     return
-            if self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data) \
-                    and is_joint_state:
-                stamp = deserialize_message(data, JointState).header.stamp
-                self.latest_stamp_ns[topic] = stamp.sec * 1_000_000_000 + stamp.nanosec
+            self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data)
         return callback
 
     # -- episodes ------------------------------------------------------------------------------

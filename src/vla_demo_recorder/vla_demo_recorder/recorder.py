@@ -79,7 +79,8 @@ def validate_task(task: str, catalogue: Catalogue | None = None) -> str:
     files that define them. The one check of every episode's task."""
     text = task.strip().replace(":", "/")
     if not _TASK_RE.fullmatch(text):  # it names the episode's folder
-        raise RecorderError(f"task {task!r} must look like '<object>/<action>', e.g. 'bread/push_east'")
+        raise RecorderError(f"task {task!r} must look like '<object>/<action>', e.g. 'bread/push_east', "
+                            "in letters, digits and _ (it names the episode's folder)")
     try:
         return parse_task(text, catalogue).name
     except ValueError as err:  # CatalogueError

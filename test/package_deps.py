@@ -26,6 +26,8 @@ MODULE_KEYS = {
     "mcap": "python3-mcap-pip",
     "mcap_ros2": "python3-mcap-ros2-support-pip",
     "rosbags": "python3-rosbags-pip",
+    "pylibfranka": "python3-pylibfranka-pip",
+    "panda_py": "python3-panda-python-pip",
 }
 # ROS packages are their own keys (rclpy, sensor_msgs, vla_common, ...).
 IGNORED = set(sys.stdlib_module_names) | {"__future__"}

@@ -218,6 +218,9 @@ def rig():
     r.close()
 
 
+ZERO = [0.0] * 7
+
+
 def velocity(j: int, v: float) -> list[float]:
     out = [0.0] * 7
     out[j] = v
@@ -246,7 +249,7 @@ def test_connects_and_publishes_idle_states(rig):
 
 
 def test_a_command_starts_a_continuous_motion_that_ends_at_rest(rig):
-    rig.run(3)
+    rig.run(3, command=ZERO)
     rig.run(400, command=velocity(3, 0.3))                 # the node writes every period
     d = rig.driver
     assert d.events == ["start_velocity"]
@@ -265,7 +268,7 @@ def test_a_command_starts_a_continuous_motion_that_ends_at_rest(rig):
 
 
 def test_the_loop_watchdog_brakes_when_commands_stop(rig):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(300, command=velocity(0, 0.2))
     n = len(rig.driver.velocities)
     timeout = rig.loop.filter.config.command_timeout
@@ -280,7 +283,7 @@ def test_the_loop_watchdog_brakes_when_commands_stop(rig):
 @pytest.mark.parametrize("bad, code", [([math.nan, 0, 0, 0, 0, 0, 0], NON_FINITE_COMMAND),
                                        ([0.1] * 6, WRONG_LENGTH)])
 def test_malformed_commands_are_treated_as_zero(rig, bad, code):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(200, command=velocity(1, 0.2))
     rig.command(bad)
     rig.run(1)
@@ -291,7 +294,7 @@ def test_malformed_commands_are_treated_as_zero(rig, bad, code):
 
 
 def test_a_reflex_stops_the_arm_and_recover_resumes(rig):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(100, command=velocity(3, 0.2))
     rig.driver.fail_next = RobotError(REFLEX, REFLEX_TEXT)
     rig.run(1, command=velocity(3, 0.2))
@@ -308,12 +311,15 @@ def test_a_reflex_stops_the_arm_and_recover_resumes(rig):
     assert rig.driver.events[-1] == "recover"
     assert s.status == lf.LOOP_OK and s.recover_ack == 1 and s.recover_ok == 1
     rig.run(50, command=velocity(3, 0.2))
+    assert rig.driver.events[-1] == "recover"              # a held stick does not restart it ...
+    rig.run(1, command=ZERO)
+    rig.run(50, command=velocity(3, 0.2))
     assert rig.driver.events[-1] == "start_velocity"       # the same connection drives again
     assert len(rig.drivers) == 1
 
 
 def test_a_lost_connection_is_retried_with_backoff_and_states_stop(rig):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(100, command=velocity(3, 0.2))
     rig.robot.reachable = False
     rig.run(1, command=velocity(3, 0.2))
@@ -335,6 +341,7 @@ def test_a_lost_connection_is_retried_with_backoff_and_states_stop(rig):
     rig.run_until(lambda: rig.state().status == lf.LOOP_OK)
     s = rig.state()
     assert s.connects == 2 and s.cycle > cycle and len(rig.drivers) == 2
+    rig.run(1, command=ZERO)
     rig.run(20, command=velocity(3, 0.1))
     assert rig.driver.events == ["start_velocity"]         # the new connection starts from rest
     assert rig.driver.velocities[0][0] == [0.0] * 7
@@ -357,7 +364,7 @@ def test_teaching_brakes_switches_to_torque_and_back_holding_the_pose(rig):
     settings = LoopSettings(robot={"robot_ip": "192.0.2.1", "teaching_damping": [2.0] * 7})
     r = Rig(settings)
     try:
-        r.run(2)
+        r.run(2, command=ZERO)
         r.run(200, command=velocity(0, 0.3))
         r.request("teaching", 1)
         r.run_until(lambda: r.state().mode == lf.MODE_TORQUE, command=velocity(0, 0.3))
@@ -376,6 +383,9 @@ def test_teaching_brakes_switches_to_torque_and_back_holding_the_pose(rig):
         assert d.torques[-1] == ([0.0] * 7, True)
         s = r.state()
         assert s.mode == lf.MODE_IDLE and s.teaching_ack == 2
+        r.run(50, command=velocity(0, 0.3))                # still held from before: no motion
+        assert d.events[-1] == "finish_torque"
+        r.run(1, command=ZERO)
         r.run(50, command=velocity(0, 0.2))                # velocity control again, from rest
         assert d.events[-1] == "start_velocity" and d.velocities[-50][0] == [0.0] * 7
     finally:
@@ -383,7 +393,7 @@ def test_teaching_brakes_switches_to_torque_and_back_holding_the_pose(rig):
 
 
 def test_teaching_is_refused_during_a_reflex(rig):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(20, command=velocity(0, 0.2))
     rig.driver.fail_next = RobotError(REFLEX, REFLEX_TEXT)
     rig.run(1)
@@ -394,7 +404,7 @@ def test_teaching_is_refused_during_a_reflex(rig):
 
 
 def test_estop_brakes_and_holds_until_released(rig):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(200, command=velocity(4, 0.4))
     rig.request("estop", 1)
     rig.run_until(lambda: rig.state().mode == lf.MODE_IDLE, command=velocity(4, 0.4))
@@ -403,12 +413,15 @@ def test_estop_brakes_and_holds_until_released(rig):
     assert rig.driver.events == ["start_velocity", "finish_velocity"]
     rig.request("estop", 0)
     rig.run(20, command=velocity(4, 0.4))
+    assert rig.driver.events[-1] == "finish_velocity"      # released: a zero command first
+    rig.run(1, command=ZERO)
+    rig.run(20, command=velocity(4, 0.4))
     assert rig.driver.events[-1] == "start_velocity"
     assert_continuous(rig.loop, [v for v, _ in rig.driver.velocities[:-20]])
 
 
 def test_shutdown_brakes_ends_the_motion_and_stops(rig):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(300, command=velocity(5, 1.0))
     rig.request("shutdown", 1)
     for _ in range(2000):
@@ -430,7 +443,7 @@ def test_the_loop_stops_when_its_parent_is_gone():
 
 
 def test_a_gap_in_the_robot_cycles_steps_the_filter_for_each(rig):
-    rig.run(2)
+    rig.run(2, command=ZERO)
     rig.run(5, command=velocity(3, 0.5))
     d = rig.driver
     orig = d.read_cycle
@@ -441,3 +454,15 @@ def test_a_gap_in_the_robot_cycles_steps_the_filter_for_each(rig):
     d.read_cycle = late
     rig.run(1, command=velocity(3, 0.5))
     assert rig.state().missed == 3
+
+
+def test_a_command_slot_caught_mid_write_keeps_the_previous_command(rig):
+    """The ROS side can be preempted inside a write for milliseconds: the loop must not wait or fail."""
+    rig.run(2, command=ZERO)
+    rig.run(100, command=velocity(3, 0.2))
+    rig.slots._cmd_seq[0] += 1.0                           # odd: a write in progress
+    rig.run(50)                                            # the loop goes on with what it had
+    assert rig.driver.velocities[-1][0][3] == pytest.approx(0.2)
+    rig.slots._cmd_seq[0] += 1.0
+    rig.run(5, command=velocity(3, 0.2))
+    assert rig.state().mode == lf.MODE_VELOCITY

@@ -186,6 +186,7 @@ def test_the_loop_drives_a_panda_through_panda_py(rig):
         loop = ControlLoop(slots, LoopSettings(driver="panda_py", robot={"robot_ip": "192.0.2.5"}),
                            opener=opener, clock=clock, sleep=clock.sleep)
         for _ in range(3):
+            slots.write_command([0.0] * 7, clock.t)           # the node's filter at rest: zeros
             loop.step()
         for _ in range(300):
             slots.write_command([0.0, 0.0, 0.0, 0.2, 0.0, 0.0, 0.0], clock.t)

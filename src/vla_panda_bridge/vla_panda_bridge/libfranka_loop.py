@@ -71,6 +71,7 @@ MODE_IDLE = 0
 MODE_VELOCITY = 1
 MODE_TORQUE = 2     # teaching
 
+ZERO_COMMAND = 1e-6  # rad/s: every |value| at or below this is a zero command
 MAX_SUBSTEPS = 50   # filter steps caught up after a gap in the robot's cycles
 # Zero commands that open every motion before the filter's first step: the robot (franka-sim's
 # checker too) judges the jerk of a velocity stream from its own history, which a motion starts
@@ -135,11 +136,13 @@ class ControlLoop:
         self._filter_text = ""
         self._next_attempt = clock()
         self._backoff = settings.reconnect_min
+        self._cmd_seq = -1.0
         self._cmd_seq = self._seq_in_slot()
         self._cmd_t = -math.inf          # robot time of the latest command taken
         self._cmd_arrived = math.nan
         self._latency_pending = False
         self._want = False               # the latest valid command is non-zero
+        self._await_zero = False         # motion needs a zero command first (after a hold)
         self._rest_since: float | None = None
         self._estop = False
         self._t = 0.0                    # robot time of the latest state
@@ -226,8 +229,7 @@ class ControlLoop:
         self._answer_recover(True)
         self._on_state(state, None)
         self.filter.reset(state.q)
-        self._cmd_seq = self._seq_in_slot()          # a command from before the connection is stale
-        self._want = False
+        self._forget_commands()                      # a command from before the connection is stale
         self._publish(state, math.nan)
 
     def _connect_failed(self, exc: RobotError) -> None:
@@ -246,7 +248,7 @@ class ControlLoop:
         self.errors += 1
         self.filter.reset()
         self._dq = [0.0] * NUM_JOINTS
-        self._want = False
+        self._forget_commands()
         self._rest_since = None
         if exc.kind == REFLEX:
             self.mode = MODE_IDLE
@@ -292,8 +294,7 @@ class ControlLoop:
             return
         self._on_state(state, None)
         self.filter.reset(state.q)
-        self._cmd_seq = self._seq_in_slot()
-        self._want = False
+        self._forget_commands()
         self._set_status(LOOP_OK, "error recovery done: ready")
         self._answer_recover(True)
         self._publish(state, math.nan)
@@ -321,22 +322,35 @@ class ControlLoop:
         if estop != self._estop:
             self._estop = estop
             self.filter.set_estop(estop)
-            self._want = False
+            self._forget_commands()
 
     # ------------------------------------------------------------------------------------ commands
+    def _forget_commands(self) -> None:
+        """After a connection, a recovery, teaching or an e-stop change: the commands so far are stale,
+        and a new motion needs a zero command first (a stick held through it does not start the arm)."""
+        self._cmd_seq = self._seq_in_slot()
+        self._want = False
+        self._await_zero = True
+
     def _seq_in_slot(self) -> float:
-        return float(self.slots.read_command()[CMD_SEQ])
+        c = self.slots.read_command()
+        return self._cmd_seq if c is None else float(c[CMD_SEQ])
 
     def _take_command(self, apply: bool) -> None:
         """The latest command, if new, into the filter (timed in robot time, like the watchdog)."""
         c = self.slots.read_command()
-        if c[CMD_SEQ] == self._cmd_seq:
-            return
+        if c is None or c[CMD_SEQ] == self._cmd_seq:
+            return                                   # nothing new, or the writer is mid-write
         self._cmd_seq = c[CMD_SEQ]
         if not apply:
             return
         n = int(c[CMD_N])
         values = c[CMD_VALUES:] if n == NUM_JOINTS else [0.0] * max(n, 0)
+        if self._await_zero:
+            if n != NUM_JOINTS or not bool(np.all(np.abs(values) <= ZERO_COMMAND)):
+                self._want = False
+                return                               # not moving until the node sends zero
+            self._await_zero = False
         code, _ = self.filter.submit(values, self._t)
         self._cmd_t = self._t
         self._cmd_arrived = c[CMD_ARRIVED]
@@ -439,6 +453,7 @@ class ControlLoop:
             if teaching is not None:
                 self._ack_teaching()
             self.filter.reset(state.q)               # the hand moved it: start from where it is
+            self._forget_commands()
             self._set_status(LOOP_OK, "teaching ended: holding the pose")
         self._publish(state, math.nan, t0)
 

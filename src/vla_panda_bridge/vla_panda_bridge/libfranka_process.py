@@ -47,6 +47,7 @@ class LibfrankaSample(JointSample):
 
     ee_matrix: np.ndarray | None = None
     cycle: int = 0
+    robot_time: float = 0.0      # the robot's own clock (s)
 
 
 @dataclass
@@ -99,6 +100,7 @@ class LoopProcess:
         self._seq = -1.0
         self._seq_seen_at = time.monotonic()
         self._state: StateView | None = None
+        self._texts: dict[str, str] = {}
         self._closed = False
         self.commands_sent = 0
 
@@ -177,7 +179,7 @@ class LoopProcess:
         s = self._read()
         if s is None or s.recover_ack < token:
             return None
-        return bool(s.recover_ok), self.slots.read_text("status")
+        return bool(s.recover_ok), self._text("status")
 
     def request_teaching(self, active: bool) -> int:
         c = self.slots.control
@@ -194,10 +196,9 @@ class LoopProcess:
 
     # ----------------------------------------------------------------------------------- state
     def _read(self) -> StateView | None:
-        try:
-            s = self.slots.read_state()
-        except TimeoutError:
-            return self._state
+        s = self.slots.read_state()
+        if s is None:
+            return self._state                           # the loop is inside a write: the previous one
         if s.pid == 0:
             return None                                  # no loop process has written yet
         self._state = s
@@ -229,8 +230,15 @@ class LoopProcess:
         return LibfrankaSample(
             position=r[STATE["q"]].copy(), velocity=r[STATE["dq"]].copy(), effort=r[STATE["tau_J"]].copy(),
             stamp_ns=int(r[STATE["stamp"]] * 1e9), ee_matrix=r[STATE["O_T_EE"]].reshape(4, 4).T.copy(),
-            cycle=int(r[STATE["cycle"]]),
+            cycle=int(r[STATE["cycle"]]), robot_time=float(r[STATE["robot_time"]]),
         )
+
+    def _text(self, which: str) -> str:
+        text = self.slots.read_text(which)
+        if text is None:
+            return self._texts.get(which, "")            # the loop is inside a write: the previous one
+        self._texts[which] = text
+        return text
 
     def status(self) -> LibfrankaStatus:
         s = self._read()
@@ -241,8 +249,8 @@ class LoopProcess:
                                    self.process_note)
         code = int(s.status)
         return LibfrankaStatus(
-            code=code, name=LOOP_NAMES.get(code, str(code)), text=self.slots.read_text("status"),
-            filter_code=int(s.filter_code), filter_text=self.slots.read_text("filter"),
+            code=code, name=LOOP_NAMES.get(code, str(code)), text=self._text("status"),
+            filter_code=int(s.filter_code), filter_text=self._text("filter"),
             robot_mode=int(s.robot_mode) if s.cycle > 0 else -1, success_rate=s.success_rate,
             silent_for=silent, teaching=int(s.mode) == MODE_TORQUE, estop_active=bool(s.estop_active),
             interventions=int(s.interventions), last_intervention=int(s.last_intervention),

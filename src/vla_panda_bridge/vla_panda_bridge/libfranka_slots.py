@@ -19,7 +19,6 @@ from __future__ import annotations
 import mmap
 import os
 import tempfile
-import time
 from dataclasses import dataclass
 
 import numpy as np
@@ -180,9 +179,11 @@ class Slots:
         seq[0] += 1.0
         return int(c[CMD_SEQ])
 
-    def read_command(self) -> np.ndarray:
-        """Loop side: a consistent copy (a scratch array reused on every call: copy before keeping)."""
-        return _read_seqlock(self._cmd_seq, self.cmd, self._cmd_scratch)
+    def read_command(self) -> np.ndarray | None:
+        """Loop side: a consistent copy (a scratch array reused on every call: copy before keeping), or
+        None while the ROS side is inside a write (it may be preempted there for milliseconds: the
+        loop takes the command next cycle instead of waiting)."""
+        return _read_seqlock(self._cmd_seq, self.cmd, self._cmd_scratch, tries=20)
 
     # -------------------------------------------------------------------------------------- state
     def claim_state_writer(self) -> None:
@@ -205,9 +206,10 @@ class Slots:
         """Changes with every write of the loop (also status-only ones): its liveness."""
         return float(self._state_seq[0])
 
-    def read_state(self) -> StateView:
-        """ROS side: a consistent copy of the latest state."""
-        return StateView(_read_seqlock(self._state_seq, self.state, self._state_scratch).copy())
+    def read_state(self) -> StateView | None:
+        """ROS side: a consistent copy of the latest state, or None while the loop is inside a write."""
+        out = _read_seqlock(self._state_seq, self.state, self._state_scratch, tries=1000)
+        return None if out is None else StateView(out.copy())
 
     # -------------------------------------------------------------------------------------- texts
     def write_text(self, which: str, text: str) -> None:
@@ -219,7 +221,8 @@ class Slots:
         self._text_len[i] = len(data)
         seq[i] += 1.0
 
-    def read_text(self, which: str) -> str:
+    def read_text(self, which: str) -> str | None:
+        """ROS side: the text, or None while the loop is inside a write."""
         i = TEXTS.index(which)
         seq = self._text_seq
         for _ in range(1000):
@@ -229,8 +232,7 @@ class Slots:
                 data = self._text[i * MAX_TEXT:i * MAX_TEXT + n].tobytes()
                 if seq[i] == s1:
                     return data.decode("utf-8", "replace")
-            time.sleep(0)
-        raise TimeoutError("text slot stayed busy: the loop process is stuck inside a write")
+        return None
 
     # -------------------------------------------------------------------------------------- rings
     def ring_push(self, period: float, busy: float, latency: float) -> None:
@@ -254,11 +256,12 @@ class Slots:
         return int(self._ring_idx[0])
 
 
-def _read_seqlock(seq: np.ndarray, block: np.ndarray, out: np.ndarray) -> np.ndarray:
-    for _ in range(100000):
+def _read_seqlock(seq: np.ndarray, block: np.ndarray, out: np.ndarray, tries: int) -> np.ndarray | None:
+    """A consistent copy of `block` into `out`, or None if every try met a write in progress."""
+    for _ in range(tries):
         s1 = seq[0]
         if int(s1) % 2 == 0:
             np.copyto(out, block)
             if seq[0] == s1:
                 return out
-    raise TimeoutError("slot stayed busy: its writer is stuck inside a write")
+    return None

@@ -1,8 +1,9 @@
 """Graph-level integration: the whole system in separate processes pushes a base object to success.
 
-bridge (MuJoCo physics, safety layer, rendered camera, /clock) -> detector_node on the rendered
-images -> controller_node (shipped latent model) <- sim_teleoperator (publishes joy like a person);
-the bridge resets to a fresh layout through ~/reset. The episode must succeed (object displaced
+The graph is the shipped demo.launch.yaml, started through vla_launch by the evaluator: bridge
+(MuJoCo physics, safety layer, rendered camera, /clock) -> detector_node on the rendered images ->
+controller_node (shipped latent model) <- sim_teleoperator (publishes joy like a person); the bridge
+resets to a fresh layout through ~/reset. The episode must succeed (object displaced
 >= 10 cm within 30 deg of the task direction) with no limit violation measured on joint_states,
 no rejected command and no e-stop.
 """

@@ -43,7 +43,7 @@ from vla_common.robot import JOINT_NAMES, READY_POSE
 from vla_common.tasks import parse_task
 from vla_launch.session import LaunchError, LaunchSession
 
-from vla_evaluation.kinematic import TeleopSettings, _plannable_layout, plan_waypoints
+from vla_evaluation.kinematic import TeleopSettings, plannable_layout, plan_waypoints
 from vla_evaluation.metrics import (
     EpisodeResult,
     LimitMonitor,
@@ -471,7 +471,7 @@ class GraphEvaluator:
         """A fresh plannable layout through the bridge's ~/reset, settled and detected; (the layout's
         seed, the goal object's pose, the arm's joint positions)."""
         obs, cfg = self.obs, self.config
-        objects, _goal, _wps, used_seed = _plannable_layout(self.kin, spec.name, spec.object_class, seed,
+        objects, _goal, _wps, used_seed = plannable_layout(self.kin, spec.name, spec.object_class, seed,
                                                             np.asarray(READY_POSE), n_objects)
         req = ResetScene.Request()
         req.use_seed = False

@@ -105,7 +105,7 @@ def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=
     for task in tasks:
         cls = parse_task(task).object_class
         for seed in seeds:
-            objects, goal, wps, used = _plannable_layout(kin, task, cls, int(seed), q_start, n_objects)
+            objects, goal, wps, used = plannable_layout(kin, task, cls, int(seed), q_start, n_objects)
             image, size, dets = None, None, []
             if sim is not None:
                 sim.reset(objects=objects, q0=q_start)
@@ -123,7 +123,7 @@ def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=
     return out
 
 
-def _plannable_layout(kin, task: str, cls: str, seed: int, q_start: np.ndarray, n_objects: int,
+def plannable_layout(kin, task: str, cls: str, seed: int, q_start: np.ndarray, n_objects: int,
                       attempts: int = 50):
     """The seed's layout, or the next derived seed's when the planner cannot plan it (IK limits)."""
     from vla_sim.planner import PlanError

@@ -1,0 +1,36 @@
+"""`vla launch teleop.launch.yaml use_sim_time:=true` stops on Ctrl-C: every node within 2 s of its
+SIGINT, so the launch never escalates to SIGTERM or SIGKILL (`--sigterm-timeout 2`), five times in a
+row. The launch signals the nodes one at a time in reverse start order (vla_launch's launcher)."""
+from __future__ import annotations
+
+import re
+
+import pytest
+from launch_process import LaunchProcess, Observer
+from vla_common.ros.testing import RosHarness
+
+pytestmark = [pytest.mark.slow, pytest.mark.ros]
+
+NODES = {"panda_bridge", "detector_node", "controller_node"}
+
+
+@pytest.mark.timeout(600)
+def test_teleop_launch_stops_on_sigint_without_escalating_five_times(tmp_path):
+    times = []
+    for i in range(5):
+        h = RosHarness()
+        try:
+            with LaunchProcess("--sigterm-timeout", "2", "vla_bringup", "teleop.launch.yaml",
+                               "use_sim_time:=true", log_path=tmp_path / f"launch{i}.log") as run:
+                obs = h.add(Observer(h.context, f"test_observer_{i}"))
+                assert h.spin_until(obs.graph_up, 90.0), run.text()[-3000:]
+                rc = run.stop()
+                out = run.text()
+                assert rc == 0, out[-3000:]
+                assert "SIGTERM" not in out and "SIGKILL" not in out, out[-3000:]
+                stopped = set(re.findall(r"process \[(\w+)-\d+\] stopped \(exit code 0\)", out))
+                assert stopped == NODES, out[-3000:]
+                times.append(round(run.stop_s, 2))
+        finally:
+            h.shutdown()
+    print(f"launch stopped {times} s after SIGINT")

@@ -15,7 +15,8 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
-from vla_camera.camera_node import CameraNode, ConfigError
+from vla_camera.camera_node import CameraNode
+from vla_common.ros.node_main import ConfigError
 
 from vla_interfaces.msg import CameraStatus
 

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field, replace
 from urllib.parse import unquote, urlparse
 
 import yaml
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
 
 # Number of coefficients each known distortion model takes (others are passed through unchecked).
 DISTORTION_SIZES = {"plumb_bob": (5,), "rational_polynomial": (8,), "equidistant": (4,)}
@@ -75,10 +76,6 @@ def url_to_path(url: str) -> str:
     if url.startswith("package://"):
         rest = url[len("package://"):]
         pkg, _, rel = rest.partition("/")
-        try:
-            from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-        except ImportError as exc:  # pragma: no cover - ament_index_python ships with the ROS wheels
-            raise CalibrationError(f"{url}: package:// needs ament_index_python ({exc})") from exc
         try:
             return os.path.join(get_package_share_directory(pkg), rel)
         except PackageNotFoundError as exc:

@@ -7,16 +7,14 @@ reported on ``~/status``; the end of a file either loops, idles (default) or exi
 """
 from __future__ import annotations
 
-import sys
 import time
 
-import rclpy
-from rcl_interfaces.msg import FloatingPointRange, IntegerRange, ParameterDescriptor
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
+from vla_common.ros.node_main import ConfigError, run_node
+from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_camera.camera_info import Calibration, CalibrationError, load_calibration
 from vla_camera.source import (
@@ -40,49 +38,48 @@ _CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
 WARN_PERIOD_S = 5.0
 
 
-class ConfigError(ValueError):
-    """A parameter value the node cannot start with."""
+def _not_empty(value: str) -> str | None:
+    return None if value else "must not be empty"
 
 
-def _desc(text: str, *, int_range=None, float_range=None, read_only=True) -> ParameterDescriptor:
-    d = ParameterDescriptor(description=text, read_only=read_only)
-    if int_range is not None:
-        d.integer_range = [IntegerRange(from_value=int_range[0], to_value=int_range[1], step=1)]
-    if float_range is not None:
-        d.floating_point_range = [FloatingPointRange(from_value=float_range[0], to_value=float_range[1])]
-    return d
+# All read-only: a new source, size or rate means a new capture; restart the node to change them.
+PARAMS = ParameterTable([
+    Param("source", "0", "Device index, /dev/videoN, a video file, an image file, or a folder/glob of "
+          "images"),
+    Param("loop", False, "Restart a video file or image list at its end instead of stopping"),
+    Param("width", 0, "Output width in pixels (0 = native); frames are resized to it", range=(0, 8192)),
+    Param("height", 0, "Output height in pixels (0 = native)", range=(0, 8192)),
+    Param("fps", 30.0, "Publish rate in Hz (timer period); also requested from a device", range=(0.1, 240.0)),
+    Param("pixel_format", "rgb8", "Output encoding", choices=PIXEL_FORMATS),
+    Param("frame_id", "camera_optical_frame", "header.frame_id of images and camera info", check=_not_empty),
+    Param("camera_info_url", "", "Calibration YAML: file:///path, package://pkg/path or a path; "
+          "empty = uncalibrated"),
+    Param("exit_on_end", False, "At the end of a non-looping file/folder: exit 0 (true) or idle"),
+    Param("reconnect_initial_s", 0.25, "First retry delay for a missing device (doubles each time)",
+          range=(0.01, 60.0)),
+    Param("reconnect_max_s", 8.0, "Longest retry delay for a missing device", range=(0.01, 600.0)),
+])
+
+
+def check_parameters(p: dict) -> None:
+    """The rules between parameters (each alone is checked by the table); ConfigError names them."""
+    if (p["width"] == 0) != (p["height"] == 0):
+        raise ConfigError("parameters 'width' and 'height' must both be 0 (native size) or both be set")
+    if p["reconnect_initial_s"] > p["reconnect_max_s"]:
+        raise ConfigError("parameter 'reconnect_initial_s' must not exceed 'reconnect_max_s'")
 
 
 class CameraNode(Node):
     def __init__(self, *, capture_opener=None, **node_kwargs):
         super().__init__("camera_node", **node_kwargs)
-        p = self._declare_parameters()
-        try:
-            spec = parse_source(p["source"])
-        except SourceError as exc:
-            raise ConfigError(f"parameter 'source': {exc}") from exc
-        if p["pixel_format"] not in PIXEL_FORMATS:
-            raise ConfigError(
-                f"parameter 'pixel_format' must be one of {PIXEL_FORMATS}, got {p['pixel_format']!r}"
-            )
-        if (p["width"] == 0) != (p["height"] == 0):
-            raise ConfigError("parameters 'width' and 'height' must both be 0 (native size) or both be set")
-        if not p["frame_id"]:
-            raise ConfigError("parameter 'frame_id' must not be empty")
-        if p["reconnect_initial_s"] > p["reconnect_max_s"]:
-            raise ConfigError("parameter 'reconnect_initial_s' must not exceed 'reconnect_max_s'")
-        self._calibration: Calibration | None = None
-        if p["camera_info_url"]:
-            try:
-                self._calibration = load_calibration(p["camera_info_url"])
-                if p["width"] > 0:
-                    self._calibration.scaled_to(p["width"], p["height"])  # refuse a mismatch now
-            except CalibrationError as exc:
-                raise ConfigError(f"parameter 'camera_info_url': {exc}") from exc
+        p = PARAMS.declare(self)
+        check_parameters(p)
+        self._calibration = self._load_calibration(p)
         self._params = p
         self._frame_id = p["frame_id"]
         self._encoding = p["pixel_format"]
         try:
+            spec = parse_source(p["source"])
             self.source = FrameSource(
                 spec,
                 pixel_format=p["pixel_format"],
@@ -96,7 +93,7 @@ class CameraNode(Node):
         except SourceError as exc:
             raise ConfigError(f"parameter 'source': {exc}") from exc
         self.frames_published = 0
-        self.finished = False  # set when the source ended and exit_on_end is true
+        self.finished = False  # set when the source ended and exit_on_end is true: run_node returns 0
         self._info_cache: dict[tuple[int, int], CameraInfo] = {}
         self._last_state: SourceState | None = None
         self._message = ""
@@ -118,33 +115,18 @@ class CameraNode(Node):
         )
         self._publish_status()
 
-    # -- parameters --------------------------------------------------------------------------------
-    def _declare_parameters(self) -> dict:
-        specs = {
-            "source": ("0", _desc("Device index, /dev/videoN, a video file, or a folder/glob of images")),
-            "loop": (False, _desc("Restart a video file or image list at its end instead of stopping")),
-            "width": (0, _desc("Output width in pixels (0 = native); frames are resized to it",
-                               int_range=(0, 8192))),
-            "height": (0, _desc("Output height in pixels (0 = native)", int_range=(0, 8192))),
-            "fps": (30.0, _desc("Publish rate in Hz (timer period); also requested from a device",
-                                float_range=(0.1, 240.0))),
-            "pixel_format": ("rgb8", _desc("Output encoding: rgb8, bgr8 or mono8")),
-            "frame_id": ("camera_optical_frame", _desc("header.frame_id of images and camera info")),
-            "camera_info_url": ("", _desc("Calibration YAML: file:///path, package://pkg/path or a path; "
-                                          "empty = uncalibrated")),
-            "exit_on_end": (False, _desc("At the end of a non-looping file/folder: exit 0 (true) or idle")),
-            "reconnect_initial_s": (0.25, _desc("First retry delay for a missing device (doubles each time)",
-                                                float_range=(0.01, 60.0))),
-            "reconnect_max_s": (8.0, _desc("Longest retry delay for a missing device",
-                                           float_range=(0.01, 600.0))),
-        }
-        values = {}
-        for name, (default, descriptor) in specs.items():
-            try:
-                values[name] = self.declare_parameter(name, default, descriptor).value
-            except Exception as exc:  # InvalidParameterValueException / type mismatch from overrides
-                raise ConfigError(f"parameter '{name}': {exc}") from exc
-        return values
+    @staticmethod
+    def _load_calibration(p: dict) -> Calibration | None:
+        """The calibration file, refused now if it cannot fit the configured output size."""
+        if not p["camera_info_url"]:
+            return None
+        try:
+            calibration = load_calibration(p["camera_info_url"])
+            if p["width"] > 0:
+                calibration.scaled_to(p["width"], p["height"])
+        except CalibrationError as exc:
+            raise ConfigError(f"parameter 'camera_info_url': {exc}") from exc
+        return calibration
 
     # -- publishing --------------------------------------------------------------------------------
     def _tick(self) -> None:
@@ -268,31 +250,9 @@ class CameraNode(Node):
         return super().destroy_node()
 
 
-def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = CameraNode()
-        executor = SingleThreadedExecutor()
-        executor.add_node(node)
-        while rclpy.ok() and not node.finished:
-            executor.spin_once(timeout_sec=0.5)
-    except ConfigError as exc:
-        print(f"camera_node: {exc}", file=sys.stderr)
-        code = 2
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
-    finally:
-        try:
-            if node is not None:
-                node.destroy_node()
-            if rclpy.ok():
-                rclpy.shutdown()
-        except KeyboardInterrupt:  # a late Ctrl-C during cleanup is still a clean stop
-            pass
-    return code
+def main(args: list[str] | None = None) -> int:
+    return run_node(CameraNode, "camera_node", args)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

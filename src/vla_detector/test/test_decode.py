@@ -72,7 +72,7 @@ def check_objects(dets):
     for d, (cx, cy, w, h, c, s) in zip(dets[:2], OBJECTS):
         assert d.class_index == c
         assert d.score == pytest.approx(s, abs=1e-5)
-        assert (d.cx, d.cy, d.w, d.h) == pytest.approx((cx, cy, w, h), abs=1e-4)
+        assert (d.cx, d.cy, d.width, d.height) == pytest.approx((cx, cy, w, h), abs=1e-4)
 
 
 @pytest.mark.parametrize("layout,output", [("yolov8", yolov8_output()), ("yolov5", yolov5_output())])
@@ -96,7 +96,7 @@ def test_letterboxed_image_maps_boxes_back(tmp_path):
     # 128x96 image -> scale 0.5 -> 64x48, padded by 8 rows at the top and bottom.
     dets = det.detect(np.zeros((96, 128, 3), np.uint8))
     d = dets[0]
-    assert (d.cx, d.cy, d.w, d.h) == pytest.approx((40.0, (20.0 - 8) * 2, 20.0, 24.0), abs=1e-4)
+    assert (d.cx, d.cy, d.width, d.height) == pytest.approx((40.0, (20.0 - 8) * 2, 20.0, 24.0), abs=1e-4)
     assert det.classes == ["class0", "class1", "class2"]  # no names anywhere: generic ones
 
 

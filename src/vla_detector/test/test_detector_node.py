@@ -2,18 +2,17 @@
 
 import os
 import subprocess
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
+from vla_common.ros.qos import SENSOR_QOS
+from vla_common.ros.testing import RosHarness
 from vla_detector.detector_node import DetectorNode
 
 from vla_interfaces.msg import DetectionArray
@@ -26,7 +25,7 @@ EXE = ROOT / "install" / "vla_detector" / "lib" / "vla_detector" / "detector_nod
 @pytest.fixture(scope="module")
 def scene():
     """A rendered scene with one soda can and one cereal box, at 320x240 and 640x480."""
-    from vla_sim.sim import PandaSim
+    from vla_sim.sim import PandaSim  # MuJoCo: heavy, only for this fixture
 
     sim = PandaSim(320, 240)
     sim.reset(objects=[("soda_can", 0.45, 0.10, 0.0), ("cereal_box", 0.60, -0.15, 0.4)])
@@ -58,32 +57,21 @@ def image_msg(rgb, encoding="rgb8", frame="camera_optical_frame", stamp=(12, 345
     return m
 
 
-class Harness:
+class Harness(RosHarness):
+    """The node and a peer that publishes images and records detections and overlays."""
+
     def __init__(self, **params):
-        self.ctx = Context()
-        rclpy.init(context=self.ctx)
-        self.ex = SingleThreadedExecutor(context=self.ctx)
-        self.node = DetectorNode(
-            context=self.ctx, parameter_overrides=[Parameter(k, value=v) for k, v in params.items()]
-        )
-        self.peer = rclpy.create_node("detector_test_peer", context=self.ctx)
+        super().__init__()
+        overrides = [Parameter(k, value=v) for k, v in params.items()]
+        self.node = self.add(DetectorNode(context=self.context, parameter_overrides=overrides))
+        self.peer = self.add(rclpy.create_node("detector_test_peer", context=self.context))
         self.dets, self.overlays = [], []
         self.peer.create_subscription(DetectionArray, "detections", self.dets.append, 10)
-        self.peer.create_subscription(
-            Image, "detections/image", self.overlays.append, qos_profile_sensor_data
-        )
-        self.pub = self.peer.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
-        self.ex.add_node(self.node)
-        self.ex.add_node(self.peer)
+        self.peer.create_subscription(Image, "detections/image", self.overlays.append, SENSOR_QOS)
+        self.pub = self.peer.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
         assert self.spin_until(
             lambda: self.pub.get_subscription_count() >= 1 and self.node.pub.get_subscription_count() >= 1
         )
-
-    def spin_until(self, pred, timeout=10.0):
-        end = time.monotonic() + timeout
-        while not pred() and time.monotonic() < end:
-            self.ex.spin_once(timeout_sec=0.02)
-        return pred()
 
     def send(self, msg, expect=True, timeout=10.0):
         n = len(self.dets)
@@ -96,24 +84,15 @@ class Harness:
         return None
 
     def set_enable(self, value):
-        cli = self.peer.create_client(SetBool, "detector_node/enable")
-        assert cli.wait_for_service(timeout_sec=5.0)
-        fut = cli.call_async(SetBool.Request(data=value))
-        assert self.spin_until(fut.done)
-        return fut.result()
-
-    def close(self):
-        self.node.destroy_node()
-        self.peer.destroy_node()
-        self.ex.shutdown()
-        rclpy.shutdown(context=self.ctx)
+        client = self.peer.create_client(SetBool, "detector_node/enable")
+        return self.call(client, SetBool.Request(data=value))
 
 
 @pytest.fixture
 def harness(request):
     h = Harness(**getattr(request, "param", {}))
     yield h
-    h.close()
+    h.shutdown()
 
 
 def classes_of(out):
@@ -191,15 +170,43 @@ def run_exe(*ros_args, timeout=60):
 @pytest.mark.parametrize(
     "content,message", [(None, "not found"), (b"garbage" * 20, "not a valid ONNX model")]
 )
-def test_missing_or_corrupt_model_exits_nonzero(tmp_path, content, message):
+def test_missing_or_corrupt_model_exits_1(tmp_path, content, message):
     path = tmp_path / "model.onnx"
     if content is not None:
         path.write_bytes(content)
     r = run_exe("-p", f"model_path:={path}")
-    assert r.returncode != 0
+    assert r.returncode == 1, r.stderr
     assert message in r.stderr and str(path) in r.stderr
 
 
-def test_unknown_class_filter_exits_nonzero():
+def test_refused_parameters_exit_2():
     r = run_exe("-p", "classes:=[unicorn]")
-    assert r.returncode != 0 and "unknown class names" in r.stderr
+    assert r.returncode == 2 and "parameter 'classes'" in r.stderr and "unknown class names" in r.stderr
+    r = run_exe("-p", "score_threshold:=1.5")
+    assert r.returncode == 2 and "score_threshold" in r.stderr
+
+
+def test_parameters_applied_or_refused_at_run_time(harness, scene):
+    node = harness.node
+    assert node.set_parameters([Parameter("max_detections", value=1)])[0].successful
+    assert node.detector.max_detections == 1
+    assert len(harness.send(image_msg(scene[0])).detections) == 1
+    for name, value in (("num_threads", 4), ("model_path", "/tmp/other.onnx"), ("publish_overlay", True)):
+        res = node.set_parameters([Parameter(name, value=value)])[0]
+        assert not res.successful, name  # read-only: refused, not silently ignored
+    assert node.get_parameter("num_threads").value == 2
+    res = node.set_parameters([Parameter("iou_threshold", value=float("nan"))])[0]
+    assert not res.successful and node.detector.iou_threshold == 0.25
+
+
+def test_bringup_parameter_file_loads():
+    params = ROOT / "src/vla_bringup/config/detector.yaml"
+    ctx = Context()
+    rclpy.init(context=ctx, args=["--ros-args", "--params-file", str(params)])
+    try:
+        node = DetectorNode(context=ctx)
+        assert node.get_parameter("score_threshold").value == 0.3
+        assert node.detector.class_filter is None  # classes: [""] = every class
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=ctx)

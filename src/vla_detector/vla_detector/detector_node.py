@@ -6,158 +6,97 @@ parameters and services.
 
 from __future__ import annotations
 
-import sys
 import time
+from types import SimpleNamespace
 
-import rclpy
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    ParameterType,
-    SetParametersResult,
-)
-from rclpy.exceptions import ParameterUninitializedException
 from rclpy.node import Node
-from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
+from vla_common.detection import Detection
 from vla_common.image_convert import UnsupportedImageError, draw_detections, to_rgb
+from vla_common.ros.convert import detection_array
+from vla_common.ros.node_main import ConfigError, StartupError, run_node
+from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.qos import SENSOR_QOS
 
 from vla_detector.inference import Detector, ModelError, default_model_path
-from vla_interfaces.msg import Detection as DetectionMsg
 from vla_interfaces.msg import DetectionArray
 
 WARN_PERIOD_S = 5.0
 
+PARAMS = ParameterTable([
+    Param("model_path", "", "ONNX detector (ours with its .json sidecar, or an Ultralytics YOLOv5/YOLOv8 "
+          "export); empty: the shipped model share/vla_detector/models/detector.onnx"),
+    Param("score_threshold", 0.3, "minimum detection score", range=(0.0, 1.0), dynamic=True),
+    Param("iou_threshold", 0.25, "NMS IoU threshold (per class)", range=(0.0, 1.0), dynamic=True),
+    Param("max_detections", 20, "most detections per image, best first", range=(1, 1000), dynamic=True),
+    Param("classes", [], "publish only these class names; empty or [''] for all", dynamic=True,
+          array="string_array"),
+    Param("enable", True, "run detection; also switched by the ~/enable service", dynamic=True),
+    Param("publish_overlay", False, "also publish detections/image (rgb8 with boxes) for viewing"),
+    Param("num_threads", 2, "ONNX Runtime intra-op threads", range=(1, 64)),
+])
 
-def _unit_range() -> FloatingPointRange:
-    return FloatingPointRange(from_value=0.0, to_value=1.0, step=0.0)
+
+def class_names(value) -> list[str]:
+    """The `classes` parameter without its empty entries ([""] is how YAML spells an empty list)."""
+    return [c for c in (value or []) if c]
+
+
+def _drawable(dets: list[Detection]) -> list[SimpleNamespace]:
+    """Detections with `w`/`h` beside `width`/`height`: draw_detections still reads w/h."""
+    return [SimpleNamespace(**d.as_dict(), w=d.width, h=d.height) for d in dets]
 
 
 class DetectorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__("detector_node", **kwargs)
-        self.declare_parameter(
-            "model_path",
-            "",
-            ParameterDescriptor(
-                description="ONNX detector (ours with its .json sidecar, or an Ultralytics YOLOv5/YOLOv8 "
-                "export); "
-                "empty: the shipped model share/vla_detector/models/detector.onnx",
-                read_only=True,
-            ),
-        )
-        self.declare_parameter(
-            "score_threshold",
-            0.3,
-            ParameterDescriptor(description="minimum detection score", floating_point_range=[_unit_range()]),
-        )
-        self.declare_parameter(
-            "iou_threshold",
-            0.25,
-            ParameterDescriptor(
-                description="NMS IoU threshold (per class)", floating_point_range=[_unit_range()]
-            ),
-        )
-        self.declare_parameter(
-            "max_detections",
-            20,
-            ParameterDescriptor(
-                description="most detections per image, best first",
-                integer_range=[IntegerRange(from_value=1, to_value=1000, step=1)],
-            ),
-        )
-        self.declare_parameter(
-            "classes",
-            Parameter.Type.STRING_ARRAY,
-            ParameterDescriptor(
-                type=ParameterType.PARAMETER_STRING_ARRAY,
-                description="publish only these class names; unset, empty or [''] for all",
-            ),
-        )
-        self.declare_parameter(
-            "enable",
-            True,
-            ParameterDescriptor(description="run detection; also switched by the ~/enable service"),
-        )
-        self.declare_parameter(
-            "publish_overlay",
-            False,
-            ParameterDescriptor(
-                description="also publish detections/image (rgb8 with boxes) for viewing", read_only=True
-            ),
-        )
-        self.declare_parameter(
-            "num_threads",
-            2,
-            ParameterDescriptor(
-                description="ONNX Runtime intra-op threads",
-                read_only=True,
-                integer_range=[IntegerRange(from_value=1, to_value=64, step=1)],
-            ),
-        )
-
-        path = self.get_parameter("model_path").value or str(default_model_path())
+        p = PARAMS.declare(self, self._on_change)
+        path = p["model_path"] or str(default_model_path())
         try:
-            classes = [c for c in (self.get_parameter("classes").value or []) if c]
-        except ParameterUninitializedException:  # declared by type only: no filter
-            classes = []
-        self.detector = Detector(
-            path,
-            score_threshold=self.get_parameter("score_threshold").value,
-            iou_threshold=self.get_parameter("iou_threshold").value,
-            max_detections=self.get_parameter("max_detections").value,
-            classes=classes or None,
-            num_threads=self.get_parameter("num_threads").value,
-        )  # ModelError / ValueError propagate to main(): a clear message and a non-zero exit
-        self.enabled = bool(self.get_parameter("enable").value)
-        self.add_on_set_parameters_callback(self._on_params)
+            self.detector = Detector(path, score_threshold=p["score_threshold"],
+                                     iou_threshold=p["iou_threshold"], max_detections=p["max_detections"],
+                                     num_threads=p["num_threads"])
+        except (ModelError, ValueError) as exc:
+            raise StartupError(str(exc)) from exc
+        try:
+            self.detector.set_class_filter(class_names(p["classes"]) or None)
+        except ValueError as exc:
+            raise ConfigError(f"parameter 'classes': {exc}") from exc
+        self.enabled = bool(p["enable"])
 
-        self.pub = self.create_publisher(DetectionArray, "detections", 10)
+        self.pub = self.create_publisher(DetectionArray, "detections", QoSProfile(depth=10))
         self.overlay_pub = (
-            self.create_publisher(Image, "detections/image", qos_profile_sensor_data)
-            if self.get_parameter("publish_overlay").value
-            else None
+            self.create_publisher(Image, "detections/image", SENSOR_QOS) if p["publish_overlay"] else None
         )
-        self.sub = self.create_subscription(
-            Image, "camera/image_raw", self._on_image, qos_profile_sensor_data
-        )
+        self.sub = self.create_subscription(Image, "camera/image_raw", self._on_image, SENSOR_QOS)
         self.srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.frames = 0
         self.skipped = 0
         self.last_latency_ms = float("nan")
-        self._last_warn: dict[str, float] = {}
         w, h = self.detector.input_size
         self.get_logger().info(
             f"model {path}: {len(self.detector.classes)} classes {self.detector.classes}, input {w}x{h}, "
             f"layout {self.detector.layout}; detecting on camera/image_raw -> detections"
         )
 
-    # ------------------------------------------------------------------ callbacks
-    def _warn_throttled(self, key: str, text: str) -> None:
-        now = time.monotonic()
-        if now - self._last_warn.get(key, -1e9) >= WARN_PERIOD_S:
-            self._last_warn[key] = now
-            self.get_logger().warning(text)
-
-    def _on_params(self, params) -> SetParametersResult:
-        for p in params:
-            if p.name == "classes":
-                try:
-                    self.detector.set_class_filter([c for c in (p.value or []) if c] or None)
-                except ValueError as e:
-                    return SetParametersResult(successful=False, reason=str(e))
-            elif p.name == "score_threshold":
-                self.detector.score_threshold = float(p.value)
-            elif p.name == "iou_threshold":
-                self.detector.iou_threshold = float(p.value)
-            elif p.name == "max_detections":
-                self.detector.max_detections = int(p.value)
-            elif p.name == "enable":
-                self.enabled = bool(p.value)
-        return SetParametersResult(successful=True)
+    def _on_change(self, name: str, value) -> str | None:
+        """Apply one accepted run-time change, or return why it is refused."""
+        if name == "classes":
+            try:
+                self.detector.set_class_filter(class_names(value) or None)
+            except ValueError as exc:
+                return str(exc)
+        elif name == "score_threshold":
+            self.detector.score_threshold = float(value)
+        elif name == "iou_threshold":
+            self.detector.iou_threshold = float(value)
+        elif name == "max_detections":
+            self.detector.max_detections = int(value)
+        elif name == "enable":
+            self.enabled = bool(value)
+        return None
 
     def _on_enable(self, req: SetBool.Request, resp: SetBool.Response) -> SetBool.Response:
         self.enabled = bool(req.data)
@@ -170,71 +109,36 @@ class DetectorNode(Node):
             return
         try:
             rgb = to_rgb(msg.encoding, msg.width, msg.height, msg.step, msg.data, bool(msg.is_bigendian))
-        except UnsupportedImageError as e:
+        except UnsupportedImageError as exc:
             self.skipped += 1
-            self._warn_throttled("image", f"skipping image: {e}")
+            self.get_logger().warning(f"skipping image: {exc}", throttle_duration_sec=WARN_PERIOD_S)
             return
         t0 = time.perf_counter()
         try:
             dets = self.detector.detect(rgb)
-        except Exception as e:  # never let one bad frame kill the node
+        except Exception as exc:  # never let one bad frame kill the node
             self.skipped += 1
-            self._warn_throttled("detect", f"detection failed on a {msg.width}x{msg.height} image: {e}")
+            self.get_logger().warning(f"detection failed on a {msg.width}x{msg.height} image: {exc}",
+                                      throttle_duration_sec=WARN_PERIOD_S)
             return
         self.last_latency_ms = (time.perf_counter() - t0) * 1e3
-        out = DetectionArray()
-        out.header = msg.header
-        out.image_width = int(msg.width)
-        out.image_height = int(msg.height)
-        for d in dets:
-            out.detections.append(
-                DetectionMsg(
-                    class_id=d.class_id,
-                    class_index=d.class_index,
-                    score=d.score,
-                    center_x=d.cx,
-                    center_y=d.cy,
-                    size_x=d.w,
-                    size_y=d.h,
-                )
-            )
-        self.pub.publish(out)
+        self.pub.publish(detection_array(dets, msg.header, (msg.width, msg.height)))
         self.frames += 1
         if self.overlay_pub is not None:
-            vis = draw_detections(rgb, dets)
-            im = Image(
-                header=msg.header,
-                height=vis.shape[0],
-                width=vis.shape[1],
-                encoding="rgb8",
-                is_bigendian=0,
-                step=vis.shape[1] * 3,
-            )
-            im.data = vis.tobytes()
-            self.overlay_pub.publish(im)
+            self.overlay_pub.publish(self._overlay(rgb, dets, msg.header))
+
+    @staticmethod
+    def _overlay(rgb, dets: list[Detection], header) -> Image:
+        vis = draw_detections(rgb, _drawable(dets))
+        im = Image(header=header, height=vis.shape[0], width=vis.shape[1], encoding="rgb8", is_bigendian=0,
+                   step=vis.shape[1] * 3)
+        im.data = vis.tobytes()
+        return im
 
 
-def main(args=None) -> int:
-    rclpy.init(args=args)
-    node = None
-    code = 0
-    try:
-        node = DetectorNode()
-        rclpy.spin(node)
-    except (ModelError, ValueError) as e:
-        print(f"[detector_node] fatal: {e}", file=sys.stderr, flush=True)
-        code = 1
-    except KeyboardInterrupt:
-        pass
-    except rclpy.executors.ExternalShutdownException:
-        pass
-    finally:
-        if node is not None:
-            node.destroy_node()
-        if rclpy.ok():
-            rclpy.shutdown()
-    return code
+def main(args: list[str] | None = None) -> int:
+    return run_node(DetectorNode, "detector_node", args)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

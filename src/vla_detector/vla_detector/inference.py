@@ -10,11 +10,12 @@ from __future__ import annotations
 import ast
 import json
 import os
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import onnxruntime as ort
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+from vla_common.detection import Detection
 
 from vla_detector.decode import LAYOUTS, DecodeError, infer_layout, letterbox, postprocess, to_input_tensor
 
@@ -23,31 +24,6 @@ DEFAULT_INPUT_SIZE = (640, 640)  # Ultralytics' default when the model has dynam
 
 class ModelError(RuntimeError):
     """The model file is missing, unreadable, or not a detector this package can run."""
-
-
-@dataclass
-class Detection:
-    """One detected object; box centre and size in pixels of the image given to detect()."""
-
-    class_id: str
-    class_index: int
-    score: float
-    cx: float
-    cy: float
-    w: float
-    h: float
-
-    def as_dict(self) -> dict:
-        """The dict shape vla_demo_recorder stores (contract 7)."""
-        return {
-            "class_id": self.class_id,
-            "class_index": self.class_index,
-            "score": self.score,
-            "cx": self.cx,
-            "cy": self.cy,
-            "width": self.w,
-            "height": self.h,
-        }
 
 
 def sidecar_path(model_path: str | os.PathLike) -> Path:
@@ -211,7 +187,8 @@ class Detector:
         )
         boxes = lb.to_image(boxes)
         return [
-            Detection(self.classes[c], int(c), float(s), float(b[0]), float(b[1]), float(b[2]), float(b[3]))
+            Detection(class_id=self.classes[c], score=float(s), cx=float(b[0]), cy=float(b[1]),
+                      width=float(b[2]), height=float(b[3]), class_index=int(c))
             for b, s, c in zip(boxes, scores, cls)
         ]
 
@@ -219,14 +196,9 @@ class Detector:
 def default_model_path() -> Path:
     """The shipped model: share/vla_detector/models/detector.onnx, else the source tree's copy."""
     try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-
-        try:
-            p = Path(get_package_share_directory("vla_detector")) / "models" / "detector.onnx"
-            if p.is_file():
-                return p
-        except PackageNotFoundError:
-            pass
-    except ImportError:
+        p = Path(get_package_share_directory("vla_detector")) / "models" / "detector.onnx"
+        if p.is_file():
+            return p
+    except PackageNotFoundError:
         pass
     return Path(__file__).resolve().parent.parent / "models" / "detector.onnx"

@@ -10,7 +10,18 @@ import time
 
 import numpy as np
 import pytest
-from vla_panda_bridge.libfranka_slots import CMD_N, CMD_SEQ, CMD_VALUES, RING, STATE, Slots
+from vla_panda_bridge.libfranka_slots import (
+    CMD_N,
+    CMD_SEQ,
+    CMD_VALUES,
+    H_CYCLE,
+    H_Q,
+    H_STAMP,
+    HISTORY,
+    RING,
+    STATE,
+    Slots,
+)
 
 
 @pytest.fixture
@@ -108,3 +119,40 @@ def test_a_reader_never_sees_half_a_state_written_by_another_process(slots):
         proc.wait(30)
     assert proc.returncode == 0
     assert len(seen) > 10                                     # it read while the other wrote
+
+
+def test_the_history_holds_every_recent_state_and_refuses_overwritten_ones(slots):
+    for k in range(1, HISTORY + 11):
+        slots.push_history(k, 1000.0 + k, [k] * 7, [-k] * 7, [0.5] * 7)
+    e = slots.read_history(HISTORY + 10)
+    assert e[H_CYCLE] == HISTORY + 10 and e[H_STAMP] == 1000.0 + HISTORY + 10
+    assert np.all(e[H_Q:H_Q + 7] == HISTORY + 10)
+    assert slots.read_history(10) is None                    # overwritten by cycle HISTORY + 10
+    assert slots.read_history(11) is not None
+
+
+def test_new_samples_gives_every_robot_state_once_on_the_decimation_grid():
+    from vla_panda_bridge.libfranka_loop import LoopSettings
+    from vla_panda_bridge.libfranka_process import LoopProcess
+
+    p = LoopProcess(LoopSettings(robot={"robot_ip": "192.0.2.1"}))    # not started: its slots only
+    try:
+        def publish(upto):
+            for k in range(publish.last + 1, upto + 1):
+                p.slots.push_history(k, 2000.0 + k * 0.001, [k] * 7, [0.0] * 7, [0.0] * 7)
+            b = p.slots.begin_state()
+            b[STATE["cycle"]], b[STATE["pid"]] = upto, 1
+            p.slots.end_state()
+            publish.last = upto
+        publish.last = 0
+        publish(7)
+        assert [s.cycle for s in p.new_samples()] == list(range(1, 8))
+        assert p.new_samples() == []                          # nothing new: nothing (the robot is silent)
+        publish(20)
+        assert [s.cycle for s in p.new_samples(every=5)] == [10, 15, 20]
+        publish(HISTORY * 3)                                  # far behind: the newest HISTORY states
+        cycles = [s.cycle for s in p.new_samples()]
+        assert cycles == list(range(HISTORY * 2 + 1, HISTORY * 3 + 1))
+        assert p.new_samples() == []
+    finally:
+        p.slots.close()

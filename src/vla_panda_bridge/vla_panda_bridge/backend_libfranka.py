@@ -27,6 +27,7 @@ from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
 from vla_panda_bridge.libfranka_loop import LOOP_CONNECTING, LOOP_NAMES, LOOP_OK, LoopSettings
 from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
 
+WATCH_RATE = 100.0      # Hz: the loop's status and its process are checked this often
 REQUEST_TIMEOUT = 5.0   # s to wait for the loop to answer ~/recover or ~/set_teaching
 SAFETY_PARAMS = ("velocity_scale", "acceleration_scale", "jerk_scale", "position_margin", "command_timeout",
                  "position_sync_tolerance")
@@ -62,7 +63,10 @@ class LibfrankaBackend(BackendBase):
         p = host.params
         self._host = host
         self._dt = 1.0 / p["control_rate"]
+        # joint_states: every k-th robot state (1 kHz), published in batches at up to state_rate.
+        self._states_every = max(1, round(1000.0 / p["state_rate"]))
         self._ticks_per_state = max(1, round(p["control_rate"] / p["state_rate"]))
+        self._ticks_per_watch = max(1, round(p["control_rate"] / WATCH_RATE))
         self._state_timeout = p["state_timeout"]
         self._no_state = np.full(host.spec.num_joints, np.nan)  # invalid on purpose: the filter brakes
         self.settings = loop_settings(p, host.spec.name)
@@ -73,7 +77,7 @@ class LibfrankaBackend(BackendBase):
         self._latest: JointSample | None = None
         self._status = LibfrankaStatus(LOOP_CONNECTING, LOOP_NAMES[LOOP_CONNECTING], "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
-        self._reported = (LOOP_CONNECTING, "")
+        self._reported = -1                             # the loop status code last reported
         self._ticks = 0
 
     # ---------------------------------------------------------------------------------- protocol
@@ -82,38 +86,34 @@ class LibfrankaBackend(BackendBase):
         host.create_wall_timer(self._dt, self._tick)
 
     def _tick(self) -> None:
-        """One control period: the node's filter -> the loop; every state period a new robot state."""
+        """One control period: the node's filter -> the loop; every state period the robot states
+        that arrived since (a batch when this timer ran late); at 100 Hz the loop's status."""
         self._host.control_step()
         self._ticks += 1
-        if self._ticks % self._ticks_per_state:
-            return
-        note = self.process.poll()
-        if note:
-            self._host.get_logger().warn(note)
-        sample = self.process.fresh_sample()
-        if sample is not None:
-            self._latest = sample
-            self._host.publish_state()
-        self._watch_status()
+        if self._ticks % self._ticks_per_state == 0:
+            for sample in self.process.new_samples(self._states_every):
+                self._latest = sample
+                self._host.publish_state()
+        if self._ticks % self._ticks_per_watch == 0:
+            note = self.process.poll()
+            if note:
+                self._host.get_logger().warn(note)
+            self._watch_status()
 
     def _watch_status(self) -> None:
-        """Report the loop's status when it changes (a fault through host.on_fault)."""
+        """Report the loop's status when its code changes: a fault (reflex, lost connection, fatal)
+        through host.on_fault with libfranka's text, the rest to the log."""
         st = self._status = self.process.status()
-        key = (st.code, st.text)
-        if key == self._reported:
-            return
-        self._reported = key
-        if not st.text:
-            return                                      # a text follows (the loop writes it next)
-        text = f"{st.name}: {st.text}"
+        if st.code == self._reported or not st.text:
+            return                                      # unchanged, or its text not written yet
+        self._reported = st.code
+        text = f"libfranka {st.name}: {st.text}"
         if st.code in (LOOP_OK, LOOP_CONNECTING):
-            self._host.get_logger().info(f"libfranka {text}")
-            return
-        on_fault = getattr(self._host, "on_fault", None)
-        if on_fault is not None:
-            on_fault(f"libfranka {text}")
+            self._host.get_logger().info(text)
+        elif (on_fault := getattr(self._host, "on_fault", None)) is not None:
+            on_fault(text)
         else:
-            self._host.get_logger().error(f"libfranka {text}")
+            self._host.get_logger().error(text)
 
     @property
     def status(self) -> LibfrankaStatus:
@@ -152,7 +152,7 @@ class LibfrankaBackend(BackendBase):
     def describe(self) -> str:
         p = self._host.params
         prio = f", SCHED_FIFO {p['loop_priority']}" if p["loop_priority"] else ""
-        state_hz = p["control_rate"] / self._ticks_per_state
+        state_hz = 1000.0 / self._states_every
         return (f"libfranka: {p['driver']} driver -> {p['robot_ip']} ({self._host.spec.name}), 1 kHz loop in "
                 f"process {self.process.pid}{prio} with the safety filter at the robot's rate; node filter "
                 f"at {p['control_rate']} Hz, joint_states at {state_hz:g} Hz")

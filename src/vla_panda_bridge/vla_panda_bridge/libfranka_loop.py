@@ -143,6 +143,7 @@ class ControlLoop:
         self._latency_pending = False
         self._want = False               # the latest valid command is non-zero
         self._await_zero = False         # motion needs a zero command first (after a hold)
+        self._cause = ""                 # the error that lost the connection
         self._rest_since: float | None = None
         self._estop = False
         self._t = 0.0                    # robot time of the latest state
@@ -237,8 +238,12 @@ class ControlLoop:
             self._set_status(LOOP_FATAL, f"{exc.text} (~/recover retries)")
             self._answer_recover(False)
             return
-        status = LOOP_CONNECTING if self.connects == 0 else LOOP_DISCONNECTED
-        self._set_status(status, f"{exc.text}; retrying in {self._backoff:.2g} s")
+        wait = f"{self._backoff:.2g} s"
+        if self.connects == 0:
+            self._set_status(LOOP_CONNECTING, f"{exc.text}; retrying in {wait}")
+        else:                                        # keep the cause first: it is what went wrong
+            self._set_status(LOOP_DISCONNECTED, f"{self._cause}; reconnecting (last try: {exc.text}; "
+                                                f"next in {wait})")
         self._answer_recover(False)
         self._next_attempt = self._clock() + self._backoff
         self._backoff = min(2.0 * self._backoff, self.settings.reconnect_max)
@@ -258,6 +263,7 @@ class ControlLoop:
             if exc.kind == FATAL:
                 self._set_status(LOOP_FATAL, f"{exc.text} (~/recover retries)")
             else:
+                self._cause = exc.text
                 self._set_status(LOOP_DISCONNECTED, f"{exc.text}; reconnecting")
                 self._next_attempt = self._clock() + self.settings.reconnect_min
                 self._backoff = self.settings.reconnect_min
@@ -509,10 +515,12 @@ class ControlLoop:
         b[STATE["pid"]] = os.getpid()
 
     def _publish(self, state, latency: float, t0: float | None = None) -> None:
+        stamp = self._wall()
+        self.slots.push_history(self.cycle, stamp, state.q, state.dq, state.tau_J)
         b = self.slots.begin_state()
         b[STATE["cycle"]] = self.cycle
         b[STATE["robot_time"]] = self._t
-        b[STATE["stamp"]] = self._wall()
+        b[STATE["stamp"]] = stamp
         b[STATE["q"]] = state.q
         b[STATE["dq"]] = state.dq
         b[STATE["tau_J"]] = state.tau_J

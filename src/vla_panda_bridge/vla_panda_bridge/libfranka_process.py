@@ -35,7 +35,18 @@ from vla_panda_bridge.libfranka_loop import (
     MODE_TORQUE,
     LoopSettings,
 )
-from vla_panda_bridge.libfranka_slots import CONTROL, STATE, Slots, StateView
+from vla_panda_bridge.libfranka_slots import (
+    CONTROL,
+    H_DQ,
+    H_END,
+    H_Q,
+    H_STAMP,
+    H_TAU,
+    HISTORY,
+    STATE,
+    Slots,
+    StateView,
+)
 
 RESTART_MIN = 0.5   # s before restarting a loop process that exited, doubled up to RESTART_MAX
 RESTART_MAX = 10.0
@@ -96,6 +107,7 @@ class LoopProcess:
         self.process_note = ""
         self._last_cycle = -1.0
         self._fresh_cycle = -1.0
+        self._history_cycle = 0
         self._cycle_seen_at = -math.inf
         self._seq = -1.0
         self._seq_seen_at = time.monotonic()
@@ -215,6 +227,26 @@ class LoopProcess:
         if s is None or s.cycle <= 0:
             return None
         return self._sample(s)
+
+    def new_samples(self, every: int = 1, limit: int = HISTORY) -> list[LibfrankaSample]:
+        """Every `every`-th robot state (by cycle number) since the previous call, oldest first: none
+        is lost while the caller is less than HISTORY states late. Empty while the robot is silent."""
+        s = self._read()
+        if s is None or s.cycle <= 0:
+            return []
+        now = int(s.cycle)
+        if now < self._history_cycle:                    # a new loop process counts from 0 again
+            self._history_cycle = 0
+        start = max(self._history_cycle + 1, now - min(limit, HISTORY) + 1)
+        start += (-start) % every                        # on the decimation grid
+        out = []
+        for cycle in range(start, now + 1, every):
+            e = self.slots.read_history(cycle)
+            if e is not None:
+                out.append(LibfrankaSample(e[H_Q:H_DQ], e[H_DQ:H_TAU], e[H_TAU:H_END],
+                                           stamp_ns=int(e[H_STAMP] * 1e9), cycle=cycle))
+        self._history_cycle = now
+        return out
 
     def fresh_sample(self) -> LibfrankaSample | None:
         """The latest robot state if it is newer than the one returned last time, else None."""

@@ -9,7 +9,10 @@ loads whole. The file lives in /dev/shm; the creating side (the ROS node) unlink
 Blocks (all float64 unless noted):
 - command (ROS -> loop, seqlock): count of values, command sequence, arrival time, 7 values;
 - control (ROS -> loop, plain): e-stop, shutdown, teaching wanted, request counters;
-- state (loop -> ROS, seqlock): one robot sample and the loop's status, see `STATE_FIELDS`;
+- state (loop -> ROS, seqlock): one robot sample and the loop's status, see `STATE_LAYOUT`;
+- history (loop -> ROS): the last HISTORY robot samples (cycle, stamp, q, dq, tau_J), each entry
+  marked by its cycle number before and after it is written, so the ROS side publishes every robot
+  state even when its timer runs late (a loaded machine) without the loop ever waiting;
 - texts (loop -> ROS, seqlock each, UTF-8 bytes): the loop's status text and the filter's text;
 - rings (loop -> bench, plain): per-cycle period, busy time and command latency.
 """
@@ -73,6 +76,12 @@ STATE_SIZE = _offset
 
 RINGS = ("period", "busy", "latency")
 
+# History entries: [cycle, stamp, q(7), dq(7), tau_J(7), cycle again]
+HISTORY = 512
+H_CYCLE, H_STAMP, H_Q, H_DQ, H_TAU = 0, 1, 2, 2 + NUM_JOINTS, 2 + 2 * NUM_JOINTS
+H_END = 2 + 3 * NUM_JOINTS
+H_SIZE = H_END + 1
+
 # Float64 area: [cmd seq | cmd payload] [control] [state seq | state payload] [text seqs] [ring idx, rings]
 _CMD_AT = 0
 _CONTROL_AT = _CMD_AT + 1 + CMD_SIZE
@@ -81,7 +90,8 @@ _TEXT_SEQ_AT = _STATE_AT + 1 + STATE_SIZE
 _TEXT_LEN_AT = _TEXT_SEQ_AT + 2
 _RING_IDX_AT = _TEXT_LEN_AT + 2
 _RING_AT = _RING_IDX_AT + 1
-_N_DOUBLES = _RING_AT + len(RINGS) * RING
+_HIST_AT = _RING_AT + len(RINGS) * RING
+_N_DOUBLES = _HIST_AT + HISTORY * H_SIZE
 _TEXT_BYTES_AT = 8 * _N_DOUBLES
 SIZE = _TEXT_BYTES_AT + 2 * MAX_TEXT
 TEXTS = ("status", "filter")
@@ -128,6 +138,7 @@ class Slots:
         self._text_len = d[_TEXT_LEN_AT:_TEXT_LEN_AT + 2]
         self._ring_idx = d[_RING_IDX_AT:_RING_IDX_AT + 1]
         self.rings = {name: d[_RING_AT + i * RING:_RING_AT + (i + 1) * RING] for i, name in enumerate(RINGS)}
+        self.history = d[_HIST_AT:_HIST_AT + HISTORY * H_SIZE].reshape(HISTORY, H_SIZE)
         self._text = np.frombuffer(self._mm, dtype=np.uint8, count=2 * MAX_TEXT, offset=_TEXT_BYTES_AT)
         self._cmd_scratch = np.zeros(CMD_SIZE)
         self._state_scratch = np.zeros(STATE_SIZE)
@@ -150,7 +161,7 @@ class Slots:
     def close(self) -> None:
         # Views into the map must go before the map itself can close.
         for name in ("_d", "_cmd_seq", "cmd", "control", "_state_seq", "state", "_text_seq", "_text_len",
-                     "_ring_idx", "_text"):
+                     "_ring_idx", "_text", "history"):
             setattr(self, name, None)
         self.rings = {}
         try:
@@ -210,6 +221,28 @@ class Slots:
         """ROS side: a consistent copy of the latest state, or None while the loop is inside a write."""
         out = _read_seqlock(self._state_seq, self.state, self._state_scratch, tries=1000)
         return None if out is None else StateView(out.copy())
+
+    # ------------------------------------------------------------------------------------ history
+    def push_history(self, cycle: int, stamp: float, q, dq, tau) -> None:
+        """Loop side: one robot sample into its entry (the oldest is overwritten)."""
+        e = self.history[cycle % HISTORY]
+        e[H_CYCLE] = -1.0                            # being written
+        e[H_END] = -1.0
+        e[H_STAMP] = stamp
+        e[H_Q:H_DQ] = q
+        e[H_DQ:H_TAU] = dq
+        e[H_TAU:H_END] = tau
+        e[H_END] = cycle
+        e[H_CYCLE] = cycle
+
+    def read_history(self, cycle: int) -> np.ndarray | None:
+        """ROS side: a copy of the sample of robot cycle `cycle`, or None if it has been overwritten
+        (or is being written)."""
+        e = self.history[cycle % HISTORY]
+        if e[H_END] != cycle:
+            return None
+        out = e.copy()
+        return out if out[H_CYCLE] == cycle and e[H_END] == cycle else None
 
     # -------------------------------------------------------------------------------------- texts
     def write_text(self, which: str, text: str) -> None:

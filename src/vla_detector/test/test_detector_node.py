@@ -210,3 +210,14 @@ def test_bringup_parameter_file_loads():
         node.destroy_node()
     finally:
         rclpy.shutdown(context=ctx)
+
+
+def test_enable_service_sets_the_parameter(harness, scene):
+    """~/enable and the enable parameter are one state: the service goes through the parameter."""
+    resp = harness.set_enable(False)
+    assert resp.success and resp.message == "detection disabled"
+    assert harness.node.get_parameter("enable").value is False
+    harness.send(image_msg(scene[0]), expect=False)
+    harness.node.set_parameters([Parameter("enable", value=True)])
+    assert harness.set_enable(True).message == "detection enabled"
+    assert len(harness.send(image_msg(scene[0])).detections) == 2

@@ -1,7 +1,8 @@
 """detector_node: camera images in, vla_interfaces/DetectionArray out (ONNX Runtime, no torch).
 
 Thin ROS wrapper around `vla_detector.inference.Detector`; see the package README for topics,
-parameters and services.
+parameters and services. Every run-time change, the ~/enable service included, goes through the
+parameter table, so a parameter always reads what the node does.
 """
 
 from __future__ import annotations
@@ -10,6 +11,7 @@ import time
 from types import SimpleNamespace
 
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
@@ -33,7 +35,7 @@ PARAMS = ParameterTable([
     Param("max_detections", 20, "most detections per image, best first", range=(1, 1000), dynamic=True),
     Param("classes", [], "publish only these class names; empty or [''] for all", dynamic=True,
           array="string_array"),
-    Param("enable", True, "run detection; also switched by the ~/enable service", dynamic=True),
+    Param("enable", True, "run detection; the ~/enable service sets this parameter", dynamic=True),
     Param("publish_overlay", False, "also publish detections/image (rgb8 with boxes) for viewing"),
     Param("num_threads", 2, "ONNX Runtime intra-op threads", range=(1, 64)),
 ])
@@ -99,9 +101,10 @@ class DetectorNode(Node):
         return None
 
     def _on_enable(self, req: SetBool.Request, resp: SetBool.Response) -> SetBool.Response:
-        self.enabled = bool(req.data)
-        resp.success = True
-        resp.message = "detection enabled" if self.enabled else "detection disabled"
+        """The service sets the `enable` parameter: one path (`_on_change`) applies both."""
+        result = self.set_parameters([Parameter("enable", value=bool(req.data))])[0]
+        resp.success = result.successful
+        resp.message = result.reason or ("detection enabled" if self.enabled else "detection disabled")
         return resp
 
     def _on_image(self, msg: Image) -> None:

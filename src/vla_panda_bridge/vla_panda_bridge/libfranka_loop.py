@@ -359,8 +359,9 @@ class ControlLoop:
             self._await_zero = False
         code, _ = self.filter.submit(values, self._t)
         self._cmd_t = self._t
-        self._cmd_arrived = c[CMD_ARRIVED]
-        self._latency_pending = True
+        if c[CMD_ARRIVED] != self._cmd_arrived:      # a new input (not the same one written again)
+            self._cmd_arrived = c[CMD_ARRIVED]
+            self._latency_pending = True
         self._want = code == FILTER_OK and not self._estop and bool(np.any(values))
 
     def _wants_motion(self) -> bool:

@@ -171,11 +171,13 @@ class LoopProcess:
                 self.process_note = ""
 
     # ------------------------------------------------------------------------------- commands
-    def submit(self, values: Sequence[float]) -> int:
+    def submit(self, values: Sequence[float], arrived: float | None = None) -> int:
         """Hand the loop its next command (the loop's filter validates it; a malformed one is treated
-        as zero there). Returns its sequence number."""
+        as zero there). `arrived` (monotonic s, default now) is when its input arrived: the loop
+        measures the latency to the first robot command with it, once per distinct value. Returns
+        its sequence number."""
         self.commands_sent += 1
-        return self.slots.write_command(values, time.monotonic())
+        return self.slots.write_command(values, time.monotonic() if arrived is None else arrived)
 
     def set_estop(self, active: bool) -> None:
         self.slots.control[CONTROL["estop"]] = float(bool(active))

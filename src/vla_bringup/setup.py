@@ -13,6 +13,7 @@ setup(
         ("share/" + package_name, ["package.xml", "README.md"]),
         ("share/" + package_name + "/launch", glob("launch/*.launch.yaml")),
         ("share/" + package_name + "/config", glob("config/*.yaml")),
+        ("share/" + package_name + "/config/dds", glob("config/dds/*")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

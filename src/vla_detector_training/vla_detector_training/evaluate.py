@@ -54,7 +54,7 @@ def evaluate_model(
             ImageResult(
                 gt,
                 np.array([b.class_index for b in s.boxes], dtype=np.int64),
-                np.array([[d.cx, d.cy, d.w, d.h] for d in dets], dtype=np.float64).reshape(-1, 4),
+                np.array([[d.cx, d.cy, d.width, d.height] for d in dets], dtype=np.float64).reshape(-1, 4),
                 np.array([d.score for d in dets], dtype=np.float64),
                 np.array([d.class_index for d in dets], dtype=np.int64),
             )

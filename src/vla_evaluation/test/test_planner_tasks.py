@@ -1,28 +1,37 @@
 """Trained on planner demonstrations of the paper's base tasks, the latent action does the task:
 one second of z > 0 from a held-out layout's start pose brings the arm closer to the configuration
-above the object, and along the push it moves
-the end effector in that task's direction (z < 0 retraces it)."""
+above the object, and along the push it moves the end effector in that task's direction (z < 0
+retraces it).
+
+The model is one the experiments train (`Plan().train_config`: full batches of 6000 pairs, 64 units,
+at least 1000 updates), whose outcome does not hinge on the seed or on which kernels the CPU's MKL
+picks. The limits are set well inside what that recipe measured over 12 trainings (seeds 0-7 with
+MKL_CBWR unset, 0-3 with MKL_CBWR=COMPATIBLE, AMD EPYC; docs/history/training.md); the worst of each
+figure over the four tasks is in brackets beside its limit.
+"""
 
 import numpy as np
 import pytest
+from vla_common.kinematics import PandaKinematics
+from vla_common.tasks import BASE_TASKS, parse_task
+from vla_evaluation.experiments import Plan
+from vla_evaluation.planner_demos import planner_demo, planner_demos
+from vla_latent_controller.context import Det
+from vla_latent_controller.model import LatentModel
+from vla_latent_training.pairs import make_pairs
+from vla_latent_training.train import train_model
+
+HOVER_MIN, HOVER_MEAN = 0.1, 0.15  # share of the distance to the hover pose covered in 1 s [0.22, 0.32]
+ALONG_MEAN, ALONG_SHARE = 0.3, 0.75  # cosine with the push direction, share of states > 0 [0.59, 0.90]
+BACK_MEAN = -0.4  # cosine at z < 0 [-0.68]
 
 
 @pytest.fixture(scope="module")
 def setup():
-    from vla_common.kinematics import PandaKinematics
-    from vla_common.tasks import BASE_TASKS
-    from vla_evaluation.planner_demos import planner_demos
-    from vla_latent_training.pairs import make_pairs
-    from vla_latent_training.train import TrainConfig, train_model
-
     kin = PandaKinematics()
     demos = planner_demos(BASE_TASKS, per_task=5, seed=0, kin=kin)
     res = train_model(
-        demos,
-        TrainConfig(epochs=40, batch_size=1024, step_size=30, seed=0),
-        pairs_fn=make_pairs,
-        progress=False,
-        threads=1,
+        demos, Plan().train_config("detector", seed=0), pairs_fn=make_pairs, progress=False, threads=1,
         log=lambda s: None,
     )
     return kin, res
@@ -34,11 +43,6 @@ def setup():
     ["bread/push_east", "soda_can/push_south", "milk_carton/push_south_west", "glass_bottle/push_west"],
 )
 def test_positive_latent_does_the_task(setup, task, tmp_path):
-    from vla_common.tasks import parse_task
-    from vla_evaluation.planner_demos import planner_demo
-    from vla_latent_controller.context import Det
-    from vla_latent_controller.model import LatentModel
-
     kin, res = setup
     model = LatentModel.load(res.save(tmp_path / "m"))
     d = parse_task(task).direction_vector
@@ -64,8 +68,6 @@ def test_positive_latent_does_the_task(setup, task, tmp_path):
             for z, out in ((0.5 * g, along), (-0.5 * g, back)):
                 v = (kin.jacobian(q)[:3] @ model.decoder.decode(q, z))[:2]
                 out.append(v @ d / np.linalg.norm(v))
-    assert np.min(to_hover) > 0.0 and np.mean(to_hover) > 0.05, (
-        to_hover
-    )  # share of the distance covered in 1 s
-    assert np.mean(along) > 0.5 and np.mean(np.array(along) > 0) >= 0.8, along
-    assert np.mean(back) < -0.3, back
+    assert np.min(to_hover) > HOVER_MIN and np.mean(to_hover) > HOVER_MEAN, to_hover
+    assert np.mean(along) > ALONG_MEAN and np.mean(np.array(along) > 0) >= ALONG_SHARE, along
+    assert np.mean(back) < BACK_MEAN, back

@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from vla_latent_training.train import POSITION_PRIOR_SCALE
+from vla_latent_training.train import POSITION_PRIOR_SCALE, TrainConfig
 from vla_latent_training.train_cli import position_scale_arg
 
 ENCODERS = ("detector", "localization", "end_to_end")
@@ -68,6 +68,11 @@ class Plan:
     rate: float = 20.0
     jobs: int = 2
     extra: dict = field(default_factory=dict)
+
+    def train_config(self, encoder: str, seed: int) -> TrainConfig:
+        """The TrainConfig of every model this plan trains."""
+        return TrainConfig(encoder=encoder, epochs=self.epochs, step_size=self.step_size, seed=seed,
+                           hidden=self.hidden, min_steps=self.min_steps, position_scale=self.position_scale)
 
 
 def quick_plan() -> Plan:
@@ -182,15 +187,14 @@ def run_job(job: Job) -> list[dict]:
     import torch
     from vla_common.kinematics import PandaKinematics
     from vla_latent_controller.model import LatentModel
-    from vla_latent_training.train import TrainConfig, train_model
+    from vla_latent_training.train import train_model
 
     from vla_evaluation.kinematic import evaluate_kinematic
 
     torch.set_num_threads(1)
     demos = [_STATE["demos"][t][i] for t, idx in job.train.items() for i in idx]
     plan: Plan = _STATE["plan"]
-    cfg = TrainConfig(encoder=job.encoder, epochs=plan.epochs, step_size=plan.step_size, seed=job.run,
-                      hidden=plan.hidden, min_steps=plan.min_steps, position_scale=plan.position_scale)
+    cfg = plan.train_config(job.encoder, seed=job.run)
     t0 = time.perf_counter()
     tmp = Path(tempfile.mkdtemp(prefix="vla_exp_"))
     res = None

@@ -2,8 +2,8 @@
 
 import numpy as np
 import pytest
+from vla_common.detection import Detection
 from vla_common.image_convert import UnsupportedImageError, draw_detections, to_rgb
-from vla_detector.inference import Detection
 
 H, W = 6, 8
 
@@ -87,5 +87,5 @@ def test_bad_images(args, match):
 
 def test_overlay_draws_boxes(rgb):
     img = np.zeros((48, 64, 3), np.uint8)
-    out = draw_detections(img, [Detection("bread", 0, 0.9, 32, 24, 20, 10)])
+    out = draw_detections(img, [Detection("bread", 0.9, 32, 24, 20, 10, class_index=0)])
     assert out.shape == img.shape and out.any() and not img.any()

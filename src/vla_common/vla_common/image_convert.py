@@ -97,8 +97,8 @@ def draw_detections(rgb: np.ndarray, detections, colours=None) -> np.ndarray:
     out = rgb.copy()
     for d in detections:
         c = (colours or {}).get(d.class_index) or _colour(d.class_index)
-        x1, y1 = int(round(d.cx - d.w / 2)), int(round(d.cy - d.h / 2))
-        x2, y2 = int(round(d.cx + d.w / 2)), int(round(d.cy + d.h / 2))
+        x1, y1 = int(round(d.cx - d.width / 2)), int(round(d.cy - d.height / 2))
+        x2, y2 = int(round(d.cx + d.width / 2)), int(round(d.cy + d.height / 2))
         cv2.rectangle(out, (x1, y1), (x2, y2), c, 1)
         cv2.drawMarker(out, (int(round(d.cx)), int(round(d.cy))), c, cv2.MARKER_CROSS, 6, 1)
         cv2.putText(

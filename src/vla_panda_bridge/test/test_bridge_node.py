@@ -5,6 +5,7 @@ at 1 kHz either way.
 """
 import math
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -19,7 +20,7 @@ from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Float64MultiArray
-from std_srvs.srv import SetBool
+from std_srvs.srv import SetBool, Trigger
 from vla_common.robot import READY_POSE
 from vla_panda_bridge.bridge_node import ConfigError, PandaBridge
 from vla_sim.sim import PandaSim
@@ -167,8 +168,71 @@ def test_estop_latches_until_released(harness):
     assert res.success
     h.wait(lambda: False, 0.1)
     assert abs(h.states[-1].position[6] - q_stop) < 1e-3   # release alone does not move it
+    h.command(cmd)                                       # nor the stick still held: a zero first
+    h.wait(lambda: False, 0.2)
+    assert abs(h.states[-1].position[6] - q_stop) < 1e-3
+    assert h.status[-1].code == SafetyStatus.AWAITING_ZERO and not h.status[-1].estop_active
+    h.command([0.0] * 7)
     h.command(cmd)
     assert h.wait(lambda: h.states[-1].velocity[6] > 0.35, 5.0)
+
+
+def test_estop_release_with_the_stick_held_starts_no_motion(harness):
+    """The stick stays held (a command every 20 ms) through latch and release: nothing moves until the
+    stream has passed through zero."""
+    h = harness(real_time_factor=2.0, command_timeout=0.2)
+    stream = {"cmd": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4]}
+    h.probe.create_timer(0.02, lambda: h.command(stream["cmd"]))
+    assert h.wait(lambda: h.states[-1].velocity[6] > 0.35, 5.0)
+    assert h.call(SetBool, "panda_bridge/estop", SetBool.Request(data=True)).success
+    assert h.wait(lambda: abs(h.states[-1].velocity[6]) < 1e-6, 5.0)
+    assert h.call(SetBool, "panda_bridge/estop", SetBool.Request(data=False)).success
+    t_release = _stamp(h.states[-1])
+    q_stop = h.states[-1].position[6]
+    assert h.wait(lambda: _stamp(h.states[-1]) > t_release + 1.0, 5.0)    # 1 s of simulated time
+    assert max(abs(s.velocity[6]) for s in h.states if _stamp(s) > t_release) < 1e-9
+    assert abs(h.states[-1].position[6] - q_stop) < 1e-6
+    assert h.status[-1].code == SafetyStatus.AWAITING_ZERO
+    stream["cmd"] = [0.0] * 7                            # the stick passes through zero ...
+    n = len(h.states)
+    assert h.wait(lambda: len(h.states) > n + 10, 5.0)
+    stream["cmd"] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4]  # ... and moves again
+    assert h.wait(lambda: h.states[-1].velocity[6] > 0.35, 5.0)
+
+
+def test_a_reflex_holds_the_arm_until_recover_and_recovery_needs_a_zero_command(harness):
+    """Full speed into the table: the simulated Panda stops itself with a libfranka-like reflex; the
+    stream (still held) moves nothing, neither after ~/recover until the stick passes through zero."""
+    h = harness(real_time_factor=4.0, command_timeout=0.2)
+    q0 = list(READY_POSE)
+    q0[3] = -1.2
+    assert h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(initial_positions=q0)).success
+    down = [0.0, 2.175, 0.0, 0.0, 0.0, 0.0, 0.0]
+    stream = {"cmd": down}
+    h.probe.create_timer(0.01, lambda: h.command(stream["cmd"]))
+    assert h.wait(lambda: any(s.code == SafetyStatus.REFLEX for s in h.status), 20.0)
+    reflex = next(s for s in h.status if s.code == SafetyStatus.REFLEX)
+    assert "joint_reflex" in reflex.text or "violation" in reflex.text, reflex.text
+    stream["cmd"] = [0.0, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0]      # back up: ignored while held
+    assert h.wait(lambda: np.abs(h.states[-1].velocity).max() < 0.01, 10.0)
+    t0 = _stamp(h.states[-1])
+    q_held = np.array(h.states[-1].position)
+    assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)
+    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3
+    assert h.status[-1].code == SafetyStatus.REFLEX and h.status[-1].last_intervention == SafetyStatus.REFLEX
+    res = h.call(Trigger, "panda_bridge/recover", Trigger.Request())
+    assert res.success and "recovered from" in res.message and "zero" in res.message
+    t0 = _stamp(h.states[-1])
+    assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)
+    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3   # recovery starts nothing
+    assert h.status[-1].code == SafetyStatus.AWAITING_ZERO
+    stream["cmd"] = [0.0] * 7
+    n = len(h.states)
+    assert h.wait(lambda: len(h.states) > n + 10, 5.0)
+    stream["cmd"] = [0.0, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0]
+    assert h.wait(lambda: h.states[-1].velocity[1] < -0.25, 5.0)
+    again = h.call(Trigger, "panda_bridge/recover", Trigger.Request())
+    assert again.success and "no reflex" in again.message
 
 
 def _layout(objs):
@@ -210,6 +274,8 @@ def test_reset_with_the_same_seed_reproduces_the_layout(harness):
     ([SceneObject(class_id="bread", x=0.5, y=0.0), SceneObject(class_id="soda_can", x=0.5, y=0.0)], [], ""),
     ([SceneObject(class_id="bread", x=5.0, y=0.0)], [], ""),
     ([], [0.0, 0.1], "q0"),
+    ([], [0.0, 1.4, 0.0, -1.0, 0.0, 1.5708, 0.7854], "collision: panda_link6 with table_top"),
+    ([], [0.959, -0.236, 0.861, -3.05, 0.907, 0.645, -0.47], "panda_link2 with panda_link7"),
 ])
 def test_bad_reset_is_refused_with_a_clear_error_and_the_scene_unchanged(harness, objects, q0, why):
     h = harness(real_time_factor=4.0)
@@ -252,6 +318,9 @@ def test_bad_parameters_are_refused_in_process():
     try:
         for name, value, needle in [("state_rate", 5000.0, "state_rate"), ("backend", "gazebo", "backend"),
                                     ("initial_positions", [0.0, 1.0], "initial_positions"),
+                                    ("initial_positions", [0.0, 1.4, 0.0, -1.0, 0.0, 1.5708, 0.7854],
+                                     "initial_positions.*collision"),
+                                    ("plausibility_factor", 0.5, "plausibility_factor"),
                                     ("camera_width", 4, "camera_width"),
                                     ("real_time_factor", -1.0, "real_time_factor"),
                                     ("ee_frame", "elbow", "ee_frame")]:
@@ -280,6 +349,40 @@ def test_installed_executable_exits_nonzero_with_a_message_on_a_bad_parameter():
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "state_rate" in out.stderr and "range" in out.stderr
+
+
+@pytest.mark.parametrize("backend,signals", [
+    ("mujoco", (signal.SIGINT,)),
+    pytest.param("ros2_control", (signal.SIGTERM,), marks=pytest.mark.slow),
+    pytest.param("mujoco", (signal.SIGINT, signal.SIGINT), marks=pytest.mark.slow),
+])
+def test_the_bridge_stops_within_2_s_of_a_signal_with_use_sim_time_and_no_clock(tmp_path, backend, signals):
+    """use_sim_time:=true and nobody else publishing /clock: timers on the node clock never fire, yet
+    a signal stops the node within 2 s, exit code 0, and a second signal during cleanup prints no
+    traceback."""
+    log = tmp_path / "stderr.txt"
+    with open(log, "w") as err:
+        proc = subprocess.Popen([sys.executable, _installed("panda_bridge"), "--ros-args",
+                                 "-p", "use_sim_time:=true", "-p", f"backend:={backend}",
+                                 "-p", "camera_rate:=0.0"], stdout=subprocess.DEVNULL, stderr=err)
+    try:
+        end = time.monotonic() + 60.0
+        while f"{backend}" not in log.read_text() or "Hz" not in log.read_text():
+            assert proc.poll() is None and time.monotonic() < end, log.read_text()
+            time.sleep(0.05)
+        time.sleep(0.5)
+        t0 = time.monotonic()
+        for sig in signals:
+            proc.send_signal(sig)
+            time.sleep(0.05)
+        rc = proc.wait(timeout=10.0)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = log.read_text()
+    assert rc == 0 and took < 2.0, (rc, took, text)
+    assert "Traceback" not in text, text
 
 
 def _bringup_yaml() -> str:

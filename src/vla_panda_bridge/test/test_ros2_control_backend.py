@@ -129,13 +129,16 @@ def test_forwards_filtered_commands_and_relays_joint_states(rig):
 
 
 def test_over_limit_nan_and_silence_are_filtered_before_the_controller(rig):
-    rig.cmd = np.array([10.0, 0, 0, 0, 0, 0, 0])
+    rig.cmd = np.array([3.0, 0, 0, 0, 0, 0, 0])               # 1.4x the limit: scaled
     assert rig.wait(lambda: rig.arm.commands[-1][0] == pytest.approx(DQ_MAX[0]))
     assert max(c[0] for c in rig.arm.commands) <= DQ_MAX[0]
+    rig.cmd = np.array([1e9, 0, 0, 0, 0, 0, 0])               # not physical: rejected, braked to zero
+    assert rig.wait(lambda: np.all(rig.arm.commands[-1] == 0.0))
+    assert any(s.code == SafetyStatus.IMPLAUSIBLE_COMMAND for s in rig.status)
     rig.cmd = np.array([np.nan] * 7)
     assert rig.wait(lambda: np.all(rig.arm.commands[-1] == 0.0))
     assert all(np.all(np.isfinite(c)) for c in rig.arm.commands)
-    assert any(s.code == SafetyStatus.NON_FINITE_COMMAND for s in rig.status)
+    assert rig.wait(lambda: any(s.code == SafetyStatus.NON_FINITE_COMMAND for s in rig.status))
     rig.cmd = np.full(7, 0.2)
     assert rig.wait(lambda: np.array_equal(rig.arm.commands[-1], np.full(7, 0.2)))
     rig.cmd = None                                        # silence: the watchdog brakes to zero

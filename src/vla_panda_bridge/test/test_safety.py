@@ -85,7 +85,7 @@ def test_step_to_full_speed_uses_but_never_exceeds_the_acceleration_limit():
 
 def test_over_limit_vector_is_scaled_uniformly_keeping_direction():
     f = SafetyFilter()
-    cmd = np.array([6.0, -1.0, 0.5, 2.0, 0.0, -3.0, 1.0])   # joint 1 is 2.76x over its limit
+    cmd = np.array([3.9, -1.0, 0.5, 2.0, 0.0, -3.0, 1.0])   # joint 1 is 1.79x over its limit
     vs, _, codes = run(f, [cmd] * 800, q0=MID)
     ratio = np.max(np.abs(cmd) / DQ_MAX)
     np.testing.assert_allclose(vs[-1], cmd / ratio, atol=1e-12)
@@ -159,9 +159,66 @@ def test_estop_latches_zero_until_released_and_a_new_command_arrives():
     assert_within_limits(f, np.vstack([vs, vs2]))
     f.set_estop(False)
     vs3, _, codes3 = run(f, [None] * 50, q0=qs2[-1], t0=0.5)
-    assert np.all(vs3 == 0.0) and np.all(codes3 == safety.OK)   # release does not resume the command
-    vs4, _, _ = run(f, [-cruise] * 200, q0=qs2[-1], t0=0.55)
+    assert np.all(vs3 == 0.0)                                  # release does not resume the command
+    assert np.all(codes3 == safety.AWAITING_ZERO)
+    vs4, _, _ = run(f, [np.zeros(7)] + [-cruise] * 200, q0=qs2[-1], t0=0.55)
     np.testing.assert_allclose(vs4[-1], -cruise)
+
+
+def test_after_an_estop_release_a_held_stick_moves_nothing_until_a_zero_command():
+    f = SafetyFilter()
+    stick = DQ_MAX * 0.4
+    _, qs, _ = run(f, [stick] * 300, q0=MID)
+    f.set_estop(True)
+    _, qs, _ = run(f, [stick] * 300, q0=qs[-1], t0=0.3)
+    f.set_estop(False)
+    vs, qs, codes = run(f, [stick] * 500, q0=qs[-1], t0=0.6)     # the stick is still held
+    assert np.all(vs == 0.0) and np.all(codes == safety.AWAITING_ZERO)
+    assert f.awaiting_zero and f.commands_rejected == 0          # ignored, not rejected
+    vs, _, codes = run(f, [stick * 1e-7] + [stick] * 300, q0=qs[-1], t0=1.1)   # zero within 1e-6 rad/s
+    np.testing.assert_allclose(vs[-1], stick)
+    assert not f.awaiting_zero and codes[-1] == safety.OK
+
+
+@pytest.mark.parametrize("value", [1e9, -1e9, 1e308, -1e308, 2.0 * 2.175 * 1.0001])
+def test_implausible_command_is_rejected_like_nan_not_scaled(value):
+    f = SafetyFilter()
+    cruise = np.full(7, 0.5)
+    bad = np.zeros(7)
+    bad[1] = value
+    vs, _, codes = run(f, [cruise] * 300 + [bad] + [bad] * 10 + [None] * 400, q0=MID)
+    assert codes[300] == safety.IMPLAUSIBLE_COMMAND
+    assert f.commands_rejected == 11 and f.last_intervention == safety.IMPLAUSIBLE_COMMAND
+    assert np.all(np.abs(vs[301]) < 0.5)                      # braking at once, not executing it
+    assert np.all(vs[-1] == 0.0)
+    assert_within_limits(f, vs)
+    _, code, text = f.filter(bad, MID, 1.0)
+    assert code == safety.IMPLAUSIBLE_COMMAND and "panda_joint2" in text and "2x" in text
+
+
+def test_a_command_at_the_plausibility_bound_is_scaled():
+    f = SafetyFilter(SafetyConfig(plausibility_factor=2.0))
+    cmd = np.zeros(7)
+    cmd[1] = 2.0 * DQ_MAX[1]
+    vs, _, codes = run(f, [cmd] * 400, q0=MID)
+    assert f.commands_rejected == 0 and codes[-1] == safety.VELOCITY_SCALED
+    np.testing.assert_allclose(vs[-1][1], DQ_MAX[1])
+
+
+def test_a_reflex_holds_zero_until_cleared_and_then_needs_a_zero_command():
+    f = SafetyFilter()
+    cruise = DQ_MAX * 0.3
+    _, qs, _ = run(f, [cruise] * 200, q0=MID)
+    f.reset(qs[-1])                                            # the robot stopped itself
+    f.set_fault("joint_velocity_violation: panda_joint2")
+    vs, qs, codes = run(f, [cruise] * 200, q0=qs[-1], t0=0.2)
+    assert np.all(vs == 0.0) and np.all(codes == safety.REFLEX)
+    assert f.last_intervention == safety.REFLEX and f.holding
+    assert f.clear_fault() and not f.clear_fault()
+    vs, qs, codes = run(f, [cruise] * 100, q0=qs[-1], t0=0.4)   # recovery never starts motion itself
+    assert np.all(vs == 0.0) and np.all(codes == safety.AWAITING_ZERO)
+    vs, _, _ = run(f, [np.zeros(7)] + [cruise] * 300, q0=qs[-1], t0=0.5)
+    np.testing.assert_allclose(vs[-1], cruise)
 
 
 def test_position_margin_stops_at_the_margin_and_allows_motion_away():
@@ -252,8 +309,9 @@ def test_excursion_bound_covers_simulated_braking():
 
 
 def _adversarial_stream(rng: np.random.Generator, n: int, bias_to_limits: bool):
-    """Segments of: random vectors, +/-huge steps, sign flips every period, NaN bursts, wrong lengths,
-    dropouts longer than the timeout, and (optionally) full-speed pushes into the position limits."""
+    """Segments of: random vectors, +/-huge steps (1e9: rejected; 1.9x the limit: scaled), sign flips
+    every period, NaN bursts, wrong lengths, dropouts longer than the timeout, and (optionally)
+    full-speed pushes into the position limits."""
     out = []
     while len(out) < n:
         kind = rng.integers(8 if bias_to_limits else 7)
@@ -261,7 +319,7 @@ def _adversarial_stream(rng: np.random.Generator, n: int, bias_to_limits: bool):
         if kind == 0:
             out += [rng.normal(0, 2, 7)] * length
         elif kind == 1:
-            out += [rng.choice([-1e9, 1e9], 7)] * length
+            out += [rng.choice([-1.0, 1.0], 7) * (1e9 if rng.random() < 0.5 else DQ_MAX * 1.9)] * length
         elif kind == 2:
             base = rng.uniform(-3, 3, 7)
             out += [base * (-1) ** k for k in range(length)]

@@ -3,6 +3,11 @@ that equal the filter's period, paced to `real_time_factor` by vla_sim.sim_clock
 steady-clock timer (so it runs with use_sim_time too), with /clock, the camera (rendered by
 vla_sim.camera_worker in a thread of its own) and the ground-truth scene.
 
+The simulated arm behaves like a real Panda at its limits: where contact forces a joint past its
+position, velocity or torque limit the arm stops itself (PandaSim.hold) and the backend reports the
+reflex with libfranka's error name (host.on_fault); commands are ignored until ~/recover. ~/reset
+refuses initial joint positions outside the limits or in collision with the robot itself or the table.
+
 The only module of the runtime packages that imports the simulator. No rclpy: ROS goes through the
 host (the node).
 """
@@ -46,11 +51,13 @@ class MujocoBackend(BackendBase):
         self._rtf = p["real_time_factor"]
         self._dt = 1.0 / p["control_rate"]
         self._base_frame = host.base_frame
+        self.sim = PandaSim(render=False, physics_dt=self._dt)
         try:
-            self.sim = PandaSim(render=False, physics_dt=self._dt)
-            self.layout: list[ObjectPose] = self.sim.reset(seed=p["seed"], q0=p["initial_positions"])
+            self.layout: list[ObjectPose] = self.sim.reset(seed=p["seed"], q0=p["initial_positions"],
+                                                           refuse_collisions=True)
         except ValueError as exc:
             raise BackendError(f"parameter 'initial_positions': {exc}") from exc
+        self.fault = ""                               # the reflex the arm stopped with, until recovered
         self._dt_ns = round(1e9 * self.sim.physics_dt)
         self._steps = 0                               # physics steps since start: the sim clock
         self._clock_origin_ns = time.time_ns()        # sim time starts at the wall time of startup
@@ -138,20 +145,32 @@ class MujocoBackend(BackendBase):
                 f"real time {rtf}, {cam}; {len(self.layout)} objects "
                 f"({', '.join(o.class_id for o in self.layout)})")
 
+    def recover(self) -> str:
+        """~/recover: hold where the arm is now and watch the limits again."""
+        if not self.fault:
+            return super().recover()
+        text, self.fault = self.fault, ""
+        self.sim.hold()
+        self.sim.clear_reflex()
+        self._measure = True
+        return f"recovered from {text}"
+
     def reset(self, request, response):
-        """~/reset: ValueError-free; a refused layout or pose leaves the scene unchanged."""
+        """~/reset: a new layout and arm pose (not in collision); a refused one leaves the scene as it
+        was. A reset arm has no reflex latched."""
         try:
             objects = [ObjectPose(o.class_id, float(o.x), float(o.y), float(o.yaw))
                        for o in request.objects] or None
             seed = int(request.seed) if request.use_seed and objects is None else None
             q0 = list(request.initial_positions) or None
-            self.layout = self.sim.reset(seed=seed, objects=objects, q0=q0)
+            self.layout = self.sim.reset(seed=seed, objects=objects, q0=q0, refuse_collisions=True)
         except ValueError as exc:
             response.success = False
             response.message = f"reset refused, scene unchanged: {exc}"
             response.objects = [scene_object_msg(o) for o in self.sim.object_poses()]
             return response
         self._measure = True
+        self.fault = ""
         self.publish_scene()
         self._host.publish_state()
         self._request_frame()
@@ -173,6 +192,8 @@ class MujocoBackend(BackendBase):
                 host.control_step()
                 sim.step(1)
                 self._steps += 1
+                if sim.reflex() is not None and not self.fault:
+                    self._reflex(sim.reflex())
                 if self._frame_steps and self._steps >= (self._frame_index + 1) * self._frame_steps - 1e-9:
                     self._frame_index += 1
                     self._request_frame()
@@ -182,6 +203,13 @@ class MujocoBackend(BackendBase):
             host.publish_state()
         if self._clock_pub is not None and units:
             self._clock_pub.publish(Clock(clock=stamp_from_ns(self.now_ns())))
+
+    def _reflex(self, text: str) -> None:
+        """The arm went past a limit: it stops itself where it is, the node holds the filter."""
+        self.fault = text
+        self.sim.hold()
+        self._measure = True
+        self._host.on_fault(text)
 
     # ------------------------------------------------------------------------------ publishing
     def publish_scene(self) -> None:

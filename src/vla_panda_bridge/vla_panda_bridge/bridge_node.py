@@ -3,12 +3,13 @@
 Takes joint-velocity commands on `joint_velocity_cmd` and, once per control period, runs the latest
 one through the SafetyFilter against the measured state and writes the result to the backend — one
 control path for every backend (backend.py; the table in backends.py). Publishes joint_states,
-ee_pose and ~/status; serves ~/estop and ~/reset. A thin wrapper: the algorithms live in safety.py,
-the backends and kinematics.py.
+ee_pose and ~/status; serves ~/estop, ~/recover and ~/reset. A thin wrapper: the algorithms live in
+safety.py, the backends and kinematics.py.
 """
 
 from __future__ import annotations
 
+import array
 import math
 import sys
 import time
@@ -20,9 +21,9 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-from std_srvs.srv import SetBool
+from std_srvs.srv import SetBool, Trigger
 from vla_common.robot import PANDA
-from vla_common.ros.convert import pose_msg, stamp_from_ns
+from vla_common.ros.convert import quat_wxyz_from_matrix, stamp_from_ns
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
@@ -82,6 +83,8 @@ PARAMETERS = ParameterTable([
     Param("jerk_scale", 1.0, "Fraction of the robot's dddq_max allowed", range=(0.01, 1.0)),
     Param("position_sync_tolerance", 0.05, "Re-sync the integrated reference to the measured position "
           "beyond this drift (rad)", range=(0.001, 1.0)),
+    Param("plausibility_factor", 2.0, "A command beyond this times the joint's dq_max is a fault: "
+          "rejected (zero, IMPLAUSIBLE_COMMAND), not scaled", range=(1.0, 100.0)),
     Param("status_rate", 1.0, "~/status rate when nothing happens (Hz); interventions publish at once",
           range=(0.1, 100.0)),
     Param("command_topic", "/joint_velocity_controller/commands",
@@ -126,7 +129,8 @@ class PandaBridge(Node):
         self.filter = SafetyFilter(SafetyConfig(
             dt=self._dt, velocity_scale=p["velocity_scale"], acceleration_scale=p["acceleration_scale"],
             jerk_scale=p["jerk_scale"], position_margin=p["position_margin"],
-            command_timeout=p["command_timeout"], position_sync_tolerance=p["position_sync_tolerance"]))
+            command_timeout=p["command_timeout"], position_sync_tolerance=p["position_sync_tolerance"],
+            plausibility_factor=p["plausibility_factor"]))
         from vla_common.kinematics import PandaKinematics  # Pinocchio: import only when needed
 
         kin = PandaKinematics()
@@ -143,6 +147,12 @@ class PandaBridge(Node):
         state_qos = QoSProfile(depth=STATE_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
         self._js_pub = self.create_publisher(JointState, "joint_states", state_qos)
         self._ee_pub = self.create_publisher(PoseStamped, "ee_pose", state_qos)
+        # One message of each, refilled for every state (publish serializes it at once): building new
+        # ones and their field checks cost 10 of the 35 us a state took.
+        self._js = JointState()
+        self._js.name = list(self.spec.joint_names)
+        self._pose = PoseStamped()
+        self._pose.header.frame_id = self.base_frame
         self._status_pub = self.create_publisher(SafetyStatus, "~/status", 10)
         try:
             self.backend = BACKENDS[p["backend"]].make(self)
@@ -150,6 +160,7 @@ class PandaBridge(Node):
             raise ConfigError(str(exc)) from exc
         self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._on_command, 10)
         self.create_service(SetBool, "~/estop", self._on_estop)
+        self.create_service(Trigger, "~/recover", self._on_recover)
         self.create_service(ResetScene, "~/reset", self._on_reset)
         q = self.backend.position()
         self.filter.reset(q)
@@ -178,6 +189,13 @@ class PandaBridge(Node):
     def create_wall_timer(self, period: float, callback):
         return self.create_timer(period, callback, clock=self._steady)
 
+    def on_fault(self, text: str) -> None:
+        """The robot stopped itself (a reflex): the filter holds zero from where it is until ~/recover."""
+        self.filter.reset(self.backend.position())
+        self.filter.set_fault(text)
+        self.get_logger().error(f"robot reflex: {text}; holding until ~/recover")
+        self._publish_status(safety.REFLEX, f"robot reflex ({text}): holding until ~/recover")
+
     def _on_command(self, msg: Float64MultiArray) -> None:
         code, text = self.filter.submit(msg.data, self.backend.now())
         if code != safety.OK:
@@ -191,19 +209,19 @@ class PandaBridge(Node):
             return
         stamp = stamp_from_ns(sample.stamp_ns)
         if self.backend.publishes_joint_states:
-            js = JointState()
+            js = self._js
             js.header.stamp = stamp
-            js.name = list(self.spec.joint_names)
-            js.position = sample.position.tolist()
-            js.velocity = sample.velocity.tolist()
-            js.effort = sample.effort.tolist()
+            js.position = _doubles(sample.position)
+            js.velocity = _doubles(sample.velocity)
+            js.effort = _doubles(sample.effort)
             self._js_pub.publish(js)
             self.states_published += 1
         pos, rot = self._fk(sample.position)
-        pose = PoseStamped()
+        pose = self._pose
         pose.header.stamp = stamp
-        pose.header.frame_id = self.base_frame
-        pose.pose = pose_msg(pos, rot)
+        p, o = pose.pose.position, pose.pose.orientation
+        p.x, p.y, p.z = float(pos[0]), float(pos[1]), float(pos[2])
+        o.w, o.x, o.y, o.z = quat_wxyz_from_matrix(rot)
         self._ee_pub.publish(pose)
 
     def _publish_status(self, code: int | None = None, text: str | None = None) -> None:
@@ -229,12 +247,28 @@ class PandaBridge(Node):
         self.filter.set_estop(request.data)
         response.success = True
         response.message = ("e-stop latched: braking to zero, commands ignored until released"
-                            if request.data else "e-stop released: send a new command to move")
+                            if request.data else "e-stop released: send a zero command, then move")
         if request.data:
             self.get_logger().warn(response.message)
         else:
             self.get_logger().info(response.message)
-        self._publish_status(safety.ESTOP if request.data else safety.OK, response.message)
+        self._publish_status(self.filter.hold_code(), response.message)
+        return response
+
+    def _on_recover(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
+        """After a reflex: the backend re-arms the robot, the filter waits for a zero command."""
+        try:
+            text = self.backend.recover()
+        except (UnsupportedError, RuntimeError) as exc:
+            response.success, response.message = False, f"recovery refused: {exc}"
+            self.get_logger().warn(response.message)
+            return response
+        if self.filter.clear_fault():
+            self.filter.reset(self.backend.position())
+            text = f"{text}; send a zero command, then move"
+        response.success, response.message = True, text
+        self.get_logger().info(response.message)
+        self._publish_status(self.filter.hold_code(), response.message)
         return response
 
     def _on_reset(self, request: ResetScene.Request, response: ResetScene.Response) -> ResetScene.Response:
@@ -245,6 +279,8 @@ class PandaBridge(Node):
             return response
         if response.success:
             self.filter.reset(self.backend.position())
+            if self.filter.clear_fault():                  # a new scene is a recovered arm
+                response.message += "; reflex cleared: send a zero command, then move"
             self.get_logger().info(response.message)
         else:
             self.get_logger().warn(response.message)
@@ -273,6 +309,11 @@ class PandaBridge(Node):
     def destroy_node(self) -> None:
         self.on_shutdown()
         super().destroy_node()
+
+
+def _doubles(values: np.ndarray) -> array.array:
+    """A float64 sequence field without the per-element checks a list gets."""
+    return array.array("d", np.ascontiguousarray(values, dtype=float).tobytes())
 
 
 def main(args=None) -> int:

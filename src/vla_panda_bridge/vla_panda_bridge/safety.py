@@ -2,16 +2,20 @@
 
 Every backend (MuJoCo, ros2_control) runs each command through one `SafetyFilter`, once per control
 period `dt`. The filter turns an arbitrary, possibly malformed stream of 7-value velocity commands into
-a velocity output that is continuous, within the Panda's velocity/acceleration/jerk table, stays clear
-of the position limits, and comes to rest when commands stop, on e-stop and on shutdown.
+a velocity output that is continuous, within the robot's velocity/acceleration/jerk table (a
+`vla_common.robot.RobotSpec`, the Panda's by default), stays clear of the position limits, and comes
+to rest when commands stop, on e-stop, on a reflex of the robot and on shutdown.
 
 Pipeline per control period:
-  1. validation: a new command with the wrong length or a NaN/Inf is rejected (counted, reported,
-     treated as zero);
+  1. validation: a new command with the wrong length, a NaN/Inf, or a value beyond
+     `plausibility_factor` times the joint's dq_max (1e9 rad/s is a fault, not "full speed") is
+     rejected (counted, reported, treated as zero);
   2. velocity scaling: a vector over the velocity limit is scaled uniformly by the worst joint's
      ratio, so its direction is kept;
-  3. watchdog / e-stop: no valid command for `command_timeout`, or a latched e-stop, sets the target
-     to zero (e-stop holds it there until released);
+  3. watchdog / holds: no valid command for `command_timeout`, or a hold — a latched e-stop, a reflex
+     the robot reported (until recovered), teaching mode — sets the target to zero and ignores
+     commands. After a hold is released motion needs a zero command first (a stick held through an
+     e-stop release does not start the arm);
   4. position margin, soft part: near a limit the target towards it is capped so the joint can still
      stop at `position_margin` from the limit; motion away is never capped;
   5. a per-joint jerk-limited tracker moves the output velocity towards the target;
@@ -41,7 +45,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from vla_common.robot import DDDQ_MAX, DDQ_MAX, DQ_MAX, JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN
+from vla_common.robot import NUM_JOINTS, PANDA, RobotSpec
 
 # Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
 # a test checks they agree).
@@ -54,28 +58,36 @@ POSITION_MARGIN = 5
 COMMAND_TIMEOUT = 6
 ESTOP = 7
 INVALID_STATE = 8
+IMPLAUSIBLE_COMMAND = 9
+REFLEX = 10
+TEACHING = 11
+AWAITING_ZERO = 12
 CODE_NAMES = {OK: "OK", NON_FINITE_COMMAND: "NON_FINITE_COMMAND", WRONG_LENGTH: "WRONG_LENGTH",
               VELOCITY_SCALED: "VELOCITY_SCALED", ACCELERATION_LIMITED: "ACCELERATION_LIMITED",
               POSITION_MARGIN: "POSITION_MARGIN", COMMAND_TIMEOUT: "COMMAND_TIMEOUT", ESTOP: "ESTOP",
-              INVALID_STATE: "INVALID_STATE"}
+              INVALID_STATE: "INVALID_STATE", IMPLAUSIBLE_COMMAND: "IMPLAUSIBLE_COMMAND",
+              REFLEX: "REFLEX", TEACHING: "TEACHING", AWAITING_ZERO: "AWAITING_ZERO"}
+_REJECTIONS = (NON_FINITE_COMMAND, WRONG_LENGTH, IMPLAUSIBLE_COMMAND)
 
 # The soft position cap plans the approach with this fraction of the deceleration limit, so the
 # tracker follows it without leaning on the hard check (which would brake in bang-bang fashion).
 _CAP_DECEL_FRACTION = 0.8
 _SNAP = 1e-12  # |v_t - v| below which the output lands exactly on the target
+ZERO_COMMAND = 1e-6  # rad/s: a command with every |value| at or below this counts as zero (re-arming)
 
 
 @dataclass(frozen=True)
 class SafetyConfig:
-    """Parameters of the safety layer; limits are fractions of the Panda table in `panda.py`."""
+    """Parameters of the safety layer; limits are fractions of the robot's table (vla_common.robot)."""
 
     dt: float = 0.001                    # control period (s): one filter update per servo/physics step
-    velocity_scale: float = 1.0          # fraction of DQ_MAX allowed (a configurable lower max)
-    acceleration_scale: float = 1.0      # fraction of DDQ_MAX
-    jerk_scale: float = 1.0              # fraction of DDDQ_MAX
+    velocity_scale: float = 1.0          # fraction of dq_max allowed (a configurable lower max)
+    acceleration_scale: float = 1.0      # fraction of ddq_max
+    jerk_scale: float = 1.0              # fraction of dddq_max
     position_margin: float = 0.1         # rad kept from every position limit
     command_timeout: float = 0.1         # s without a valid command before braking to zero
     position_sync_tolerance: float = 0.05  # rad of reference-vs-measured drift that forces a re-sync
+    plausibility_factor: float = 2.0     # a command beyond this times dq_max is a fault: rejected
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad value."""
@@ -92,6 +104,7 @@ class SafetyConfig:
         check("position_margin", self.position_margin, 0.0, 0.5, lo_open=False)
         check("command_timeout", self.command_timeout, 0.0, 10.0)
         check("position_sync_tolerance", self.position_sync_tolerance, 0.0, 1.0)
+        check("plausibility_factor", self.plausibility_factor, 1.0, 100.0, lo_open=False)
 
 
 class SafetyFilter:
@@ -105,13 +118,16 @@ class SafetyFilter:
     values that is several times faster than NumPy, which matters at 1 kHz.
     """
 
-    def __init__(self, config: SafetyConfig | None = None):
+    def __init__(self, config: SafetyConfig | None = None, robot: RobotSpec = PANDA):
         self.config = cfg = config or SafetyConfig()
         cfg.validate()
+        self.robot = robot
+        self._names = robot.joint_names
         h = cfg.dt
-        self.v_max = DQ_MAX * cfg.velocity_scale
-        self.a_max = DDQ_MAX * cfg.acceleration_scale
-        self.j_max = DDDQ_MAX * cfg.jerk_scale
+        self.v_max = robot.dq_max * cfg.velocity_scale
+        self.a_max = robot.ddq_max * cfg.acceleration_scale
+        self.j_max = robot.dddq_max * cfg.jerk_scale
+        self._plausible = robot.dq_max * cfg.plausibility_factor
         A, J = self.a_max, self.j_max
         D = J * h                                           # largest acceleration change per step
         v_star = h * A + A * A / (2 * J)                    # below it braking is on the jerk-limited curve
@@ -123,8 +139,8 @@ class SafetyFilter:
         far_check = np.ceil(2 * A / D) * h * v_pk + v_pk ** 2 / (2 * A) + tail
         far_cap = cap_n * self.v_max + self.v_max ** 2 / (2 * cap_a) + tail
         far = np.maximum(far_check, far_cap) + 2 * h * self.v_max + 1e-6
-        q_lo = Q_MIN + cfg.position_margin
-        q_hi = Q_MAX - cfg.position_margin
+        q_lo = robot.q_min + cfg.position_margin
+        q_hi = robot.q_max - cfg.position_margin
         self._h = h
         # Per joint: (V, A, J, D, q_lo, q_hi, tail, cap_n, cap_a, far) as Python floats.
         self._lim = [tuple(float(x[i]) for x in (self.v_max, A, J, D, q_lo, q_hi, tail, cap_n, cap_a, far))
@@ -138,6 +154,10 @@ class SafetyFilter:
         self._target_text = ""
         self._last_valid: float | None = None
         self._estop = False
+        self._fault = ""                                    # reflex text while one is latched
+        self._teaching = False
+        self._armed = True                                  # False: waiting for a zero command
+        self._armed_text = ""
         self._code = OK
         self.commands_received = 0
         self.commands_rejected = 0
@@ -163,6 +183,24 @@ class SafetyFilter:
         return self._estop
 
     @property
+    def fault(self) -> str:
+        """The latched reflex text ("" when none)."""
+        return self._fault
+
+    @property
+    def teaching(self) -> bool:
+        return self._teaching
+
+    @property
+    def holding(self) -> bool:
+        """Commands are ignored and the output held at zero (e-stop, reflex or teaching)."""
+        return self._estop or bool(self._fault) or self._teaching
+
+    @property
+    def awaiting_zero(self) -> bool:
+        return not self._armed
+
+    @property
     def is_stopped(self) -> bool:
         return not any(self._v) and not any(self._a)
 
@@ -172,7 +210,8 @@ class SafetyFilter:
 
     def reset(self, q=None) -> None:
         """Forget motion (the arm was teleported or restarted): output at rest, target zero, watchdog
-        cleared, reference re-synchronised to `q` (or on the next call). The e-stop latch survives."""
+        cleared, reference re-synchronised to `q` (or on the next call). Holds and the wait for a
+        zero command survive."""
         self._v = [0.0] * NUM_JOINTS
         self._a = [0.0] * NUM_JOINTS
         self._target = [0.0] * NUM_JOINTS
@@ -181,14 +220,59 @@ class SafetyFilter:
         self._q_ref = _valid_q(q)
 
     def set_estop(self, active: bool) -> None:
-        """Latch (True) or release (False). Release does not resume the old command: a new one is needed."""
+        """Latch (True) or release (False). After a release motion needs a zero command first."""
         active = bool(active)
         if active and not self._estop:
             self._count_intervention(ESTOP)
+        if not active and self._estop:
+            self._disarm("e-stop released")
         self._estop = active
+        self._zero_target()
+
+    def set_fault(self, text: str) -> None:
+        """The robot stopped itself with a reflex (`text` says which): hold zero until clear_fault()."""
+        if not self._fault:
+            self._count_intervention(REFLEX)
+        self._fault = text or "reflex"
+        self._zero_target()
+
+    def clear_fault(self) -> bool:
+        """Recovered: motion needs a zero command first. False if no reflex was latched."""
+        if not self._fault:
+            return False
+        self._fault = ""
+        self._disarm("recovered from a reflex")
+        self._zero_target()
+        return True
+
+    def set_teaching(self, active: bool) -> None:
+        """Teaching mode (the arm backdrivable): output zero, commands ignored. Leaving it needs a zero
+        command before motion, as after an e-stop."""
+        active = bool(active)
+        if self._teaching and not active:
+            self._disarm("teaching mode left")
+        self._teaching = active
+        self._zero_target()
+
+    def _disarm(self, why: str) -> None:
+        self._armed = False
+        self._armed_text = f"{why}: send a zero command before moving"
+
+    def _zero_target(self) -> None:
         self._target = [0.0] * NUM_JOINTS
         self._target_code, self._target_text = OK, ""
         self._last_valid = None
+
+    def hold_code(self) -> int:
+        """The code a hold or the wait for a zero command gives now (OK if none): for a status sent
+        right after a service changed them, before the next period."""
+        if self._estop:
+            return ESTOP
+        if self._fault:
+            return REFLEX
+        if self._teaching:
+            return TEACHING
+        return OK if self._armed else AWAITING_ZERO
 
     def stopping_time_bound(self) -> float:
         """Upper bound (s) on how long braking from the current state takes (for shutdown loops)."""
@@ -218,16 +302,16 @@ class SafetyFilter:
 
         state_ok = self._sync_position(q)
         q_ref = self._q_ref
-        hold = self._estop or not state_ok                  # no valid measured position: brake
+        hold = self._estop or self._fault or self._teaching or not state_ok   # no valid position: brake
         h = self._h
         v_out = [0.0] * NUM_JOINTS
         a_out = [0.0] * NUM_JOINTS
         margin_joints: list[int] = []
         accel_limited = False
-        for i in range(NUM_JOINTS):
-            V, A, J, D, lo, hi, tail, cap_n, cap_a, far = self._lim[i]
-            t = 0.0 if hold else self._target[i]
-            v, a = self._v[i], self._a[i]
+        target, vel, acc = self._target, self._v, self._a
+        for i, (_, A, J, D, lo, hi, tail, cap_n, cap_a, far) in enumerate(self._lim):
+            t = 0.0 if hold else target[i]
+            v, a = vel[i], acc[i]
             near = q_ref is not None and (hi - q_ref[i] < far or q_ref[i] - lo < far)
             if near:
                 qi = q_ref[i]
@@ -235,7 +319,17 @@ class SafetyFilter:
                 if abs(capped - t) > 1e-9:
                     margin_joints.append(i)
                 t = capped
-            vn, an = _track(v, a, t, h, A, J, D)
+            if v == t and a == 0.0:                         # on target: what _track returns, faster
+                vn, an = v, 0.0
+            else:                                           # _track, inlined (the 1 kHz path)
+                e = t - v
+                ae = abs(e)
+                mag = 2.0 * ae / (h + math.sqrt(h * h + 2.0 * ae / J))
+                a_des = (mag if mag < A else A) if e >= 0.0 else -(mag if mag < A else A)
+                an = a - D if a_des < a - D else a + D if a_des > a + D else a_des
+                vn = v + h * an
+                if abs(t - vn) < _SNAP and abs(an) < 1e-6:
+                    vn, an = t, 0.0
             if near and not self._reachable(i, vn, an):
                 vn, an = _track(v, a, 0.0, h, A, J, D)      # brake: a state that already passed
                 if not margin_joints or margin_joints[-1] != i:
@@ -251,14 +345,20 @@ class SafetyFilter:
         moving = not self.is_stopped
         if self._estop:
             code, text = ESTOP, "e-stop latched: decelerating to zero and holding until released"
+        elif self._fault:
+            code, text = REFLEX, f"robot reflex ({self._fault}): holding until ~/recover"
+        elif self._teaching:
+            code, text = TEACHING, "teaching mode: the arm is backdrivable, commands are ignored"
         elif event_code != OK:
             code, text = event_code, event_text
         elif not state_ok:
             code, text = INVALID_STATE, "no valid measured joint position: braking to zero"
-        elif self._target_code in (COMMAND_TIMEOUT, NON_FINITE_COMMAND, WRONG_LENGTH) and moving:
+        elif (self._target_code == COMMAND_TIMEOUT or self._target_code in _REJECTIONS) and moving:
             code, text = self._target_code, self._target_text
+        elif not self._armed:
+            code, text = AWAITING_ZERO, self._armed_text
         elif margin_joints:
-            names = ", ".join(JOINT_NAMES[i] for i in margin_joints)
+            names = ", ".join(self._names[i] for i in margin_joints)
             code = POSITION_MARGIN
             text = f"{names} slowed to stop {self.config.position_margin:.3g} rad from the position limit"
         elif self._target_code == VELOCITY_SCALED:
@@ -268,7 +368,7 @@ class SafetyFilter:
         else:
             code, text = OK, ""
         if code != self._code and code in (VELOCITY_SCALED, ACCELERATION_LIMITED, POSITION_MARGIN,
-                                           INVALID_STATE):
+                                           INVALID_STATE, AWAITING_ZERO):
             self._count_intervention(code)                  # the others are counted where they happen
         self._code = code
         return np.array(v_out), code, text
@@ -281,7 +381,9 @@ class SafetyFilter:
     def submit(self, cmd, now: float) -> tuple[int, str]:
         """Take a new command without stepping (a node calls this as each message arrives, so every
         command is validated and counted even if several arrive within one period; the latest valid
-        one is the target). Returns (NON_FINITE_COMMAND | WRONG_LENGTH, text) on rejection, else (OK, "")."""
+        one is the target). Returns (NON_FINITE_COMMAND | WRONG_LENGTH | IMPLAUSIBLE_COMMAND, text) on
+        rejection, else (OK, ""); a valid command that a hold or the wait for a zero command ignores is
+        (OK, "") too (the status code says why nothing moves)."""
         if not (isinstance(now, float | int) and math.isfinite(now)):
             now = math.nan
         self.commands_received += 1
@@ -295,16 +397,27 @@ class SafetyFilter:
                                 f"command rejected: {n}, expected {NUM_JOINTS}; treated as zero")
         finite = np.isfinite(arr)
         if not finite.all():
-            bad = ", ".join(JOINT_NAMES[i] for i in np.flatnonzero(~finite))
+            bad = ", ".join(self._names[i] for i in np.flatnonzero(~finite))
             return self._reject(NON_FINITE_COMMAND,
                                 f"command rejected: non-finite value at {bad}; treated as zero")
-        if self._estop:
-            return OK, ""                                   # ignored while latched
+        excess = np.abs(arr) / self._plausible
+        if excess.max() > 1.0:
+            i = int(np.argmax(excess))
+            return self._reject(IMPLAUSIBLE_COMMAND,
+                                f"command rejected: {self._names[i]} at {arr[i]:.3g} rad/s is beyond "
+                                f"{self.config.plausibility_factor:g}x its limit "
+                                f"({self.robot.dq_max[i]:g} rad/s); treated as zero")
+        if self.holding:
+            return OK, ""                                   # ignored while held
+        if not self._armed:
+            if float(np.abs(arr).max()) > ZERO_COMMAND:
+                return OK, ""                               # ignored until a zero command
+            self._armed, self._armed_text = True, ""
         self._last_valid = now
         ratios = np.abs(arr) / self.v_max
         ratio = float(ratios.max())
         if ratio > 1.0:
-            worst = JOINT_NAMES[int(np.argmax(ratios))]
+            worst = self._names[int(np.argmax(ratios))]
             self._target = (arr / ratio).tolist()
             self._target_code = VELOCITY_SCALED
             self._target_text = (f"velocity scaled by {1.0 / ratio:.3g} keeping its direction "

@@ -72,7 +72,7 @@ def test_command_is_clipped_and_validated(sim):
     sim.reset(seed=0)
     sim.set_velocity_command(np.full(7, 100.0))
     sim.step(1)
-    assert np.all(np.abs(sim.data.ctrl[:7]) <= DQ_MAX + 1e-12)
+    assert np.all(np.abs(sim.command) <= DQ_MAX + 1e-12)
     with pytest.raises(ValueError):
         sim.set_velocity_command(np.zeros(6))
     with pytest.raises(ValueError):

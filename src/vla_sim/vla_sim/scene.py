@@ -16,7 +16,7 @@ from vla_common.camera_model import SIM_WEBCAM
 from vla_common.catalogue import Catalogue, ObjectSpec, default_catalogue
 from vla_common.kinematics import FINGER_JOINTS, panda_description_dir, panda_urdf_path
 from vla_common.layout import TABLE_X, TABLE_Y
-from vla_common.robot import DQ_MAX, JOINT_NAMES, Q_MAX, Q_MIN, TAU_MAX
+from vla_common.robot import JOINT_NAMES, TAU_MAX
 
 # Table: the robot is mounted on the table top (z = 0) at the origin, x away from the robot.
 TABLE_THICKNESS = 0.04
@@ -32,13 +32,12 @@ OBJECT_BODY_PREFIX = "obj_"
 # floating (gravity compensated, no contacts) so they cost nothing and never move.
 PARK_X = 4.0
 
-# Joint servos: stiff position loop on an integrated target plus velocity feedback on the commanded
-# velocity: tau = kp (q_target - q) + kv (dq_cmd - dq), q_target = integral of dq_cmd, clipped to
-# the joint limits; total joint torque clipped to TAU_MAX; gravity compensated through the actuators.
-SERVO_KP = np.array([4000.0, 4000.0, 3000.0, 3000.0, 800.0, 800.0, 400.0])
-SERVO_KV = np.array([120.0, 120.0, 90.0, 90.0, 20.0, 20.0, 10.0])
+# Joint drives: one torque motor per joint, set every physics step by the joint servo in sim.py (a
+# computed-torque position servo on the integrated command, its acceleration limited to the Panda's
+# table); total joint torque clipped to TAU_MAX; gravity compensated through the actuators.
 JOINT_ARMATURE = np.array([0.3, 0.3, 0.3, 0.3, 0.1, 0.1, 0.1])
 ROBOT_FRICTION = 0.3
+MOTOR_PREFIX = "motor_"
 TABLE_FRICTION = 0.3
 
 # Collision bits: robot (1) hits table and objects but not itself; objects (2) hit everything.
@@ -227,6 +226,7 @@ def build_spec(physics_dt: float = 0.002, catalogue: Catalogue | None = None) ->
     for i, name in enumerate(JOINT_NAMES):
         j = spec.joint(name)
         j.armature = float(JOINT_ARMATURE[i])
+        j.damping = [0.0, 0.0, 0.0]  # the servo models the drive (not the URDF's 0.003); see teaching
         j.actgravcomp = True
         j.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
         j.actfrcrange = [-float(TAU_MAX[i]), float(TAU_MAX[i])]
@@ -236,24 +236,12 @@ def build_spec(physics_dt: float = 0.002, catalogue: Catalogue | None = None) ->
     site.size = [0.005, 0.005, 0.005]
     site.rgba = [1.0, 0.2, 0.2, 0.0]
 
-    for i, name in enumerate(JOINT_NAMES):
+    for name in JOINT_NAMES:
         a = spec.add_actuator()
-        a.name = f"servo_{name}"
+        a.name = MOTOR_PREFIX + name
         a.target = name
         a.trntype = mujoco.mjtTrn.mjTRN_JOINT
-        a.set_to_intvelocity(kp=float(SERVO_KP[i]))
-        a.actlimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        a.actrange = [float(Q_MIN[i]), float(Q_MAX[i])]
-        a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        a.ctrlrange = [-float(DQ_MAX[i]), float(DQ_MAX[i])]
-    for i, name in enumerate(JOINT_NAMES):
-        a = spec.add_actuator()
-        a.name = f"damper_{name}"
-        a.target = name
-        a.trntype = mujoco.mjtTrn.mjTRN_JOINT
-        a.set_to_velocity(kv=float(SERVO_KV[i]))
-        a.ctrllimited = mujoco.mjtLimited.mjLIMITED_TRUE
-        a.ctrlrange = [-float(DQ_MAX[i]), float(DQ_MAX[i])]
+        a.set_to_motor()  # torque = ctrl; the joint's actfrcrange clips it with the gravity compensation
 
     world = spec.worldbody
     floor = world.add_geom()

@@ -33,6 +33,8 @@ def _exc(name: str, text: str) -> Exception:
     (RuntimeError("libfranka: Incompatible library version (server version: 5, library version: 10)."),
      FATAL),
     (ValueError("Commanding value is infinite or NaN."), FATAL),
+    (_exc("IncompatibleVersionError", "The robot speaks protocol version 9, but this panda-py was built "
+          "with a libfranka that speaks version 5."), FATAL),
 ])
 def test_libfranka_errors_are_classified(exc, kind):
     err = classify(exc, during_motion=True)
@@ -43,6 +45,8 @@ def test_libfranka_errors_are_classified(exc, kind):
 def test_the_server_version_is_read_from_the_incompatible_version_text():
     assert drv.server_version("libfranka: Incompatible library version (server version: 5, "
                               "library version: 10).") == 5
+    assert drv.server_version("IncompatibleVersionError: The robot speaks protocol version 9, but "
+                              "this panda-py was built with a libfranka that speaks version 5.") == 9
     assert drv.server_version("libfranka: UDP receive: Timeout") is None
 
 

@@ -30,7 +30,9 @@ PANDA_PY_PROTOCOL = 5       # panda-py 1.1.1 (libfranka 0.9.2): Panda (FER)
 # motions!", the answer of a Robot whose connection died earlier).
 _LOST = ("network", "udp", "tcp", "connection", "net exception", "host not found", "timeout",
          "multiple motions")
-_SERVER_VERSION = re.compile(r"server version:\s*(\d+)")
+# libfranka: "Incompatible library version (server version: 5, library version: 10)"; panda-py's own
+# IncompatibleVersionError: "The robot speaks protocol version 5, but this panda-py was built ...".
+_SERVER_VERSION = re.compile(r"(?:server version:|robot speaks protocol version)\s*(\d+)")
 
 
 class RobotError(RuntimeError):
@@ -57,7 +59,8 @@ def classify(exc: BaseException, during_motion: bool) -> RobotError:
     text = str(exc) if name == "RuntimeError" else f"{name}: {exc}"
     low = text.lower()
     lost = any(w in low for w in _LOST)
-    if "incompatible library version" in low or "realtime" in low or "real-time" in low:
+    if "incompatible" in name.lower() or "incompatible library version" in low or "realtime" in low \
+            or "real-time" in low:
         return RobotError(FATAL, text)
     if not lost and (name == "ControlException" or "reflex" in low or "move command aborted" in low):
         return RobotError(REFLEX, text)

@@ -141,7 +141,7 @@ PARAMS = {"robot_ip": "192.0.2.1", "driver": "auto", "realtime_config": "ignore"
           "lower_force_thresholds": [20.0] * 6, "upper_force_thresholds": [20.0] * 6,
           "joint_impedance": [3000.0] * 7, "teaching_damping": [1.0] * 7, "velocity_scale": 0.5,
           "acceleration_scale": 1.0, "jerk_scale": 1.0, "position_margin": 0.1, "command_timeout": 0.1,
-          "position_sync_tolerance": 0.05}
+          "position_sync_tolerance": 0.05, "plausibility_factor": 2.0}
 
 
 def test_the_bridge_parameters_make_the_loop_settings():

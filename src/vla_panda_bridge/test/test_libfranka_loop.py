@@ -466,3 +466,12 @@ def test_a_command_slot_caught_mid_write_keeps_the_previous_command(rig):
     rig.slots._cmd_seq[0] += 1.0
     rig.run(5, command=velocity(3, 0.2))
     assert rig.state().mode == lf.MODE_VELOCITY
+
+
+@pytest.mark.parametrize("model", ["fr3", "panda"])
+def test_the_loop_filter_has_the_robot_models_limits_at_the_robot_rate(model):
+    from vla_common.robot import robot_spec
+
+    f = lf.make_filter(LoopSettings(robot_model=model, safety={"velocity_scale": 0.5}))
+    assert f.robot is robot_spec(model) and f.config.dt == lf.PERIOD
+    np.testing.assert_allclose(f.v_max, robot_spec(model).dq_max * 0.5)

@@ -30,7 +30,7 @@ from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
 WATCH_RATE = 100.0      # Hz: the loop's status and its process are checked this often
 REQUEST_TIMEOUT = 5.0   # s to wait for the loop to answer ~/recover or ~/set_teaching
 SAFETY_PARAMS = ("velocity_scale", "acceleration_scale", "jerk_scale", "position_margin", "command_timeout",
-                 "position_sync_tolerance")
+                 "position_sync_tolerance", "plausibility_factor")
 LENGTHS = {"lower_torque_thresholds": 7, "upper_torque_thresholds": 7, "lower_force_thresholds": 6,
            "upper_force_thresholds": 6, "joint_impedance": 7, "teaching_damping": 7}
 

@@ -31,6 +31,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
+from vla_common.robot import robot_spec
 
 from vla_panda_bridge.libfranka_driver import (
     FATAL,
@@ -104,8 +105,9 @@ class LoopSettings:
 
 
 def make_filter(settings: LoopSettings) -> SafetyFilter:
-    """The bridge's SafetyFilter at the robot's rate."""
-    return SafetyFilter(SafetyConfig(**{**settings.safety, "dt": PERIOD}))
+    """The bridge's SafetyFilter at the robot's rate, with the limit table of the robot model."""
+    config = SafetyConfig(**{**settings.safety, "dt": PERIOD})
+    return SafetyFilter(config, robot=robot_spec(settings.robot_model))
 
 
 _ZEROS = (0.0,) * NUM_JOINTS

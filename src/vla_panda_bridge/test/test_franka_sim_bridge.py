@@ -4,13 +4,17 @@ franka-sim venv (scripts/setup_franka_sim.sh), pylibfranka or network namespaces
 
 One server (motion limits and communication constraints enforced, as on the FCI) and one bridge for
 the module, in this order: connect and stream, move as integrated, watchdog, malformed commands,
-teaching, a stalled loop (reflex, recover), the server killed mid-motion (and back), shutdown."""
+teaching, a stalled loop (reflex, recover), the server killed mid-motion (and back), shutdown; then
+the installed node stopped by SIGINT."""
 
 from __future__ import annotations
 
 import math
 import os
+import re
 import signal
+import subprocess
+import sys
 import time
 
 import numpy as np
@@ -283,3 +287,44 @@ def test_shutdown_ends_the_motion_and_the_loop_process(bridge, sim):
     log = sim.log()
     last = log[log.rindex("Motion started"):]
     assert "Motion finished" in last and "aborting" not in last     # motion_finished, no reflex
+
+
+def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_path):
+    """The installed node as `ros2 run` starts it; Ctrl-C mid-motion (after the module's bridge let go
+    of franka-sim's one client slot)."""
+    from ament_index_python.packages import get_package_prefix
+
+    exe = os.path.join(get_package_prefix("vla_panda_bridge"), "lib", "vla_panda_bridge", "panda_bridge")
+    params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
+              "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()), **FR3_SCALES}
+    args = [a for k, v in params.items() for a in ("-p", f"{k}:={v}")]
+    log = tmp_path / "bridge.log"
+    with open(log, "w") as err:
+        proc = subprocess.Popen([sys.executable, exe, "--ros-args", *args], stdout=err, stderr=err)
+    h = RosHarness()
+    try:
+        io = h.add(rclpy.create_node("franka_sim_sigint_io", context=h.context))
+        states: list[JointState] = []
+        io.create_subscription(JointState, "joint_states", states.append, 2000)
+        pub = io.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
+        assert h.spin_until(lambda: "libfranka OK" in log.read_text() and bool(states), 30.0), log.read_text()
+        loop_pid = int(re.search(r"1 kHz loop in process (\d+)", log.read_text()).group(1))
+        end = time.monotonic() + 0.6
+        while time.monotonic() < end:
+            pub.publish(Float64MultiArray(data=velocity(5, 0.3)))
+            h.spin_for(0.01)
+        assert abs(states[-1].velocity[5]) > 0.1
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(10)
+        took = time.monotonic() - t0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        h.shutdown()
+    assert code == 0 and took < 2.0, (code, took, log.read_text()[-2000:])
+    with pytest.raises(ProcessLookupError):
+        os.kill(loop_pid, 0)                              # the loop process is gone too
+    last = sim.log()[sim.log().rindex("Motion started"):]
+    assert "Motion finished" in last and "aborting" not in last

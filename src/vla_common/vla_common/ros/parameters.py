@@ -10,6 +10,8 @@ whether it may change at run time. `ParameterTable.declare(node)`:
   or one the entry's `check` rejects;
 - hands each accepted run-time change to the node's `on_change(name, value)`, which either applies
   it or returns a reason to refuse it. A parameter is therefore always either applied or refused.
+  In a batch (`set_parameters_atomically`) every value is checked first; a node that refuses one
+  in `on_change` keeps the ones before it applied, so nodes apply batches one parameter at a time.
 """
 
 from __future__ import annotations
@@ -101,13 +103,10 @@ class ParameterTable:
             given = overrides.get(p.name)
             if isinstance(p.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
                 overrides[p.name] = Parameter(p.name, Parameter.Type.DOUBLE, float(given.value))
-            default = _ARRAY_TYPES[p.array][1] if p.array is not None and not p.default else p.default
             try:
-                value = node.declare_parameter(p.name, default, p.descriptor()).value
+                value = self._declare_one(node, p)
             except Exception as exc:  # out of range or of the wrong type: refuse clearly
                 raise ConfigError(f"parameter '{p.name}': {exc}") from exc
-            if value is None and p.array is not None:
-                value = []
             reason = p.refusal(value)
             if reason:
                 raise ConfigError(reason)
@@ -115,15 +114,32 @@ class ParameterTable:
         node.add_on_set_parameters_callback(lambda changes: self._on_set(changes, on_change))
         return values
 
+    @staticmethod
+    def _declare_one(node: Node, p: Param) -> Any:
+        """Declare `p`; an array whose default is empty is declared by type and then set to [] (rclpy
+        cannot infer a type from []), so get_parameter() works whether or not a value was given."""
+        if p.array is None or p.default:
+            return node.declare_parameter(p.name, p.default, p.descriptor()).value
+        rcl_type = _ARRAY_TYPES[p.array][1]
+        writable = p.descriptor()
+        writable.read_only = False
+        value = node.declare_parameter(p.name, rcl_type, writable).value
+        if value is None:
+            node.set_parameters([Parameter(p.name, rcl_type, [])])
+            value = []
+        if not p.dynamic:
+            node.set_descriptor(p.name, p.descriptor())
+        return value
+
     def _on_set(self, changes: list[Parameter],
                 on_change: Callable[[str, Any], str | None] | None) -> SetParametersResult:
-        for change in changes:
-            p = self.params.get(change.name)
-            if p is None:
-                continue  # not ours (use_sim_time and other rclpy parameters)
+        ours = [(self.params[c.name], c) for c in changes if c.name in self.params]  # not use_sim_time
+        for p, change in ours:  # every value checked before any is applied
             reason = p.refusal(change.value)
-            if reason is None and on_change is not None:
-                reason = on_change(change.name, change.value)
             if reason:
+                return SetParametersResult(successful=False, reason=reason)
+        for p, change in ours:
+            reason = on_change(p.name, change.value) if on_change is not None else None
+            if reason:  # the node refused it; the changes before it in this batch stay applied
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)

@@ -21,11 +21,15 @@ import time
 from io import StringIO
 from pathlib import Path
 
+import cv2
 from vla_common.tasks import BASE_TASKS
 
+from vla_evaluation.demo_video import write_video_and_strip
 from vla_evaluation.evaluate_cli import add_teleop_arguments, print_table, settings_from, task_list
+from vla_evaluation.graph import CAMERA_SIZE, GraphConfig, GraphError, GraphEvaluator
 from vla_evaluation.metrics import summarize, write_json
 from vla_evaluation.resources import SOURCE_MODELS, detector_model_path, latent_model_dir
+from vla_evaluation.training_data import ensure_detector, ensure_latent_models
 
 BASE_MODEL = "default"  # the controller node's default model (detector encoder, base tasks)
 
@@ -61,10 +65,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    # rclpy and the training side only for this command (the CLI lists it without loading them)
-    from vla_evaluation.graph import CAMERA_SIZE, GraphConfig, GraphError, GraphEvaluator
-    from vla_evaluation.training_data import ensure_detector, ensure_latent_models
-
     t_all = time.monotonic()
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -119,8 +119,6 @@ def run(args) -> int:
     print_table(summary)
     files = {}
     if not args.no_video:
-        from vla_evaluation.demo_video import write_video_and_strip
-
         files = write_video_and_strip(records, out, size=CAMERA_SIZE)
     base = [r for r in results if model_name_for(r.task) == BASE_MODEL]
     data = {
@@ -152,8 +150,6 @@ def _encoder_of(model_dir: Path) -> str:
 
 def _thin_frames(frames, period: float = 0.5, size: tuple[int, int] = (320, 240)):
     """Keep one frame every `period` s of sim time, downscaled (bounds memory over many episodes)."""
-    import cv2
-
     kept, next_t = [], -1.0
     for t, f in frames:
         if t >= next_t:

@@ -9,6 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 PATH_COLOR = (255, 200, 0)  # RGB
@@ -16,7 +17,7 @@ START_COLOR = (0, 160, 255)
 
 
 def _projector(size: tuple[int, int]):
-    from vla_sim.sim import PandaSim
+    from vla_sim.sim import PandaSim  # MuJoCo, an optional heavy dependency: only to draw the path
 
     sim = PandaSim(camera_width=size[0], camera_height=size[1], render=False)
     return sim.project
@@ -24,8 +25,6 @@ def _projector(size: tuple[int, int]):
 
 def annotate(frame: np.ndarray, path_px: np.ndarray, lines: Sequence[str], scale: float) -> np.ndarray:
     """A copy of an RGB frame with the path so far and caption lines drawn."""
-    import cv2
-
     img = np.ascontiguousarray(frame.copy())
     if len(path_px) >= 2:
         pts = np.round(path_px * scale).astype(np.int32).reshape(-1, 1, 2)
@@ -43,8 +42,6 @@ def write_video_and_strip(
     records, out_dir: Path, size: tuple[int, int] = (640, 480), fps: float = 8.0
 ) -> dict[str, Path]:
     """demo.mp4 (every kept frame of every episode) and strip.png (each episode's last frame)."""
-    import cv2
-
     out_dir = Path(out_dir)
     project = _projector(size)
     video_path, strip_path = out_dir / "demo.mp4", out_dir / "strip.png"

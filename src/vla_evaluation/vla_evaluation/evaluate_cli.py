@@ -12,13 +12,21 @@ import sys
 import time
 from pathlib import Path
 
-from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings
+from vla_common.kinematics import PandaKinematics
+from vla_common.tasks import BASE_TASKS, UNSEEN_TASKS, parse_task
+from vla_detector.inference import Detector
+from vla_latent_controller.model import LatentModel
+
+from vla_evaluation.graph import GraphConfig, evaluate_graph
+from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings, evaluate_kinematic, make_layouts
+from vla_evaluation.metrics import summarize
+from vla_evaluation.physics import evaluate_physics
+from vla_evaluation.plots import write_evaluation_report
+from vla_evaluation.resources import detector_model_path, latent_model_dir
 
 
 def task_list(spec: str) -> list[str]:
     """"base", "unseen", "all" or comma-separated task names."""
-    from vla_common.tasks import BASE_TASKS, UNSEEN_TASKS, parse_task
-
     named = {"base": BASE_TASKS, "unseen": UNSEEN_TASKS, "all": BASE_TASKS + UNSEEN_TASKS}
     out: list[str] = []
     for part in spec.split(","):
@@ -70,10 +78,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from vla_evaluation.metrics import summarize
-    from vla_evaluation.plots import write_evaluation_report
-    from vla_evaluation.resources import detector_model_path, latent_model_dir
-
     tasks = task_list(args.tasks)
     seeds = [args.seed + i for i in range(args.layouts)]
     model_dir = args.model or latent_model_dir("default")
@@ -92,8 +96,6 @@ def run(args) -> int:
     elif args.mode == "physics":
         results = _physics(model_dir, det_path, tasks, seeds, settings, args.objects, args.stop_on_success)
     else:
-        from vla_evaluation.graph import GraphConfig, evaluate_graph
-
         cfg = GraphConfig(model_path=str(model_dir), detector_model=str(det_path),
                           real_time_factor=args.real_time_factor, rate=settings.rate, settings=settings,
                           stop_on_success=args.stop_on_success, domain_id=args.domain_id,
@@ -109,12 +111,6 @@ def run(args) -> int:
 
 
 def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects):
-    from vla_common.kinematics import PandaKinematics
-    from vla_detector.inference import Detector
-    from vla_latent_controller.model import LatentModel
-
-    from vla_evaluation.kinematic import evaluate_kinematic, make_layouts
-
     model = LatentModel.load(model_dir)
     kin = PandaKinematics()
     layouts = make_layouts(tasks, seeds, detector=Detector(det_path), kin=kin, n_objects=n_objects)
@@ -122,12 +118,7 @@ def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects):
 
 
 def _physics(model_dir, det_path, tasks, seeds, settings, n_objects, stop_on_success):
-    from vla_detector.inference import Detector
-    from vla_latent_controller.model import LatentModel
-    from vla_sim.sim import PandaSim
-
-    from vla_evaluation.kinematic import make_layouts
-    from vla_evaluation.physics import evaluate_physics
+    from vla_sim.sim import PandaSim  # MuJoCo, an optional heavy dependency: only for this mode
 
     model = LatentModel.load(model_dir)
     sim = PandaSim(render=True)

@@ -43,7 +43,7 @@ from vla_common.robot import JOINT_NAMES, READY_POSE
 from vla_common.tasks import parse_task
 from vla_launch.session import LaunchError, LaunchSession
 
-from vla_evaluation.kinematic import TeleopSettings, plannable_layout, plan_waypoints
+from vla_evaluation.kinematic import TeleopSettings, plan_waypoints, plannable_layout
 from vla_evaluation.metrics import (
     EpisodeResult,
     LimitMonitor,

@@ -12,9 +12,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
+from vla_common.tasks import parse_task, task_layout
 from vla_latent_controller.context import ContextError, Det, select_detection
+from vla_sim.planner import PlanError, plan_task
 
 from vla_evaluation.metrics import EpisodeResult, final_state_error
 from vla_evaluation.sim_teleoperator import (
@@ -72,17 +75,12 @@ class Layout:
 def sample_layout_objects(task_name: str, seed: int, n_objects: int = 1) -> list[ObjectPose]:
     """A seeded random layout for the task (its object first, placed so the task is reachable),
     with n_objects - 1 distractors kept out of the pushing corridor."""
-    from vla_common.tasks import task_layout
-
     return task_layout(task_name, np.random.default_rng(seed), n_objects=n_objects)
 
 
 def plan_waypoints(kin, task_name: str, goal: ObjectPose, q0: np.ndarray,
                    plan_seed: int = 0) -> list[np.ndarray]:
     """The teleoperator's joint-space waypoints from the planner (pre-push, post-push; a circle's loop)."""
-    from vla_common.tasks import parse_task
-    from vla_sim.planner import plan_task
-
     rng = np.random.default_rng(plan_seed)
     plan = plan_task(kin, parse_task(task_name), goal, np.asarray(q0, float), rng)
     return teleop_waypoints(plan)
@@ -92,12 +90,9 @@ def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=
                  render: bool = True, q0: np.ndarray | None = None, n_objects: int = 1,
                  progress: Callable[[str], None] | None = None) -> list[Layout]:
     """Reset the simulator to each (task, seed) layout, render the first frame and detect on it."""
-    from vla_common.kinematics import PandaKinematics
-    from vla_common.tasks import parse_task
-
     kin = kin or PandaKinematics()
     if render and sim is None:
-        from vla_sim.sim import PandaSim
+        from vla_sim.sim import PandaSim  # MuJoCo, an optional heavy dependency: only when rendering
 
         sim = PandaSim(render=True)
     q_start = np.asarray(READY_POSE if q0 is None else q0, float)
@@ -126,8 +121,6 @@ def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=
 def plannable_layout(kin, task: str, cls: str, seed: int, q_start: np.ndarray, n_objects: int,
                       attempts: int = 50):
     """The seed's layout, or the next derived seed's when the planner cannot plan it (IK limits)."""
-    from vla_sim.planner import PlanError
-
     last = None
     for k in range(attempts):
         used = seed + k * LAYOUT_RETRY_STRIDE

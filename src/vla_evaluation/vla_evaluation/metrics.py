@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 from vla_common.robot import DQ_MAX, Q_MAX, Q_MIN
+from vla_common.tasks import parse_task, task_success
 
 
 def final_state_error(q: np.ndarray, final_waypoint: np.ndarray) -> float:
@@ -33,8 +34,6 @@ def final_state_error(q: np.ndarray, final_waypoint: np.ndarray) -> float:
 def judge_task(task, start, end, path_xy=None) -> tuple[bool, float, float]:
     """(success, displacement_m, angle_err_deg) of a task from the object's start and end poses; a
     circle also needs the TCP's (x, y) path (`vla_common.tasks.task_success`)."""
-    from vla_common.tasks import task_success
-
     ok, disp, ang = task_success(task, start, end, path_xy)
     return bool(ok), float(disp), float(ang)
 
@@ -43,8 +42,6 @@ class SuccessTracker:
     """Watches the goal object's pose during an episode and remembers when the task first held."""
 
     def __init__(self, task, start_pose) -> None:
-        from vla_common.tasks import parse_task
-
         self.task = task
         self.start = start_pose
         self.is_circle = (parse_task(task) if isinstance(task, str) else task).kind == "circle"

@@ -15,6 +15,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from vla_latent_controller.context import ContextError
+from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
 from vla_evaluation.kinematic import Layout, TeleopSettings, layout_command
 from vla_evaluation.metrics import EpisodeResult, LimitMonitor, SuccessTracker, final_state_error, judge_task
@@ -40,8 +41,6 @@ def _goal_pose(sim, class_id: str):
 def run_episode(model, layout: Layout, settings: TeleopSettings, sim, safety_config=None,
                 label: str = "", stop_on_success: bool = False, linger: float = 1.0) -> EpisodeResult:
     """One episode on `sim` (a PandaSim) from the layout's objects and start pose."""
-    from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
-
     result = EpisodeResult(task=layout.task, layout_seed=layout.seed, mode="physics",
                            encoder=getattr(model, "encoder", ""), model=label)
     cls = layout.goal.class_id
@@ -116,7 +115,7 @@ def evaluate_physics(model, layouts: Sequence[Layout], settings: TeleopSettings 
     """Every layout in turn on one simulator (the one the layouts were rendered with, or a new one)."""
     settings = settings or TeleopSettings()
     if sim is None:
-        from vla_sim.sim import PandaSim
+        from vla_sim.sim import PandaSim  # MuJoCo, an optional heavy dependency: only without a sim given
 
         sim = PandaSim(render=False)
     out = []

@@ -17,7 +17,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from vla_evaluation.metrics import mean_sem  # noqa: E402
+from vla_evaluation.metrics import mean_sem, summarize, write_csv, write_json  # noqa: E402
 
 PALETTE = {"detector": "tab:blue", "localization": "tab:green", "end_to_end": "tab:red",
            "transfer": "tab:orange", "no_transfer": "tab:gray"}
@@ -144,8 +144,6 @@ def save_task_bars(summary: Sequence[Mapping], path: str | os.PathLike, y: str =
 def write_evaluation_report(results: Sequence, out_dir: str | os.PathLike, meta: Mapping | None = None,
                             keys: Sequence[str] = ("task",)) -> dict[str, Path]:
     """episodes.csv, summary.csv, results.json, final_state_error.png and per-task path plots."""
-    from vla_evaluation.metrics import summarize, write_csv, write_json
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     summary = summarize(results, keys)

@@ -3,6 +3,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+from vla_detector.inference import default_model_path
+
 PACKAGE = "vla_latent_controller"
 SOURCE_MODELS = Path(__file__).resolve().parents[2] / "models"
 
@@ -11,15 +14,10 @@ def latent_model_dir(name: str = "default") -> Path:
     """The shipped latent-action model directory `name` (may not exist yet); `default` is the
     controller's default: detector encoder trained on the base tasks."""
     try:
-        from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
-
-        try:
-            p = Path(get_package_share_directory(PACKAGE)) / "models" / name
-            if (p / "config.json").is_file():
-                return p
-        except PackageNotFoundError:
-            pass
-    except ImportError:
+        p = Path(get_package_share_directory(PACKAGE)) / "models" / name
+        if (p / "config.json").is_file():
+            return p
+    except PackageNotFoundError:
         pass
     return SOURCE_MODELS / name
 
@@ -31,6 +29,4 @@ def source_model_dir(name: str = "default") -> Path:
 
 def detector_model_path() -> Path:
     """The shipped detector (vla_detector's models/detector.onnx)."""
-    from vla_detector.inference import default_model_path
-
     return Path(default_model_path())

@@ -13,6 +13,10 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from vla_common.tasks import BASE_TASKS, UNSEEN_TASKS
+from vla_demo_recorder.dataset import load_demos
+from vla_detector.inference import Detector
+
 # Per base object for the shipped models: three times the paper's 10. On fresh layouts (kinematic,
 # 10 per task) the mean final state error falls from 0.65 rad with 10 to 0.42 with 30 (0.41 with 60).
 # The experiments (Figure 2a) sweep the paper's 1 ... 10 themselves.
@@ -101,8 +105,6 @@ def ensure_demos(
 def load_task_demos(folder: Path, task: str, detector=None, limit: int | None = None) -> list:
     """Demos of `task` from a folder of bags, each with a detection (the recorded one, else detected
     now on its first image); bags without one are reported and skipped."""
-    from vla_demo_recorder.dataset import load_demos
-
     demos, skipped = load_demos(folder)
     for path, reason in skipped:
         print(f"[data] skipped {path}: {reason}", file=sys.stderr)
@@ -136,9 +138,7 @@ def ensure_latent_models(
     epochs: int = 1000,
 ) -> dict[str, Path]:
     """Train the named models (`default`: base tasks; `cereal_box_<action>`: base + few-shot)."""
-    from vla_common.tasks import BASE_TASKS, UNSEEN_TASKS
-    from vla_detector.inference import Detector
-    from vla_latent_training.train import TrainConfig, train_model
+    from vla_latent_training.train import TrainConfig, train_model  # torch: optional, only to train
 
     detector = Detector(detector_path)
     base = []

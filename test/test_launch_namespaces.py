@@ -3,7 +3,7 @@
 A launch file started with `vla launch` puts a detector, renamed, in a pushed namespace with a test
 copy of config/detector.yaml (score_threshold 0.6), and a second one in another namespace with the
 shipped file. Each node reports, through its parameter service, the value of its file. With files
-keyed by node name (`detector_node:`) neither would (FACTS.md §6), and this test fails.
+keyed by node name (`detector_node:`) neither would, and this test fails.
 """
 from __future__ import annotations
 

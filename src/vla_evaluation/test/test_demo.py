@@ -1,4 +1,4 @@
-"""`vla_latent_controller demo`: CLI wiring, model choice per task, video/strip and the results table."""
+"""`vla_evaluation demo`: CLI wiring, model choice per task, video/strip and the results table."""
 import numpy as np
 import pytest
 from vla_evaluation.cli import build_parser

@@ -1,4 +1,4 @@
-"""`vla_latent_controller evaluate`: closed-loop evaluation with the simulated teleoperator.
+"""`vla_evaluation evaluate`: closed-loop evaluation with the simulated teleoperator.
 
 --mode kinematic: the paper's q <- q + phi(z*, s) dt on rendered, detected validation layouts.
 --mode physics:   the same computations with MuJoCo and the safety filter in one process (no ROS).

@@ -17,7 +17,11 @@ Figures:
 3. latency from a joint_velocity_cmd arriving at the bridge to the first robot command with it
    (median, p99, max).
 
-Usage: python bench/bench_libfranka.py [--seconds 20] [--no-graph] [--json]   (after source scripts/env.sh)
+Both franka-sim and the loop run under SCHED_FIFO 50 (`--priority`, 0 for normal scheduling), as the
+loop would on a real-time PC.
+
+Usage: python bench/bench_libfranka.py [--seconds 20] [--no-graph] [--priority 50] [--json]
+(after source scripts/env.sh)
 Needs .venv-franka-sim (scripts/setup_franka_sim.sh), pylibfranka and root for network namespaces.
 """
 from __future__ import annotations
@@ -84,17 +88,19 @@ def _ms(s: dict) -> str:
     return f"median {s['median'] * 1e3:.3f} ms, p99 {s['p99'] * 1e3:.3f} ms, max {s['max'] * 1e3:.3f} ms"
 
 
-def run(seconds: float, graph: bool) -> dict:
+def run(seconds: float, graph: bool, priority: int) -> dict:
     from vla_panda_bridge.bridge_node import PARAMETERS, PandaBridge
 
     ns = Netns()
-    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=False)
+    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=False,
+                             priority=priority)
     server.start()
     fr3 = "robot_model" in PARAMETERS.params
     procs = _graph(fr3) if graph else []
     rclpy.init()
     params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
               "realtime_config": "ignore", "loop_prefix": " ".join(ns.prefix()), "state_rate": 1000.0,
+              "loop_priority": priority,
               # The FCI's FR3 table is 10 rad/s^2 / 5000 rad/s^3 (vla_common.robot's FR3 has the Panda's).
               "acceleration_scale": 0.4999, "jerk_scale": 0.4999}
     if fr3:
@@ -163,7 +169,8 @@ def run(seconds: float, graph: bool) -> dict:
     missed = s1.missed - s0.missed
     sim_freq = [float(f) for f in re.findall(r"Freq: ([0-9.]+)Hz", server.log())[-int(seconds):]]
     result = {
-        "seconds": seconds, "graph": graph, "load_average_1min": [load0, os.getloadavg()[0]],
+        "seconds": seconds, "graph": graph, "priority": priority,
+        "load_average_1min": [load0, os.getloadavg()[0]],
         "cycles": int(cycles), "period": _stats(rings["period"]), "busy": _stats(rings["busy"]),
         "robot_cycles_missed": int(missed), "answered_in_time": 1.0 - missed / max(cycles + missed, 1),
         "success_rate_mean": float(np.mean(rates)) if rates else math.nan,
@@ -189,6 +196,8 @@ def main() -> int:
     ap.add_argument("--seconds", type=float, default=20.0, help="measured time (after 3 s of warm-up)")
     ap.add_argument("--no-graph", action="store_true",
                     help="the bridge alone, without camera/detector/controller")
+    ap.add_argument("--priority", type=int, default=50,
+                    help="SCHED_FIFO priority of franka-sim and the loop (0: normal scheduling)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
     args = ap.parse_args()
     reason = unavailable()
@@ -200,12 +209,13 @@ def main() -> int:
     if reason:
         print(f"bench_libfranka: skipped: {reason}")
         return 0
-    r = run(args.seconds, graph=not args.no_graph)
+    r = run(args.seconds, graph=not args.no_graph, priority=args.priority)
     if args.json:
         print(json.dumps(r, indent=2))
         return 0
     sim = r["sim_state_rate_hz"]
     print(f"libfranka loop vs franka-sim, {r['seconds']:g} s, graph {'on' if r['graph'] else 'off'}, "
+          f"SCHED_FIFO {r['priority'] or 'off'}, "
           f"load average {r['load_average_1min'][0]:.2f} -> {r['load_average_1min'][1]:.2f} "
           f"({os.cpu_count()} CPUs)")
     print(f"  cycle period            {_ms(r['period'])}  ({r['cycles']} cycles)")

@@ -18,6 +18,7 @@ from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavail
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
+RT_PRIORITY = 50   # franka-sim and the loop under SCHED_FIFO, as on a real-time PC (test_franka_sim_bridge)
 
 
 @pytest.fixture
@@ -31,7 +32,8 @@ def sim():
     if reason:
         pytest.skip(reason)
     ns = Netns()
-    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True)
+    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True,
+                             priority=RT_PRIORITY)
     try:
         server.start()
         yield server
@@ -48,6 +50,7 @@ def test_the_stick_moves_the_simulated_fr3_through_the_latent_controller(sim):
     try:
         bridge_params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
                          "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()),
+                         "loop_priority": RT_PRIORITY, "control_rate": 250,
                          # the FCI's FR3 table (10 rad/s^2, 5000 rad/s^3) inside the Panda's
                          "acceleration_scale": 0.4999, "jerk_scale": 0.4999}
         controller_params = {}

@@ -37,6 +37,14 @@ SIM_Q0 = np.array([0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785])   # every fresh fran
 # Until vla_common.robot's FR3 carries the FCI's own table (10 rad/s^2, 5000 rad/s^3 on every joint;
 # it has the Panda's), these scales keep the filter inside it.
 FR3_SCALES = {"acceleration_scale": 0.4999, "jerk_scale": 0.4999}
+# franka-sim and the loop process under SCHED_FIFO, as on a real-time PC: on these shared 2 cores a
+# loop process left to the normal scheduler stalled up to 0.6 s at a load average of 7, which the
+# enforced communication constraints (20 lost cycles) answer with a reflex.
+RT_PRIORITY = 50
+# The module's bridge runs its filter and joint_states at 250 Hz (the loop still at 1 kHz): on a loaded
+# machine a 1 kHz node and a 1 kHz subscriber in this one process starve each other (2 states in 0.5 s
+# seen at a load average of 10); only the streaming test runs a bridge at 1000 Hz.
+LIGHT = {"control_rate": 250, "state_rate": 250.0}
 
 
 def _skip_reason() -> str | None:
@@ -56,7 +64,8 @@ def sim():
     if reason:
         pytest.skip(reason)
     ns = Netns()
-    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True)
+    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True,
+                             priority=RT_PRIORITY)
     try:
         server.start()
         yield server
@@ -74,7 +83,7 @@ class Bridge(RosHarness):
 
         values = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
                   "realtime_config": "ignore", "loop_prefix": " ".join(server.netns.prefix()),
-                  "state_rate": 1000.0, **FR3_SCALES, **params}
+                  "loop_priority": RT_PRIORITY, **LIGHT, **FR3_SCALES, **params}
         overrides = [Parameter(k, value=v) for k, v in values.items()]
         self.node = self.add(PandaBridge(context=self.context, parameter_overrides=overrides))
         self.backend = self.node.backend
@@ -85,6 +94,16 @@ class Bridge(RosHarness):
         self.io.create_subscription(SafetyStatus, "panda_bridge/status", self.status.append, 100)
         self.pub = self.io.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
         assert self.spin_until(lambda: self.pub.get_subscription_count() > 0, 10.0)
+        self.arrivals: list[float] = []                  # wall time of each command at the bridge
+        for sub in self.node.subscriptions:
+            if sub.topic_name.endswith("joint_velocity_cmd"):
+                sub.callback = self._arrived(sub.callback)
+
+    def _arrived(self, callback):
+        def traced(msg):
+            self.arrivals.append(time.time())
+            callback(msg)
+        return traced
 
     def connected(self, timeout: float = 15.0) -> bool:
         return self.spin_until(lambda: self.backend.status.code == LOOP_OK and bool(self.states), timeout)
@@ -95,6 +114,21 @@ class Bridge(RosHarness):
         while time.monotonic() < end:
             self.pub.publish(Float64MultiArray(data=[float(v) for v in values]))
             self.spin_for(1.0 / rate)
+
+    def command_until(self, values, cond, timeout: float = 5.0) -> bool:
+        """Publish `values` at 100 Hz until `cond()` (on a loaded machine the graph lags: wait for the
+        effect instead of a fixed time)."""
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            if cond():
+                return True
+            self.pub.publish(Float64MultiArray(data=[float(v) for v in values]))
+            self.spin_for(0.01)
+        return cond()
+
+    def moved_by(self, joint: int, rad: float):
+        q = self.robot().position[joint]
+        return lambda: abs(self.robot().position[joint] - q) > rad
 
     def robot(self):
         """The robot's latest state as the loop has it (robot time, q, dq)."""
@@ -135,10 +169,16 @@ def velocity(j: int, v: float) -> list[float]:
     return out
 
 
-def test_it_connects_and_streams_the_servers_state_at_500_hz_or_more(bridge):
-    n = len(bridge.states)
-    bridge.spin_for(1.0)
-    window = bridge.states[n:]
+def test_it_connects_and_streams_the_servers_state_at_500_hz_or_more(sim):
+    bridge = Bridge(sim, control_rate=1000, state_rate=1000.0)    # first: franka-sim takes one client
+    try:
+        assert bridge.connected(), bridge.backend.status
+        n = len(bridge.states)
+        bridge.spin_for(1.0)
+        window = bridge.states[n:]
+        robot = bridge.robot()
+    finally:
+        bridge.shutdown()
     stamps = np.array([_stamp(m) for m in window])
     assert np.all(np.diff(stamps) > 0)                    # every one a new robot state
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
@@ -147,13 +187,14 @@ def test_it_connects_and_streams_the_servers_state_at_500_hz_or_more(bridge):
     assert len(last.name) == 7 and last.name[0].endswith("joint1")
     np.testing.assert_allclose(last.position, SIM_Q0, atol=2e-3)    # the fresh server's pose
     np.testing.assert_allclose(last.velocity, 0.0, atol=1e-2)
-    np.testing.assert_allclose(last.position, bridge.robot().position, atol=1e-3)
+    np.testing.assert_allclose(last.position, robot.position, atol=1e-3)
 
 
 def test_a_constant_velocity_moves_the_joint_as_integrated(bridge):
     bridge.recover_if_needed()
     v = 0.2
-    bridge.command(velocity(3, v), 0.6)                   # ramp up (jerk-limited) and settle
+    assert bridge.command_until(velocity(3, v), lambda: bridge.robot().velocity[3] > 0.98 * v)
+    bridge.command(velocity(3, v), 0.2)                   # settled
     a, n = bridge.robot(), len(bridge.states)
     bridge.command(velocity(3, v), 0.8)
     b, steady = bridge.robot(), bridge.states[n:]
@@ -173,10 +214,10 @@ def test_a_constant_velocity_moves_the_joint_as_integrated(bridge):
 
 def test_the_watchdog_brings_the_arm_to_rest_within_0_3_s(bridge):
     bridge.recover_if_needed()
-    bridge.command(velocity(0, 0.2), 0.5)
-    assert abs(bridge.states[-1].velocity[0]) > 0.15
-    stopped_at = time.time()                              # joint_states are stamped with wall time
-    bridge.spin_for(0.8)
+    assert bridge.command_until(velocity(0, 0.2), lambda: bridge.robot().velocity[0] > 0.15)
+    bridge.spin_for(1.0)
+    stopped_at = bridge.arrivals[-1]                      # the last command at the bridge (wall time,
+    #                                                       as the joint_states stamps)
     after = [m for m in bridge.states if _stamp(m) > stopped_at]
     moving = [m for m in after if max(abs(x) for x in m.velocity) > 0.01]
     last_moving = _stamp(moving[-1]) if moving else stopped_at
@@ -189,9 +230,9 @@ def test_malformed_commands_are_rejected_as_on_mujoco(bridge):
     q0 = np.array(bridge.states[-1].position)
     rejected = bridge.status[-1].commands_rejected if bridge.status else 0
     bridge.status.clear()
-    bridge.command([math.nan] * 7, 0.2)
-    bridge.command([0.1] * 3, 0.2)
-    bridge.command([math.inf, 0, 0, 0, 0, 0, 0], 0.2)
+    for bad in ([math.nan] * 7, [0.1] * 3, [math.inf, 0, 0, 0, 0, 0, 0]):
+        bridge.command(bad, 0.2)
+    assert bridge.spin_until(lambda: bridge.status and bridge.status[-1].commands_rejected >= rejected + 3)
     bridge.spin_for(0.2)
     codes = {s.code for s in bridge.status}
     assert {SafetyStatus.NON_FINITE_COMMAND, SafetyStatus.WRONG_LENGTH} <= codes
@@ -208,7 +249,7 @@ def test_teaching_on_and_off_moves_the_hand_by_at_most_1_mm(bridge):
     assert "teaching" in message and bridge.backend.process.status().teaching
     k = len(bridge.states)
     bridge.spin_for(0.5)
-    assert len(bridge.states) - k > 100                   # joint_states keep flowing while teaching
+    assert len(bridge.states) - k > 50                    # joint_states keep flowing while teaching
     bridge.command(velocity(0, 0.3), 0.2)                 # ignored: the hand moves the arm, not commands
     bridge.backend.set_teaching(False)
     assert not bridge.backend.process.status().teaching
@@ -216,14 +257,12 @@ def test_teaching_on_and_off_moves_the_hand_by_at_most_1_mm(bridge):
     tcp = np.array([fk(np.array(m.position))[0] for m in bridge.states[n - 1:]])
     travel = np.linalg.norm(tcp - tcp[0], axis=1).max()
     assert travel <= 1e-3, f"the hand travelled {travel * 1e3:.2f} mm"
-    q = bridge.robot().position
-    bridge.command(velocity(6, 0.2), 0.5)                 # velocity control again
-    assert bridge.robot().position[6] - q[6] > 0.02
+    assert bridge.command_until(velocity(6, 0.2), bridge.moved_by(6, 0.02))     # velocity control again
 
 
 def test_a_stalled_loop_gives_a_reflex_and_recover_resumes(bridge):
     bridge.recover_if_needed()
-    bridge.command(velocity(1, 0.1), 0.4)
+    assert bridge.command_until(velocity(1, 0.1), lambda: bridge.robot().velocity[1] > 0.08)
     pid = bridge.backend.process.pid
     os.kill(pid, signal.SIGSTOP)                          # > 20 lost cycles: communication_constraints
     time.sleep(0.08)
@@ -236,20 +275,18 @@ def test_a_stalled_loop_gives_a_reflex_and_recover_resumes(bridge):
     n = len(bridge.states)
     q = bridge.robot().position
     bridge.command(velocity(1, 0.1), 0.3)                 # no motion until recovered ...
-    assert len(bridge.states) > n + 100                   # ... but the state keeps flowing
+    assert len(bridge.states) > n + 25                    # ... but the state keeps flowing
     np.testing.assert_allclose(bridge.robot().position, q, atol=2e-3)
     res = bridge.recover()
     assert res.success and "recovery done" in res.message, res.message
     assert bridge.backend.process.status().code == LOOP_OK
     bridge.command([0.0] * 7, 0.05)                       # the filter re-arms on a zero command
-    q = bridge.robot().position
-    bridge.command(velocity(1, 0.1), 0.5)
-    assert bridge.robot().position[1] - q[1] > 0.02
+    assert bridge.command_until(velocity(1, 0.1), bridge.moved_by(1, 0.02))
 
 
 def test_a_killed_server_is_reported_and_the_bridge_reconnects_when_it_returns(bridge, sim):
     bridge.recover_if_needed()
-    bridge.command(velocity(2, 0.2), 0.4)
+    assert bridge.command_until(velocity(2, 0.2), lambda: bridge.robot().velocity[2] > 0.15)
     sim.kill()
     killed_at = time.time()
     connects = bridge.backend.status.connects
@@ -270,15 +307,13 @@ def test_a_killed_server_is_reported_and_the_bridge_reconnects_when_it_returns(b
     bridge.command(velocity(2, 0.2), 0.3)
     np.testing.assert_allclose(bridge.robot().position, q, atol=1e-3)         # held until ~/recover
     bridge.recover_if_needed()
-    q = bridge.robot().position
-    bridge.command(velocity(2, 0.2), 0.5)
-    assert bridge.robot().position[2] - q[2] > 0.03
+    assert bridge.command_until(velocity(2, 0.2), bridge.moved_by(2, 0.03))
 
 
 def test_shutdown_ends_the_motion_and_the_loop_process(bridge, sim):
     """Last: the module's bridge shuts down mid-motion (franka-sim takes one client at a time)."""
     bridge.recover_if_needed()
-    bridge.command(velocity(0, 0.3), 0.5)
+    assert bridge.command_until(velocity(0, 0.3), lambda: bridge.robot().velocity[0] > 0.2)
     proc = bridge.backend.process._proc
     t0 = time.monotonic()
     bridge.node.on_shutdown()
@@ -296,7 +331,8 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
 
     exe = os.path.join(get_package_prefix("vla_panda_bridge"), "lib", "vla_panda_bridge", "panda_bridge")
     params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
-              "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()), **FR3_SCALES}
+              "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()),
+              "loop_priority": RT_PRIORITY, **FR3_SCALES}
     args = [a for k, v in params.items() for a in ("-p", f"{k}:={v}")]
     log = tmp_path / "bridge.log"
     with open(log, "w") as err:
@@ -307,13 +343,15 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
         states: list[JointState] = []
         io.create_subscription(JointState, "joint_states", states.append, 2000)
         pub = io.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
-        assert h.spin_until(lambda: "libfranka OK" in log.read_text() and bool(states), 30.0), log.read_text()
+        def ready() -> bool:
+            return "libfranka OK" in log.read_text() and bool(states) and pub.get_subscription_count() > 0
+        assert h.spin_until(ready, 30.0), log.read_text()
         loop_pid = int(re.search(r"1 kHz loop in process (\d+)", log.read_text()).group(1))
-        end = time.monotonic() + 0.6
-        while time.monotonic() < end:
+        end = time.monotonic() + 5.0
+        while time.monotonic() < end and abs(states[-1].velocity[5]) < 0.2:
             pub.publish(Float64MultiArray(data=velocity(5, 0.3)))
             h.spin_for(0.01)
-        assert abs(states[-1].velocity[5]) > 0.1
+        assert abs(states[-1].velocity[5]) >= 0.2
         t0 = time.monotonic()
         proc.send_signal(signal.SIGINT)
         code = proc.wait(10)

@@ -27,6 +27,7 @@ from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
 from vla_panda_bridge.libfranka_loop import LOOP_CONNECTING, LOOP_NAMES, LOOP_OK, LoopSettings
 from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
 
+MAX_CATCH_UP = 20       # control periods run at once by a late timer (the rest are skipped)
 WATCH_RATE = 100.0      # Hz: the loop's status and its process are checked this often
 REQUEST_TIMEOUT = 5.0   # s to wait for the loop to answer ~/recover or ~/set_teaching
 SAFETY_PARAMS = ("velocity_scale", "acceleration_scale", "jerk_scale", "position_margin", "command_timeout",
@@ -78,23 +79,32 @@ class LibfrankaBackend(BackendBase):
         self._status = LibfrankaStatus(LOOP_CONNECTING, LOOP_NAMES[LOOP_CONNECTING], "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
         self._reported = -1                             # the loop status code last reported
-        self._ticks = 0
+        self._ticks = 0                                 # control periods done (by the wall clock)
+        self._state_tick = self._watch_tick = 0
+        self._t0 = time.monotonic()
 
     # ---------------------------------------------------------------------------------- protocol
     def start(self, host: Host) -> None:
         self.process.start()
+        self._t0 = time.monotonic()
         host.create_wall_timer(self._dt, self._tick)
 
     def _tick(self) -> None:
-        """One control period: the node's filter -> the loop; every state period the robot states
-        that arrived since (a batch when this timer ran late); at 100 Hz the loop's status."""
-        self._host.control_step()
-        self._ticks += 1
-        if self._ticks % self._ticks_per_state == 0:
+        """The control periods due by the wall clock (the node's filter integrates a fixed period
+        per step: a timer that runs late on a loaded machine would slow its ramps and its braking
+        down, so it catches up, at most MAX_CATCH_UP periods at once), then the robot states that
+        arrived since (a batch when late) and, at 100 Hz, the loop's status."""
+        due = int((time.monotonic() - self._t0) / self._dt) - self._ticks
+        for _ in range(min(due, MAX_CATCH_UP)):
+            self._host.control_step()
+        self._ticks += max(due, 0)
+        if self._ticks // self._ticks_per_state != self._state_tick:
+            self._state_tick = self._ticks // self._ticks_per_state
             for sample in self.process.new_samples(self._states_every):
                 self._latest = sample
                 self._host.publish_state()
-        if self._ticks % self._ticks_per_watch == 0:
+        if self._ticks // self._ticks_per_watch != self._watch_tick:
+            self._watch_tick = self._ticks // self._ticks_per_watch
             note = self.process.poll()
             if note:
                 self._host.get_logger().warn(note)

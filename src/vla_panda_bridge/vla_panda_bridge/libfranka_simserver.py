@@ -72,8 +72,9 @@ class FrankaSimServer:
     Flags: enforce_motion_limits / enforce_comm_constraints abort motions as the FCI does."""
 
     def __init__(self, netns: Netns, enforce_motion_limits: bool = True,
-                 enforce_comm_constraints: bool = False, log_dir: str | None = None):
+                 enforce_comm_constraints: bool = False, log_dir: str | None = None, priority: int = 0):
         self.netns = netns
+        self.priority = priority        # SCHED_FIFO (chrt -f): keeps its 1 kHz on a loaded machine
         self.venv = sim_venv()
         self.flags = ["--no-gripper",
                       ("--" if enforce_motion_limits else "--no-") + "enforce-motion-limits",
@@ -91,8 +92,9 @@ class FrankaSimServer:
         for key in ("PYTHONPATH", "PYTHONHOME", "VIRTUAL_ENV"):
             env.pop(key, None)
         with open(self.log_path, "w") as log:
+            chrt = ["chrt", "-f", str(self.priority)] if self.priority > 0 else []
             self.proc = subprocess.Popen(
-                [*self.netns.prefix(), str(self.venv / "bin" / "run-franka-sim-server"), *self.flags],
+                [*self.netns.prefix(), *chrt, str(self.venv / "bin" / "run-franka-sim-server"), *self.flags],
                 stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL, env=env)
         deadline = time.monotonic() + timeout
         while time.monotonic() < deadline:

@@ -17,6 +17,8 @@ SUBCOMMANDS: list[Subcommand] = [
      "the paper's simulation experiments (Figure 2a and 2c) into docs/results/"),
     ("demo", "vla_evaluation.demo",
      "the main job: the graph on the simulated Panda with the shipped models, table + video"),
+    ("new-object", "vla_evaluation.new_object",
+     "teach the robot a new object end to end in simulation (detector, demos, model) and measure it"),
 ]
 
 

@@ -1,0 +1,460 @@
+"""`vla_evaluation new-object`: teach the robot a new object, end to end, in simulation, and measure it.
+
+The walkthrough of docs/new-object.md as one command. Every step runs the command a user types
+(each is logged as `[run] ...`), in this order:
+
+1. renders of scenes that contain the new object (`vla_detector_training synth --catalogue`), and as
+   many held-out ones (other seeds, split `test`) to measure on;
+2. the detector fine-tuned from the shipped one (`train --init`), and, for comparison, trained from
+   scratch on the same renders; both timed, both measured (AP@0.5 per class) on the held-out renders;
+3. demonstrations of the new task through the ROS graph (`vla_evaluation generate --catalogue`, with
+   the fine-tuned detector in the graph, so the bags hold its detections), and the base tasks'
+   demonstrations, generated once and cached under --data exactly as `make demo` caches them;
+4. the transfer model: the base demonstrations plus the first k new ones in one model
+   (`vla_latent_training train --catalogue`);
+5. `vla_evaluation evaluate --mode graph` on fresh layouts of the new task (seeds from 100000, never a
+   demonstration's): the success rate. When k demonstrations fall short of the goal, k = 1 ... max are
+   all measured and the smallest k that reaches it is reported.
+
+A step whose output is already there is reused (an interrupted run resumes where it stopped); nothing
+given to it is modified. The figures go to --out as results.json and README.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.tasks import BASE_TASKS
+
+from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET
+from vla_evaluation.resources import detector_model_path
+from vla_evaluation.training_data import BASE_EPISODES, BASE_SEED, count_bags, ensure_demos, run_command
+
+DETECTOR_AP_GOAL = 0.9  # AP@0.5 of the new class on the held-out renders
+DETECTOR_OLD_MAP_GOAL = 0.95  # mAP@0.5 over the classes the shipped detector knew
+FINE_TUNE_TIME_GOAL_S = 300.0  # on the 2-core machine
+SUCCESS_GOAL = 0.8
+NEW_DEMO_SEED = 7_000  # demonstrations of the new task: seeds apart from the base ones (0...) and layouts
+RENDER_SEED, TEST_RENDER_SEED = 11, 12
+
+
+@dataclass
+class NewObjectConfig:
+    catalogue: Path
+    task: str
+    out: Path
+    data: Path = Path("out/data")  # base demonstrations, shared with `make demo`
+    renders: int = 100
+    test_renders: int = 100
+    detector_epochs: int | None = None  # None: the train command's default
+    scratch: bool = True
+    demos: int = 3
+    max_demos: int = 5
+    sweep: str = "auto"  # auto: 1..max_demos only when `demos` falls short; always; never
+    latent_epochs: int = 1000
+    latent_seed: int = 0
+    layouts: int = 10
+    layout_seed: int = VALIDATION_SEED_OFFSET
+    real_time_factor: float = 2.0
+    goal: float = SUCCESS_GOAL
+    extra_eval_args: list[str] = field(default_factory=list)
+
+    def path(self, *parts: str) -> Path:
+        return Path(self.out).joinpath(*parts)
+
+
+# ---------------------------------------------------------------------------------------------- steps
+def timed(cmd: Sequence[str], log: Callable[[str], None], accept: Sequence[int] = (0,)) -> float:
+    """Run a project command (streamed), return its wall time in seconds."""
+    t0 = time.monotonic()
+    run_command(cmd, log, accept)
+    return time.monotonic() - t0
+
+
+def run_captured(cmd: Sequence[str], log: Callable[[str], None]) -> str:
+    """Run a project command, show and return its standard output; RuntimeError on a failure."""
+    log("[run] " + " ".join(str(c) for c in cmd))
+    proc = subprocess.run([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=sys.stderr, text=True)
+    log(proc.stdout.rstrip())
+    if proc.returncode != 0:
+        raise RuntimeError(f"{cmd[0]} {cmd[1]} failed with exit code {proc.returncode}")
+    return proc.stdout
+
+
+def render(cfg: NewObjectConfig, log: Callable[[str], None]) -> tuple[Path, Path]:
+    """Training renders (train + val) and held-out renders (test), each scene with the new object."""
+    obj = cfg.task.split("/", 1)[0]
+    sets = ((cfg.path("renders"), cfg.renders, RENDER_SEED, "auto"),
+            (cfg.path("renders_test"), cfg.test_renders, TEST_RENDER_SEED, "test"))
+    for folder, count, seed, split in sets:
+        if (folder / "data.yaml").is_file():
+            log(f"[new-object] reusing {folder}")
+            continue
+        run_command(["vla_detector_training", "synth", "--catalogue", str(cfg.catalogue), "--include", obj,
+                     "--count", str(count), "--seed", str(seed), "--split", split, "--out", str(folder),
+                     "--quiet"], log)
+    return sets[0][0], sets[1][0]
+
+
+def onnx_in(folder: Path) -> Path | None:
+    found = sorted(Path(folder).glob("*.onnx"))
+    return found[0] if found else None
+
+
+def train_detector(cfg: NewObjectConfig, renders: Path, name: str, init: Path | None,
+                   log: Callable[[str], None]) -> tuple[Path, float | None]:
+    """(ONNX, wall seconds or None when reused) of a detector trained on the renders; from `init`
+    (fine-tuning) or from scratch."""
+    out = cfg.path(name)
+    timing = out / "train_time.json"
+    if onnx_in(out) is not None and timing.is_file():
+        log(f"[new-object] reusing {out}")
+        return onnx_in(out), json.loads(timing.read_text())["wall_s"]
+    cmd = ["vla_detector_training", "train", "--data", str(renders), "--catalogue", str(cfg.catalogue),
+           "--out", str(out), "--quiet"]
+    if init is not None:
+        cmd += ["--init", str(init)]
+    if cfg.detector_epochs is not None:
+        cmd += ["--epochs", str(cfg.detector_epochs)]
+    wall = timed(cmd, log)
+    model = onnx_in(out)
+    if model is None:
+        raise RuntimeError(f"detector training wrote no .onnx into {out}")
+    timing.write_text(json.dumps({"wall_s": wall, "command": cmd}) + "\n")
+    return model, wall
+
+
+def parse_evaluation(text: str) -> dict:
+    """The figures `vla_detector_training evaluate` prints: mAP@0.5, mAP@0.5:0.95, centre error and
+    AP@0.5 per class."""
+    out: dict = {"ap50": {}}
+    keys = {"mAP@0.5": "map50", "mAP@0.5:0.95": "map50_95", "mean centre error px": "centre_error_px"}
+    for line in text.splitlines():
+        m = re.fullmatch(r"\s*AP@0\.5 (\S+): (\S+)\s*", line)
+        if m:
+            out["ap50"][m.group(1)] = float(m.group(2))
+            continue
+        m = re.fullmatch(r"(mAP@0\.5|mAP@0\.5:0\.95|mean centre error px): (\S+)\s*", line)
+        if m:
+            out[keys[m.group(1)]] = float(m.group(2))
+        m = re.fullmatch(r"data: .* \(split (\S+), (\d+) images\)\s*", line)
+        if m:
+            out["split"], out["images"] = m.group(1), int(m.group(2))
+    if "map50" not in out or not out["ap50"]:
+        raise RuntimeError(f"vla_detector_training evaluate printed no AP figures:\n{text}")
+    return out
+
+
+def detector_figures(model: Path, test_renders: Path, new_class: str, old_classes: Sequence[str],
+                     wall_s: float | None, log: Callable[[str], None]) -> dict:
+    """AP@0.5 per class on the held-out renders (`vla_detector_training evaluate`), the new class's,
+    and the mean over the old classes."""
+    text = run_captured(["vla_detector_training", "evaluate", "--model", str(model), "--data",
+                         str(test_renders), "--split", "test", "--quiet"], log)
+    fig = parse_evaluation(text)
+    ap = fig["ap50"]
+    old = [ap[c] for c in old_classes if c in ap]
+    return {"model": str(model), "train_wall_s": wall_s, **fig, "new_class_ap50": ap.get(new_class),
+            "old_classes_map50": statistics.fmean(old) if old else None}
+
+
+def new_task_demos(cfg: NewObjectConfig, detector: Path, log: Callable[[str], None],
+                   attempts: int = 3) -> list[Path]:
+    """`max_demos` successful demonstration bags of the new task (generated through the graph with the
+    fine-tuned detector; failed episodes deleted, topped up on the next attempt), in bag order."""
+    folder = cfg.path("demos", cfg.task.replace("/", "_"))
+    for attempt in range(attempts):
+        have = count_bags(folder)
+        if have >= cfg.max_demos:
+            break
+        run_command(["vla_evaluation", "generate", "--catalogue", str(cfg.catalogue), "--task", cfg.task,
+                     "--episodes", str(cfg.max_demos - have),
+                     "--seed", str(NEW_DEMO_SEED + 1000 * attempt + have),
+                     "--detector-model", str(detector), "--out", str(folder), "--real-time-factor", "0",
+                     "--delete-failed"], log, accept=(0, 3))  # 3: some episodes failed (deleted)
+    bags = sorted(p.parent for p in folder.glob("*/metadata.yaml"))
+    if len(bags) < cfg.max_demos:
+        raise RuntimeError(f"generation left {len(bags)} of {cfg.max_demos} bags of {cfg.task} in {folder}")
+    return bags[: cfg.max_demos]
+
+
+def base_demo_folders(cfg: NewObjectConfig, log: Callable[[str], None]) -> list[Path]:
+    """The base tasks' demonstration folders under --data (generated once, as `make demo` does)."""
+    return [ensure_demos(t, BASE_EPISODES, cfg.data, BASE_SEED, log) for t in BASE_TASKS]
+
+
+def train_transfer(cfg: NewObjectConfig, k: int, base: Sequence[Path], new_bags: Sequence[Path],
+                   detector: Path, log: Callable[[str], None]) -> Path:
+    """The transfer model of k new demonstrations: base + the first k new bags in one model."""
+    out = cfg.path("models", f"k{k}")
+    if (out / "config.json").is_file():
+        log(f"[new-object] reusing {out}")
+        return out
+    run_command(["vla_latent_training", "train", "--catalogue", str(cfg.catalogue),
+                 "--bags", *map(str, base), *map(str, new_bags[:k]), "--max-per-task", str(BASE_EPISODES),
+                 "--detector-model", str(detector), "--epochs", str(cfg.latent_epochs),
+                 "--seed", str(cfg.latent_seed), "--out", str(out), "--quiet"], log)
+    return out
+
+
+def evaluate_transfer(cfg: NewObjectConfig, k: int, model: Path, detector: Path,
+                      log: Callable[[str], None]) -> dict:
+    """The graph evaluation of one transfer model on the fresh layouts: its summary row."""
+    out = cfg.path("eval", f"k{k}")
+    if not (out / "results.json").is_file():
+        run_command(["vla_evaluation", "evaluate", "--mode", "graph", "--catalogue", str(cfg.catalogue),
+                     "--tasks", cfg.task, "--layouts", str(cfg.layouts), "--seed", str(cfg.layout_seed),
+                     "--model", str(model), "--detector-model", str(detector),
+                     "--real-time-factor", str(cfg.real_time_factor), "--out", str(out),
+                     *cfg.extra_eval_args], log)
+    else:
+        log(f"[new-object] reusing {out}")
+    return summary_row(json.loads((out / "results.json").read_text()), cfg.task)
+
+
+def summary_row(results: dict, task: str) -> dict:
+    """The evaluation's summary of `task` (success rate, final state error, time to success, ...)."""
+    rows = [r for r in results.get("summary", []) if r.get("task") == task]
+    if not rows:
+        raise RuntimeError(f"the evaluation has no summary of {task}")
+    return dict(rows[0])
+
+
+def demo_counts(cfg: NewObjectConfig, success: dict[int, float | None]) -> list[int]:
+    """The demonstration counts still to measure after `success` (k -> success rate)."""
+    want = [cfg.demos]
+    first = success.get(cfg.demos)
+    if cfg.sweep == "always" or (cfg.sweep == "auto" and first is not None and first < cfg.goal):
+        want += list(range(1, cfg.max_demos + 1))
+    return [k for k in dict.fromkeys(want) if k not in success]
+
+
+def smallest_sufficient(success: dict[int, float | None], goal: float) -> int | None:
+    """The smallest demonstration count whose success rate reaches `goal` (None: none does)."""
+    ok = [k for k, s in success.items() if s is not None and s >= goal]
+    return min(ok) if ok else None
+
+
+# --------------------------------------------------------------------------------------------- report
+def machine() -> dict:
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
+            "python": platform.python_version()}
+
+
+def verdicts(res: dict, cfg: NewObjectConfig) -> dict:
+    """Each goal of the issue, met or not (None: not measured)."""
+    ft = res.get("detector", {}).get("fine_tuned") or {}
+    transfer = res.get("transfer", {})
+    rate = (transfer.get(str(cfg.demos)) or {}).get("success_rate")
+
+    def at_least(v, goal):
+        return None if v is None else bool(v >= goal)
+
+    return {
+        "new_class_ap50>=0.9": at_least(ft.get("new_class_ap50"), DETECTOR_AP_GOAL),
+        "old_classes_map50>=0.95": at_least(ft.get("old_classes_map50"), DETECTOR_OLD_MAP_GOAL),
+        "fine_tune<=300s": None if ft.get("train_wall_s") is None
+        else bool(ft["train_wall_s"] <= FINE_TUNE_TIME_GOAL_S),
+        f"success_with_{cfg.demos}_demos>=80%": at_least(rate, cfg.goal),
+    }
+
+
+def _pct(v) -> str:
+    return "-" if v is None else f"{100 * v:.0f} %"
+
+
+def _num(v, fmt: str = ".3f") -> str:
+    return "-" if v is None else format(v, fmt)
+
+
+def report_markdown(res: dict) -> str:
+    """README.md of a run: the figures as tables."""
+    cfg, m = res["config"], res["machine"]
+    lines = [f"# New object: {cfg['task']}", "",
+             f"`{res['command']}`", "",
+             f"{res['date']}, {m['cpu']}, {m['cores']} cores "
+             f"(load {m['load_average_at_start'][0]:.1f} at start); "
+             f"{res['wall_s'] / 60:.1f} min in all.", "", "## Detector (held-out renders)", "",
+             "| detector | train time | AP@0.5 new class | mAP@0.5 old classes | mAP@0.5 all "
+             "| AP@0.5 per class |",
+             "|---|---|---|---|---|---|"]
+    for name, d in res["detector"].items():
+        if not d:
+            continue
+        per = ", ".join(f"{c} {v:.3f}" for c, v in d["ap50"].items())
+        t = "-" if d["train_wall_s"] is None else f"{d['train_wall_s']:.0f} s"
+        lines.append(f"| {name} | {t} | {_num(d['new_class_ap50'])} | {_num(d['old_classes_map50'])} | "
+                     f"{_num(d['map50'])} | {per} |")
+    ratio = res.get("detector_time_ratio")
+    if ratio:
+        lines += ["", f"Fine-tuning took {1 / ratio:.2f}x the time of training from scratch "
+                      f"(scratch / fine-tune = {ratio:.2f})."]
+    lines += ["", "## Transfer model, graph evaluation on fresh layouts", "",
+              "| new demos | episodes | success | final state error (rad) | median time to success | "
+              "interventions | violations |", "|---|---|---|---|---|---|---|"]
+    for k, r in sorted(res["transfer"].items(), key=lambda kv: int(kv[0])):
+        tts = "-" if r.get("time_to_success_median") is None else f"{r['time_to_success_median']:.1f} s"
+        lines.append(f"| {k} | {r['episodes']} | {_pct(r['success_rate'])} | "
+                     f"{_num(r['final_state_error'])} +- {_num(r.get('final_state_error_sem'))} | {tts} | "
+                     f"{r.get('safety_interventions', '-')} | {r.get('limit_violations', '-')} |")
+    k = res.get("smallest_sufficient_demos")
+    lines += ["", f"Smallest number of new demonstrations reaching {_pct(cfg['goal'])}: "
+                  f"{'none measured' if k is None else k}.", "", "## Goals", ""]
+    lines += [f"- {g}: {'-' if v is None else ('met' if v else 'NOT met')}"
+              for g, v in res["verdicts"].items()]
+    lines += ["", "## Steps (wall time)", ""]
+    lines += [f"- {s}: {w:.0f} s" for s, w in res["steps_s"].items()]
+    return "\n".join(lines) + "\n"
+
+
+# ----------------------------------------------------------------------------------------------- run
+def run_pipeline(cfg: NewObjectConfig, log: Callable[[str], None] = print, command: str = "") -> dict:
+    """All the steps; returns (and writes to cfg.out) the figures."""
+    t_all = time.monotonic()
+    catalogue = load_catalogue(cfg.catalogue)
+    spec = catalogue.task(cfg.task)  # CatalogueError: names the known tasks and files
+    cfg.task = spec.name
+    shipped = detector_model_path()
+    old_classes = [c for c in catalogue.classes if c != spec.object_class]
+    Path(cfg.out).mkdir(parents=True, exist_ok=True)
+    res: dict = {"command": command, "date": time.strftime("%Y-%m-%d %H:%M %Z"), "machine": machine(),
+                 "config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
+                 "catalogue": catalogue.where, "shipped_detector": str(shipped), "steps_s": {},
+                 "detector": {}, "transfer": {}}
+    steps = res["steps_s"]
+
+    def step(name: str, t0: float) -> None:
+        steps[name] = round(time.monotonic() - t0, 1)
+        _save(cfg, res)
+
+    t = time.monotonic()
+    renders, test_renders = render(cfg, log)
+    step("renders", t)
+    t = time.monotonic()
+    fine, fine_s = train_detector(cfg, renders, "detector", shipped, log)
+    res["detector"]["fine_tuned"] = detector_figures(fine, test_renders, spec.object_class, old_classes,
+                                                     fine_s, log)
+    step("detector fine-tuning + evaluation", t)
+    if cfg.scratch:
+        t = time.monotonic()
+        scratch, scratch_s = train_detector(cfg, renders, "detector_scratch", None, log)
+        res["detector"]["scratch"] = detector_figures(scratch, test_renders, spec.object_class, old_classes,
+                                                      scratch_s, log)
+        if fine_s and scratch_s:
+            res["detector_time_ratio"] = scratch_s / fine_s
+        step("detector from scratch + evaluation", t)
+    t = time.monotonic()
+    new_bags = new_task_demos(cfg, fine, log)
+    res["new_demos"] = [str(b) for b in new_bags]
+    step("new-task demonstrations", t)
+    t = time.monotonic()
+    base = base_demo_folders(cfg, log)
+    res["base_demos"] = {str(f): count_bags(f) for f in base}
+    step("base demonstrations", t)
+    success: dict[int, float | None] = {}
+    while todo := demo_counts(cfg, success):
+        k = todo[0]
+        t = time.monotonic()
+        model = train_transfer(cfg, k, base, new_bags, fine, log)
+        row = evaluate_transfer(cfg, k, model, fine, log)
+        row["model"] = str(model)
+        res["transfer"][str(k)] = row
+        success[k] = row.get("success_rate")
+        step(f"transfer model k={k}: training + graph evaluation", t)
+    res["smallest_sufficient_demos"] = smallest_sufficient(success, cfg.goal)
+    res["wall_s"] = round(time.monotonic() - t_all, 1)
+    res["verdicts"] = verdicts(res, cfg)
+    _save(cfg, res)
+    (Path(cfg.out) / "README.md").write_text(report_markdown(res))
+    return res
+
+
+def _save(cfg: NewObjectConfig, res: dict) -> None:
+    res.setdefault("wall_s", 0.0)
+    res.setdefault("verdicts", {})
+    res.setdefault("smallest_sufficient_demos", None)
+    (Path(cfg.out) / "results.json").write_text(json.dumps(res, indent=2) + "\n")
+
+
+def publish(out: Path, target: Path) -> list[Path]:
+    """Copy a run's figures (README.md, results.json, the evaluations' summaries) to `target`."""
+    target.mkdir(parents=True, exist_ok=True)
+    copied = []
+    for name in ("README.md", "results.json"):
+        copied.append(Path(shutil.copy2(out / name, target / name)))
+    for summary in sorted((out / "eval").glob("k*/summary.csv")):
+        dst = target / f"eval_{summary.parent.name}_summary.csv"
+        copied.append(Path(shutil.copy2(summary, dst)))
+    return copied
+
+
+# ------------------------------------------------------------------------------------------- command
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--catalogue", type=Path, required=True,
+                   help="the lab's catalogue YAML (extends: default)")
+    p.add_argument("--task", required=True, help="the new object's task, e.g. spam/push_south_east")
+    p.add_argument("--out", type=Path, required=True, help="output folder (reused: a rerun resumes)")
+    p.add_argument("--data", type=Path, default=Path("out/data"),
+                   help="where the base demonstrations are cached (the folder `make demo` uses)")
+    p.add_argument("--renders", type=int, default=100, help="training renders with the new object")
+    p.add_argument("--test-renders", type=int, default=100, help="held-out renders to measure on")
+    p.add_argument("--detector-epochs", type=int, default=None, help="default: the train command's")
+    p.add_argument("--no-scratch", action="store_true", help="skip the from-scratch detector comparison")
+    p.add_argument("--demos", type=int, default=3, help="new demonstrations in the transfer model")
+    p.add_argument("--max-demos", type=int, default=5, help="demonstrations generated (the sweep's top)")
+    p.add_argument("--sweep", choices=("auto", "always", "never"), default="auto",
+                   help="measure 1..--max-demos demonstrations: when --demos falls short (auto), "
+                        "always, never")
+    p.add_argument("--latent-epochs", type=int, default=1000)
+    p.add_argument("--latent-seed", type=int, default=0)
+    p.add_argument("--layouts", type=int, default=10, help="fresh layouts of the graph evaluation")
+    p.add_argument("--layout-seed", type=int, default=VALIDATION_SEED_OFFSET)
+    p.add_argument("--real-time-factor", type=float, default=2.0, help="of the graph evaluation")
+    p.add_argument("--publish", type=Path, default=None,
+                   help="also copy the figures here (e.g. docs/results/new-object)")
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = NewObjectConfig(catalogue=args.catalogue, task=args.task, out=args.out, data=args.data,
+                          renders=args.renders, test_renders=args.test_renders,
+                          detector_epochs=args.detector_epochs, scratch=not args.no_scratch, demos=args.demos,
+                          max_demos=max(args.max_demos, args.demos), sweep=args.sweep,
+                          latent_epochs=args.latent_epochs, latent_seed=args.latent_seed,
+                          layouts=args.layouts,
+                          layout_seed=args.layout_seed, real_time_factor=args.real_time_factor)
+    command = "vla_evaluation new-object " + " ".join(sys.argv[2:]) if len(sys.argv) > 2 else ""
+    try:
+        res = run_pipeline(cfg, log=_log, command=command)
+    except (CatalogueError, RuntimeError) as err:
+        print(f"new-object: {err}", file=sys.stderr)
+        return 1 if isinstance(err, RuntimeError) else 2
+    print(report_markdown(res))
+    if args.publish is not None:
+        for p in publish(Path(args.out), Path(args.publish)):
+            print(f"wrote {p}")
+    return 0
+
+
+def _log(msg: str) -> None:
+    print(msg, flush=True)

@@ -279,3 +279,88 @@ def test_stick_rate_limit_moves_the_stick_gradually():
     assert axes[-1] == pytest.approx(-1.0) and axes[3] > 0.5
     with pytest.raises(ValueError):
         SimTeleoperator(deadband_linear(d), sched, max_stick_rate=-1.0)
+
+
+def _set(ex, node, client, **values):
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.parameter import Parameter
+
+    params = [Parameter(k, value=v).to_parameter_msg() for k, v in values.items()]
+    req = SetParameters.Request(parameters=params)
+    assert client.wait_for_service(timeout_sec=5.0)
+    fut = client.call_async(req)
+    assert _spin_until(ex, fut.done, 5.0)
+    return fut.result().results
+
+
+@pytest.mark.ros
+def test_node_applies_or_refuses_every_run_time_parameter(ros, tmp_path):
+    """Episode settings apply from the next episode; an even n_candidates and a model change during
+    an episode are refused with a reason; the read-only rate is refused."""
+    from rcl_interfaces.srv import SetParameters
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from vla_evaluation.sim_teleoperator_node import SimTeleoperatorNode
+
+    from vla_interfaces.msg import TeleopStatus
+
+    ctx, ex, nodes = ros
+    random_model(tmp_path / "m")
+    random_model(tmp_path / "m2", seed=1)
+    tele = SimTeleoperatorNode(context=ctx,
+                               parameter_overrides=[Parameter("model_path", value=str(tmp_path / "m"))])
+    peer = Node("peer", context=ctx)
+    nodes += [tele, peer]
+    ex.add_node(tele)
+    ex.add_node(peer)
+    cli = peer.create_client(SetParameters, "sim_teleoperator/set_parameters")
+    ok = _set(ex, peer, cli, horizon=2.0, n_candidates=81, time_limit=5.0)
+    assert all(r.successful for r in ok) and tele.p["horizon"] == 2.0 and tele.p["n_candidates"] == 81
+    (even,) = _set(ex, peer, cli, n_candidates=40)
+    assert not even.successful and "odd" in even.reason and tele.p["n_candidates"] == 81
+    (rate,) = _set(ex, peer, cli, rate=50.0)
+    assert not rate.successful
+    (bad,) = _set(ex, peer, cli, model_path=str(tmp_path / "missing"))
+    assert not bad.successful and "cannot load model" in bad.reason
+    (model,) = _set(ex, peer, cli, model_path=str(tmp_path / "m2"))
+    assert model.successful and str(tele.model.artifacts.path).endswith("m2")
+    tele._request("bread/push_east")  # an episode is waiting for its inputs
+    assert tele.state == TeleopStatus.WAITING
+    (busy,) = _set(ex, peer, cli, model_path=str(tmp_path / "m"))
+    assert not busy.successful and "running" in busy.reason
+
+
+@pytest.mark.ros
+def test_a_task_given_before_the_first_clock_waits_from_the_first_clock(ros, tmp_path):
+    """use_sim_time and `task` at startup: the request is stamped 0 until /clock arrives. The wait for
+    inputs must count from the first simulated time, not give up at once (simulated time then is the
+    bridge's wall-clock start, ~1.8e9 s after 0)."""
+    from builtin_interfaces.msg import Time
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rosgraph_msgs.msg import Clock
+    from vla_evaluation.sim_teleoperator_node import SimTeleoperatorNode
+
+    from vla_interfaces.msg import TeleopStatus
+
+    ctx, ex, nodes = ros
+    random_model(tmp_path / "m")
+    P = Parameter
+    tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[
+        P("model_path", value=str(tmp_path / "m")), P("task", value="bread/push_east"),
+        P("use_sim_time", value=True), P("start_timeout", value=5.0)])
+    peer = Node("clock", context=ctx)
+    nodes += [tele, peer]
+    ex.add_node(tele)
+    ex.add_node(peer)
+    clock = peer.create_publisher(Clock, "/clock", 10)
+    ticks = [0]
+
+    def tick():  # simulated time from 1.8e9 s on, 10 ms a tick
+        ticks[0] += 1
+        sec, centis = divmod(ticks[0], 100)
+        clock.publish(Clock(clock=Time(sec=1_800_000_000 + sec, nanosec=10_000_000 * centis)))
+
+    peer.create_timer(0.01, tick)
+    _spin_until(ex, lambda: False, 1.0)
+    assert tele.state == TeleopStatus.WAITING, tele.reason  # still waiting for its inputs, not FAILED

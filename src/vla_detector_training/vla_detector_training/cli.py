@@ -1,6 +1,7 @@
 """`vla_detector_training` command line: synth, train, evaluate, check, export.
 
-Heavy imports (torch, MuJoCo) happen inside the subcommands that need them.
+Heavy optional imports (torch, MuJoCo) happen inside the subcommands that need them, so `--help`,
+`check` and `evaluate` stay light.
 """
 
 from __future__ import annotations
@@ -9,11 +10,14 @@ import argparse
 import sys
 import time
 
-from vla_detector_training.dataset import DatasetError
+from vla_detector.inference import default_model_path
+
+from vla_detector_training.dataset import DatasetError, load_data_config, load_split
+from vla_detector_training.evaluate import evaluate_model
 
 
 def _cmd_synth(a: argparse.Namespace) -> int:
-    from vla_detector_training.synth import synthesize
+    from vla_detector_training.synth import synthesize  # MuJoCo
 
     t = time.perf_counter()
     counts = synthesize(a.out, a.count, a.seed, a.split, a.val_fraction, a.width, a.height, not a.quiet)
@@ -26,7 +30,7 @@ def _cmd_synth(a: argparse.Namespace) -> int:
 
 
 def _cmd_train(a: argparse.Namespace) -> int:
-    from vla_detector_training.train import TrainConfig, parse_imgsz, train
+    from vla_detector_training.train import TrainConfig, parse_imgsz, train  # torch
 
     w, h = parse_imgsz(a.imgsz)
     cfg = TrainConfig(
@@ -50,10 +54,6 @@ def _cmd_train(a: argparse.Namespace) -> int:
 
 
 def _cmd_evaluate(a: argparse.Namespace) -> int:
-    from vla_detector.inference import default_model_path
-
-    from vla_detector_training.evaluate import evaluate_model
-
     model = a.model or str(default_model_path())
     t = time.perf_counter()
     m, n, split = evaluate_model(model, a.data, a.split, a.score_threshold, a.iou_threshold, not a.quiet)
@@ -68,8 +68,6 @@ def _cmd_evaluate(a: argparse.Namespace) -> int:
 
 
 def _cmd_check(a: argparse.Namespace) -> int:
-    from vla_detector_training.dataset import load_data_config, load_split
-
     cfg = load_data_config(a.data)
     for s in cfg.splits:
         samples = load_split(cfg, s)
@@ -80,7 +78,7 @@ def _cmd_check(a: argparse.Namespace) -> int:
 
 
 def _cmd_export(a: argparse.Namespace) -> int:
-    from vla_detector_training.export import export_onnx, load_checkpoint
+    from vla_detector_training.export import export_onnx, load_checkpoint  # torch
 
     net, classes, extra = load_checkpoint(a.checkpoint)
     print(f"exported {export_onnx(net, classes, a.out, {'trained': extra})}")

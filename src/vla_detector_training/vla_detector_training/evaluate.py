@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 
 import numpy as np
+from tqdm import tqdm
 from vla_detector.inference import Detector
 
 from vla_detector_training.dataset import DatasetError, load_data_config, load_split, read_image
@@ -42,12 +43,7 @@ def evaluate_model(
         raise DatasetError(f"class names differ: model {det.classes} vs {cfg.root / 'data.yaml'} {cfg.names}")
     samples = load_split(cfg, split)
     results = []
-    it = samples
-    if progress:
-        from tqdm import tqdm
-
-        it = tqdm(samples, desc=f"evaluating {split}", dynamic_ncols=True)
-    for s in it:
+    for s in tqdm(samples, desc=f"evaluating {split}", dynamic_ncols=True, disable=not progress):
         dets = det.detect(read_image(s.image_path))
         gt = np.array([[b.cx, b.cy, b.w, b.h] for b in s.boxes], dtype=np.float64).reshape(-1, 4)
         results.append(

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import onnx
 import torch
+from safetensors import safe_open
 from safetensors.torch import load_file, save_file
 
 from vla_detector_training.model import DetectorNet, ExportWrapper, ModelConfig
@@ -38,8 +39,6 @@ def save_checkpoint(
 
 def load_checkpoint(path: str | os.PathLike) -> tuple[DetectorNet, list[str], dict]:
     """safetensors checkpoint -> (network in eval mode, class names, extra facts)."""
-    from safetensors import safe_open
-
     with safe_open(str(path), framework="pt") as f:
         meta = f.metadata() or {}
     if meta.get("format") != FORMAT:

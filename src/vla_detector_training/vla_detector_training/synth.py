@@ -19,6 +19,12 @@ from pathlib import Path
 import cv2
 import mujoco
 import numpy as np
+from tqdm import tqdm
+from vla_common.kinematics import PandaKinematics
+from vla_common.objects import OBJECT_CLASSES
+from vla_common.robot import Q_MAX, Q_MIN, READY_POSE
+from vla_sim.scene import CAMERA_NAME
+from vla_sim.sim import PandaSim
 
 from vla_detector_training.dataset import SPLITS, Box, write_data_config, write_sample
 
@@ -72,11 +78,6 @@ class SceneSampler:
 
     def __init__(self, width: int = 320, height: int = 240) -> None:
         os.environ.setdefault("MUJOCO_GL", "egl")
-        from vla_common.kinematics import PandaKinematics
-        from vla_common.objects import OBJECT_CLASSES
-        from vla_common.robot import Q_MAX, Q_MIN, READY_POSE
-        from vla_sim.sim import PandaSim
-
         self.classes = list(OBJECT_CLASSES)
         self.sim = PandaSim(camera_width=width, camera_height=height, render=True)
         self.kin = PandaKinematics()
@@ -101,8 +102,6 @@ class SceneSampler:
         self.seg.enable_segmentation_rendering()
 
     def _cam_id(self) -> int:
-        from vla_sim.scene import CAMERA_NAME
-
         return self.model.camera(CAMERA_NAME).id
 
     # ------------------------------------------------------------------ randomisation
@@ -249,8 +248,6 @@ def synthesize(
     Image i of seed s is drawn from its own generator (seed s, i), so runs are reproducible and a
     different seed gives different scenes.
     """
-    from tqdm import tqdm
-
     if count <= 0:
         raise ValueError(f"--count must be positive, got {count}")
     if split not in (*SPLITS, "auto"):

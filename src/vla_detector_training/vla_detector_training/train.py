@@ -13,6 +13,7 @@ import json
 import math
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -169,6 +170,165 @@ def _log(msg: str, progress: bool) -> None:
         print(msg, flush=True)
 
 
+def subset(data: ArrayData, idx: np.ndarray) -> ArrayData:
+    return ArrayData(data.images[idx], [data.boxes[i] for i in idx], [data.classes[i] for i in idx])
+
+
+def load_datasets(cfg: TrainConfig, rng: np.random.Generator) -> tuple[list[str], ArrayData, ArrayData]:
+    """(class names, training images, validation images): the `val` split, else 10 % of `train`
+    held out deterministically."""
+    dcfg = load_data_config(cfg.data)
+    if "train" not in dcfg.splits:
+        raise DatasetError(f"{dcfg.root / 'data.yaml'}: no 'train' split")
+    train_data = load_arrays(dcfg, "train", cfg.input_width, cfg.input_height, cfg.max_images)
+    if "val" in dcfg.splits:
+        return dcfg.names, train_data, load_arrays(dcfg, "val", cfg.input_width, cfg.input_height)
+    n = len(train_data.images)
+    idx = rng.permutation(n)
+    nv = max(1, n // 10)
+    return dcfg.names, subset(train_data, np.sort(idx[nv:])), subset(train_data, np.sort(idx[:nv]))
+
+
+def lr_schedule(cfg: TrainConfig, steps_per_epoch: int) -> Callable[[int], float]:
+    """Learning rate at each optimiser step: linear warm-up (at most an epoch), then cosine to 2 %."""
+    total = steps_per_epoch * cfg.epochs
+    warmup = min(steps_per_epoch, total // 5 + 1)
+
+    def lr_at(step: int) -> float:
+        if step < warmup:
+            return cfg.lr * (step + 1) / warmup
+        p = (step - warmup) / max(1, total - warmup)
+        return cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * p)))
+
+    return lr_at
+
+
+def make_batch(data: ArrayData, idx: np.ndarray, augmented: bool, rng: np.random.Generator):
+    """(images (B, H, W, 3), boxes per image, classes per image) of the images at `idx`."""
+    imgs, bxs, cls = [], [], []
+    for i in idx:
+        if augmented:
+            im, b, c = augment(data.images[i], data.boxes[i], data.classes[i], rng)
+        else:
+            im, b, c = data.images[i], data.boxes[i], data.classes[i]
+        imgs.append(im)
+        bxs.append(b)
+        cls.append(c)
+    return np.stack(imgs), bxs, cls
+
+
+@dataclass
+class _Optimiser:
+    """AdamW, its per-step learning rate and the step count so far."""
+
+    opt: torch.optim.Optimizer
+    lr_at: Callable[[int], float]
+    step: int = 0
+
+    def update(self, net: DetectorNet, loss: torch.Tensor) -> None:
+        for g in self.opt.param_groups:
+            g["lr"] = self.lr_at(self.step)
+        self.opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
+        self.opt.step()
+        self.step += 1
+
+
+def train_epoch(net: DetectorNet, data: ArrayData, num_classes: int, cfg: TrainConfig, optimiser: _Optimiser,
+                rng: np.random.Generator, desc: str) -> float:
+    """One pass over the training images in a fresh order; the running (smoothed) loss at its end."""
+    net.train()
+    n = len(data.images)
+    order = rng.permutation(n)
+    gh, gw = cfg.input_height // STRIDE, cfg.input_width // STRIDE
+    steps = max(1, math.ceil(n / cfg.batch))
+    bar = tqdm(range(steps), desc=desc, disable=not cfg.progress, leave=False, dynamic_ncols=True)
+    run_loss = 0.0
+    for s in bar:
+        imgs, bxs, cls = make_batch(data, order[s * cfg.batch : (s + 1) * cfg.batch], cfg.augment, rng)
+        heat, reg, wt = build_targets(bxs, cls, num_classes, gh, gw)
+        cl, bo = net(to_tensor(imgs))
+        loss, parts = detection_loss(cl, bo, heat, reg, wt)
+        optimiser.update(net, loss)
+        lv = float(loss.detach())
+        run_loss = 0.9 * run_loss + 0.1 * lv if s else lv
+        bar.set_postfix(loss=f"{run_loss:.3f}", cls=f"{parts['cls']:.3f}", giou=f"{parts['giou']:.3f}")
+    bar.close()
+    return run_loss
+
+
+def epoch_row(epoch: int, loss: float, m: Metrics, elapsed_s: float) -> dict:
+    """One line of results.csv."""
+    return {
+        "epoch": epoch,
+        "loss": round(loss, 5),
+        "map50": m.map50,
+        "map50_95": m.map50_95,
+        "centre_error_px": m.centre_error_px,
+        "precision": m.precision,
+        "recall": m.recall,
+        "elapsed_s": round(elapsed_s, 1),
+    }
+
+
+@dataclass
+class FitResult:
+    history: list[dict]  # results.csv rows
+    best_epoch: int  # 1-based
+    best_metrics: Metrics
+
+
+def fit(net: DetectorNet, train_data: ArrayData, val_data: ArrayData, names: list[str], cfg: TrainConfig,
+        rng: np.random.Generator, ckpt: Path, t_start: float) -> FitResult:
+    """Train for cfg.epochs, validating after each; the best epoch (by `fitness`) is saved to `ckpt`."""
+    steps_per_epoch = max(1, math.ceil(len(train_data.images) / cfg.batch))
+    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    optimiser = _Optimiser(opt, lr_schedule(cfg, steps_per_epoch))
+    best, best_epoch, best_metrics = -2.0, -1, None
+    history = []
+    for epoch in range(1, cfg.epochs + 1):
+        loss = train_epoch(net, train_data, len(names), cfg, optimiser, rng, f"epoch {epoch}/{cfg.epochs}")
+        m = evaluate(predict_arrays(net, val_data, cfg.iou_threshold), names, cfg.score_threshold)
+        row = epoch_row(epoch, loss, m, time.perf_counter() - t_start)
+        history.append(row)
+        mark = ""
+        if fitness(m) > best:
+            best, best_epoch, best_metrics = fitness(m), epoch, m
+            save_checkpoint(ckpt, net, names, {"epoch": epoch, "metrics": row})
+            mark = "  (best)"
+        _log(
+            f"epoch {epoch}/{cfg.epochs}: loss {loss:.4f}  mAP@0.5 {m.map50:.4f}  "
+            f"mAP@0.5:0.95 {m.map50_95:.4f}  centre error {m.centre_error_px:.2f} px  "
+            f"P {m.precision:.3f} R {m.recall:.3f}  [{row['elapsed_s']:.0f} s]{mark}",
+            cfg.progress,
+        )
+    return FitResult(history, best_epoch, best_metrics)
+
+
+def write_history(path: Path, history: list[dict]) -> None:
+    with open(path, "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(history[0]))
+        w.writeheader()
+        w.writerows(history)
+
+
+def export_best(ckpt: Path, names: list[str], out: Path, cfg: TrainConfig, result: FitResult, n_train: int,
+                wall: float) -> Path:
+    """The best checkpoint as detector.onnx + detector.json, with what it was trained on."""
+    best_net, _, _ = load_checkpoint(ckpt)
+    m = result.best_metrics
+    trained = {
+        "epochs": cfg.epochs,
+        "best_epoch": result.best_epoch,
+        "train_images": n_train,
+        "seed": cfg.seed,
+        "wall_time_s": round(wall, 1),
+        "val": {"map50": m.map50, "map50_95": m.map50_95, "centre_error_px": m.centre_error_px},
+    }
+    return export_onnx(best_net, names, out / "detector.onnx", extra={"trained": trained})
+
+
 def train(cfg: TrainConfig) -> dict:
     """Train, validate each epoch, keep the best checkpoint, export it. Returns a summary dict."""
     t_start = time.perf_counter()
@@ -177,150 +337,34 @@ def train(cfg: TrainConfig) -> dict:
     rng = np.random.default_rng(cfg.seed)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    dcfg = load_data_config(cfg.data)
-    if "train" not in dcfg.splits:
-        raise DatasetError(f"{dcfg.root / 'data.yaml'}: no 'train' split")
-    val_split = "val" if "val" in dcfg.splits else None
-    train_data = load_arrays(dcfg, "train", cfg.input_width, cfg.input_height, cfg.max_images)
-    if val_split:
-        val_data = load_arrays(dcfg, val_split, cfg.input_width, cfg.input_height)
-    else:  # hold out 10 % of train, deterministically
-        n = len(train_data.images)
-        idx = rng.permutation(n)
-        nv = max(1, n // 10)
-        vi, ti = np.sort(idx[:nv]), np.sort(idx[nv:])
-        val_data = ArrayData(
-            train_data.images[vi], [train_data.boxes[i] for i in vi], [train_data.classes[i] for i in vi]
-        )
-        train_data = ArrayData(
-            train_data.images[ti], [train_data.boxes[i] for i in ti], [train_data.classes[i] for i in ti]
-        )
-    names = dcfg.names
-    mcfg = ModelConfig(
-        num_classes=len(names), width=cfg.width, input_width=cfg.input_width, input_height=cfg.input_height
-    )
-    net = DetectorNet(mcfg)
+    names, train_data, val_data = load_datasets(cfg, rng)
+    net = DetectorNet(ModelConfig(num_classes=len(names), width=cfg.width, input_width=cfg.input_width,
+                                  input_height=cfg.input_height))
     n_train = len(train_data.images)
-    steps_per_epoch = max(1, math.ceil(n_train / cfg.batch))
-    total_steps = steps_per_epoch * cfg.epochs
-    warmup = min(steps_per_epoch, total_steps // 5 + 1)
-    opt = torch.optim.AdamW(net.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-
-    def lr_at(step: int) -> float:
-        if step < warmup:
-            return cfg.lr * (step + 1) / warmup
-        p = (step - warmup) / max(1, total_steps - warmup)
-        return cfg.lr * (0.02 + 0.98 * 0.5 * (1 + math.cos(math.pi * p)))
-
     _log(
         f"training on {n_train} images, validating on {len(val_data.images)}; classes {names}; "
         f"input {cfg.input_width}x{cfg.input_height}; {count_parameters(net)} parameters",
         cfg.progress,
     )
-    gh, gw = cfg.input_height // STRIDE, cfg.input_width // STRIDE
-    best, best_epoch, best_metrics = -2.0, -1, None
-    history = []
     ckpt = out / "best.safetensors"
-    step = 0
-    for epoch in range(cfg.epochs):
-        net.train()
-        order = rng.permutation(n_train)
-        bar = tqdm(
-            range(steps_per_epoch),
-            desc=f"epoch {epoch + 1}/{cfg.epochs}",
-            disable=not cfg.progress,
-            leave=False,
-            dynamic_ncols=True,
-        )
-        run_loss = 0.0
-        for s in bar:
-            idx = order[s * cfg.batch : (s + 1) * cfg.batch]
-            imgs, bxs, cls = [], [], []
-            for i in idx:
-                if cfg.augment:
-                    im, b, c = augment(train_data.images[i], train_data.boxes[i], train_data.classes[i], rng)
-                else:
-                    im, b, c = train_data.images[i], train_data.boxes[i], train_data.classes[i]
-                imgs.append(im)
-                bxs.append(b)
-                cls.append(c)
-            heat, reg, wt = build_targets(bxs, cls, len(names), gh, gw)
-            for g in opt.param_groups:
-                g["lr"] = lr_at(step)
-            cl, bo = net(to_tensor(np.stack(imgs)))
-            loss, parts = detection_loss(cl, bo, heat, reg, wt)
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            torch.nn.utils.clip_grad_norm_(net.parameters(), 10.0)
-            opt.step()
-            step += 1
-            lv = float(loss.detach())
-            run_loss = 0.9 * run_loss + 0.1 * lv if s else lv
-            bar.set_postfix(loss=f"{run_loss:.3f}", cls=f"{parts['cls']:.3f}", giou=f"{parts['giou']:.3f}")
-        bar.close()
-        m = evaluate(predict_arrays(net, val_data, cfg.iou_threshold), names, cfg.score_threshold)
-        f = fitness(m)
-        row = {
-            "epoch": epoch + 1,
-            "loss": round(run_loss, 5),
-            "map50": m.map50,
-            "map50_95": m.map50_95,
-            "centre_error_px": m.centre_error_px,
-            "precision": m.precision,
-            "recall": m.recall,
-            "elapsed_s": round(time.perf_counter() - t_start, 1),
-        }
-        history.append(row)
-        mark = ""
-        if f > best:
-            best, best_epoch, best_metrics = f, epoch + 1, m
-            save_checkpoint(ckpt, net, names, {"epoch": epoch + 1, "metrics": row})
-            mark = "  (best)"
-        _log(
-            f"epoch {epoch + 1}/{cfg.epochs}: loss {run_loss:.4f}  mAP@0.5 {m.map50:.4f}  "
-            f"mAP@0.5:0.95 {m.map50_95:.4f}  centre error {m.centre_error_px:.2f} px  "
-            f"P {m.precision:.3f} R {m.recall:.3f}  [{row['elapsed_s']:.0f} s]{mark}",
-            cfg.progress,
-        )
-    with open(out / "results.csv", "w", newline="") as fh:
-        w = csv.DictWriter(fh, fieldnames=list(history[0]))
-        w.writeheader()
-        w.writerows(history)
-    best_net, _, _ = load_checkpoint(ckpt)
+    result = fit(net, train_data, val_data, names, cfg, rng, ckpt, t_start)
+    write_history(out / "results.csv", result.history)
     wall = time.perf_counter() - t_start
-    onnx_path = export_onnx(
-        best_net,
-        names,
-        out / "detector.onnx",
-        extra={
-            "trained": {
-                "epochs": cfg.epochs,
-                "best_epoch": best_epoch,
-                "train_images": n_train,
-                "seed": cfg.seed,
-                "wall_time_s": round(wall, 1),
-                "val": {
-                    "map50": best_metrics.map50,
-                    "map50_95": best_metrics.map50_95,
-                    "centre_error_px": best_metrics.centre_error_px,
-                },
-            }
-        },
-    )
+    onnx_path = export_best(ckpt, names, out, cfg, result, n_train, wall)
     summary = {
-        "best_epoch": best_epoch,
+        "best_epoch": result.best_epoch,
         "wall_time_s": round(wall, 1),
         "onnx": str(onnx_path),
         "checkpoint": str(ckpt),
-        "val": history[best_epoch - 1],
+        "val": result.history[result.best_epoch - 1],
         "train_images": n_train,
-        "config": {k: v for k, v in vars(cfg).items()},
+        "config": dict(vars(cfg)),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
+    m = result.best_metrics
     _log(
-        f"best epoch {best_epoch}: mAP@0.5 {best_metrics.map50:.4f}  "
-        f"mAP@0.5:0.95 {best_metrics.map50_95:.4f}  "
-        f"centre error {best_metrics.centre_error_px:.2f} px; wall time {wall:.0f} s; exported {onnx_path}",
+        f"best epoch {result.best_epoch}: mAP@0.5 {m.map50:.4f}  mAP@0.5:0.95 {m.map50_95:.4f}  "
+        f"centre error {m.centre_error_px:.2f} px; wall time {wall:.0f} s; exported {onnx_path}",
         cfg.progress,
     )
     return summary

@@ -15,6 +15,7 @@ CSV of every episode, per-run aggregates, PNG plots and README.md comparing with
 from __future__ import annotations
 
 import argparse
+import multiprocessing as mp
 import os
 import shutil
 import sys
@@ -25,8 +26,26 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from vla_latent_training.train import POSITION_PRIOR_SCALE, TrainConfig
+from tqdm import tqdm
+from vla_common.kinematics import PandaKinematics
+from vla_common.tasks import BASE_TASKS, parse_task, task_layout
+from vla_demo_recorder.dataset import Demo
+from vla_detector.inference import Detector
+from vla_latent_controller.model import LatentModel
+from vla_latent_training.config import POSITION_PRIOR_SCALE, TrainConfig
 from vla_latent_training.train_cli import position_scale_arg
+from vla_sim.planner import PlanError, plan_task, random_start_pose
+
+from vla_evaluation.experiment_report import demo_consistency, write_report
+from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings, evaluate_kinematic, make_layouts
+from vla_evaluation.resources import detector_model_path
+from vla_evaluation.training_data import (
+    BASE_SEED,
+    UNSEEN_SEED,
+    ensure_demos,
+    ensure_detector,
+    load_task_demos,
+)
 
 ENCODERS = ("detector", "localization", "end_to_end")
 SETTINGS_2C = {
@@ -85,11 +104,7 @@ def simulate_demos(task: str, episodes: int, seed: int, detector, sim=None, kin=
     """Demonstrations made in-process (PandaSim + the task planner, no ROS): the same planner and
     physics as `vla_demo_recorder generate`, recorded at 10 Hz with the first camera frame and its
     detection. Used by --quick and --demo-source sim."""
-    from vla_common.kinematics import PandaKinematics
-    from vla_common.tasks import parse_task, task_layout
-    from vla_demo_recorder.dataset import Demo
-    from vla_sim.planner import PlanError, plan_task, random_start_pose
-    from vla_sim.sim import PandaSim
+    from vla_sim.sim import PandaSim  # MuJoCo: only where demos are simulated
 
     spec = parse_task(task)
     kin = kin or PandaKinematics()
@@ -143,16 +158,13 @@ def collect_demos(
     tasks_counts: dict[str, int], source: str, data_dir: Path, detector, log: Callable[[str], None]
 ) -> dict[str, list]:
     """{task: demos} with at least the requested count each."""
-    from vla_evaluation.training_data import BASE_SEED, UNSEEN_SEED, ensure_demos, load_task_demos
-
     out = {}
     sim = kin = None
     for i, (task, count) in enumerate(tasks_counts.items()):
         seed = (BASE_SEED if not task.startswith("cereal_box") else UNSEEN_SEED) + 100 * i
         if source == "sim":
             if sim is None:
-                from vla_common.kinematics import PandaKinematics
-                from vla_sim.sim import PandaSim
+                from vla_sim.sim import PandaSim  # MuJoCo: only for --demo-source sim
 
                 sim, kin = PandaSim(), PandaKinematics()
             out[task] = simulate_demos(task, count, seed, detector, sim, kin)
@@ -184,12 +196,8 @@ class Job:
 
 def run_job(job: Job) -> list[dict]:
     """Train one model on the job's demos and evaluate it on the validation layouts."""
-    import torch
-    from vla_common.kinematics import PandaKinematics
-    from vla_latent_controller.model import LatentModel
-    from vla_latent_training.train import train_model
-
-    from vla_evaluation.kinematic import evaluate_kinematic
+    import torch  # only in the worker that trains
+    from vla_latent_training.train import train_model  # torch
 
     torch.set_num_threads(1)
     demos = [_STATE["demos"][t][i] for t, idx in job.train.items() for i in idx]
@@ -303,13 +311,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from vla_common.tasks import BASE_TASKS
-    from vla_detector.inference import Detector
-
-    from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings, make_layouts
-    from vla_evaluation.resources import detector_model_path
-    from vla_evaluation.training_data import ensure_detector
-
     t_all = time.monotonic()
     plan = quick_plan() if args.quick else Plan()
     plan.position_scale = getattr(args, "position_scale", plan.position_scale)
@@ -352,8 +353,6 @@ def run(args) -> int:
         f"on {plan.jobs} worker(s)"
     )
     rows = _run_jobs(jobs, plan.jobs, log)
-    from vla_evaluation.experiment_report import demo_consistency
-
     meta = {
         "demo_consistency": demo_consistency(demos),
         "plan": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(plan).items()},
@@ -364,16 +363,12 @@ def run(args) -> int:
         "wall_s": round(time.monotonic() - t_all, 1),
         "quick": bool(args.quick),
     }
-    from vla_evaluation.experiment_report import write_report
-
     write_report(rows, out, meta)
     log(f"[experiments] done in {meta['wall_s'] / 60:.1f} min: {out}/README.md")
     return 0
 
 
 def _run_jobs(jobs: Sequence[Job], n_workers: int, log) -> list[dict]:
-    from tqdm import tqdm
-
     rows: list[dict] = []
     t0 = time.monotonic()
     bar = tqdm(total=len(jobs), desc="models", dynamic_ncols=True, file=sys.stdout)
@@ -382,8 +377,6 @@ def _run_jobs(jobs: Sequence[Job], n_workers: int, log) -> list[dict]:
             rows += run_job(job)
             bar.update()
     else:
-        import multiprocessing as mp
-
         ctx = mp.get_context("fork")  # workers inherit the demos and layouts; only results travel back
         os.environ.setdefault("OMP_NUM_THREADS", "1")
         with ctx.Pool(n_workers) as pool:

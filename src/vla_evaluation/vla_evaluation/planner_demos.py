@@ -8,6 +8,11 @@ from __future__ import annotations
 
 import numpy as np
 from vla_common.camera_model import SIM_WEBCAM
+from vla_common.kinematics import PandaKinematics
+from vla_common.objects import OBJECT_CLASSES
+from vla_common.tasks import parse_task, task_layout
+from vla_demo_recorder.dataset import Demo
+from vla_sim.planner import plan_task, random_start_pose
 
 IMAGE_SIZE = (640, 480)
 
@@ -19,15 +24,7 @@ def webcam_projection(image_size: tuple[int, int] = IMAGE_SIZE):
 
 def planner_demo(task: str, seed: int, kin=None, rate_hz: float = 10.0):
     """(Demo, plan, goal ObjectPose) of one planned ``task`` episode; layout and start pose from ``seed``."""
-    from vla_common.objects import OBJECT_CLASSES
-    from vla_common.tasks import parse_task, task_layout
-    from vla_demo_recorder.dataset import Demo
-    from vla_sim.planner import plan_task, random_start_pose
-
-    if kin is None:
-        from vla_common.kinematics import PandaKinematics
-
-        kin = PandaKinematics()
+    kin = kin or PandaKinematics()
     rng = np.random.default_rng(seed)
     spec = parse_task(task)
     obj = task_layout(spec, rng, n_objects=1)[0]
@@ -59,10 +56,7 @@ def planner_demo(task: str, seed: int, kin=None, rate_hz: float = 10.0):
 
 def planner_demos(tasks, per_task: int, seed: int = 0, kin=None) -> list:
     """``per_task`` demos of each task (distinct layouts), as Demo objects."""
-    if kin is None:
-        from vla_common.kinematics import PandaKinematics
-
-        kin = PandaKinematics()
+    kin = kin or PandaKinematics()
     return [
         planner_demo(task, seed + 1000 * k + i, kin)[0]
         for k, task in enumerate(tasks)

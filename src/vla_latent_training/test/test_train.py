@@ -2,11 +2,16 @@ import json
 
 import numpy as np
 import pytest
+import torch
+from vla_common.detection import Detection
 from vla_latent_controller.artifacts import CONFIG_FILE, load_model
-from vla_latent_controller.context import Det
+from vla_latent_controller.context import Det, preprocess_image
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.testing import CLASSES, class_direction, make_demos, make_pairs
-from vla_latent_training.train import TrainConfig, prepare_demos, train_model
+from vla_latent_training.cae import CAE, ContextCNN, Tanh
+from vla_latent_training.config import CTX_STD_FLOOR, POSITION_PRIOR_SCALE, position_affine, scaled_schedule
+from vla_latent_training.inputs import prepare_demos
+from vla_latent_training.train import TrainConfig, _fold_input_affine, train_model
 
 
 def _cos(a, b):
@@ -82,15 +87,13 @@ def test_detector_runs_when_the_demo_has_no_detection():
         classes = list(CLASSES)
 
         def detect(self, rgb):
-            class D:
-                class_id, class_index, score, cx, cy, w, h = "soda_can", 1, 0.8, 100.0, 50.0, 10.0, 10.0
-
-            return [D()]
+            return [Detection("bread", 0.9, 300.0, 50.0, 10.0, 10.0, 0),
+                    Detection("soda_can", 0.8, 100.0, 50.0, 10.0, 10.0, 1)]
 
     demos = make_demos(classes=["soda_can"], per_class=1, with_image=True)
     demos[0].detection = None
     kept, skipped = prepare_demos(demos, "detector", CLASSES, detector=FakeDetector())
-    assert not skipped and kept[0].det.cx == 100.0 and kept[0].image_size == (640, 480)
+    assert not skipped and kept[0].det.cx == 100.0 and kept[0].image_size == (640, 480)  # the demo's class
 
 
 def test_no_usable_demos_is_a_clear_error():
@@ -126,10 +129,6 @@ def test_cnn_encoders_export_onnx_matching_torch(tmp_path, encoder):
     ctx = model.context(image=img, class_id="bread")
     assert ctx.shape == (art.config["dims"]["context"],)
     # the ONNX CNN reproduces the torch CNN the decoder was trained with
-    import torch
-    from vla_latent_controller.context import preprocess_image
-    from vla_latent_training.cae import ContextCNN
-
     cnn = ContextCNN()
     sd = {k.removeprefix("cnn."): torch.tensor(v) for k, v in art.tensors.items() if k.startswith("cnn.")}
     cnn.load_state_dict(sd)
@@ -139,9 +138,6 @@ def test_cnn_encoders_export_onnx_matching_torch(tmp_path, encoder):
 
 
 def test_fast_tanh_is_tanh():
-    import torch
-    from vla_latent_training.cae import Tanh
-
     x = torch.linspace(-30, 30, 20001, dtype=torch.float64, requires_grad=True)
     y = Tanh()(x)
     torch.testing.assert_close(y, torch.tanh(x), atol=1e-15, rtol=0)
@@ -152,10 +148,6 @@ def test_fast_tanh_is_tanh():
 def test_folded_context_standardisation_takes_raw_contexts():
     """The saved decoder takes raw contexts: folding (c - mean) / std into the first layers gives the
     same outputs on raw inputs as the unfolded network on standardised ones."""
-    import torch
-    from vla_latent_training.cae import CAE
-    from vla_latent_training.train import _fold_input_affine
-
     torch.manual_seed(0)
     k = 7
     model = CAE(k, 7, 1, 30)
@@ -176,8 +168,6 @@ def test_folded_context_standardisation_takes_raw_contexts():
 
 
 def test_min_steps_scales_epochs_and_lr_step_for_small_datasets():
-    from vla_latent_training.train import TrainConfig, scaled_schedule
-
     cfg = TrainConfig(epochs=100, step_size=40, batch_size=6000, min_steps=1000)
     assert scaled_schedule(cfg, 5_000) == (1000, 400)  # one batch an epoch: 10x the epochs
     assert scaled_schedule(cfg, 13_000) == (400, 160)  # three batches an epoch: 4x
@@ -188,8 +178,6 @@ def test_min_steps_scales_epochs_and_lr_step_for_small_datasets():
 
 
 def test_position_affine_divides_by_the_demos_spread_or_a_fixed_scale():
-    from vla_latent_training.train import CTX_STD_FLOOR, POSITION_PRIOR_SCALE, position_affine
-
     xy = np.array([[0.40, 0.60], [0.50, 0.60], [0.60, 0.60]])
     mean, std = position_affine(xy, POSITION_PRIOR_SCALE)
     assert mean == pytest.approx([0.50, 0.60]) and std == pytest.approx([0.2887, 0.2887], abs=1e-4)

@@ -8,6 +8,8 @@ reverse −), so + means "do the task" in every context by construction.
 
 from __future__ import annotations
 
+import warnings
+
 import torch
 from torch import nn
 from vla_latent_controller.context import CNN_FEATURE_DIM, CNN_INPUT_SIZE
@@ -106,8 +108,6 @@ class ContextCNN(nn.Module):
 
 def export_cnn_onnx(cnn: ContextCNN, path: str, input_size: tuple[int, int] = CNN_INPUT_SIZE) -> None:
     """Write the CNN as ONNX (input ``image`` (N, 3, h, w) float32 in [0, 1], output ``feature``)."""
-    import warnings
-
     w, h = input_size
     cnn = cnn.eval()
     with warnings.catch_warnings():

@@ -1,8 +1,8 @@
-"""`vla_latent_controller train`: learn a latent-action model from recorded demonstration bags.
+"""`vla_latent_training train`: learn a latent-action model from recorded demonstration bags.
 
 Example:
-    vla_latent_controller train --bags demos/ --encoder detector --out model/
-    vla_latent_controller train --bags demos/ --encoder detector --paper-exact --seed 3 --out model_paper/
+    vla_latent_training train --bags demos/ --encoder detector --out model/
+    vla_latent_training train --bags demos/ --encoder detector --paper-exact --seed 3 --out model_paper/
 """
 
 from __future__ import annotations
@@ -12,13 +12,17 @@ import sys
 from collections import Counter
 from pathlib import Path
 
+from vla_common.tasks import parse_task
+from vla_demo_recorder.dataset import load_demos
+from vla_detector.inference import Detector, default_model_path
+
+from vla_latent_training.config import TrainConfig, check_position_scale
+
 ENCODER_CHOICES = ("detector", "localization", "end_to_end")
 
 
 def position_scale_arg(text: str) -> float | None:
     """--position-scale: 'demos' (None: the demos' spread) or a positive number."""
-    from vla_latent_training.train import check_position_scale
-
     if text == "demos":
         return None
     try:
@@ -62,10 +66,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _detector(path: str | None, needed: bool):
+def _detector(path: str | None, needed: bool) -> Detector | None:
     """A vla_detector Detector from `path`, the shipped model when needed and available, else None."""
-    from vla_detector.inference import Detector, default_model_path
-
     if path is None:
         if not needed:
             return None
@@ -76,25 +78,34 @@ def _detector(path: str | None, needed: bool):
     return Detector(path)
 
 
-def run(args: argparse.Namespace) -> int:
-    from vla_demo_recorder.dataset import load_demos
-
-    from vla_latent_training.train import TrainConfig, train_model
-
-    require = "image" if args.encoder != "detector" else None
-    demos, skipped = load_demos(args.bags, require=require)
-    if args.task:
-        from vla_common.tasks import parse_task
-
-        wanted = {parse_task(t).name for t in args.task}
+def select_demos(demos: list, tasks: list[str] | None, max_per_task: int) -> list:
+    """The demos of `tasks` (all when None), at most `max_per_task` of each (0: all) in bag order."""
+    if tasks:
+        wanted = {parse_task(t).name for t in tasks}
         demos = [d for d in demos if d.task in wanted]
-    if args.max_per_task > 0:
-        kept, seen = [], Counter()
-        for d in sorted(demos, key=lambda d: (d.task, d.bag_path)):
-            if seen[d.task] < args.max_per_task:
-                kept.append(d)
-                seen[d.task] += 1
-        demos = kept
+    if max_per_task <= 0:
+        return demos
+    kept, seen = [], Counter()
+    for d in sorted(demos, key=lambda d: (d.task, d.bag_path)):
+        if seen[d.task] < max_per_task:
+            kept.append(d)
+            seen[d.task] += 1
+    return kept
+
+
+def train_config(args: argparse.Namespace) -> TrainConfig:
+    overrides = dict(encoder=args.encoder, seed=args.seed, epochs=args.epochs, batch_size=args.batch_size,
+                     lr=args.lr, position_scale=args.position_scale)
+    if args.hidden is not None:
+        overrides["hidden"] = args.hidden
+    return TrainConfig.paper(**overrides) if args.paper_exact else TrainConfig(**overrides)
+
+
+def run(args: argparse.Namespace) -> int:
+    from vla_latent_training.train import train_model  # torch: only when training runs
+
+    demos, skipped = load_demos(args.bags, require="image" if args.encoder != "detector" else None)
+    demos = select_demos(demos, args.task, args.max_per_task)
     for path, reason in skipped:
         print(f"skipped {path}: {reason}", file=sys.stderr)
     if not demos:
@@ -107,18 +118,10 @@ def run(args: argparse.Namespace) -> int:
     except Exception as e:  # a bad --detector-model is the user's error, not a crash
         print(f"error: detector: {e}", file=sys.stderr)
         return 2
-    overrides = dict(
-        encoder=args.encoder, seed=args.seed, epochs=args.epochs, batch_size=args.batch_size, lr=args.lr
-    )
-    if args.hidden is not None:
-        overrides["hidden"] = args.hidden
-    overrides["position_scale"] = args.position_scale
-    cfg = TrainConfig.paper(**overrides) if args.paper_exact else TrainConfig(**overrides)
     classes = list(detector.classes) if detector is not None else None
     try:
-        res = train_model(
-            demos, cfg, classes=classes, detector=detector, progress=not args.quiet, threads=args.threads
-        )
+        res = train_model(demos, train_config(args), classes=classes, detector=detector,
+                          progress=not args.quiet, threads=args.threads)
     except ValueError as e:
         print(f"error: {e}", file=sys.stderr)
         return 1

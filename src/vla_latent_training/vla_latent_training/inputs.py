@@ -1,0 +1,104 @@
+"""Demonstrations made ready for training: each gives its context parts (a detection and image size,
+or a preprocessed first image) and its joint trajectory; those that cannot are skipped with a reason.
+No torch."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from vla_common.catalogue import Catalogue, default_catalogue
+from vla_common.detection import best
+from vla_latent_controller.context import CNN_INPUT_SIZE, ContextError, Det, preprocess_image
+
+
+@dataclass
+class DemoInput:
+    """One demo made ready for training: its context parts and joint trajectory."""
+
+    task: str
+    class_id: str
+    q: np.ndarray
+    bag_path: str
+    det: Det | None = None
+    image_size: tuple[int, int] | None = None
+    image: np.ndarray | None = None  # preprocessed (3, h, w) float32
+
+
+class SkipError(Exception):
+    """Why one demo cannot be used (its message is the reason reported)."""
+
+
+def default_classes(detector=None, catalogue: Catalogue | None = None) -> list[str]:
+    """The model's classes: the detector's when there is one, else the catalogue's."""
+    if detector is not None:
+        return list(detector.classes)
+    return list((catalogue or default_catalogue()).classes)
+
+
+def prepare_demos(
+    demos: Sequence,
+    encoder: str,
+    classes: Sequence[str],
+    detector=None,
+    input_size: tuple[int, int] = CNN_INPUT_SIZE,
+) -> tuple[list[DemoInput], list[tuple[str, str]]]:
+    """Turn dataset Demos into training inputs; demos that cannot give a context are skipped with a reason."""
+    kept: list[DemoInput] = []
+    skipped: list[tuple[str, str]] = []
+    for demo in demos:
+        path = str(getattr(demo, "bag_path", "") or demo.task)
+        try:
+            item = DemoInput(task=demo.task, class_id=demo.object_class, q=_trajectory(demo), bag_path=path)
+            if encoder == "detector":
+                item.det, item.image_size = _detection(demo, classes, detector)
+            else:
+                item.image = _first_image(demo, encoder, classes, input_size)
+        except SkipError as why:
+            skipped.append((path, str(why)))
+            continue
+        kept.append(item)
+    return kept, skipped
+
+
+def _trajectory(demo) -> np.ndarray:
+    q = np.asarray(demo.q, np.float64)
+    if q.ndim != 2 or q.shape[1] != 7 or q.shape[0] < 2 or not np.all(np.isfinite(q)):
+        raise SkipError(f"joint trajectory has shape {q.shape} or non-finite values")
+    return q
+
+
+def _detection(demo, classes: Sequence[str], detector) -> tuple[Det, tuple[int, int]]:
+    """The demo's recorded detection, else the detector's on its first image; and the image size."""
+    recorded = getattr(demo, "detection", None)
+    image = getattr(demo, "first_image", None)
+    if recorded is not None:
+        det = Det.from_dict(recorded)
+        size = tuple(int(v) for v in demo.image_size) if demo.image_size else None
+    elif image is not None and detector is not None:
+        img = np.asarray(image)
+        det = best(detector.detect(img), prefer_class=demo.object_class)
+        size = (img.shape[1], img.shape[0])
+        if det is None:
+            raise SkipError("the detector found nothing in the first image")
+    else:
+        raise SkipError("no recorded detection and no image + --detector-model to detect one")
+    if size is None:
+        raise SkipError("detection without image size")
+    if det.class_id not in classes:
+        raise SkipError(f"detected class {det.class_id!r} not in the model's classes")
+    return det, size
+
+
+def _first_image(demo, encoder: str, classes: Sequence[str], input_size: tuple[int, int]) -> np.ndarray:
+    """The demo's first image, preprocessed for the CNN encoders."""
+    img = getattr(demo, "first_image", None)
+    if img is None:
+        raise SkipError(f"the {encoder} encoder needs the demo's first image")
+    if encoder == "localization" and demo.object_class not in classes:
+        raise SkipError(f"class {demo.object_class!r} not in the model's classes")
+    try:
+        return preprocess_image(np.asarray(img), input_size)
+    except ContextError as e:
+        raise SkipError(str(e)) from None

@@ -1,11 +1,17 @@
-"""Detector speed: latency per frame of the shipped ONNX model at 320x240 and 640x480 input images
-(target <= 15 ms at 320x240 on 2 cores, well inside a 30 Hz frame), and frames per second end to
-end from `camera/image_raw` to `detections` through the installed detector_node (a separate process).
+"""Detector speed and camera-image transport, printed as figures.
 
-Per-frame latency is `Detector.detect` (letterbox/resize + ONNX Runtime + NMS) on rendered scenes;
-the network alone is shown beside it. End to end: (1) closed loop, the next image is published when
-the previous frame's detections arrive: sustained throughput and per-frame latency (publish ->
-detections received); (2) open loop at the camera's 30 Hz: frames delivered per second.
+1. `Detector.detect` latency per frame (letterbox + ONNX Runtime + NMS) of the shipped model on
+   rendered 320x240 and 640x480 scenes, the network alone beside it (target <= 15 ms at 320x240).
+2. Image transport between two processes: 640x480 rgb8 at 30 Hz from a publisher with the camera
+   node's QoS to a subscriber, for the old setting (best-effort SensorDataQoS subscriber, Fast DDS's
+   default transports), each fix alone, and the shipped default (reliable subscriber, the large-image
+   shared-memory profile): frames received of those published, latency median and p99.
+3. The same through the installed detector_node at 30 Hz (frames published -> detections received),
+   old and new QoS in the same run.
+4. Closed loop through detector_node (next frame when the detections arrive): sustained frames/s.
+
+Every ROS participant runs in its own child process (this script with --role), because Fast DDS reads
+its transport settings once per process.
 
     source scripts/env.sh && python bench/bench_detector.py [--frames 300] [--seconds 5]
 """
@@ -13,26 +19,81 @@ detections received); (2) open loop at the camera's 30 Hz: frames delivered per 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import random
+import signal
 import subprocess
 import sys
+import tempfile
+import threading
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import rclpy
+from sensor_msgs.msg import Image
+from vla_common.ros.qos import IMAGE_QOS, image_qos, use_large_image_transport
+from vla_detector.decode import letterbox, to_input_tensor
+from vla_detector.inference import Detector, default_model_path
 
-os.environ.setdefault("MUJOCO_GL", "egl")
-
-from vla_detector.inference import Detector, default_model_path  # noqa: E402
+from vla_interfaces.msg import DetectionArray
 
 ROOT = Path(__file__).resolve().parents[1]
 EXE = ROOT / "install" / "vla_detector" / "lib" / "vla_detector" / "detector_node"
+TRANSPORT_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
+                       "FASTDDS_BUILTIN_TRANSPORTS")
+WARMUP_FRAME = "warmup"  # frame_id of frames that are not counted (discovery, ONNX Runtime's first runs)
+WARMUP_S = 1.5
 LOST_AFTER_S = 0.3  # closed loop: a frame without detections by then counts as lost
+DOMAIN_ID = str(random.SystemRandom().randint(201, 232))
 LAYOUT = [("bread", 0.45, 0.2, 0.3), ("soda_can", 0.6, 0.0, 0.0), ("cereal_box", 0.5, -0.25, 1.0)]
 
 
+@dataclass(frozen=True)
+class Setting:
+    name: str
+    subscriber: str  # "reliable" | "best_effort"
+    profile: bool  # the publisher applies use_large_image_transport()
+
+
+OLD = Setting("old: best-effort subscriber, default Fast DDS", "best_effort", False)
+NEW = Setting("new (shipped): reliable, large-image profile", "reliable", True)
+TRANSPORT_SETTINGS = [
+    OLD,
+    Setting("best-effort subscriber, large-image profile", "best_effort", True),
+    Setting("reliable subscriber, default Fast DDS", "reliable", False),
+    NEW,
+]
+
+
+# ---------------------------------------------------------------------------------------- figures
+def stats(ms: np.ndarray) -> str:
+    if ms.size == 0:
+        return "median    n/a        p99    n/a   "
+    return f"median {np.median(ms):6.2f} ms  p99 {np.percentile(ms, 99):6.2f} ms"
+
+
+def received(r: dict) -> str:
+    pct = 100.0 * r["received"] / max(1, r["sent"])
+    return f"{r['received']:4d}/{r['sent']:4d} = {pct:5.1f} %"
+
+
+def machine() -> str:
+    model = "unknown CPU"
+    try:
+        model = next(line.split(":", 1)[1].strip() for line in Path("/proc/cpuinfo").read_text().splitlines()
+                     if line.startswith("model name"))
+    except (OSError, StopIteration):
+        pass
+    return f"{model}, {os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}"
+
+
+# ---------------------------------------------------------------------------------------- latency
 def scenes(width: int, height: int, n: int = 8) -> list[np.ndarray]:
-    from vla_sim.sim import PandaSim
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    from vla_sim.sim import PandaSim  # MuJoCo: heavy, only to render the benchmark's scenes
 
     sim = PandaSim(width, height)
     out = []
@@ -43,13 +104,7 @@ def scenes(width: int, height: int, n: int = 8) -> list[np.ndarray]:
     return out
 
 
-def stats(ms: np.ndarray) -> str:
-    return f"median {np.median(ms):6.2f} ms  p99 {np.percentile(ms, 99):6.2f} ms  mean {ms.mean():6.2f} ms"
-
-
 def bench_latency(det: Detector, images: list[np.ndarray], frames: int) -> tuple[np.ndarray, np.ndarray]:
-    from vla_detector.decode import letterbox, to_input_tensor
-
     for im in images[:3]:
         det.detect(im)  # warm-up
     full, net = [], []
@@ -65,109 +120,204 @@ def bench_latency(det: Detector, images: list[np.ndarray], frames: int) -> tuple
     return np.array(full) * 1e3, np.array(net) * 1e3
 
 
-def bench_node(images: list[np.ndarray], seconds: float, rate_hz: float | None) -> dict:
-    """Start detector_node, publish images (closed loop if rate_hz is None), measure detections."""
-    import rclpy
-    from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
-    from rclpy.qos import qos_profile_sensor_data
-    from sensor_msgs.msg import Image
-
-    from vla_interfaces.msg import DetectionArray
-
-    proc = subprocess.Popen([str(EXE)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    ctx = Context()
-    rclpy.init(context=ctx)
-    node = rclpy.create_node("bench_detector_peer", context=ctx)
-    ex = SingleThreadedExecutor(context=ctx)
-    ex.add_node(node)
-    got: list[tuple[float, float]] = []  # (receive time, latency)
-
-    def on_det(msg: DetectionArray) -> None:
-        now = time.time()
-        sent = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
-        got.append((now, now - sent))
-
-    node.create_subscription(DetectionArray, "detections", on_det, 50)
-    pub = node.create_publisher(Image, "camera/image_raw", qos_profile_sensor_data)
+# ---------------------------------------------------------------------------------------- children
+def _image_messages(frames_file: str) -> list[Image]:
+    frames = np.load(frames_file, allow_pickle=False)
     msgs = []
-    for im in images:
+    for im in frames:
         m = Image(height=im.shape[0], width=im.shape[1], encoding="rgb8", step=im.shape[1] * 3)
-        m.header.frame_id = "camera_optical_frame"
         m.data = im.tobytes()
         msgs.append(m)
-    try:
-        end = time.monotonic() + 30.0
-        while time.monotonic() < end and (
-            pub.get_subscription_count() < 1 or node.count_publishers("detections") < 1
-        ):
-            ex.spin_once(timeout_sec=0.05)
-        if proc.poll() is not None:
-            raise RuntimeError(f"detector_node exited: {proc.stderr.read()}")
+    return msgs
 
-        def publish(i: int) -> None:
-            m = msgs[i % len(msgs)]
-            t = time.time()
-            m.header.stamp.sec, m.header.stamp.nanosec = int(t), int((t % 1) * 1e9)
+
+def _stamp(m: Image, frame_id: str) -> None:
+    t = time.time_ns()
+    m.header.stamp.sec, m.header.stamp.nanosec = t // 1_000_000_000, t % 1_000_000_000
+    m.header.frame_id = frame_id
+
+
+def _age_ms(header) -> float:
+    return (time.time_ns() - (header.stamp.sec * 1_000_000_000 + header.stamp.nanosec)) / 1e6
+
+
+def _prepare_transport(profile: bool) -> None:
+    for name in TRANSPORT_VARIABLES:
+        os.environ.pop(name, None)
+    if profile:
+        use_large_image_transport()
+
+
+def role_camera(a: argparse.Namespace) -> None:
+    """Publish frames at a fixed rate with the camera node's QoS: warm-up frames, then counted ones."""
+    _prepare_transport(a.profile)
+    rclpy.init()
+    node = rclpy.create_node("bench_camera")
+    pub = node.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+    msgs = _image_messages(a.frames)
+    end = time.monotonic() + 30.0
+    while pub.get_subscription_count() < 1 and time.monotonic() < end:
+        time.sleep(0.01)
+    sent = 0
+    for phase, seconds in ((WARMUP_FRAME, WARMUP_S), ("camera_optical_frame", a.seconds)):
+        t0, n = time.monotonic(), 0
+        while time.monotonic() - t0 < seconds:
+            m = msgs[n % len(msgs)]
+            _stamp(m, phase)
             pub.publish(m)
+            n += 1
+            time.sleep(max(0.0, t0 + n / a.rate - time.monotonic()))
+        sent = n
+    time.sleep(0.5)  # let the last frames leave before the participant goes
+    print(json.dumps({"sent": sent}), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
 
-        # warm-up: until the first detections arrive
-        end = time.monotonic() + 20.0
-        while not got and time.monotonic() < end:
-            publish(0)
-            ex.spin_once(timeout_sec=0.2)
-        got.clear()
-        sent = 0
-        t_start = time.monotonic()
-        if rate_hz is None:
-            while time.monotonic() - t_start < seconds:
-                n = len(got)
-                publish(sent)
-                sent += 1
-                t_pub = time.monotonic()
-                while len(got) == n and time.monotonic() - t_pub < LOST_AFTER_S:
-                    ex.spin_once(timeout_sec=0.001)
-        else:
-            period = 1.0 / rate_hz
-            next_t = t_start
-            while time.monotonic() - t_start < seconds:
-                if time.monotonic() >= next_t:
-                    publish(sent)
-                    sent += 1
-                    next_t += period
-                ex.spin_once(timeout_sec=max(0.0, min(0.002, next_t - time.monotonic())))
-            elapsed = time.monotonic() - t_start
-            drain = time.monotonic() + 0.5  # frames still in flight count; the rate is over the sending time
-            while time.monotonic() < drain:
-                ex.spin_once(timeout_sec=0.01)
-        if rate_hz is None:
-            elapsed = time.monotonic() - t_start
+
+def role_listen(a: argparse.Namespace) -> None:
+    """Count counted frames (images or detections) until stdin closes; print count and latencies."""
+    rclpy.init()
+    node = rclpy.create_node("bench_listener")
+    ages: list[float] = []
+
+    def on_msg(msg) -> None:
+        if msg.header.frame_id != WARMUP_FRAME:
+            ages.append(_age_ms(msg.header))
+
+    if a.topic == "detections":
+        node.create_subscription(DetectionArray, "detections", on_msg, 100)
+    else:
+        node.create_subscription(Image, "camera/image_raw", on_msg, image_qos(a.reliability))
+    stop = threading.Event()
+    threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
+    print("ready", flush=True)
+    while not stop.is_set():
+        rclpy.spin_once(node, timeout_sec=0.01)
+    print(json.dumps({"received": len(ages), "latency_ms": ages}), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+def role_loop(a: argparse.Namespace) -> None:
+    """Closed loop: publish the next frame when the previous frame's detections arrived."""
+    _prepare_transport(a.profile)
+    rclpy.init()
+    node = rclpy.create_node("bench_loop")
+    got: list[float] = []  # latency of each counted frame; NaN for a warm-up frame
+
+    def on_detections(msg: DetectionArray) -> None:
+        got.append(float("nan") if msg.header.frame_id == WARMUP_FRAME else _age_ms(msg.header))
+
+    node.create_subscription(DetectionArray, "detections", on_detections, 10)
+    pub = node.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+    msgs = _image_messages(a.frames)
+    end = time.monotonic() + 30.0
+    while (pub.get_subscription_count() < 1 or node.count_publishers("detections") < 1) \
+            and time.monotonic() < end:
+        rclpy.spin_once(node, timeout_sec=0.05)
+    while not got and time.monotonic() < end:  # warm-up: until the first detections arrive
+        _stamp(msgs[0], WARMUP_FRAME)
+        pub.publish(msgs[0])
+        rclpy.spin_once(node, timeout_sec=0.2)
+    rclpy.spin_once(node, timeout_sec=0.5)
+    got.clear()
+    sent, t0 = 0, time.monotonic()
+    while time.monotonic() - t0 < a.seconds:
+        n = len(got)
+        _stamp(msgs[sent % len(msgs)], "camera_optical_frame")
+        pub.publish(msgs[sent % len(msgs)])
+        sent += 1
+        t_pub = time.monotonic()
+        while len(got) == n and time.monotonic() - t_pub < LOST_AFTER_S:
+            rclpy.spin_once(node, timeout_sec=0.001)
+    elapsed = time.monotonic() - t0
+    lat = [g for g in got if np.isfinite(g)]
+    print(json.dumps({"sent": sent, "received": len(lat), "elapsed": elapsed, "latency_ms": lat}), flush=True)
+    node.destroy_node()
+    rclpy.shutdown()
+
+
+# ---------------------------------------------------------------------------------------- parent
+def _child_env() -> dict[str, str]:
+    """This run's children: the transport each setting chooses, and a ROS domain of their own (kept
+    from ROS_DOMAIN_ID if set) so that other graphs on the machine neither add frames nor load."""
+    env = {k: v for k, v in os.environ.items() if k not in TRANSPORT_VARIABLES}
+    env["ROS_DOMAIN_ID"] = os.environ.get("ROS_DOMAIN_ID") or DOMAIN_ID
+    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+    return env
+
+
+def _script(*args: str) -> list[str]:
+    return [sys.executable, str(Path(__file__).resolve()), *args]
+
+
+def _last_json(text: str) -> dict:
+    return json.loads(text.strip().splitlines()[-1])
+
+
+def _start_detector(reliability: str) -> subprocess.Popen:
+    return subprocess.Popen([str(EXE), "--ros-args", "-p", f"image_reliability:={reliability}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=_child_env())
+
+
+def _stop(proc: subprocess.Popen) -> None:
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout=10)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait()
+
+
+def open_loop(frames: str, setting: Setting, seconds: float, rate: float, through_detector: bool) -> dict:
+    """Publisher process -> (detector_node ->) listener process; frames sent and received."""
+    topic = "detections" if through_detector else "image"
+    listener = subprocess.Popen(
+        _script("--role", "listen", "--topic", topic, "--reliability", setting.subscriber),
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=_child_env())
+    detector = _start_detector(setting.subscriber) if through_detector else None
+    try:
+        if listener.stdout.readline().strip() != "ready":
+            raise RuntimeError("the listener did not start")
+        camera = subprocess.run(
+            _script("--role", "camera", "--frames", frames, "--seconds", str(seconds), "--rate", str(rate),
+                    *(["--profile"] if setting.profile else [])),
+            capture_output=True, text=True, env=_child_env(), timeout=seconds + 90)
+        if camera.returncode != 0:
+            raise RuntimeError(f"the publisher failed: {camera.stderr[-2000:]}")
+        time.sleep(1.0)  # frames in flight and detections of the last frames
+        out, _ = listener.communicate("", timeout=30)
     finally:
-        node.destroy_node()
-        ex.shutdown()
-        rclpy.shutdown(context=ctx)
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-    lat = np.array([g[1] for g in got]) * 1e3 if got else np.full(1, np.nan)
-    return {"sent": sent, "received": len(got), "fps": len(got) / elapsed, "latency_ms": lat}
+        if detector is not None:
+            _stop(detector)
+        if listener.poll() is None:
+            listener.kill()
+    r = _last_json(out)
+    return {"sent": _last_json(camera.stdout)["sent"], "received": r["received"],
+            "latency_ms": np.array(r["latency_ms"])}
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--model", default=str(default_model_path()))
-    ap.add_argument("--frames", type=int, default=300)
-    ap.add_argument("--seconds", type=float, default=5.0)
-    ap.add_argument("--threads", type=int, default=2)
-    ap.add_argument("--no-node", action="store_true", help="skip the end-to-end node measurement")
-    a = ap.parse_args()
+def closed_loop(frames: str, seconds: float) -> dict:
+    detector = _start_detector(NEW.subscriber)
+    try:
+        loop = subprocess.run(_script("--role", "loop", "--frames", frames, "--seconds", str(seconds),
+                                      "--profile"), capture_output=True, text=True, env=_child_env(),
+                              timeout=seconds + 90)
+    finally:
+        _stop(detector)
+    if loop.returncode != 0:
+        raise RuntimeError(f"the closed loop failed: {loop.stderr[-2000:]}")
+    r = _last_json(loop.stdout)
+    r["latency_ms"] = np.array(r["latency_ms"])
+    r["fps"] = r["received"] / r["elapsed"]
+    return r
+
+
+def main_bench(a: argparse.Namespace) -> int:
     det = Detector(a.model, num_threads=a.threads)
     w, h = det.input_size
-    print(f"model {a.model}: input {w}x{h}, {len(det.classes)} classes, ONNX Runtime {a.threads} threads; "
-          f"{os.cpu_count()} CPUs, load average {os.getloadavg()[0]:.1f}")
-    print("torch imported at run time:", "torch" in sys.modules)
+    print(f"{machine()}\nmodel {a.model}: input {w}x{h}, {len(det.classes)} classes, "
+          f"ONNX Runtime {a.threads} threads; torch imported: {'torch' in sys.modules}")
     imgs = {}
     for size in ((320, 240), (640, 480)):
         imgs[size] = scenes(*size)
@@ -175,25 +325,50 @@ def main() -> int:
         print(f"detect() {size[0]}x{size[1]}: {stats(full)}   network only: {stats(net)}")
     if a.no_node:
         return 0
-    profile = os.environ.get("FASTRTPS_DEFAULT_PROFILES_FILE")
-    print(f"DDS: {os.environ.get('RMW_IMPLEMENTATION', 'rmw_fastrtps_cpp (default)')}, "
-          f"Fast DDS profile: {profile or 'none (default transports)'}")
     if not EXE.exists():
         print(f"{EXE} missing: run make setup for the end-to-end figures")
         return 1
-    lossy = False
-    for size in ((320, 240), (640, 480)):
-        r = bench_node(imgs[size], a.seconds, None)
-        lossy |= r["received"] < r["sent"]
-        print(f"node end to end {size[0]}x{size[1]}, closed loop: {r['fps']:.1f} frames/s sustained, "
-              f"latency {stats(r['latency_ms'])} ({r['received']}/{r['sent']} frames)")
-        r = bench_node(imgs[size], a.seconds, 30.0)
-        print(f"node end to end {size[0]}x{size[1]}, camera at 30 Hz: {r['fps']:.1f} frames/s delivered, "
-              f"latency {stats(r['latency_ms'])} ({r['received']}/{r['sent']} frames)")
-    if lossy and not profile:
-        print("frames were lost: best-effort images over ~512 KB overflow Fast DDS's default shared-memory "
-              "segment; see the vla_detector README (FASTRTPS_DEFAULT_PROFILES_FILE with a larger segment)")
+    with tempfile.TemporaryDirectory(prefix="bench_detector_") as tmp:
+        files = {}
+        for size, frames in imgs.items():
+            files[size] = str(Path(tmp) / f"frames_{size[0]}x{size[1]}.npy")
+            np.save(files[size], np.stack(frames), allow_pickle=False)
+        big = files[(640, 480)]
+        print(f"\nimage transport, 640x480 rgb8 at {a.rate:g} Hz for {a.seconds:g} s, publisher and "
+              "subscriber in two processes (publisher: reliable keep-last 5, the camera node's):")
+        for setting in TRANSPORT_SETTINGS:
+            r = open_loop(big, setting, a.seconds, a.rate, through_detector=False)
+            print(f"  {setting.name:48s} {received(r)}  latency {stats(r['latency_ms'])}")
+        print(f"\ndetector_node, 640x480 rgb8 at {a.rate:g} Hz: frames published -> detections received")
+        for setting in (OLD, NEW):
+            r = open_loop(big, setting, a.seconds, a.rate, through_detector=True)
+            print(f"  {setting.name:48s} {received(r)}  latency {stats(r['latency_ms'])}")
+        print("\ndetector_node, closed loop (next frame when the detections arrive), shipped default:")
+        for size in ((320, 240), (640, 480)):
+            r = closed_loop(files[size], a.seconds)
+            print(f"  {size[0]}x{size[1]}: {r['fps']:5.1f} frames/s, {received(r)}, "
+                  f"latency {stats(r['latency_ms'])}")
     return 0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--model", default=str(default_model_path()))
+    ap.add_argument("--frames", default="300", help="latency: frames; --role camera/loop: the .npy file")
+    ap.add_argument("--seconds", type=float, default=5.0)
+    ap.add_argument("--rate", type=float, default=30.0)
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--no-node", action="store_true", help="only the detect() latency")
+    ap.add_argument("--role", choices=("camera", "listen", "loop"), help=argparse.SUPPRESS)
+    ap.add_argument("--topic", default="image", help=argparse.SUPPRESS)
+    ap.add_argument("--reliability", default="reliable", help=argparse.SUPPRESS)
+    ap.add_argument("--profile", action="store_true", help=argparse.SUPPRESS)
+    a = ap.parse_args()
+    if a.role is not None:
+        {"camera": role_camera, "listen": role_listen, "loop": role_loop}[a.role](a)
+        return 0
+    a.frames = int(a.frames)
+    return main_bench(a)
 
 
 if __name__ == "__main__":

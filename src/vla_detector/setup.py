@@ -12,7 +12,6 @@ setup(
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml", "README.md"]),
         ("share/" + package_name + "/models", glob("models/detector.*")),
-        ("share/" + package_name + "/config", glob("config/*.xml")),
     ],
     install_requires=["setuptools"],
     zip_safe=True,

@@ -17,11 +17,14 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
 from vla_camera.camera_node import CameraNode
 from vla_common.ros.node_main import ConfigError
+from vla_common.ros.testing import RosHarness
 
 from vla_interfaces.msg import CameraStatus
 
 pytestmark = pytest.mark.ros
 W, H = 64, 48
+TRANSPORT_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
+                       "FASTDDS_BUILTIN_TRANSPORTS")
 OST = (Path(__file__).parent / "test_camera_info.py").read_text().split('OST = """\\\n')[1].split('"""')[0]
 
 
@@ -230,6 +233,48 @@ def test_executable_exits_zero_at_end_and_two_on_bad_source(tmp_path):
         capture_output=True, text=True, timeout=60,
     )
     assert bad.returncode == 2 and "parameter 'source'" in bad.stderr
+
+
+@pytest.mark.slow
+def test_full_size_frames_reach_a_best_effort_subscriber_in_another_process(tmp_path):
+    """640x480 rgb8 at 30 Hz (900 KB a frame) from the installed node: its large-image transport
+    delivers (nearly) every frame even to a best-effort subscriber; Fast DDS's default 512 KB
+    shared-memory segment lost about half of them. Frames are counted between two status messages,
+    whose frames_published say exactly how many were sent in between."""
+    cv2.imwrite(str(tmp_path / "frame.png"), np.full((480, 640, 3), 90, np.uint8))
+    env = {k: v for k, v in os.environ.items() if k not in TRANSPORT_VARIABLES}
+    proc = subprocess.Popen(
+        [_exe(), "--ros-args", "-p", f"source:={tmp_path}", "-p", "loop:=true", "-p", "fps:=30.0"],
+        stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
+    )
+    h = RosHarness()
+    try:
+        node = h.add(rclpy.create_node("camera_transport_listener", context=h.context))
+        stamps, statuses = [], []
+        deep_best_effort = QoSProfile(depth=100, reliability=ReliabilityPolicy.BEST_EFFORT)
+        node.create_subscription(Image, "camera/image_raw", lambda m: stamps.append(_ns(m.header.stamp)),
+                                 deep_best_effort)
+        node.create_subscription(CameraStatus, "camera_node/status", statuses.append, 10)
+
+        def window():
+            after = [s for s in statuses if stamps and _ns(s.header.stamp) > stamps[0]]
+            return after if len(after) >= 4 else None
+
+        assert h.spin_until(lambda: window() is not None, 60.0), f"no frames: {proc.stderr}"
+        first, last = window()[0], window()[3]
+        h.spin_for(0.5)  # frames still in flight
+    finally:
+        h.shutdown()
+        proc.terminate()
+        proc.wait(timeout=30)
+    sent = last.frames_published - first.frames_published
+    got = sum(_ns(first.header.stamp) < t < _ns(last.header.stamp) for t in stamps)
+    assert sent >= 30
+    assert got >= 0.9 * sent, f"{got} of {sent} frames received"
+
+
+def _ns(stamp) -> int:
+    return stamp.sec * 1_000_000_000 + stamp.nanosec
 
 
 if __name__ == "__main__":

@@ -10,11 +10,11 @@ from __future__ import annotations
 import time
 
 from rclpy.node import Node
-from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.qos import IMAGE_QOS, use_large_image_transport
 
 from vla_camera.camera_info import Calibration, CalibrationError, load_calibration
 from vla_camera.source import (
@@ -99,9 +99,8 @@ class CameraNode(Node):
         self._message = ""
 
         # Reliable keep-last: matched by reliable and by best-effort (SensorDataQoS) subscribers alike.
-        qos = QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE)
-        self._image_pub = self.create_publisher(Image, "camera/image_raw", qos)
-        self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info", qos)
+        self._image_pub = self.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+        self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info", IMAGE_QOS)
         self._status_pub = self.create_publisher(CameraStatus, "~/status", 10)
         self.create_service(SetBool, "~/set_capture", self._on_set_capture)
         self._timer = self.create_timer(1.0 / p["fps"], self._tick)
@@ -251,6 +250,7 @@ class CameraNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    use_large_image_transport()  # before the first node: whole frames through shared memory
     return run_node(CameraNode, "camera_node", args)
 
 

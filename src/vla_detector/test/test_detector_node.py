@@ -9,9 +9,10 @@ import pytest
 import rclpy
 from rclpy.context import Context
 from rclpy.parameter import Parameter
+from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
-from vla_common.ros.qos import SENSOR_QOS
+from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.ros.testing import RosHarness
 from vla_detector.detector_node import DetectorNode
 
@@ -67,8 +68,8 @@ class Harness(RosHarness):
         self.peer = self.add(rclpy.create_node("detector_test_peer", context=self.context))
         self.dets, self.overlays = [], []
         self.peer.create_subscription(DetectionArray, "detections", self.dets.append, 10)
-        self.peer.create_subscription(Image, "detections/image", self.overlays.append, SENSOR_QOS)
-        self.pub = self.peer.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
+        self.peer.create_subscription(Image, "detections/image", self.overlays.append, IMAGE_QOS)
+        self.pub = self.peer.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
         assert self.spin_until(
             lambda: self.pub.get_subscription_count() >= 1 and self.node.pub.get_subscription_count() >= 1
         )
@@ -221,3 +222,23 @@ def test_enable_service_sets_the_parameter(harness, scene):
     harness.node.set_parameters([Parameter("enable", value=True)])
     assert harness.set_enable(True).message == "detection enabled"
     assert len(harness.send(image_msg(scene[0])).detections) == 2
+
+
+def test_image_subscription_is_reliable_by_default(harness):
+    """A best-effort subscription lost ~40 % of 640x480 frames between processes; reliable, matching
+    the camera's and the bridge's reliable publishers, loses none (bench/bench_detector.py)."""
+    infos = harness.peer.get_subscriptions_info_by_topic("/camera/image_raw")
+    mine = [i for i in infos if i.node_name == "detector_node"]
+    assert [i.qos_profile.reliability for i in mine] == [ReliabilityPolicy.RELIABLE]
+
+
+@pytest.mark.parametrize("harness", [{"image_reliability": "best_effort"}], indirect=True)
+def test_best_effort_camera_with_image_reliability_best_effort(harness, scene):
+    infos = harness.peer.get_subscriptions_info_by_topic("/camera/image_raw")
+    assert [i.qos_profile.reliability for i in infos if i.node_name == "detector_node"] == [
+        ReliabilityPolicy.BEST_EFFORT]
+    best_effort = harness.peer.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
+    assert harness.spin_until(lambda: best_effort.get_subscription_count() >= 1)
+    n = len(harness.dets)
+    best_effort.publish(image_msg(scene[0]))
+    assert harness.spin_until(lambda: len(harness.dets) > n)

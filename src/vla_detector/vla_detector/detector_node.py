@@ -10,9 +10,10 @@ from __future__ import annotations
 import time
 from types import SimpleNamespace
 
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import QoSProfile
+from rclpy.qos import QoSProfile, qos_policy_name_from_kind
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
 from vla_common.detection import Detection
@@ -20,12 +21,13 @@ from vla_common.image_convert import UnsupportedImageError, draw_detections, to_
 from vla_common.ros.convert import detection_array
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
-from vla_common.ros.qos import SENSOR_QOS
+from vla_common.ros.qos import IMAGE_QOS, image_qos, use_large_image_transport
 
 from vla_detector.inference import Detector, ModelError, default_model_path
 from vla_interfaces.msg import DetectionArray
 
 WARN_PERIOD_S = 5.0
+RELIABILITIES = ("reliable", "best_effort")
 
 PARAMS = ParameterTable([
     Param("model_path", "", "ONNX detector (ours with its .json sidecar, or an Ultralytics YOLOv5/YOLOv8 "
@@ -38,6 +40,9 @@ PARAMS = ParameterTable([
     Param("enable", True, "run detection; the ~/enable service sets this parameter", dynamic=True),
     Param("publish_overlay", False, "also publish detections/image (rgb8 with boxes) for viewing"),
     Param("num_threads", 2, "ONNX Runtime intra-op threads", range=(1, 64)),
+    Param("image_reliability", "reliable", "camera/image_raw subscription: reliable (every frame; the "
+          "camera must publish reliable) or best_effort (for a best-effort camera driver)",
+          choices=RELIABILITIES),
 ])
 
 
@@ -70,9 +75,11 @@ class DetectorNode(Node):
 
         self.pub = self.create_publisher(DetectionArray, "detections", QoSProfile(depth=10))
         self.overlay_pub = (
-            self.create_publisher(Image, "detections/image", SENSOR_QOS) if p["publish_overlay"] else None
+            self.create_publisher(Image, "detections/image", IMAGE_QOS) if p["publish_overlay"] else None
         )
-        self.sub = self.create_subscription(Image, "camera/image_raw", self._on_image, SENSOR_QOS)
+        events = SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos)
+        self.sub = self.create_subscription(Image, "camera/image_raw", self._on_image,
+                                            image_qos(p["image_reliability"]), event_callbacks=events)
         self.srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.frames = 0
         self.skipped = 0
@@ -80,7 +87,8 @@ class DetectorNode(Node):
         w, h = self.detector.input_size
         self.get_logger().info(
             f"model {path}: {len(self.detector.classes)} classes {self.detector.classes}, input {w}x{h}, "
-            f"layout {self.detector.layout}; detecting on camera/image_raw -> detections"
+            f"layout {self.detector.layout}; detecting on camera/image_raw ({p['image_reliability']}) "
+            "-> detections"
         )
 
     def _on_change(self, name: str, value) -> str | None:
@@ -106,6 +114,13 @@ class DetectorNode(Node):
         resp.success = result.successful
         resp.message = result.reason or ("detection enabled" if self.enabled else "detection disabled")
         return resp
+
+    def _on_incompatible_qos(self, event) -> None:
+        policy = qos_policy_name_from_kind(event.last_policy_kind)
+        self.get_logger().warning(
+            f"camera/image_raw: a publisher offers an incompatible {policy} QoS and this subscription "
+            "receives nothing from it; for a best-effort camera set image_reliability:=best_effort",
+            throttle_duration_sec=WARN_PERIOD_S)
 
     def _on_image(self, msg: Image) -> None:
         if not self.enabled:
@@ -140,6 +155,7 @@ class DetectorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    use_large_image_transport()  # before the first node: the overlay images go through shared memory
     return run_node(DetectorNode, "detector_node", args)
 
 

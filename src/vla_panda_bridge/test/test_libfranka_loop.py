@@ -437,7 +437,7 @@ def test_the_loop_stops_when_its_parent_is_gone():
     r = Rig(parent_pid=os.getpid())                        # not our parent: as if it had died
     try:
         assert not r.loop.step()
-        assert r.state().status == lf.LOOP_STOPPED
+        assert r.state().status == lf.LOOP_STOPPED and r.loop.orphaned
     finally:
         r.close()
 

@@ -160,6 +160,7 @@ class ControlLoop:
         self.recover_ok = 0
         self.teaching_ack = int(slots.control[CONTROL["teaching_req"]])
         self.stopped = False
+        self.orphaned = False            # stopped because the bridge is gone (nobody else cleans up)
         self._period = math.nan
         slots.claim_state_writer()
         self._publish_status()
@@ -196,7 +197,8 @@ class ControlLoop:
         if self.slots.control[CONTROL["shutdown"]]:
             return True
         if self._parent is not None and (self.cycle % 200 == 0 or self.driver is None):
-            return os.getppid() != self._parent      # the ROS node is gone: stop the arm, exit
+            self.orphaned = os.getppid() != self._parent   # the ROS node is gone: stop the arm, exit
+            return self.orphaned
         return False
 
     # ------------------------------------------------------------------------- connection, errors
@@ -576,6 +578,11 @@ def main(argv: list[str] | None = None) -> int:
     gc.set_threshold(100_000, 50, 100)
     loop.run()
     slots.close()
+    if loop.orphaned:                                # the bridge died without unlinking its slots
+        try:
+            os.unlink(args.slots)
+        except FileNotFoundError:
+            pass
     return 0
 
 

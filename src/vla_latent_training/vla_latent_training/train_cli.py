@@ -3,6 +3,8 @@
 Example:
     vla_latent_training train --bags demos/ --encoder detector --out model/
     vla_latent_training train --bags demos/ --encoder detector --paper-exact --seed 3 --out model_paper/
+    vla_latent_training train --bags recorded/ --task bread/push_east --out model/   # `ros2 bag record` bags
+    vla_latent_training train --bags base/ new/ --default-task cereal_box/push_south --out model/  # transfer
 """
 
 from __future__ import annotations
@@ -12,7 +14,7 @@ import sys
 from collections import Counter
 from pathlib import Path
 
-from vla_common.tasks import parse_task
+from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
 from vla_demo_recorder.dataset import load_demos
 from vla_detector.inference import Detector, default_model_path
 
@@ -58,7 +60,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="reproduce the paper's code: no z=0 term, unbounded latent, raw units, no reversed pairs",
     )
-    p.add_argument("--task", action="append", default=None, help="only demos of this task (repeatable)")
+    p.add_argument("--task", action="append", default=None,
+                   help="only demos of this task (repeatable); a single --task is also the task of bags "
+                        "without episode metadata (`ros2 bag record` output)")
+    p.add_argument("--default-task", default=None,
+                   help="the task of bags without episode metadata when they are mixed with recorded "
+                        "episodes of other tasks (the paper's transfer: --bags base/ new/)")
+    p.add_argument("--catalogue", default=None,
+                   help="object classes and tasks (a catalogue YAML; default: vla_common's)")
     p.add_argument("--max-per-task", type=int, default=0, help="keep at most N demos per task (0: all)")
     p.add_argument(
         "--threads", type=int, default=1, help="torch threads (1 is fastest on a busy 2-core machine)"
@@ -79,10 +88,9 @@ def _detector(path: str | None, needed: bool) -> Detector | None:
 
 
 def select_demos(demos: list, tasks: list[str] | None, max_per_task: int) -> list:
-    """The demos of `tasks` (all when None), at most `max_per_task` of each (0: all) in bag order."""
+    """The demos of `tasks` (task names; all when None), at most `max_per_task` of each (0: all)."""
     if tasks:
-        wanted = {parse_task(t).name for t in tasks}
-        demos = [d for d in demos if d.task in wanted]
+        demos = [d for d in demos if d.task in set(tasks)]
     if max_per_task <= 0:
         return demos
     kept, seen = [], Counter()
@@ -91,6 +99,14 @@ def select_demos(demos: list, tasks: list[str] | None, max_per_task: int) -> lis
             kept.append(d)
             seen[d.task] += 1
     return kept
+
+
+def resolve_tasks(args: argparse.Namespace, catalogue: Catalogue) -> tuple[list[str], str | None]:
+    """(the --task names, the task of bags without episode metadata), parsed by the catalogue."""
+    tasks = [catalogue.task(t).name for t in args.task or []]
+    if args.default_task:
+        return tasks, catalogue.task(args.default_task).name
+    return tasks, tasks[0] if len(tasks) == 1 else None
 
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
@@ -104,10 +120,20 @@ def train_config(args: argparse.Namespace) -> TrainConfig:
 def run(args: argparse.Namespace) -> int:
     from vla_latent_training.train import train_model  # torch: only when training runs
 
-    demos, skipped = load_demos(args.bags, require="image" if args.encoder != "detector" else None)
-    demos = select_demos(demos, args.task, args.max_per_task)
+    try:
+        catalogue = load_catalogue(args.catalogue)
+        tasks, untagged_task = resolve_tasks(args, catalogue)
+    except (CatalogueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    demos, skipped = load_demos(args.bags, require="image" if args.encoder != "detector" else None,
+                                task=untagged_task)
+    demos = select_demos(demos, tasks, args.max_per_task)
     for path, reason in skipped:
         print(f"skipped {path}: {reason}", file=sys.stderr)
+    if any("no task was given" in reason for _, reason in skipped):
+        print("hint: bags without episode metadata need their task: one --task, or --default-task",
+              file=sys.stderr)
     if not demos:
         print(f"error: no usable demonstrations in {' '.join(args.bags)}", file=sys.stderr)
         return 1
@@ -115,10 +141,12 @@ def run(args: argparse.Namespace) -> int:
     try:
         needs_detection = args.encoder == "detector" and any(d.detection is None for d in demos)
         detector = _detector(args.detector_model, needs_detection)
+        if detector is not None:
+            catalogue.check_classes(detector.classes, f"detector {args.detector_model or 'shipped'}")
     except Exception as e:  # a bad --detector-model is the user's error, not a crash
         print(f"error: detector: {e}", file=sys.stderr)
         return 2
-    classes = list(detector.classes) if detector is not None else None
+    classes = list(detector.classes) if detector is not None else list(catalogue.classes)
     try:
         res = train_model(demos, train_config(args), classes=classes, detector=detector,
                           progress=not args.quiet, threads=args.threads)

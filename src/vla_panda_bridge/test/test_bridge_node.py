@@ -214,25 +214,119 @@ def test_a_reflex_holds_the_arm_until_recover_and_recovery_needs_a_zero_command(
     reflex = next(s for s in h.status if s.code == SafetyStatus.REFLEX)
     assert "joint_reflex" in reflex.text or "violation" in reflex.text, reflex.text
     stream["cmd"] = [0.0, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0]      # back up: ignored while held
-    assert h.wait(lambda: np.abs(h.states[-1].velocity).max() < 0.01, 10.0)
+    t_reflex = _stamp(reflex)
+    assert h.wait(lambda: _stamp(h.states[-1]) > t_reflex + 1.5, 10.0)   # it bounced off the table
+    assert np.abs(h.states[-1].velocity).max() < 0.01, _recent(h)
     t0 = _stamp(h.states[-1])
     q_held = np.array(h.states[-1].position)
     assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)
-    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3
-    assert h.status[-1].code == SafetyStatus.REFLEX and h.status[-1].last_intervention == SafetyStatus.REFLEX
+    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3, _recent(h)
+    assert h.status[-1].code == SafetyStatus.REFLEX, _recent(h)
+    assert h.status[-1].last_intervention == SafetyStatus.REFLEX
     res = h.call(Trigger, "panda_bridge/recover", Trigger.Request())
     assert res.success and "recovered from" in res.message and "zero" in res.message
     t0 = _stamp(h.states[-1])
     assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)
-    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3   # recovery starts nothing
-    assert h.status[-1].code == SafetyStatus.AWAITING_ZERO
+    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3, _recent(h)   # starts nothing
+    assert h.status[-1].code == SafetyStatus.AWAITING_ZERO, _recent(h)
     stream["cmd"] = [0.0] * 7
     n = len(h.states)
     assert h.wait(lambda: len(h.states) > n + 10, 5.0)
     stream["cmd"] = [0.0, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0]
-    assert h.wait(lambda: h.states[-1].velocity[1] < -0.25, 5.0)
+    assert h.wait(lambda: h.states[-1].velocity[1] < -0.25, 5.0), _recent(h)
     again = h.call(Trigger, "panda_bridge/recover", Trigger.Request())
     assert again.success and "no reflex" in again.message
+
+
+def _travel_after(h, t_from: float, seconds: float) -> float:
+    """Largest distance (m) of the hand, in the joint_states stamped from t_from (simulated time; the
+    subscriber may lag the simulation) for `seconds`, from where it was at t_from."""
+    assert h.wait(lambda: _stamp(h.states[-1]) > t_from + seconds, 10.0)
+    window = [s for s in h.states if t_from <= _stamp(s) <= t_from + seconds]
+    hand = [np.array(h.bridge._fk(np.array(s.position))[0]) for s in window]
+    return max(float(np.linalg.norm(p - hand[0])) for p in hand)
+
+
+def test_teaching_mode_follows_a_pushed_hand_records_it_and_leaves_holding_the_pose(harness, tmp_path):
+    """~/set_teaching: servos off, the arm follows a force on the hand (xfrc_applied), commands are
+    ignored, joint_states keep flowing at full rate (recorded to a bag with the recorder's BagWriter);
+    entering and leaving move the hand by at most 1 mm; motion afterwards needs a zero command."""
+    from rclpy.serialization import serialize_message
+    from rosbags.highlevel import AnyReader
+    from vla_demo_recorder.bag_writer import BagWriter, EpisodeInfo
+
+    h = harness(real_time_factor=2.0, command_timeout=0.2)
+    bag = BagWriter(tmp_path / "teaching", EpisodeInfo(task="teaching/demo")).open()
+    bag.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+    recording = {"on": False}
+
+    def record(msg: JointState) -> None:
+        if recording["on"]:
+            bag.write("/joint_states", _stamp_ns(msg), serialize_message(msg))
+
+    h.probe.create_subscription(JointState, "joint_states", record, 1000)
+    sim = h.bridge.backend.sim
+
+    def now() -> float:                                  # the simulation's clock, as in the stamps
+        return h.bridge.backend.now_ns() * 1e-9
+
+    recording["on"] = True
+    t_on = now()
+    res = h.call(SetBool, "panda_bridge/set_teaching", SetBool.Request(data=True))
+    assert res.success and "teaching" in res.message, res.message
+    assert _travel_after(h, t_on, 0.5) <= 1e-3           # entering moves nothing
+    assert h.status[-1].code == SafetyStatus.TEACHING
+    hand = sim.model.body("panda_hand").id
+    q0 = sim.q
+    stream = {"cmd": [0.3] * 7}
+    h.probe.create_timer(0.02, lambda: h.command(stream["cmd"]))   # ignored while teaching
+    sim.data.xfrc_applied[hand, :3] = [0.0, 8.0, 0.0]    # a hand pulls sideways ...
+    t_push = now()
+    assert h.wait(lambda: now() > t_push + 0.4, 10.0)
+    sim.data.xfrc_applied[hand, :3] = 0.0                # ... and lets go
+    moved = sim.q - q0
+    assert abs(moved[0]) > 0.02, moved                   # joint 1 followed the push
+    assert h.bridge.filter.code == SafetyStatus.TEACHING and h.bridge.backend.fault == ""
+    assert h.wait(lambda: np.abs(sim.dq).max() < 2e-3, 20.0)    # the damping stops it
+    stream["cmd"] = [0.0] * 7
+    t_off = now()
+    res = h.call(SetBool, "panda_bridge/set_teaching", SetBool.Request(data=False))
+    assert res.success and "holding" in res.message, res.message
+    assert _travel_after(h, t_off, 0.5) <= 1e-3          # leaving moves nothing either
+    recording["on"] = False
+    stream["cmd"] = [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.3]  # zeros went out: velocity control again
+    assert h.wait(lambda: h.states[-1].velocity[6] > 0.25, 5.0)
+    path = bag.close()
+    with AnyReader([path]) as reader:
+        stamps = [t for _, t, _ in reader.messages()]
+        last = reader.deserialize(list(reader.messages())[-1][2], "sensor_msgs/msg/JointState")
+    assert len(stamps) > 150 and list(last.name)[0] == "panda_joint1"
+    steps = np.diff(stamps) / 5e6                          # 200 Hz of simulated time, none missing
+    assert np.all(np.round(steps) == 1), np.unique(np.round(steps))
+
+
+def test_teaching_mode_is_refused_while_moving_and_reset_is_refused_while_teaching(harness):
+    h = harness(real_time_factor=2.0, command_timeout=1.0)
+    h.command([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4])
+    assert h.wait(lambda: h.states[-1].velocity[6] > 0.35, 5.0)
+    res = h.call(SetBool, "panda_bridge/set_teaching", SetBool.Request(data=True))
+    assert not res.success and "moving" in res.message
+    h.command([0.0] * 7)
+    assert h.wait(lambda: h.bridge.filter.is_stopped, 5.0)
+    assert h.call(SetBool, "panda_bridge/set_teaching", SetBool.Request(data=True)).success
+    res = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(seed=1, use_seed=True))
+    assert not res.success and "teaching" in res.message
+    assert h.call(SetBool, "panda_bridge/estop", SetBool.Request(data=True)).success   # e-stop: servos on
+    assert not h.bridge.backend.sim.teaching and not h.bridge.filter.teaching
+
+
+def _stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+def _recent(h) -> list:
+    """The last status codes and texts (for a failure message)."""
+    return [(s.code, s.text) for s in h.status[-6:]]
 
 
 def _layout(objs):
@@ -321,6 +415,9 @@ def test_bad_parameters_are_refused_in_process():
                                     ("initial_positions", [0.0, 1.4, 0.0, -1.0, 0.0, 1.5708, 0.7854],
                                      "initial_positions.*collision"),
                                     ("plausibility_factor", 0.5, "plausibility_factor"),
+                                    ("robot_model", "fr3", "robot_model.*Panda"),
+                                    ("robot_model", "ur5", "robot_model"),
+                                    ("teaching_damping", [1.0, -1.0] + [1.0] * 5, "teaching_damping"),
                                     ("camera_width", 4, "camera_width"),
                                     ("real_time_factor", -1.0, "real_time_factor"),
                                     ("ee_frame", "elbow", "ee_frame")]:

@@ -29,8 +29,10 @@ ORDER = ["panda_finger_joint1", "panda_joint3", "panda_joint1", "panda_joint2", 
 
 
 class FakeArm(Node):
-    def __init__(self, context):
+    def __init__(self, context, prefix: str = "panda"):
         super().__init__("fake_ros2_control", context=context)
+        self.order = [n.replace("panda_", prefix + "_") for n in ORDER]
+        self.joints = {f"{prefix}_joint{i + 1}": i for i in range(7)}
         self.q = READY_POSE.copy()
         self.v = np.zeros(7)
         self.commands: list[np.ndarray] = []
@@ -56,24 +58,25 @@ class FakeArm(Node):
             return
         msg = JointState()
         msg.header.stamp = self.get_clock().now().to_msg()
-        by_name = {f"panda_joint{i + 1}": i for i in range(7)}
-        msg.name = ORDER
-        msg.position = [float(self.q[by_name[n]]) if n in by_name else 0.04 for n in ORDER]
-        msg.velocity = [float(self.v[by_name[n]]) if n in by_name else 0.0 for n in ORDER]
-        msg.effort = [0.0] * len(ORDER)
+        by_name = self.joints
+        msg.name = self.order
+        msg.position = [float(self.q[by_name[n]]) if n in by_name else 0.04 for n in self.order]
+        msg.velocity = [float(self.v[by_name[n]]) if n in by_name else 0.0 for n in self.order]
+        msg.effort = [0.0] * len(self.order)
         self.pub.publish(msg)
 
 
-@pytest.fixture
-def rig():
+@pytest.fixture(params=["panda"])
+def rig(request):
+    model = request.param
     ctx = Context()
     rclpy.init(context=ctx)
     ex = SingleThreadedExecutor(context=ctx)
-    arm = FakeArm(ctx)
+    arm = FakeArm(ctx, prefix=model)
     bridge = PandaBridge(context=ctx, namespace="arm", parameter_overrides=[
         Parameter("backend", value="ros2_control"), Parameter("control_rate", value=RATE),
         Parameter("state_rate", value=50.0), Parameter("command_timeout", value=0.2),
-        Parameter("state_timeout", value=0.2)])
+        Parameter("state_timeout", value=0.2), Parameter("robot_model", value=model)])
     probe = rclpy.create_node("probe", context=ctx)
     for n in (arm, bridge, probe):
         ex.add_node(n)
@@ -167,6 +170,10 @@ def test_stale_joint_states_brake_and_estop_latches(rig):
     assert reset.wait_for_service(timeout_sec=5.0)
     fut = reset.call_async(ResetScene.Request())
     assert rig.wait(fut.done) and not fut.result().success and "mujoco" in fut.result().message
+    teaching = rig.probe.create_client(SetBool, "/arm/panda_bridge/set_teaching")
+    assert teaching.wait_for_service(timeout_sec=5.0)
+    fut = teaching.call_async(SetBool.Request(data=True))
+    assert rig.wait(fut.done) and not fut.result().success and "ros2_control" in fut.result().message
 
 
 def test_shutdown_brakes_and_leaves_the_controller_at_zero(rig):
@@ -179,3 +186,20 @@ def test_shutdown_brakes_and_leaves_the_controller_at_zero(rig):
     tail = rig.arm.commands[n - 1:]
     assert len(tail) > 3                                  # a braking ramp, not a jump to zero
     assert np.all(_accel(tail) <= DDQ_MAX * 1.5)          # (wall-clock pacing of the final loop)
+
+
+@pytest.mark.parametrize("rig", ["fr3"], indirect=True)
+def test_an_fr3_gets_its_joint_names_and_its_own_limit_table(rig):
+    """robot_model fr3: joints picked and relayed as fr3_joint1..7; joint 5 may run at the FR3's
+    5.26 rad/s (the Panda's limit is 2.61); its position limits are the FR3's."""
+    from vla_common.robot import FR3
+
+    assert rig.bridge.filter.robot is FR3
+    np.testing.assert_array_equal(rig.bridge.filter.v_max, FR3.dq_max)
+    cmd = np.array([0.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0])
+    rig.cmd = cmd
+    assert rig.wait(lambda: np.array_equal(rig.arm.commands[-1], cmd))    # not scaled to 2.61
+    n = len(rig.states)
+    assert rig.wait(lambda: len(rig.states) > n + 2)
+    assert list(rig.states[-1].name) == [f"fr3_joint{i}" for i in range(1, 8)]
+    assert rig.bridge._pose.header.frame_id == "fr3_link0"

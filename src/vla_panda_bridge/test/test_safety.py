@@ -376,3 +376,40 @@ def test_hard_position_check_alone_holds_the_margin(monkeypatch):
     vs, qs, codes = run(f, [DQ_MAX.copy()] * 1500 + _adversarial_stream(rng, 3000, True), q0=MID)
     assert_within_limits(f, vs, qs)
     assert np.any(qs[:1500] > Q_MAX - 0.1 - 1e-3, axis=0).all()    # it went right up to the margin
+
+
+def test_teaching_mode_ignores_commands_and_leaving_it_needs_a_zero_command():
+    f = SafetyFilter()
+    _, qs, _ = run(f, [None] * 10, q0=MID)
+    f.set_teaching(True)
+    assert f.teaching and f.holding
+    vs, _, codes = run(f, [np.full(7, 0.3)] * 100, q0=MID + 0.01)   # the hand moves the arm
+    assert np.all(vs == 0.0) and np.all(codes == safety.TEACHING)
+    np.testing.assert_allclose(f.reference_position, MID + 0.01)     # follows the measured position
+    f.set_teaching(False)
+    vs, _, codes = run(f, [np.full(7, 0.3)] * 50, q0=MID + 0.01, t0=0.2)
+    assert np.all(vs == 0.0) and np.all(codes == safety.AWAITING_ZERO)
+    vs, _, _ = run(f, [np.zeros(7)] + [np.full(7, 0.3)] * 200, q0=MID + 0.01, t0=0.3)
+    np.testing.assert_allclose(vs[-1], 0.3)
+
+
+def test_the_filter_enforces_the_robot_it_drives():
+    from vla_common.robot import FR3
+
+    f = SafetyFilter(robot=FR3)
+    cmd = np.zeros(7)
+    cmd[4] = 4.0                                               # within the FR3's 5.26, over the Panda's 2.61
+    mid = (FR3.q_min + FR3.q_max) / 2
+    vs, _, codes = run(f, [cmd] * 600, q0=mid)
+    np.testing.assert_allclose(vs[-1], cmd)
+    assert_within_limits(f, vs)
+    np.testing.assert_allclose(f.a_max, FR3.ddq_max)
+    cmd[5] = 9.0                                               # beyond 2x the FR3's 4.18: rejected
+    _, code, text = f.filter(cmd, mid, 1.0)
+    assert code == safety.IMPLAUSIBLE_COMMAND and "fr3_joint6" in text
+    q0 = mid.copy()
+    q0[5] = FR3.q_min[5] + 0.05                                # inside the FR3's margin (0.5445 + 0.1)
+    toward = np.zeros(7)
+    toward[5] = -1.0
+    vs, _, codes = run(safety.SafetyFilter(robot=FR3), [toward] * 100, q0=q0)
+    assert np.all(vs == 0.0) and codes[-1] == safety.POSITION_MARGIN

@@ -7,6 +7,8 @@ The simulated arm behaves like a real Panda at its limits: where contact forces 
 position, velocity or torque limit the arm stops itself (PandaSim.hold) and the backend reports the
 reflex with libfranka's error name (host.on_fault); commands are ignored until ~/recover. ~/reset
 refuses initial joint positions outside the limits or in collision with the robot itself or the table.
+Teaching mode switches the servos off (gravity compensated, `teaching_damping` per joint): the arm
+follows forces on it (MuJoCo's xfrc_applied stands in for a hand); leaving it holds the pose.
 
 The only module of the runtime packages that imports the simulator. No rclpy: ROS goes through the
 host (the node).
@@ -27,7 +29,7 @@ from vla_sim.sim import PandaSim
 from vla_sim.sim_clock import SimPacer
 
 from vla_interfaces.msg import SceneObject, SceneObjectArray
-from vla_panda_bridge.backend import RESET, BackendBase, BackendError, Host, JointSample
+from vla_panda_bridge.backend import RESET, TEACHING, BackendBase, BackendError, Host, JointSample
 
 CAMERA_QOS_DEPTH = 5   # reliable keep-last (the default QoS): matched by SensorDataQoS readers too
 
@@ -43,7 +45,7 @@ class MujocoBackend(BackendBase):
     periods; each physics step is one control period (host.control_step(), then mj_step)."""
 
     kind = "mujoco"
-    capabilities = frozenset({RESET})
+    capabilities = frozenset({RESET, TEACHING})
 
     def __init__(self, host: Host):
         p = host.params
@@ -58,6 +60,11 @@ class MujocoBackend(BackendBase):
         except ValueError as exc:
             raise BackendError(f"parameter 'initial_positions': {exc}") from exc
         self.fault = ""                               # the reflex the arm stopped with, until recovered
+        damping = np.asarray(p["teaching_damping"], dtype=float)
+        if damping.shape != (7,) or not np.all(np.isfinite(damping) & (damping >= 0.0)):
+            raise BackendError(f"parameter 'teaching_damping' must be 7 values >= 0 (Nm s/rad), "
+                               f"got {list(p['teaching_damping'])}")
+        self._teaching_damping = damping
         self._dt_ns = round(1e9 * self.sim.physics_dt)
         self._steps = 0                               # physics steps since start: the sim clock
         self._clock_origin_ns = time.time_ns()        # sim time starts at the wall time of startup
@@ -104,11 +111,12 @@ class MujocoBackend(BackendBase):
         # The servo targets integrate exactly what the filter integrates: measure once a state period.
         if self._measure:
             self._measure = False
-            return self.sim.q_target
+            return self.position()
         return None
 
     def position(self) -> np.ndarray:
-        return self.sim.q_target
+        """The servo targets; in teaching mode (servos off) the measured position."""
+        return self.sim.q if self.sim.teaching else self.sim.q_target
 
     def latest(self) -> JointSample:
         sim = self.sim
@@ -155,9 +163,22 @@ class MujocoBackend(BackendBase):
         self._measure = True
         return f"recovered from {text}"
 
+    def set_teaching(self, active: bool) -> str:
+        self.sim.set_teaching(active, self._teaching_damping)
+        self._measure = True
+        if active:
+            return ("teaching mode: servos off, gravity compensated; the arm follows forces on it "
+                    "(commands are ignored)")
+        return "teaching mode off: holding the pose"
+
     def reset(self, request, response):
         """~/reset: a new layout and arm pose (not in collision); a refused one leaves the scene as it
-        was. A reset arm has no reflex latched."""
+        was. A reset arm has no reflex latched. Refused in teaching mode."""
+        if self.sim.teaching:
+            response.success = False
+            response.message = "reset refused, scene unchanged: leave teaching mode first (~/set_teaching)"
+            response.objects = [scene_object_msg(o) for o in self.sim.object_poses()]
+            return response
         try:
             objects = [ObjectPose(o.class_id, float(o.x), float(o.y), float(o.yaw))
                        for o in request.objects] or None
@@ -205,9 +226,12 @@ class MujocoBackend(BackendBase):
             self._clock_pub.publish(Clock(clock=stamp_from_ns(self.now_ns())))
 
     def _reflex(self, text: str) -> None:
-        """The arm went past a limit: it stops itself where it is, the node holds the filter."""
+        """The arm went past a limit: it stops itself where it is (servos on), the node holds the filter."""
         self.fault = text
-        self.sim.hold()
+        if self.sim.teaching:
+            self.sim.set_teaching(False)              # holds
+        else:
+            self.sim.hold()
         self._measure = True
         self._host.on_fault(text)
 

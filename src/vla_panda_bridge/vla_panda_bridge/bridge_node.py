@@ -3,8 +3,10 @@
 Takes joint-velocity commands on `joint_velocity_cmd` and, once per control period, runs the latest
 one through the SafetyFilter against the measured state and writes the result to the backend — one
 control path for every backend (backend.py; the table in backends.py). Publishes joint_states,
-ee_pose and ~/status; serves ~/estop, ~/recover and ~/reset. A thin wrapper: the algorithms live in
-safety.py, the backends and kinematics.py.
+ee_pose and ~/status; serves ~/estop, ~/recover, ~/set_teaching and ~/reset (the last two where the
+backend offers them). The robot model (`robot_model`: Panda or FR3) gives the joint names and the
+limit table the filter enforces. A thin wrapper: the algorithms live in safety.py, the backends and
+kinematics.py.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
-from vla_common.robot import PANDA
+from vla_common.robot import PANDA, ROBOTS, robot_spec
 from vla_common.ros.convert import quat_wxyz_from_matrix, stamp_from_ns
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
@@ -30,7 +32,7 @@ from vla_common.ros.parameters import Param, ParameterTable
 from vla_interfaces.msg import SafetyStatus
 from vla_interfaces.srv import ResetScene
 from vla_panda_bridge import safety
-from vla_panda_bridge.backend import BackendError, UnsupportedError
+from vla_panda_bridge.backend import TEACHING, BackendError, UnsupportedError
 from vla_panda_bridge.backends import BACKENDS
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
@@ -53,8 +55,10 @@ def _seven_finite(value) -> str | None:
 
 
 PARAMETERS = ParameterTable([
-    Param("backend", "mujoco", "Robot behind the safety layer: 'mujoco' (simulated Panda) or "
-          "'ros2_control' (JointGroupVelocityController)", choices=tuple(BACKENDS)),
+    Param("backend", "mujoco", "Robot behind the safety layer: " + "; ".join(
+          f"'{row.name}' ({row.summary})" for row in BACKENDS.values()), choices=tuple(BACKENDS)),
+    Param("robot_model", "panda", "The arm: 'panda' (Franka Emika FER) or 'fr3' (Franka Research 3): joint "
+          "names <model>_joint1..7 and the limit table the safety layer enforces", choices=tuple(ROBOTS)),
     Param("control_rate", 1000, "Safety filter + command updates per second; with mujoco also the "
           "physics rate (one filter update per physics step)", range=(100, 4000)),
     Param("state_rate", 200.0, "joint_states and ee_pose publish rate (Hz; simulated time with mujoco)",
@@ -71,8 +75,8 @@ PARAMETERS = ParameterTable([
     Param("seed", 0, "mujoco: seed of the initial random object layout", range=(0, 2**31 - 1)),
     Param("initial_positions", [float(v) for v in PANDA.ready_pose], "mujoco: initial joint positions "
           "(7, rad): inside the joint limits and free of collisions", check=_seven_finite),
-    Param("base_frame_id", "panda_link0", "frame_id of ee_pose and scene/objects (the robot base)",
-          check=_not_empty),
+    Param("base_frame_id", "", "frame_id of ee_pose and scene/objects; empty = the robot's base link "
+          "(panda_link0, fr3_link0)"),
     Param("ee_frame", "tcp", "ee_pose of the 'tcp' (between the closed finger tips) or the 'flange'",
           choices=EE_FRAMES),
     Param("command_timeout", 0.1, "Watchdog: brake to zero after this long without a valid command (s)",
@@ -109,7 +113,7 @@ PARAMETERS = ParameterTable([
     Param("joint_impedance", list(DriverSettings.joint_impedance),
           "libfranka: stiffness of the robot's joint impedance controller (7, Nm/rad)"),
     Param("teaching_damping", list(DriverSettings.teaching_damping),
-          "libfranka: teaching mode damping, tau = -d * dq (7, Nm s/rad)"),
+          "libfranka, mujoco: teaching mode damping, tau = -d * dq (7, Nm s/rad)"),
     Param("loop_prefix", "", "libfranka: command words before the loop process (e.g. 'ip netns exec NS')"),
     Param("loop_priority", 0, "libfranka: SCHED_FIFO priority of the 1 kHz loop process (0 = normal; "
           "80 on a real-time kernel)", range=(0, 99)),
@@ -123,15 +127,17 @@ class PandaBridge(Node):
         super().__init__("panda_bridge", **kwargs)
         self.params = p = PARAMETERS.declare(self)
         self._validate(p)
-        self.spec = PANDA
-        self.base_frame = p["base_frame_id"]
+        self.spec = robot_spec(p["robot_model"])
+        self.base_frame = p["base_frame_id"] or self.spec.base_frame
         self._dt = 1.0 / p["control_rate"]
         self.filter = SafetyFilter(SafetyConfig(
             dt=self._dt, velocity_scale=p["velocity_scale"], acceleration_scale=p["acceleration_scale"],
             jerk_scale=p["jerk_scale"], position_margin=p["position_margin"],
             command_timeout=p["command_timeout"], position_sync_tolerance=p["position_sync_tolerance"],
-            plausibility_factor=p["plausibility_factor"]))
-        from vla_common.kinematics import PandaKinematics  # Pinocchio: import only when needed
+            plausibility_factor=p["plausibility_factor"]), robot=self.spec)
+        # Pinocchio: import only when needed. The FR3's kinematics are the Panda's (checked against
+        # franka-sim's FR3 model to 2e-15 m).
+        from vla_common.kinematics import PandaKinematics
 
         kin = PandaKinematics()
         self._fk = kin.fk if p["ee_frame"] == "tcp" else kin.flange_fk
@@ -161,6 +167,7 @@ class PandaBridge(Node):
         self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._on_command, 10)
         self.create_service(SetBool, "~/estop", self._on_estop)
         self.create_service(Trigger, "~/recover", self._on_recover)
+        self.create_service(SetBool, "~/set_teaching", self._on_set_teaching)
         self.create_service(ResetScene, "~/reset", self._on_reset)
         q = self.backend.position()
         self.filter.reset(q)
@@ -171,6 +178,11 @@ class PandaBridge(Node):
 
     @staticmethod
     def _validate(p: dict) -> None:
+        row = BACKENDS[p["backend"]]
+        if p["robot_model"] not in row.robots:
+            why = "; the simulated scene is a Panda" if row.name == "mujoco" else ""
+            raise ConfigError(f"parameter 'robot_model': '{p['robot_model']}' is not available with backend "
+                              f"'{row.name}' (it drives {', '.join(row.robots)}){why}")
         if p["state_rate"] > p["control_rate"]:
             raise ConfigError(f"parameter 'state_rate' ({p['state_rate']:g} Hz) must not exceed "
                               f"'control_rate' ({p['control_rate']} Hz)")
@@ -190,7 +202,9 @@ class PandaBridge(Node):
         return self.create_timer(period, callback, clock=self._steady)
 
     def on_fault(self, text: str) -> None:
-        """The robot stopped itself (a reflex): the filter holds zero from where it is until ~/recover."""
+        """The robot stopped itself (a reflex): the filter holds zero from where it is until ~/recover
+        (a reflex ends teaching mode: the backend holds the arm)."""
+        self.filter.set_teaching(False)
         self.filter.reset(self.backend.position())
         self.filter.set_fault(text)
         self.get_logger().error(f"robot reflex: {text}; holding until ~/recover")
@@ -244,6 +258,11 @@ class PandaBridge(Node):
 
     # -------------------------------------------------------------------------------- services
     def _on_estop(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        if request.data and self.filter.teaching:          # an e-stop holds the arm: servos on
+            try:
+                self._leave_teaching()
+            except (UnsupportedError, RuntimeError) as exc:
+                self.get_logger().error(f"e-stop: could not leave teaching mode: {exc}")
         self.filter.set_estop(request.data)
         response.success = True
         response.message = ("e-stop latched: braking to zero, commands ignored until released"
@@ -270,6 +289,46 @@ class PandaBridge(Node):
         self.get_logger().info(response.message)
         self._publish_status(self.filter.hold_code(), response.message)
         return response
+
+    def _on_set_teaching(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
+        """Teaching mode on (only at rest, without an e-stop or reflex) or off (holding the pose)."""
+        on, f = bool(request.data), self.filter
+        refusal = self._teaching_refusal(on)
+        if refusal is None and on == f.teaching:
+            response.success, response.message = True, f"teaching mode already {'on' if on else 'off'}"
+            return response
+        if refusal is None:
+            try:
+                text = self.backend.set_teaching(True) if on else self._leave_teaching()
+                if on:
+                    f.set_teaching(True)
+            except (UnsupportedError, RuntimeError) as exc:
+                refusal = f"teaching mode {'refused' if on else 'not left'}: {exc}"
+        if refusal is not None:
+            response.success, response.message = False, refusal
+            self.get_logger().warn(refusal)
+            return response
+        response.success, response.message = True, text
+        self.get_logger().info(text)
+        self._publish_status(f.hold_code(), text)
+        return response
+
+    def _teaching_refusal(self, on: bool) -> str | None:
+        f = self.filter
+        if TEACHING not in self.backend.capabilities:
+            return f"teaching mode is not available with the {self.backend.kind} backend"
+        if on and not f.teaching and (f.estop_active or f.fault):
+            return "teaching mode refused: " + ("e-stop latched" if f.estop_active else f"reflex {f.fault}")
+        if on and not f.teaching and not f.is_stopped:
+            return "teaching mode refused: the arm is moving (it starts at rest: stop commanding first)"
+        return None
+
+    def _leave_teaching(self) -> str:
+        """Servos on holding the measured pose; the filter restarts from there, awaiting a zero command."""
+        text = self.backend.set_teaching(False)
+        self.filter.set_teaching(False)
+        self.filter.reset(self.backend.position())
+        return f"{text}; send a zero command, then move"
 
     def _on_reset(self, request: ResetScene.Request, response: ResetScene.Response) -> ResetScene.Response:
         try:

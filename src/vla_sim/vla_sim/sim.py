@@ -243,15 +243,16 @@ class PandaSim:
     def teaching(self) -> bool:
         return not self._servo_on
 
-    def set_teaching(self, active: bool, damping: float = 0.0) -> None:
+    def set_teaching(self, active: bool, damping=0.0) -> None:
         """Teaching mode: servo off, the arm backdrivable (gravity compensated, joint damping
-        `damping` N m s/rad). Leaving it holds the measured pose (see hold())."""
+        `damping` N m s/rad, one value or one per joint). Leaving it holds the measured pose (hold())."""
         if active:
-            if not (math.isfinite(damping) and damping >= 0.0):
+            b = np.broadcast_to(np.asarray(damping, dtype=float), (NUM_JOINTS,))
+            if not np.all(np.isfinite(b) & (b >= 0.0)):
                 raise ValueError(f"teaching damping must be >= 0, got {damping!r}")
             self._servo_on = False
             self.data.ctrl[self._motor] = 0.0
-            self.model.dof_damping[self._dofs] = damping
+            self.model.dof_damping[self._dofs] = b
         else:
             self.model.dof_damping[self._dofs] = 0.0
             self._servo_on = True

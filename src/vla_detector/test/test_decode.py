@@ -3,9 +3,8 @@
 import json
 
 import numpy as np
-import onnx
 import pytest
-from onnx import TensorProto, helper, numpy_helper
+from detector_fake_models import make_model
 from vla_detector.decode import DecodeError, infer_layout, letterbox, nms, postprocess
 from vla_detector.inference import Detector, ModelError
 
@@ -28,28 +27,6 @@ def candidate_rows():
     rows.append([50.0, 10.0, 8.0, 8.0, 0.0, 0.0, 0.1])  # below 0.3
     rows += [[5.0, 5.0, 4.0, 4.0, 0.01, 0.01, 0.01]] * 5
     return np.array(rows, dtype=np.float32)
-
-
-def make_model(path, output: np.ndarray, size=(64, 64), metadata=None):
-    """ONNX graph: images [1,3,H,W] -> output = const + 0 * mean(images) (so it depends on the input)."""
-    w, h = size
-    x = helper.make_tensor_value_info("images", TensorProto.FLOAT, [1, 3, h, w])
-    y = helper.make_tensor_value_info("output0", TensorProto.FLOAT, list(output.shape))
-    const = numpy_helper.from_array(output.astype(np.float32), "const")
-    zero = numpy_helper.from_array(np.zeros((), np.float32), "zero")
-    nodes = [
-        helper.make_node("ReduceMean", ["images"], ["m"], keepdims=0),
-        helper.make_node("Mul", ["m", "zero"], ["z"]),
-        helper.make_node("Add", ["const", "z"], ["output0"]),
-    ]
-    graph = helper.make_graph(nodes, "fake_yolo", [x], [y], initializer=[const, zero])
-    model = helper.make_model(graph, opset_imports=[helper.make_opsetid("", 17)])
-    model.ir_version = 8
-    for k, v in (metadata or {}).items():
-        model.metadata_props.add(key=k, value=v)
-    onnx.checker.check_model(model)
-    onnx.save(model, str(path))
-    return path
 
 
 def yolov8_output():

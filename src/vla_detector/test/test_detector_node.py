@@ -1,5 +1,6 @@
 """detector_node in-process with the shipped model on rendered scenes, and as an installed executable."""
 
+import json
 import os
 import subprocess
 from pathlib import Path
@@ -7,11 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import rclpy
+from detector_fake_models import make_model
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
+from vla_common.ros.node_main import ConfigError
 from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.ros.testing import RosHarness
 from vla_detector.detector_node import DetectorNode
@@ -180,7 +183,9 @@ def test_missing_or_corrupt_model_exits_1(tmp_path, content, message):
     assert message in r.stderr and str(path) in r.stderr
 
 
-def test_refused_parameters_exit_2():
+def test_refused_parameters_exit_2(tmp_path):
+    r = run_exe("-p", f"model_path:={spam_detector(tmp_path)}")
+    assert r.returncode == 2 and "['bread', 'spam']" in r.stderr and "'cereal_box']" in r.stderr
     r = run_exe("-p", "classes:=[unicorn]")
     assert r.returncode == 2 and "parameter 'classes'" in r.stderr and "unknown class names" in r.stderr
     r = run_exe("-p", "score_threshold:=1.5")
@@ -242,3 +247,62 @@ def test_best_effort_camera_with_image_reliability_best_effort(harness, scene):
     n = len(harness.dets)
     best_effort.publish(image_msg(scene[0]))
     assert harness.spin_until(lambda: len(harness.dets) > n)
+
+
+LAB_CATALOGUE = """extends: default
+objects:
+  spam:
+    shape: box
+    size: [0.10, 0.06, 0.08]
+    rgba: [0.80, 0.08, 0.10, 1.0]
+    mass: 0.34
+    friction: 0.5
+    tasks: [push_south]
+"""
+
+
+def spam_detector(tmp_path):
+    """A stand-in detector whose sidecar lists bread and spam (spam is not in the default catalogue)."""
+    rows = np.array([[20.0, 20.0, 10.0, 12.0, 0.9, 0.0], [44.0, 40.0, 16.0, 8.0, 0.0, 0.8]], np.float32)
+    path = make_model(tmp_path / "spam.onnx", rows.T[None])
+    (tmp_path / "spam.json").write_text(json.dumps({"classes": ["bread", "spam"], "layout": "yolov8"}))
+    return path
+
+
+def start(tmp_path, **params):
+    h = RosHarness()
+    overrides = [Parameter(k, value=v) for k, v in params.items()]
+    try:
+        return h, h.add(DetectorNode(context=h.context, parameter_overrides=overrides))
+    except Exception:
+        h.shutdown()
+        raise
+
+
+def test_model_classes_outside_the_catalogue_refused_naming_both_lists(tmp_path):
+    with pytest.raises(ConfigError) as err:
+        start(tmp_path, model_path=str(spam_detector(tmp_path)))
+    text = str(err.value)
+    assert "['bread', 'spam']" in text  # the detector's classes
+    assert "['bread', 'soda_can', 'milk_carton', 'glass_bottle', 'cereal_box']" in text  # the catalogue's
+    assert "catalogue.yaml" in text and "spam.onnx" in text and "['spam'] unknown" in text
+
+
+def test_a_lab_catalogue_or_a_class_filter_admits_the_model(tmp_path):
+    lab = tmp_path / "lab.yaml"
+    lab.write_text(LAB_CATALOGUE)
+    h, node = start(tmp_path, model_path=str(spam_detector(tmp_path)), catalogue=str(lab))
+    assert node.detector.classes == ["bread", "spam"]
+    h.shutdown()
+    h, node = start(tmp_path, model_path=str(spam_detector(tmp_path)), classes=["bread"])
+    try:  # publishing only bread: spam's absence from the catalogue does not matter ...
+        res = node.set_parameters([Parameter("classes", value=["spam"])])[0]
+        assert not res.successful and "['spam'] unknown" in res.reason  # ... until spam is published
+        assert node.detector.class_filter == {0}
+    finally:
+        h.shutdown()
+
+
+def test_unreadable_catalogue_refused(tmp_path):
+    with pytest.raises(ConfigError, match="parameter 'catalogue'"):
+        start(tmp_path, catalogue=str(tmp_path / "missing.yaml"))

@@ -16,6 +16,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, qos_policy_name_from_kind
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
+from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
 from vla_common.detection import Detection
 from vla_common.image_convert import UnsupportedImageError, draw_detections, to_rgb
 from vla_common.ros.convert import detection_array
@@ -30,6 +31,8 @@ WARN_PERIOD_S = 5.0
 RELIABILITIES = ("reliable", "best_effort")
 
 PARAMS = ParameterTable([
+    Param("catalogue", "", "YAML file of the object classes ('': the default catalogue, "
+          "vla_common/data/catalogue.yaml); every class the node publishes must be in it"),
     Param("model_path", "", "ONNX detector (ours with its .json sidecar, or an Ultralytics YOLOv5/YOLOv8 "
           "export); empty: the shipped model share/vla_detector/models/detector.onnx"),
     Param("score_threshold", 0.3, "minimum detection score", range=(0.0, 1.0), dynamic=True),
@@ -61,16 +64,7 @@ class DetectorNode(Node):
         super().__init__("detector_node", **kwargs)
         p = PARAMS.declare(self, self._on_change)
         path = p["model_path"] or str(default_model_path())
-        try:
-            self.detector = Detector(path, score_threshold=p["score_threshold"],
-                                     iou_threshold=p["iou_threshold"], max_detections=p["max_detections"],
-                                     num_threads=p["num_threads"])
-        except (ModelError, ValueError) as exc:
-            raise StartupError(str(exc)) from exc
-        try:
-            self.detector.set_class_filter(class_names(p["classes"]) or None)
-        except ValueError as exc:
-            raise ConfigError(f"parameter 'classes': {exc}") from exc
+        self.catalogue, self.detector = self._load(p, path)
         self.enabled = bool(p["enable"])
 
         self.pub = self.create_publisher(DetectionArray, "detections", QoSProfile(depth=10))
@@ -91,13 +85,32 @@ class DetectorNode(Node):
             "-> detections"
         )
 
+    def _load(self, p: dict, path: str) -> tuple[Catalogue, Detector]:
+        """The catalogue and the model; ConfigError for a refused parameter, StartupError for a model
+        that does not load."""
+        try:
+            catalogue = load_catalogue(p["catalogue"])
+        except CatalogueError as exc:
+            raise ConfigError(f"parameter 'catalogue': {exc}") from exc
+        try:
+            detector = Detector(path, score_threshold=p["score_threshold"], iou_threshold=p["iou_threshold"],
+                                max_detections=p["max_detections"], num_threads=p["num_threads"])
+        except (ModelError, ValueError) as exc:
+            raise StartupError(str(exc)) from exc
+        self.catalogue, self.detector = catalogue, detector
+        reason = self._set_classes(class_names(p["classes"]))
+        if reason:
+            raise ConfigError(reason)
+        missing = [c for c in catalogue.classes if c not in detector.classes]
+        if missing:
+            self.get_logger().warning(f"catalogue classes {missing} are not among the model's classes "
+                                      f"{detector.classes}: they are never detected")
+        return catalogue, detector
+
     def _on_change(self, name: str, value) -> str | None:
         """Apply one accepted run-time change, or return why it is refused."""
         if name == "classes":
-            try:
-                self.detector.set_class_filter(class_names(value) or None)
-            except ValueError as exc:
-                return str(exc)
+            return self._set_classes(class_names(value))
         elif name == "score_threshold":
             self.detector.score_threshold = float(value)
         elif name == "iou_threshold":
@@ -106,6 +119,24 @@ class DetectorNode(Node):
             self.detector.max_detections = int(value)
         elif name == "enable":
             self.enabled = bool(value)
+        return None
+
+    def _set_classes(self, names: list[str]) -> str | None:
+        """Publish only `names` (all when empty): classes of the model, and of the catalogue, so that the
+        controller can place them. Else the reason, naming the lists; the filter stays as it was."""
+        previous = self.detector.class_filter
+        try:
+            self.detector.set_class_filter(names or None)
+        except ValueError as exc:
+            return f"parameter 'classes': {exc}"
+        what = f"detector model {self.detector.model_path}"
+        if names:
+            what += f" ('classes' filter {names})"
+        try:
+            self.catalogue.check_classes(names or self.detector.classes, what)
+        except CatalogueError as exc:
+            self.detector.class_filter = previous
+            return f"{exc}; give a 'catalogue' that defines them or leave them out of 'classes'"
         return None
 
     def _on_enable(self, req: SetBool.Request, resp: SetBool.Response) -> SetBool.Response:

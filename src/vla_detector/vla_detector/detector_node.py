@@ -8,7 +8,6 @@ parameter table, so a parameter always reads what the node does.
 from __future__ import annotations
 
 import time
-from types import SimpleNamespace
 
 from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
@@ -52,11 +51,6 @@ PARAMS = ParameterTable([
 def class_names(value) -> list[str]:
     """The `classes` parameter without its empty entries ([""] is how YAML spells an empty list)."""
     return [c for c in (value or []) if c]
-
-
-def _drawable(dets: list[Detection]) -> list[SimpleNamespace]:
-    """Detections with `w`/`h` beside `width`/`height`: draw_detections still reads w/h."""
-    return [SimpleNamespace(**d.as_dict(), w=d.width, h=d.height) for d in dets]
 
 
 class DetectorNode(Node):
@@ -178,7 +172,7 @@ class DetectorNode(Node):
 
     @staticmethod
     def _overlay(rgb, dets: list[Detection], header) -> Image:
-        vis = draw_detections(rgb, _drawable(dets))
+        vis = draw_detections(rgb, dets)
         im = Image(header=header, height=vis.shape[0], width=vis.shape[1], encoding="rgb8", is_bigendian=0,
                    step=vis.shape[1] * 3)
         im.data = vis.tobytes()

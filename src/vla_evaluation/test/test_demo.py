@@ -12,8 +12,9 @@ def test_cli_has_the_subcommands_with_defaults():
     p = build_parser()
     a = p.parse_args(["demo"])
     assert str(a.out) == "out/demo" and a.tasks == "all" and a.layouts == 1 and a.rate == 100.0
+    assert a.horizon == demo.DEMO_HORIZON == 2.0  # the demo's look-ahead; the evaluation keeps 1 s
     e = p.parse_args(["evaluate", "--mode", "graph", "--layouts", "20"])
-    assert e.mode == "graph" and e.layouts == 20
+    assert e.mode == "graph" and e.layouts == 20 and e.horizon == 1.0
     x = p.parse_args(["experiments", "--quick"])
     assert x.quick and x.out is None  # --quick writes to out/experiments_quick, never over docs/results
     assert x.position_scale == pytest.approx(0.2887, abs=1e-4)  # the experiments' fixed position scale

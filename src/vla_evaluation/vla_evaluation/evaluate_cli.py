@@ -23,6 +23,7 @@ from vla_evaluation.metrics import summarize
 from vla_evaluation.physics import evaluate_physics
 from vla_evaluation.plots import write_evaluation_report
 from vla_evaluation.resources import detector_model_path, latent_model_dir
+from vla_evaluation.sim_teleoperator import DEFAULT_HORIZON
 
 
 def task_list(spec: str) -> list[str]:
@@ -39,14 +40,15 @@ def task_list(spec: str) -> list[str]:
     return out
 
 
-def add_teleop_arguments(p: argparse.ArgumentParser, rate: float) -> None:
+def add_teleop_arguments(p: argparse.ArgumentParser, rate: float, horizon: float = DEFAULT_HORIZON) -> None:
     g = p.add_argument_group("simulated teleoperator and controller")
     g.add_argument("--rate", type=float, default=rate,
                    help="control rate in Hz of simulated time (physics and graph: 100 unless set)")
     g.add_argument("--time-limit", type=float, default=30.0, help="episode length (s), the paper's 30")
     g.add_argument("--switch-time", type=float, default=15.0,
                    help="time on the pre-push waypoint, the paper's k")
-    g.add_argument("--horizon", type=float, default=1.0, help="look-ahead of the projected state (s)")
+    g.add_argument("--horizon", type=float, default=horizon,
+                   help=f"look-ahead of the projected state (s; default {horizon:g})")
     g.add_argument("--candidates", type=int, default=41, help="stick values tried over [-1, 1] (odd)")
     g.add_argument("--action-scale", type=float, default=1.0, help="controller action_scale")
     g.add_argument("--max-joint-speed", type=float, default=1.5, help="controller norm clamp (rad/s)")

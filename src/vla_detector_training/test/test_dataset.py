@@ -1,5 +1,7 @@
 """YOLO datasets: round trip, and every bad input reported with its file and line."""
 
+import logging
+
 import numpy as np
 import pytest
 from vla_detector_training.cli import main as cli_main
@@ -41,10 +43,20 @@ def test_round_trip(tmp_path):
     assert read_image(s.image_path).shape == (48, 64, 3)
 
 
-def test_missing_label_file_means_no_objects(tmp_path):
+def test_missing_label_file_means_no_objects_and_is_warned_about(tmp_path, caplog):
     make_dataset(tmp_path)
+    (tmp_path / "labels" / "train" / "im0.txt").write_text("")  # a deliberate background image
+    with caplog.at_level(logging.WARNING, logger="vla_detector_training"):
+        assert load_split(load_data_config(tmp_path), "train")[0].boxes == []
+    assert not caplog.records
     (tmp_path / "labels" / "train" / "im0.txt").unlink()
-    assert load_split(load_data_config(tmp_path), "train")[0].boxes == []
+    (tmp_path / "labels" / "train" / "im2.txt").unlink()
+    with caplog.at_level(logging.WARNING, logger="vla_detector_training"):
+        samples = load_split(load_data_config(tmp_path), "train")
+    assert samples[0].boxes == [] and samples[2].boxes == [] and len(samples[1].boxes) == 1
+    [record] = caplog.records
+    assert "2 of 3 images have no label file" in record.getMessage()
+    assert "im0.png, im2.png" in record.getMessage() and "empty label file" in record.getMessage()
 
 
 def test_ultralytics_names_mapping(tmp_path):

@@ -1,4 +1,4 @@
-"""`vla_detector_training` command line: synth, train, evaluate, check, export.
+"""`vla_detector_training` command line: synth, import-coco, check, train, evaluate, export.
 
 Heavy optional imports (torch, MuJoCo) happen inside the subcommands that need them, so `--help`,
 `check` and `evaluate` stay light.
@@ -10,8 +10,10 @@ import argparse
 import sys
 import time
 
+from vla_common.catalogue import CatalogueError, load_catalogue
 from vla_detector.inference import default_model_path
 
+from vla_detector_training.coco import import_coco, parse_mapping
 from vla_detector_training.dataset import DatasetError, load_data_config, load_split
 from vla_detector_training.evaluate import evaluate_model
 
@@ -26,6 +28,15 @@ def _cmd_synth(a: argparse.Namespace) -> int:
         f"({', '.join(f'{k}: {v}' for k, v in counts.items())}) "
         f"in {time.perf_counter() - t:.1f} s"
     )
+    return 0
+
+
+def _cmd_import_coco(a: argparse.Namespace) -> int:
+    classes = load_catalogue(a.catalogue).classes
+    report = import_coco(a.annotations, a.images, a.out, classes, parse_mapping(a.map or []), a.split)
+    for line in report.lines():
+        print(line)
+    print(f"dataset: {a.out} (split {a.split}; classes {list(classes)})")
     return 0
 
 
@@ -105,6 +116,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_synth)
 
+    i = sub.add_parser("import-coco", help="COCO JSON (CVAT, Label Studio, Roboflow) -> a YOLO dataset")
+    i.add_argument("annotations", help="the COCO annotation file (.json)")
+    i.add_argument("--images", required=True, help="folder holding the images the file names")
+    i.add_argument("--out", required=True, help="YOLO dataset folder (created, or added to)")
+    i.add_argument("--map", nargs="+", action="extend", default=[], metavar="COCO=OURS",
+                   help="category name -> our class name (identical names map themselves); COCO= leaves a "
+                        "category out")
+    i.add_argument("--split", default="train", choices=["train", "val", "test"])
+    i.add_argument("--catalogue", default=None, help="our classes (catalogue YAML; default: vla_common's)")
+    i.set_defaults(func=_cmd_import_coco)
+
     t = sub.add_parser("train", help="train from scratch, validate each epoch, export the best to ONNX")
     t.add_argument("--data", required=True, help="dataset folder with data.yaml")
     t.add_argument("--out", required=True)
@@ -145,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (DatasetError, ValueError, FileNotFoundError) as e:
+    except (DatasetError, CatalogueError, ValueError, FileNotFoundError) as e:
         print(f"vla_detector_training {args.cmd}: error: {e}", file=sys.stderr)
         return 2
     except RuntimeError as e:  # ModelError and friends

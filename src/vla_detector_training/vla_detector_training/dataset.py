@@ -6,12 +6,15 @@ Layout (Ultralytics convention)::
     DIR/images/<split>/x.png    any image OpenCV reads
     DIR/labels/<split>/x.txt    one line per object: `class cx cy w h`, normalised to [0, 1]
 
-A missing label file means "no objects". Every problem is reported as a `DatasetError` naming the
-file and line, never a traceback from deep inside training.
+An empty label file is an image without objects (a background image). A missing label file is read
+the same way but warned about, once per split with the images it concerns: a background image should
+be a deliberate choice, not a label lost on the way. Every problem is reported as a `DatasetError`
+naming the file and line, never a traceback from deep inside training.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Sequence
@@ -25,6 +28,7 @@ from vla_common.image_convert import UnsupportedImageError
 
 from vla_common import image_convert
 
+log = logging.getLogger("vla_detector_training")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".webp")
 SPLITS = ("train", "val", "test")
 _TOL = 1e-6  # rounding slack for coordinates written with limited precision
@@ -117,7 +121,8 @@ def parse_label_line(
 
 
 def read_labels(path: Path, num_classes: int) -> list[tuple[int, float, float, float, float]]:
-    """All labels of one file (normalised); a missing file is an image without objects."""
+    """All labels of one file (normalised); a missing file is an image without objects (see
+    read_split_labels for the warning)."""
     if not path.exists():
         return []
     try:
@@ -129,6 +134,23 @@ def read_labels(path: Path, num_classes: int) -> list[tuple[int, float, float, f
         if line.strip():
             out.append(parse_label_line(line, path, lineno, num_classes))
     return out
+
+
+def read_split_labels(
+    images: Sequence[Path], num_classes: int
+) -> list[list[tuple[int, float, float, float, float]]]:
+    """The labels of every image, all validated before any work; one warning naming the images that
+    have no label file (they count as images without objects)."""
+    missing = [p for p in images if not label_path_for(p).exists()]
+    if missing:
+        folder = label_path_for(missing[0]).parent
+        names = ", ".join(p.name for p in missing[:3]) + (", ..." if len(missing) > 3 else "")
+        log.warning(
+            "warning: %d of %d images have no label file in %s (%s); they are read as images without "
+            "objects. A background image should be deliberate: give it an empty label file.",
+            len(missing), len(images), folder, names,
+        )
+    return [read_labels(label_path_for(p), num_classes) for p in images]
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -205,12 +227,10 @@ def load_split(cfg: DataConfig, split: str, check_images: bool = True) -> list[S
     if not images:
         raise DatasetError(f"{cfg.split_dir(split)}: no images")
     samples = []
-    for img in images:
-        lp = label_path_for(img)
-        labels = read_labels(lp, len(cfg.names))
+    for img, labels in zip(images, read_split_labels(images, len(cfg.names))):
         w, h = image_size(img) if check_images else (0, 0)
         boxes = [Box(c, cx * w, cy * h, bw * w, bh * h) for c, cx, cy, bw, bh in labels]
-        samples.append(Sample(img, lp, boxes, w, h))
+        samples.append(Sample(img, label_path_for(img), boxes, w, h))
     return samples
 
 

@@ -26,11 +26,10 @@ from vla_detector.decode import letterbox, postprocess
 from vla_detector_training.dataset import (
     DataConfig,
     DatasetError,
-    label_path_for,
     list_images,
     load_data_config,
     read_image,
-    read_labels,
+    read_split_labels,
 )
 from vla_detector_training.export import export_onnx, load_checkpoint, save_checkpoint
 from vla_detector_training.metrics import ImageResult, Metrics, evaluate
@@ -88,7 +87,7 @@ def load_arrays(cfg: DataConfig, split: str, width: int, height: int, max_images
     images = list_images(cfg.split_dir(split))
     if not images:
         raise DatasetError(f"{cfg.split_dir(split)}: no images")
-    labels = [read_labels(label_path_for(p), len(cfg.names)) for p in images]  # all errors before work
+    labels = read_split_labels(images, len(cfg.names))  # all errors before work
     if max_images:
         images, labels = images[:max_images], labels[:max_images]
     imgs, boxes, classes = [], [], []

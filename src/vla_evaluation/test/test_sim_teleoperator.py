@@ -364,3 +364,52 @@ def test_a_task_given_before_the_first_clock_waits_from_the_first_clock(ros, tmp
     peer.create_timer(0.01, tick)
     _spin_until(ex, lambda: False, 1.0)
     assert tele.state == TeleopStatus.WAITING, tele.reason  # still waiting for its inputs, not FAILED
+
+
+@pytest.mark.ros
+def test_trigger_joint_states_answers_each_joint_state_at_its_stamp(ros, tmp_path):
+    """For a simulation stepped in lockstep: one stick value per joint state, stamped with that state's
+    time, and none in between (no timer)."""
+    from builtin_interfaces.msg import Time
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState, Joy
+    from vla_common.tasks import task_layout
+    from vla_evaluation.sim_teleoperator_node import SimTeleoperatorNode
+
+    from vla_interfaces.msg import ControllerStatus, SceneObject, SceneObjectArray, TeleopStatus
+
+    ctx, ex, nodes = ros
+    random_model(tmp_path / "m")
+    P = Parameter
+    tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[
+        P("model_path", value=str(tmp_path / "m")), P("trigger", value="joint_states"),
+        P("task", value="bread/push_east")])
+    peer = Node("peer", context=ctx)
+    nodes += [tele, peer]
+    ex.add_node(tele)
+    ex.add_node(peer)
+    joys = []
+    peer.create_subscription(Joy, "joy", joys.append, 100)
+    js_pub = peer.create_publisher(JointState, "joint_states", qos_profile_sensor_data)
+    goal = task_layout("bread/push_east", np.random.default_rng(3), n_objects=1)[0]
+    peer.create_publisher(SceneObjectArray, "scene/objects", 10).publish(
+        SceneObjectArray(objects=[SceneObject(class_id="bread", x=goal.x, y=goal.y, yaw=goal.yaw)]))
+    ctrl = peer.create_publisher(ControllerStatus, "controller_node/status", 10)
+    names = [f"panda_joint{i}" for i in range(1, 8)]
+    sent = []
+    for k in range(40):
+        stamp = Time(sec=100, nanosec=10_000_000 * k)
+        if k < 10:  # the context and the scene until the episode runs
+            ctrl.publish(ControllerStatus(latched_class="bread", latched_x=0.5, latched_y=0.6))
+            peer.create_publisher(SceneObjectArray, "scene/objects", 10)
+        js = JointState(name=names, position=Q0.tolist())
+        js.header.stamp = stamp
+        js_pub.publish(js)
+        sent.append((stamp.sec, stamp.nanosec))
+        _spin_until(ex, lambda: False, 0.03)
+    assert tele.state == TeleopStatus.RUNNING, tele.reason
+    stamps = [(j.header.stamp.sec, j.header.stamp.nanosec) for j in joys]
+    assert stamps and set(stamps) <= set(sent)  # every stick value at a joint state's time
+    assert len(stamps) == len(set(stamps))  # one per joint state

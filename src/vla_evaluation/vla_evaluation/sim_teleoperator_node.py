@@ -53,6 +53,7 @@ from vla_interfaces.srv import StartEpisode
 
 NODE_NAME = "sim_teleoperator"
 ACTIVE = (TeleopStatus.RUNNING, TeleopStatus.WAITING)
+TRIGGERS = ("timer", "joint_states")
 
 
 def _odd(n: int) -> str | None:
@@ -92,6 +93,9 @@ PARAMETERS = ParameterTable([
           "the controller's ~/status topic (ControllerStatus)"),
     Param("use_controller_context", True, "take the latched class and position from controller_status "
           "(false: the detector encoder needs them, so it fails)", dynamic=True),
+    Param("trigger", "timer", "timer: a stick value every 1/rate s; joint_states: one for every joint state, "
+          "from that state (for a simulation stepped in lockstep with the commands)",
+          choices=TRIGGERS),
 ])
 
 
@@ -124,6 +128,7 @@ class SimTeleoperatorNode(Node):
         self.image: np.ndarray | None = None
         self.image_time: Time | None = None
         self._image_sub = None
+        self._state_time: Time | None = None  # trigger joint_states: the latest joint state's stamp
 
         self.joy_pub = self.create_publisher(Joy, "joy", 10)
         self.status_pub = self.create_publisher(TeleopStatus, "~/status", 10)
@@ -145,7 +150,7 @@ class SimTeleoperatorNode(Node):
         rate = float(self.p["rate"])
         self._status_every = max(1, int(round(rate / 10.0)))
         self._ticks = 0
-        self.timer = self.create_timer(1.0 / rate, self._tick)
+        self.timer = self.create_timer(1.0 / rate, self._tick) if self.p["trigger"] == "timer" else None
         if self.p["task"]:
             try:
                 self._request(self.p["task"])
@@ -181,13 +186,21 @@ class SimTeleoperatorNode(Node):
             return  # another robot's or a partial joint state: ignored
         if np.all(np.isfinite(q)):
             self.q = q
+            if self.timer is None:  # trigger joint_states: decide on this very state, at its time
+                self._state_time = Time.from_msg(msg.header.stamp, clock_type=self.get_clock().clock_type)
+                self._tick()
+
+    def _now(self) -> Time:
+        """The node's time: with trigger joint_states the latest joint state's stamp (its simulated
+        time, whatever /clock says yet), else the clock's."""
+        return self._state_time if self._state_time is not None else self.get_clock().now()
 
     def _on_objects(self, msg: SceneObjectArray) -> None:
         self.objects = {o.class_id: ObjectPose(o.class_id, o.x, o.y, o.yaw) for o in msg.objects}
 
     def _on_ctrl(self, msg: ControllerStatus) -> None:
         self.ctrl = msg
-        self.ctrl_time = self.get_clock().now()
+        self.ctrl_time = self._now()
 
     def _on_image(self, msg: Image) -> None:
         if msg.encoding not in ("rgb8", "bgr8") or msg.height * msg.step > len(msg.data):
@@ -195,7 +208,7 @@ class SimTeleoperatorNode(Node):
         a = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)[:, :msg.width * 3]
         a = a.reshape(msg.height, msg.width, 3)
         self.image = a[:, :, ::-1].copy() if msg.encoding == "bgr8" else a.copy()
-        self.image_time = self.get_clock().now()
+        self.image_time = self._now()
 
     # ------------------------------------------------------------------ episodes
     def _srv_start(self, req: StartEpisode.Request, res: StartEpisode.Response):
@@ -218,7 +231,8 @@ class SimTeleoperatorNode(Node):
         self.task = task
         self.state = TeleopStatus.WAITING
         self.reason = "waiting for joint states, scene and context"
-        self.request_time = self.get_clock().now()
+        # trigger joint_states before the first state: the request's time is that state's (in _try_start)
+        self.request_time = None if self.timer is None and self._state_time is None else self._now()
         self.tele = None
         self.last_step = None
 
@@ -243,7 +257,7 @@ class SimTeleoperatorNode(Node):
         return ctrl if ctrl is not None and ctrl.latched_class else None
 
     def _try_start(self) -> None:
-        now = self.get_clock().now()
+        now = self._now()
         if self.request_time is None or self.request_time.nanoseconds == 0:
             # requested before the first /clock (use_sim_time): the wait starts with simulated time
             self.request_time = now
@@ -296,7 +310,7 @@ class SimTeleoperatorNode(Node):
         if self.state == TeleopStatus.WAITING:
             self._try_start()
         if self.state == TeleopStatus.RUNNING:
-            t = (self.get_clock().now() - self.t0).nanoseconds * 1e-9
+            t = (self._now() - self.t0).nanoseconds * 1e-9
             q = self.q if self.q is not None else np.full(7, np.nan)
             step = self.tele.act(t, q)
             self.last_step = step
@@ -311,7 +325,7 @@ class SimTeleoperatorNode(Node):
         axis = int(self.p["axis"])
         enable = int(self.p["enable_button"])
         msg = Joy()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = self._now().to_msg()
         msg.header.frame_id = NODE_NAME
         axes = [0.0] * max(int(self.p["num_axes"]), axis + 1)
         axes[axis] = float(value)
@@ -323,14 +337,14 @@ class SimTeleoperatorNode(Node):
 
     def _publish_status(self) -> None:
         msg = TeleopStatus()
-        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.stamp = self._now().to_msg()
         msg.state, msg.task, msg.reason = self.state, self.task, self.reason
         if self.tele is not None:
             sched = self.tele.schedule
             msg.waypoint_count = len(sched.waypoints)
             msg.final_waypoint = [float(v) for v in sched.final]
             if self.t0 is not None:
-                msg.elapsed = min((self.get_clock().now() - self.t0).nanoseconds * 1e-9, sched.time_limit)
+                msg.elapsed = min((self._now() - self.t0).nanoseconds * 1e-9, sched.time_limit)
             if self.last_step is not None:
                 msg.waypoint_index = int(self.last_step.waypoint_index)
                 msg.waypoint = [float(v) for v in sched.waypoints[self.last_step.waypoint_index]]

@@ -53,7 +53,7 @@ def test_the_stick_moves_the_simulated_fr3_through_the_latent_controller(sim):
                          "loop_priority": RT_PRIORITY, "control_rate": 250,
                          # the FCI's FR3 table (10 rad/s^2, 5000 rad/s^3) inside the Panda's
                          "acceleration_scale": 0.4999, "jerk_scale": 0.4999}
-        controller_params = {}
+        controller_params = {"joy_timeout": 0.5}        # this test's publisher may lag on a loaded machine
         fr3 = "robot_model" in PARAMETERS.params
         if fr3:
             bridge_params["robot_model"] = "fr3"
@@ -83,9 +83,9 @@ def test_the_stick_moves_the_simulated_fr3_through_the_latent_controller(sim):
 
         drive(0.0, 1.0)                                   # inputs in, stick centred: zero command
         assert status and status[-1].code == ControllerStatus.ZERO_DEADBAND, status[-1:] or "no status"
-        q0 = np.array(states[-1].position)
+        q0, n = np.array(states[-1].position), len(status)
         drive(0.8, 2.0)
-        assert status[-1].code == ControllerStatus.ACTIVE, status[-1]
+        assert any(s.code == ControllerStatus.ACTIVE for s in status[n:]), status[-1]
         moved = np.array(states[-1].position) - q0
         assert np.linalg.norm(moved) > 0.05, moved
         drive(0.0, 0.5)

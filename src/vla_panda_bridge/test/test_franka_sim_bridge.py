@@ -23,7 +23,7 @@ import rclpy
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
-from std_srvs.srv import Trigger
+from std_srvs.srv import SetBool, Trigger
 from vla_common.kinematics import PandaKinematics
 from vla_common.ros.testing import RosHarness
 from vla_panda_bridge.libfranka_loop import LOOP_DISCONNECTED, LOOP_OK, LOOP_REFLEX
@@ -45,6 +45,7 @@ RT_PRIORITY = 50
 # machine a 1 kHz node and a 1 kHz subscriber in this one process starve each other (2 states in 0.5 s
 # seen at a load average of 10); only the streaming test runs a bridge at 1000 Hz.
 LIGHT = {"control_rate": 250, "state_rate": 250.0}
+FR3_JOINTS = [f"fr3_joint{i}" for i in range(1, 8)]
 
 
 def _skip_reason() -> str | None:
@@ -83,7 +84,7 @@ class Bridge(RosHarness):
 
         values = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
                   "realtime_config": "ignore", "loop_prefix": " ".join(server.netns.prefix()),
-                  "loop_priority": RT_PRIORITY, **LIGHT, **FR3_SCALES, **params}
+                  "robot_model": "fr3", "loop_priority": RT_PRIORITY, **LIGHT, **FR3_SCALES, **params}
         overrides = [Parameter(k, value=v) for k, v in values.items()]
         self.node = self.add(PandaBridge(context=self.context, parameter_overrides=overrides))
         self.backend = self.node.backend
@@ -140,6 +141,10 @@ class Bridge(RosHarness):
     def recover(self) -> Trigger.Response:
         return self.call(self.io.create_client(Trigger, "panda_bridge/recover"), Trigger.Request())
 
+    def set_teaching(self, on: bool) -> SetBool.Response:
+        client = self.io.create_client(SetBool, "panda_bridge/set_teaching")
+        return self.call(client, SetBool.Request(data=on))
+
     def recover_if_needed(self) -> None:
         held = bool(self.status) and self.status[-1].code == SafetyStatus.REFLEX
         if self.backend.status.code != LOOP_OK or held:
@@ -184,7 +189,7 @@ def test_it_connects_and_streams_the_servers_state_at_500_hz_or_more(sim):
     rate = (len(stamps) - 1) / (stamps[-1] - stamps[0])
     assert rate >= 500.0, f"joint_states at {rate:.0f} Hz"
     last = window[-1]
-    assert len(last.name) == 7 and last.name[0].endswith("joint1")
+    assert list(last.name) == FR3_JOINTS and last.header.frame_id == ""
     np.testing.assert_allclose(last.position, SIM_Q0, atol=2e-3)    # the fresh server's pose
     np.testing.assert_allclose(last.velocity, 0.0, atol=1e-2)
     np.testing.assert_allclose(last.position, robot.position, atol=1e-3)
@@ -245,18 +250,22 @@ def test_teaching_on_and_off_moves_the_hand_by_at_most_1_mm(bridge):
     bridge.recover_if_needed()
     fk = PandaKinematics().fk
     n = len(bridge.states)
-    message = bridge.backend.set_teaching(True)
-    assert "teaching" in message and bridge.backend.process.status().teaching
+    res = bridge.set_teaching(True)
+    assert res.success and "teaching" in res.message, res.message
+    assert bridge.backend.process.status().teaching
+    assert bridge.status[-1].code == SafetyStatus.TEACHING
     k = len(bridge.states)
     bridge.spin_for(0.5)
     assert len(bridge.states) - k > 50                    # joint_states keep flowing while teaching
     bridge.command(velocity(0, 0.3), 0.2)                 # ignored: the hand moves the arm, not commands
-    bridge.backend.set_teaching(False)
+    res = bridge.set_teaching(False)
+    assert res.success and "zero command" in res.message, res.message
     assert not bridge.backend.process.status().teaching
     bridge.spin_for(0.3)
     tcp = np.array([fk(np.array(m.position))[0] for m in bridge.states[n - 1:]])
     travel = np.linalg.norm(tcp - tcp[0], axis=1).max()
     assert travel <= 1e-3, f"the hand travelled {travel * 1e3:.2f} mm"
+    bridge.command([0.0] * 7, 0.05)
     assert bridge.command_until(velocity(6, 0.2), bridge.moved_by(6, 0.02))     # velocity control again
 
 
@@ -332,7 +341,7 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
     exe = os.path.join(get_package_prefix("vla_panda_bridge"), "lib", "vla_panda_bridge", "panda_bridge")
     params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
               "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()),
-              "loop_priority": RT_PRIORITY, **FR3_SCALES}
+              "robot_model": "fr3", "loop_priority": RT_PRIORITY, **FR3_SCALES}
     args = [a for k, v in params.items() for a in ("-p", f"{k}:={v}")]
     log = tmp_path / "bridge.log"
     with open(log, "w") as err:

@@ -53,7 +53,7 @@ class LaunchSession:
                 self.env.pop(key, None)
             else:
                 self.env[key] = value
-        self.log_path = Path(log_path) if log_path is not None else None
+        self.log_path = Path(log_path) if log_path is not None else None  # None: in the temporary folder
         self._timeouts = (sigterm_timeout, sigkill_timeout, stop_stagger)
         self._tmpdir: str | None = None
         self._plan: LaunchPlan | None = None
@@ -112,7 +112,7 @@ class LaunchSession:
         for f in self._plan.temp_files if self._plan else []:
             with contextlib.suppress(OSError):
                 os.unlink(f)
-        if self._tmpdir and (self.log_path is None or Path(self._tmpdir) not in self.log_path.parents):
+        if self._tmpdir:  # temporary parameter files, and the log unless one was asked for
             shutil.rmtree(self._tmpdir, ignore_errors=True)
 
     # ------------------------------------------------------------------------------ watching

@@ -1,0 +1,51 @@
+"""LaunchSession: a launch file's processes from Python, as `vla launch` starts them."""
+import os
+import sys
+import time
+
+import pytest
+from vla_launch.session import LaunchError, LaunchSession, argument_text
+
+
+def _file(tmp_path, fixtures_dir, *procs):
+    script = os.path.join(fixtures_dir, "proc.py")
+    body = "".join(f"  - executable:\n      name: {name}\n      cmd: \"{sys.executable} {script} {args}\"\n"
+                   for name, args in procs)
+    path = tmp_path / "s.launch.yaml"
+    path.write_text("launch:\n  - arg: {name: word, default: hello}\n" + body)
+    return str(path)
+
+
+def _wait(predicate, timeout=20.0):
+    deadline = time.monotonic() + timeout
+    while not predicate() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    return predicate()
+
+
+def test_arguments_are_written_as_launch_text():
+    assert [argument_text(v) for v in (True, False, 2.0, 3, "x")] == ["true", "false", "2.0", "3", "x"]
+
+
+def test_a_session_runs_logs_and_stops_cleanly(tmp_path, fixtures_dir):
+    log = tmp_path / "logs" / "launch.log"
+    f = _file(tmp_path, fixtures_dir, ("a", "--out $(var word)"), ("b", ""))
+    with LaunchSession(None, f, {"word": "bonjour"}, env={"VLA_TEST_X": "1"}, log_path=log) as s:
+        assert _wait(lambda: s.tail().count("ready") == 2), s.tail()
+        s.check()  # both running
+        assert set(s.pids) == {"a", "b"}
+        assert f"[a-{s.pids['a']}] bonjour" in s.tail("a")
+    assert s.stop() == 0
+    assert "stopped" in log.read_text()
+    assert not os.path.exists(s._tmpdir)  # its temporary parameter files are gone, the log is kept
+
+
+def test_check_names_the_process_that_ended_with_its_output(tmp_path, fixtures_dir):
+    f = _file(tmp_path, fixtures_dir, ("ok", ""), ("bad", "--err 'bad news' --exit-after 0.2 --code 3"))
+    s = LaunchSession(None, f, log_path=tmp_path / "launch.log").start()
+    try:
+        assert _wait(lambda: bool(s.ended()))
+        with pytest.raises(LaunchError, match=r"bad ended \(exit code 3\)(.|\n)*bad news"):
+            s.check()
+    finally:
+        assert s.stop() == 3  # the launch's exit code: the first failure's

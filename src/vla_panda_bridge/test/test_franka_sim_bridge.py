@@ -334,8 +334,8 @@ def test_shutdown_ends_the_motion_and_the_loop_process(bridge, sim):
 
 
 def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_path):
-    """The installed node as `ros2 run` starts it; Ctrl-C mid-motion (after the module's bridge let go
-    of franka-sim's one client slot)."""
+    """The installed node as `ros2 run` starts it; Ctrl-C (SIGINT to its process group) mid-motion,
+    after the module's bridge let go of franka-sim's one client slot."""
     from ament_index_python.packages import get_package_prefix
 
     exe = os.path.join(get_package_prefix("vla_panda_bridge"), "lib", "vla_panda_bridge", "panda_bridge")
@@ -345,7 +345,8 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
     args = [a for k, v in params.items() for a in ("-p", f"{k}:={v}")]
     log = tmp_path / "bridge.log"
     with open(log, "w") as err:
-        proc = subprocess.Popen([sys.executable, exe, "--ros-args", *args], stdout=err, stderr=err)
+        proc = subprocess.Popen([sys.executable, exe, "--ros-args", *args], stdout=err, stderr=err,
+                                start_new_session=True)
     h = RosHarness()
     try:
         io = h.add(rclpy.create_node("franka_sim_sigint_io", context=h.context))
@@ -362,7 +363,7 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
             h.spin_for(0.01)
         assert abs(states[-1].velocity[5]) >= 0.2
         t0 = time.monotonic()
-        proc.send_signal(signal.SIGINT)
+        os.killpg(proc.pid, signal.SIGINT)               # Ctrl-C: the whole foreground process group
         code = proc.wait(10)
         took = time.monotonic() - t0
     finally:

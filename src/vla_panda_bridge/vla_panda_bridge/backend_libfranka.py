@@ -24,10 +24,17 @@ import numpy as np
 
 from vla_panda_bridge.backend import TEACHING, BackendBase, BackendError, Host, JointSample
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
-from vla_panda_bridge.libfranka_loop import LOOP_CONNECTING, LOOP_NAMES, LOOP_OK, LoopSettings
+from vla_panda_bridge.libfranka_loop import (
+    LOOP_CONNECTING,
+    LOOP_DISCONNECTED,
+    LOOP_NAMES,
+    LOOP_OK,
+    LoopSettings,
+)
 from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
 
 MAX_CATCH_UP = 20       # control periods run at once by a late timer (the rest are skipped)
+RETRY_LOG_PERIOD = 5.0  # s between log lines about a connection that keeps failing
 WATCH_RATE = 100.0      # Hz: the loop's status and its process are checked this often
 REQUEST_TIMEOUT = 5.0   # s to wait for the loop to answer ~/recover or ~/set_teaching
 SAFETY_PARAMS = ("velocity_scale", "acceleration_scale", "jerk_scale", "position_margin", "command_timeout",
@@ -79,6 +86,7 @@ class LibfrankaBackend(BackendBase):
         self._status = LibfrankaStatus(LOOP_CONNECTING, LOOP_NAMES[LOOP_CONNECTING], "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
         self._reported = -1                             # the loop status code last reported
+        self._reported_text, self._reported_at = "", -math.inf
         self._ticks = 0                                 # control periods done (by the wall clock)
         self._state_tick = self._watch_tick = 0
         self._t0 = time.monotonic()
@@ -112,12 +120,21 @@ class LibfrankaBackend(BackendBase):
 
     def _watch_status(self) -> None:
         """Report the loop's status when its code changes: a fault (reflex, lost connection, fatal)
-        through host.on_fault with libfranka's text, the rest to the log."""
+        through host.on_fault with libfranka's text, the rest to the log; while it keeps trying to
+        connect, why (libfranka's refusal) every RETRY_LOG_PERIOD."""
         st = self._status = self.process.status()
-        if st.code == self._reported or not st.text:
-            return                                      # unchanged, or its text not written yet
-        self._reported = st.code
+        if not st.text:
+            return                                      # its text is not written yet
         text = f"libfranka {st.name}: {st.text}"
+        now = time.monotonic()
+        if st.code == self._reported:
+            if st.code in (LOOP_CONNECTING, LOOP_DISCONNECTED) and text != self._reported_text \
+                    and now - self._reported_at >= RETRY_LOG_PERIOD:
+                self._reported_text, self._reported_at = text, now
+                self._host.get_logger().warn(text)
+            return
+        # The first retry text after a change is logged at once, later ones every RETRY_LOG_PERIOD.
+        self._reported, self._reported_text, self._reported_at = st.code, text, -math.inf
         if st.code in (LOOP_OK, LOOP_CONNECTING):
             self._host.get_logger().info(text)
         elif (on_fault := getattr(self._host, "on_fault", None)) is not None:

@@ -122,7 +122,10 @@ class LoopProcess:
         cmd = [*self._prefix, self._python, "-m", "vla_panda_bridge.libfranka_loop",
                "--slots", self.slots.path, "--settings", self.settings.to_json(),
                "--parent-pid", str(os.getpid())]
-        self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL)
+        # A session of its own: a Ctrl-C in the terminal (SIGINT to the foreground process group) does
+        # not reach it, even while it is still importing; the bridge stops it through the shutdown
+        # flag after braking, and it stops the arm and exits by itself if the bridge is gone.
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True)
         self._seq_seen_at = time.monotonic()
 
     @property

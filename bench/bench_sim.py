@@ -1,5 +1,8 @@
 """Simulator speed: physics real-time factor without rendering (target >= 20x) and with the camera
-rendering at 30 Hz (target >= 2x), and render time per frame at 320x240 and 640x480.
+rendering at 30 Hz (target >= 2x), and render time per frame at 320x240 and 640x480. And how the
+simulated arm keeps to the Panda's table: max |dq|/dq_max and |ddq|/ddq_max measured on the physics
+clock (finite differences of q at 1 kHz) for the command streams of src/vla_sim/test/test_arm_limits.py
+run through the SafetyFilter (the test asserts <= 1).
 
 The arm follows a slow sinusoidal joint-velocity command over a 3-object layout so contacts and
 servos are exercised. Real-time factors are measured per simulated second (median and the worst
@@ -12,7 +15,9 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -59,11 +64,30 @@ def render_times(sim: PandaSim, width: int, height: int, frames: int) -> np.ndar
     return np.array(out) * 1e3
 
 
+def limits() -> None:
+    """The arm's measured motion per filtered stream (the streams and driver of test_arm_limits)."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "src" / "vla_sim" / "test"))
+    import test_arm_limits as t  # the test's streams: one home for them
+
+    sim = PandaSim(render=False, physics_dt=t.DT)
+    for name, make in t.STREAMS.items():
+        for seed in (0, 1):
+            sim.torque_limited_steps = 0
+            qs, _, touched = t._drive(sim, make(np.random.default_rng(seed)))
+            rv, ra, _ = t._measured_ratios(qs)
+            print(f"  {name:26s} seed {seed}: max |dq|/dq_max {rv:.9f}  |ddq|/ddq_max {ra:.9f}  "
+                  f"torque-limited steps {sim.torque_limited_steps}{'  (contact!)' if touched else ''}")
+    sim.close()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per real-time-factor run")
     ap.add_argument("--frames", type=int, default=200, help="frames per render-time measurement")
     args = ap.parse_args()
+
+    print("measured motion / limit table, filtered streams into the simulated arm (1 kHz):")
+    limits()
 
     print(f"MUJOCO_GL={os.environ.get('MUJOCO_GL')}  cpu cores={os.cpu_count()}")
     sim = PandaSim(render=False)

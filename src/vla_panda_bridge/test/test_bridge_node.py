@@ -507,6 +507,20 @@ def test_the_shipped_parameter_file_names_every_parameter_and_starts_the_node():
         rclpy.shutdown(context=ctx)
 
 
+def test_the_readme_documents_every_parameter_and_service():
+    from vla_panda_bridge.bridge_node import PARAMETERS
+
+    here = os.path.dirname(os.path.abspath(__file__))
+    with open(os.path.join(here, "..", "README.md")) as f:
+        text = f.read()
+    params = text[text.index("| Parameter | Default |"):text.index("## Backends")]
+    missing = [p.name for p in PARAMETERS if f"`{p.name}`" not in params]
+    assert not missing, missing
+    services = text[text.index("| Service | Type |"):text.index("**Parameters**")]
+    for name in ("~/estop", "~/recover", "~/set_teaching", "~/reset"):
+        assert f"| `{name}` |" in services, name
+
+
 def test_pacer_advances_one_state_period_per_tick_despite_jitter_and_slips_when_behind():
     from vla_sim.sim_clock import SimPacer
 

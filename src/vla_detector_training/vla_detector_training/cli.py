@@ -58,7 +58,12 @@ def _cmd_train(a: argparse.Namespace) -> int:
         max_images=a.max_images,
         augment=not a.no_augment,
         progress=not a.quiet,
+        init=str(default_model_path()) if a.init == "shipped" else a.init,
+        drop_old_classes=a.drop_old_classes,
+        mix_synth=a.mix_synth,
     )
+    if a.drop_old_classes and not a.init:
+        raise ValueError("--drop-old-classes needs --init (the classes to drop are the initial model's)")
     s = train(cfg)
     print(f"model: {s['onnx']}")
     return 0
@@ -127,7 +132,7 @@ def build_parser() -> argparse.ArgumentParser:
     i.add_argument("--catalogue", default=None, help="our classes (catalogue YAML; default: vla_common's)")
     i.set_defaults(func=_cmd_import_coco)
 
-    t = sub.add_parser("train", help="train from scratch, validate each epoch, export the best to ONNX")
+    t = sub.add_parser("train", help="train (from scratch or --init), validate each epoch, export the best")
     t.add_argument("--data", required=True, help="dataset folder with data.yaml")
     t.add_argument("--out", required=True)
     t.add_argument("--epochs", type=int, default=40)
@@ -139,6 +144,14 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--threads", type=int, default=2)
     t.add_argument("--max-images", type=int, default=0, help="use only the first N training images")
     t.add_argument("--no-augment", action="store_true")
+    t.add_argument("--init", default=None, metavar="MODEL",
+                   help="warm-start from a detector: .safetensors, .onnx, a run folder, or 'shipped' (the "
+                        "backbone is kept, the class head resized; the old classes stay unless dropped)")
+    t.add_argument("--drop-old-classes", action="store_true",
+                   help="with --init: the model's classes are the data's only")
+    t.add_argument("--mix-synth", type=int, default=0, metavar="N",
+                   help="mix N synthetic renders of the scene into training (10 %% into validation): they "
+                        "keep the old classes alive when the new data lacks them")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=_cmd_train)
 

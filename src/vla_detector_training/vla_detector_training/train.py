@@ -1,4 +1,6 @@
-"""Training from scratch on a YOLO-format dataset, validated every epoch, best checkpoint kept.
+"""Training on a YOLO-format dataset, from scratch or warm-started from an existing detector (the
+backbone kept, the class head resized to the new class list; see warmstart.py), optionally with
+synthetic renders mixed in; validated every epoch, the best checkpoint kept.
 
 Images are held in memory (1000 images at 320x240 are 230 MB), letterboxed to the input size the
 way the run-time Detector does it, and augmented on the fly (flip, scale/shift, colour gain). The
@@ -13,7 +15,7 @@ import json
 import math
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,8 +37,10 @@ from vla_detector_training.export import export_onnx, load_checkpoint, save_chec
 from vla_detector_training.metrics import ImageResult, Metrics, evaluate
 from vla_detector_training.model import STRIDE, DetectorNet, ModelConfig, count_parameters, raw_to_output
 from vla_detector_training.targets import build_targets, detection_loss
+from vla_detector_training.warmstart import Source, load_source, model_classes, recalibrate_batchnorm, resized
 
 EVAL_SCORE_FLOOR = 0.001  # predictions kept for mAP (standard practice)
+BN_CALIBRATION_IMAGES = 64  # training images the BatchNorm statistics of an ONNX source come from
 
 
 @dataclass
@@ -57,6 +61,9 @@ class TrainConfig:
     max_images: int = 0  # 0: all
     augment: bool = True
     progress: bool = True
+    init: str | None = None  # warm start from this detector (.safetensors, .onnx or a run folder)
+    drop_old_classes: bool = False  # with init: the model's classes are the data's only
+    mix_synth: int = 0  # synthetic renders of the scene mixed in (10 % of them into validation)
 
 
 @dataclass
@@ -171,6 +178,74 @@ def _log(msg: str, progress: bool) -> None:
 
 def subset(data: ArrayData, idx: np.ndarray) -> ArrayData:
     return ArrayData(data.images[idx], [data.boxes[i] for i in idx], [data.classes[i] for i in idx])
+
+
+def concat(a: ArrayData, b: ArrayData) -> ArrayData:
+    return ArrayData(np.concatenate([a.images, b.images]), a.boxes + b.boxes, a.classes + b.classes)
+
+
+def relabel(data: ArrayData, names: Sequence[str], classes: Sequence[str]) -> ArrayData:
+    """The same images with class indices into `classes`; boxes of names it lacks are dropped."""
+    lut = np.array([list(classes).index(n) if n in classes else -1 for n in names], np.int64)
+    boxes, cls = [], []
+    for b, c in zip(data.boxes, data.classes):
+        new = lut[c] if len(c) else c
+        keep = new >= 0
+        boxes.append(b[keep])
+        cls.append(new[keep])
+    return ArrayData(data.images, boxes, cls)
+
+
+def synthetic_mix(cfg: TrainConfig, out: Path) -> tuple[list[str], ArrayData, ArrayData | None]:
+    """(class names, training part, validation part or None) of cfg.mix_synth renders at the input size,
+    rendered once into the run folder and reused."""
+    from vla_detector_training.synth import synthesize  # MuJoCo: only when renders are mixed in
+
+    root = out / f"mix_synth_s{cfg.seed}_n{cfg.mix_synth}"
+    if not (root / "data.yaml").is_file():
+        _log(f"rendering {cfg.mix_synth} synthetic images into {root}", cfg.progress)
+        synthesize(root, cfg.mix_synth, cfg.seed, "auto", 0.1, cfg.input_width, cfg.input_height,
+                   cfg.progress)
+    dcfg = load_data_config(root)
+    train_part = load_arrays(dcfg, "train", cfg.input_width, cfg.input_height)
+    val_part = load_arrays(dcfg, "val", cfg.input_width, cfg.input_height) if "val" in dcfg.splits else None
+    return dcfg.names, train_part, val_part
+
+
+def training_data(cfg: TrainConfig, rng: np.random.Generator, out: Path,
+                  old_classes: Sequence[str] | None) -> tuple[list[str], ArrayData, ArrayData]:
+    """(the model's classes, training images, validation images), labels in the model's indices: the
+    old classes (unless dropped), then the data's new ones, then the renders' (when mixed in)."""
+    names, train_data, val_data = load_datasets(cfg, rng)
+    classes = model_classes(old_classes, names, cfg.drop_old_classes)
+    train_data, val_data = relabel(train_data, names, classes), relabel(val_data, names, classes)
+    if cfg.mix_synth:
+        synth_names, synth_train, synth_val = synthetic_mix(cfg, out)
+        if not cfg.drop_old_classes:
+            classes = model_classes(classes, synth_names, False)
+        train_data = concat(train_data, relabel(synth_train, synth_names, classes))
+        if synth_val is not None:
+            val_data = concat(val_data, relabel(synth_val, synth_names, classes))
+    return classes, train_data, val_data
+
+
+def initial_network(cfg: TrainConfig, classes: list[str], source: Source | None,
+                    train_data: ArrayData) -> DetectorNet:
+    """A fresh network, or the source's resized to `classes` (BatchNorms recalibrated on the training
+    images when the source was an ONNX model, which does not store their statistics)."""
+    if source is None:
+        return DetectorNet(ModelConfig(len(classes), cfg.width, cfg.input_width, cfg.input_height))
+    width = source.net.cfg.width
+    net = resized(source.net, source.classes, classes,
+                  ModelConfig(len(classes), width, cfg.input_width, cfg.input_height))
+    if source.from_onnx:
+        recalibrate_batchnorm(net, to_tensor(train_data.images[:BN_CALIBRATION_IMAGES]))
+    kept = [c for c in source.classes if c in classes]
+    new = [c for c in classes if c not in kept]
+    dropped = [c for c in source.classes if c not in classes]
+    _log(f"warm start from {source.path} (width {width}): the class head of {kept} kept, new {new}"
+         + (f", dropped {dropped}" if dropped else ""), cfg.progress)
+    return net
 
 
 def load_datasets(cfg: TrainConfig, rng: np.random.Generator) -> tuple[list[str], ArrayData, ArrayData]:
@@ -323,9 +398,18 @@ def export_best(ckpt: Path, names: list[str], out: Path, cfg: TrainConfig, resul
         "train_images": n_train,
         "seed": cfg.seed,
         "wall_time_s": round(wall, 1),
-        "val": {"map50": m.map50, "map50_95": m.map50_95, "centre_error_px": m.centre_error_px},
+        "init": cfg.init,
+        "mix_synth": cfg.mix_synth,
+        "val": {"map50": m.map50, "map50_95": m.map50_95, "centre_error_px": m.centre_error_px,
+                "ap50_per_class": m.per_class_ap50},
     }
     return export_onnx(best_net, names, out / "detector.onnx", extra={"trained": trained})
+
+
+def per_class_lines(m: Metrics, classes: Sequence[str]) -> list[str]:
+    """AP@0.5 of each class on the validation images (classes without validation boxes say so)."""
+    return [f"  AP@0.5 {c}: {m.per_class_ap50[c]:.4f}" if c in m.per_class_ap50 else
+            f"  AP@0.5 {c}: no validation boxes" for c in classes]
 
 
 def train(cfg: TrainConfig) -> dict:
@@ -336,36 +420,39 @@ def train(cfg: TrainConfig) -> dict:
     rng = np.random.default_rng(cfg.seed)
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    names, train_data, val_data = load_datasets(cfg, rng)
-    net = DetectorNet(ModelConfig(num_classes=len(names), width=cfg.width, input_width=cfg.input_width,
-                                  input_height=cfg.input_height))
+    source = load_source(cfg.init) if cfg.init else None
+    classes, train_data, val_data = training_data(cfg, rng, out, source.classes if source else None)
+    net = initial_network(cfg, classes, source, train_data)
     n_train = len(train_data.images)
     _log(
-        f"training on {n_train} images, validating on {len(val_data.images)}; classes {names}; "
+        f"training on {n_train} images, validating on {len(val_data.images)}; classes {classes}; "
         f"input {cfg.input_width}x{cfg.input_height}; {count_parameters(net)} parameters",
         cfg.progress,
     )
     ckpt = out / "best.safetensors"
-    result = fit(net, train_data, val_data, names, cfg, rng, ckpt, t_start)
+    result = fit(net, train_data, val_data, classes, cfg, rng, ckpt, t_start)
     write_history(out / "results.csv", result.history)
     wall = time.perf_counter() - t_start
-    onnx_path = export_best(ckpt, names, out, cfg, result, n_train, wall)
+    onnx_path = export_best(ckpt, classes, out, cfg, result, n_train, wall)
+    m = result.best_metrics
     summary = {
         "best_epoch": result.best_epoch,
         "wall_time_s": round(wall, 1),
         "onnx": str(onnx_path),
         "checkpoint": str(ckpt),
-        "val": result.history[result.best_epoch - 1],
+        "classes": classes,
+        "val": dict(result.history[result.best_epoch - 1], ap50_per_class=m.per_class_ap50),
         "train_images": n_train,
         "config": dict(vars(cfg)),
     }
     (out / "summary.json").write_text(json.dumps(summary, indent=2) + "\n", encoding="utf-8")
-    m = result.best_metrics
     _log(
         f"best epoch {result.best_epoch}: mAP@0.5 {m.map50:.4f}  mAP@0.5:0.95 {m.map50_95:.4f}  "
         f"centre error {m.centre_error_px:.2f} px; wall time {wall:.0f} s; exported {onnx_path}",
         cfg.progress,
     )
+    for line in per_class_lines(m, classes):
+        _log(line, cfg.progress)
     return summary
 
 

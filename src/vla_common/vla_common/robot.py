@@ -2,10 +2,10 @@
 
 - `PANDA` (Franka Emika FER): the official limits (Franka control parameters, identical to libfranka
   0.9.2 rate_limiting.h).
-- `FR3` (Franka Research 3): q_min, q_max and dq_max from the Franka documentation. Its acceleration,
-  jerk and torque limits here are the Panda's table (the FR3 documentation gives its own; until a
-  libfranka backend checks them against the arm, the Panda's are what this project has verified).
-  FR3 velocity limits also depend on the position (libfranka >= 0.15); these are the constant maxima.
+- `FR3` (Franka Research 3): q_min, q_max and dq_max from the Franka documentation; acceleration and
+  jerk limits as libfranka enforces them (10 rad/s^2, 5000 rad/s^3, less its 0.001 margin; checked
+  against franka-sim with the limits enforced); torque limits the Panda's table. FR3 velocity limits
+  also depend on the position (libfranka >= 0.15); these are the constant maxima.
 
 The module-level names (`JOINT_NAMES`, `Q_MIN`, `DQ_MAX`, ...) are the Panda's: the simulator, the
 planners and the controllers import them.
@@ -71,8 +71,10 @@ FR3 = RobotSpec(
     q_min=_frozen([-2.7437, -1.7837, -2.9007, -3.0421, -2.8065, 0.5445, -3.0159]),
     q_max=_frozen([2.7437, 1.7837, 2.9007, -0.1518, 2.8065, 4.5169, 3.0159]),
     dq_max=_frozen([2.62, 2.62, 2.62, 2.62, 5.26, 4.18, 5.26]),
-    ddq_max=_frozen(_PANDA_DDQ),      # the Panda's table (see the module docstring)
-    dddq_max=_frozen(_PANDA_DDDQ),
+    # libfranka's FR3 limits (10 rad/s^2, 5000 rad/s^3 on every joint) less its 0.001 safety margin:
+    # franka-sim, enforcing the limits as the FCI does, aborted a command at exactly 10.0 rad/s^2.
+    ddq_max=_frozen([9.999] * 7),
+    dddq_max=_frozen([4999.999] * 7),
     tau_max=_frozen(_PANDA_TAU),
     ready_pose=_frozen(_READY),
     base_frame="fr3_link0",

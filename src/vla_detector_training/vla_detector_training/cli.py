@@ -1,4 +1,4 @@
-"""`vla_detector_training` command line: synth, import-coco, check, train, evaluate, export.
+"""`vla_detector_training` command line: synth, capture, import-coco, check, train, evaluate, export.
 
 Heavy optional imports (torch, MuJoCo) happen inside the subcommands that need them, so `--help`,
 `check` and `evaluate` stay light.
@@ -10,9 +10,12 @@ import argparse
 import sys
 import time
 
+from rclpy.parameter import Parameter
 from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.ros.node_main import run_node
 from vla_detector.inference import default_model_path
 
+from vla_detector_training.capture_node import CaptureNode
 from vla_detector_training.coco import import_coco, parse_mapping
 from vla_detector_training.dataset import DatasetError, load_data_config, load_split
 from vla_detector_training.evaluate import evaluate_model
@@ -29,6 +32,16 @@ def _cmd_synth(a: argparse.Namespace) -> int:
         f"in {time.perf_counter() - t:.1f} s"
     )
     return 0
+
+
+def _cmd_capture(a: argparse.Namespace) -> int:
+    params = [Parameter("out", value=a.out), Parameter("count", value=a.count),
+              Parameter("every", value=float(a.every)), Parameter("split", value=a.split),
+              Parameter("catalogue", value=a.catalogue or ""),
+              Parameter("image_reliability", value=a.image_reliability)]
+    ros_args = ["vla_detector_training", "--ros-args", *a.ros_args] if a.ros_args else None
+    return run_node(lambda: CaptureNode(parameter_overrides=params), "vla_detector_training capture",
+                    ros_args)
 
 
 def _cmd_import_coco(a: argparse.Namespace) -> int:
@@ -120,6 +133,17 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--height", type=int, default=240)
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_synth)
+
+    cap = sub.add_parser("capture", help="save camera/image_raw frames as a YOLO dataset skeleton to label")
+    cap.add_argument("--out", required=True, help="dataset folder (created; one with frames is added to)")
+    cap.add_argument("--count", type=int, default=20, help="frames to save")
+    cap.add_argument("--every", type=float, default=1.0, help="seconds between saved frames (0: every frame)")
+    cap.add_argument("--split", default="train", choices=["train", "val", "test"])
+    cap.add_argument("--catalogue", default=None, help="the classes of data.yaml (default: vla_common's)")
+    cap.add_argument("--image-reliability", default="reliable", choices=["reliable", "best_effort"])
+    cap.add_argument("--ros-args", nargs=argparse.REMAINDER, default=None, dest="ros_args",
+                   help="ROS arguments, e.g. --ros-args -r camera/image_raw:=/webcam/image_raw")
+    cap.set_defaults(func=_cmd_capture)
 
     i = sub.add_parser("import-coco", help="COCO JSON (CVAT, Label Studio, Roboflow) -> a YOLO dataset")
     i.add_argument("annotations", help="the COCO annotation file (.json)")

@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -586,3 +587,25 @@ def test_scripted_push_through_joint_velocity_cmd_moves_the_object(harness):
     moved = float(np.linalg.norm(delta))
     angle = math.degrees(math.acos(np.clip(delta @ task.direction_vector / max(moved, 1e-9), -1, 1)))
     assert moved >= 0.05 and angle <= 30.0, (moved, angle)
+
+
+def test_the_scene_holds_the_objects_of_a_given_catalogue(tmp_path):
+    """A lab's catalogue (a sixth object, no code change) reaches the scene; a bad one is refused."""
+    spam = Path(__file__).resolve().parents[3] / "test" / "data" / "spam_catalogue.yaml"
+    ctx = Context()
+    rclpy.init(context=ctx)
+    try:
+        node = PandaBridge(context=ctx, parameter_overrides=[
+            Parameter("catalogue", value=str(spam)), Parameter("camera_rate", value=0.0)])
+        try:
+            assert "spam" in node.backend.sim.catalogue.classes
+            layout = node.backend.sim.reset(objects=[("spam", 0.5, 0.0, 0.0)])
+            assert [o.class_id for o in layout] == ["spam"]
+        finally:
+            node.destroy_node()
+        bad = tmp_path / "bad.yaml"
+        bad.write_text("objects: [\n")
+        with pytest.raises(ConfigError, match="catalogue"):
+            PandaBridge(context=ctx, parameter_overrides=[Parameter("catalogue", value=str(bad))])
+    finally:
+        rclpy.shutdown(context=ctx)

@@ -22,6 +22,7 @@ import time
 import numpy as np
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
+from vla_common.catalogue import CatalogueError, load_catalogue
 from vla_common.objects import ObjectPose
 from vla_common.ros.convert import pose_msg, stamp_from_ns
 from vla_sim.camera_worker import CameraWorker
@@ -53,7 +54,11 @@ class MujocoBackend(BackendBase):
         self._rtf = p["real_time_factor"]
         self._dt = 1.0 / p["control_rate"]
         self._base_frame = host.base_frame
-        self.sim = PandaSim(render=False, physics_dt=self._dt)
+        try:
+            self.catalogue = load_catalogue(p["catalogue"])
+        except CatalogueError as exc:
+            raise BackendError(f"parameter 'catalogue': {exc}") from exc
+        self.sim = PandaSim(render=False, physics_dt=self._dt, catalogue=self.catalogue)
         try:
             self.layout: list[ObjectPose] = self.sim.reset(seed=p["seed"], q0=p["initial_positions"],
                                                            refuse_collisions=True)
@@ -89,7 +94,8 @@ class MujocoBackend(BackendBase):
             self._info_pub = host.create_publisher(CameraInfo, "camera/camera_info", CAMERA_QOS_DEPTH)
             self._camera = CameraWorker(p["camera_width"], p["camera_height"], self.sim.physics_dt,
                                         self._publish_frame,
-                                        lambda m: host.get_logger().error(m, throttle_duration_sec=2.0))
+                                        lambda m: host.get_logger().error(m, throttle_duration_sec=2.0),
+                                        catalogue=self.catalogue)
             self._camera_info = self._make_camera_info()
 
     # ---------------------------------------------------------------------------------- protocol

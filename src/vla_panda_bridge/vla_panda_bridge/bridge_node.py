@@ -72,6 +72,8 @@ PARAMETERS = ParameterTable([
     Param("camera_height", 480, "mujoco: image height (px)", range=(16, MAX_CAMERA_SIZE[1])),
     Param("scene_rate", 10.0, "mujoco: scene/objects (ground truth) rate in simulated Hz "
           "(0 = only after a reset)", range=(0.0, 100.0)),
+    Param("catalogue", "", "mujoco: object catalogue YAML (vla_common.catalogue) whose objects the scene "
+          "holds; empty = the default (the paper's five)"),
     Param("seed", 0, "mujoco: seed of the initial random object layout", range=(0, 2**31 - 1)),
     Param("initial_positions", [float(v) for v in PANDA.ready_pose], "mujoco: initial joint positions "
           "(7, rad): inside the joint limits and free of collisions", check=_seven_finite),

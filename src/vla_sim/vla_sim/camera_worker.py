@@ -12,6 +12,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from vla_common.catalogue import Catalogue
 
 from vla_sim.sim import PandaSim
 
@@ -31,8 +32,10 @@ class CameraWorker:
         physics_dt: float,
         on_frame: Callable[[np.ndarray, float], None],
         on_error: Callable[[str], None] | None = None,
+        catalogue: Catalogue | None = None,
     ):
-        self._sim = PandaSim(camera_width=width, camera_height=height, render=True, physics_dt=physics_dt)
+        self._sim = PandaSim(camera_width=width, camera_height=height, render=True, physics_dt=physics_dt,
+                             catalogue=catalogue)
         self.intrinsics = self._sim.camera_intrinsics()
         self.frame_id = self._sim.camera_frame_id
         self.size = (width, height)

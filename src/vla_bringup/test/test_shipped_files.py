@@ -61,16 +61,21 @@ def test_teleop_arguments_reach_the_nodes(tmp_path):
     path = os.path.join(PKG_DIR, "launch", "teleop.launch.yaml")
     plan = load_launch_file(
         path,
-        {"use_sim_time": "true", "detector_model": "/m/d.onnx", "use_joy": "true", "real_time_factor": "4.0"},
+        {"use_sim_time": "true", "detector_model": "/m/d.onnx", "use_joy": "true", "real_time_factor": "4.0",
+         "catalogue": "/lab/objects.yaml", "backend": "libfranka", "robot_model": "fr3",
+         "robot_ip": "172.16.0.2"},
         _stub_ctx(tmp_path),
     )
     by_exec = {
         p.executable: {k: v for d in p.params if isinstance(d, ParamDict) for k, v in d.values.items()}
         for p in plan.processes
     }
-    assert by_exec["detector_node"] == {"model_path": "/m/d.onnx", "use_sim_time": True}
+    assert by_exec["detector_node"] == {"model_path": "/m/d.onnx", "use_sim_time": True,
+                                        "catalogue": "/lab/objects.yaml"}
     assert by_exec["controller_node"]["use_sim_time"] is True
-    assert by_exec["panda_bridge"] == {"backend": "mujoco", "real_time_factor": 4.0}
+    assert by_exec["panda_bridge"] == {"backend": "libfranka", "real_time_factor": 4.0,
+                                       "catalogue": "/lab/objects.yaml", "robot_model": "fr3",
+                                       "robot_ip": "172.16.0.2", "driver": "auto"}
     assert "joy_node" in by_exec
     with pytest.raises(LaunchFileError, match="valid choices"):
         load_launch_file(path, {"backend": "gazebo"}, _stub_ctx(tmp_path))

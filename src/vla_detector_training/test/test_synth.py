@@ -1,16 +1,20 @@
 """Synthetic labels match the rendered geometry (checked against an independent segmentation render)."""
 
+from pathlib import Path
+
 import mujoco
 import numpy as np
 import pytest
+from vla_common.catalogue import load_catalogue
+from vla_common.objects import OBJECT_CLASSES
+from vla_detector_training.dataset import load_data_config, load_split
+from vla_detector_training.synth import SceneSampler, synthesize
 
 pytestmark = pytest.mark.slow
 
 
 @pytest.fixture(scope="module")
 def sampler():
-    from vla_detector_training.synth import SceneSampler
-
     s = SceneSampler(320, 240)
     yield s
     s.close()
@@ -53,10 +57,6 @@ def test_labels_match_rendered_geometry(sampler, seed):
 
 
 def test_synthesize_writes_reproducible_yolo_dataset(tmp_path):
-    from vla_common.objects import OBJECT_CLASSES
-    from vla_detector_training.dataset import load_data_config, load_split
-    from vla_detector_training.synth import synthesize
-
     counts = synthesize(tmp_path / "a", count=5, seed=7, val_fraction=0.2, progress=False)
     assert counts == {"train": 4, "val": 1}
     cfg = load_data_config(tmp_path / "a")
@@ -71,3 +71,13 @@ def test_synthesize_writes_reproducible_yolo_dataset(tmp_path):
         ).read_text()
     with pytest.raises(ValueError, match="--count must be positive"):
         synthesize(tmp_path / "c", count=0)
+
+
+def test_a_lab_catalogue_object_is_in_every_scene_with_include(tmp_path):
+    cat = load_catalogue(Path(__file__).resolve().parents[3] / "test" / "data" / "spam_catalogue.yaml")
+    counts = synthesize(tmp_path, 3, seed=4, split="train", width=160, height=120, progress=False,
+                        catalogue=cat, include="spam")
+    assert counts == {"train": 3}
+    cfg = load_data_config(tmp_path)
+    assert cfg.names == list(cat.classes) and cfg.names[-1] == "spam"
+    assert all(any(b.class_index == 5 for b in s.boxes) for s in load_split(cfg, "train"))

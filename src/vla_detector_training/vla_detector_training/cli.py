@@ -25,7 +25,8 @@ def _cmd_synth(a: argparse.Namespace) -> int:
     from vla_detector_training.synth import synthesize  # MuJoCo
 
     t = time.perf_counter()
-    counts = synthesize(a.out, a.count, a.seed, a.split, a.val_fraction, a.width, a.height, not a.quiet)
+    counts = synthesize(a.out, a.count, a.seed, a.split, a.val_fraction, a.width, a.height, not a.quiet,
+                        load_catalogue(a.catalogue) if a.catalogue else None, a.include)
     print(
         f"wrote {sum(counts.values())} images to {a.out} "
         f"({', '.join(f'{k}: {v}' for k, v in counts.items())}) "
@@ -74,6 +75,7 @@ def _cmd_train(a: argparse.Namespace) -> int:
         init=str(default_model_path()) if a.init == "shipped" else a.init,
         drop_old_classes=a.drop_old_classes,
         mix_synth=a.mix_synth,
+        catalogue=a.catalogue,
     )
     if a.drop_old_classes and not a.init:
         raise ValueError("--drop-old-classes needs --init (the classes to drop are the initial model's)")
@@ -131,6 +133,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--val-fraction", type=float, default=0.1)
     s.add_argument("--width", type=int, default=320)
     s.add_argument("--height", type=int, default=240)
+    s.add_argument("--catalogue", default=None, help="the objects on the table (default: vla_common's)")
+    s.add_argument("--include", default=None, metavar="CLASS", help="every scene has this object")
     s.add_argument("--quiet", action="store_true")
     s.set_defaults(func=_cmd_synth)
 
@@ -176,6 +180,7 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--mix-synth", type=int, default=0, metavar="N",
                    help="mix N synthetic renders of the scene into training (10 %% into validation): they "
                         "keep the old classes alive when the new data lacks them")
+    t.add_argument("--catalogue", default=None, help="the objects of the --mix-synth renders")
     t.add_argument("--quiet", action="store_true")
     t.set_defaults(func=_cmd_train)
 

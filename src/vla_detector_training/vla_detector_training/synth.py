@@ -20,8 +20,9 @@ import cv2
 import mujoco
 import numpy as np
 from tqdm import tqdm
+from vla_common.catalogue import Catalogue, default_catalogue
 from vla_common.kinematics import PandaKinematics
-from vla_common.objects import OBJECT_CLASSES
+from vla_common.layout import LAYOUT_MAX_OBJECTS, random_layout
 from vla_common.robot import Q_MAX, Q_MIN, READY_POSE
 from vla_sim.scene import CAMERA_NAME
 from vla_sim.sim import PandaSim
@@ -76,10 +77,15 @@ def geom_surface_points(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> n
 class SceneSampler:
     """Renders random annotated scenes from a PandaSim at a given image size."""
 
-    def __init__(self, width: int = 320, height: int = 240) -> None:
+    def __init__(self, width: int = 320, height: int = 240, catalogue: Catalogue | None = None,
+                 include: str | None = None) -> None:
         os.environ.setdefault("MUJOCO_GL", "egl")
-        self.classes = list(OBJECT_CLASSES)
-        self.sim = PandaSim(camera_width=width, camera_height=height, render=True)
+        catalogue = catalogue or default_catalogue()
+        if include is not None:
+            catalogue.spec(include)  # CatalogueError lists the known classes
+        self.catalogue, self.include = catalogue, include
+        self.classes = list(catalogue.classes)
+        self.sim = PandaSim(camera_width=width, camera_height=height, render=True, catalogue=catalogue)
         self.kin = PandaKinematics()
         self.width, self.height = width, height
         self.q_min, self.q_max, self.q_ready = np.asarray(Q_MIN), np.asarray(Q_MAX), np.asarray(READY_POSE)
@@ -139,6 +145,14 @@ class SceneSampler:
         q = self.q_ready + rng.uniform(-1, 1, 7) * span
         return np.clip(q, self.q_min + 1e-3, self.q_max - 1e-3)
 
+    def _layout_with(self, include: str, layout_seed: int) -> list:
+        """A random layout of 1-4 objects, `include` among them."""
+        rng = np.random.default_rng(layout_seed)
+        others = [c for c in self.classes if c != include]
+        n = int(rng.integers(1, LAYOUT_MAX_OBJECTS + 1))
+        chosen = [include] + [others[i] for i in rng.permutation(len(others))[: n - 1]]
+        return random_layout(rng, classes=chosen, catalogue=self.catalogue)
+
     def _arm_collides(self) -> bool:
         d = self.data
         for i in range(d.ncon):
@@ -193,10 +207,11 @@ class SceneSampler:
         for _ in range(max_tries):
             layout_seed = int(rng.integers(0, 2**31 - 1))
             self._jitter_view(rng)
-            poses = self.sim.reset(seed=layout_seed)
+            objects = self._layout_with(self.include, layout_seed) if self.include else None
+            poses = self.sim.reset(seed=layout_seed, objects=objects)
             for _ in range(10):  # arm configurations for this layout
                 q = self._random_q(rng, poses)
-                self.sim.reset(seed=layout_seed, q0=q)
+                self.sim.reset(seed=layout_seed, objects=objects, q0=q)
                 if self._arm_collides():
                     continue
                 seg = self.segmentation()
@@ -242,11 +257,14 @@ def synthesize(
     width: int = 320,
     height: int = 240,
     progress: bool = True,
+    catalogue: Catalogue | None = None,
+    include: str | None = None,
 ) -> dict[str, int]:
     """Render `count` annotated images into a YOLO dataset at `out`; returns images per split.
 
     Image i of seed s is drawn from its own generator (seed s, i), so runs are reproducible and a
-    different seed gives different scenes.
+    different seed gives different scenes. The scene holds the catalogue's objects (default: the
+    paper's five), and data.yaml names its classes; with `include`, every scene has that object.
     """
     if count <= 0:
         raise ValueError(f"--count must be positive, got {count}")
@@ -254,7 +272,7 @@ def synthesize(
         raise ValueError(f"--split must be one of {(*SPLITS, 'auto')}, got {split!r}")
     root = Path(out)
     root.mkdir(parents=True, exist_ok=True)
-    sampler = SceneSampler(width, height)
+    sampler = SceneSampler(width, height, catalogue, include)
     counts: dict[str, int] = {}
     meta_path = root / "synth_meta.jsonl"
     try:

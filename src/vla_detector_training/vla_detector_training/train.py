@@ -23,6 +23,7 @@ import cv2
 import numpy as np
 import torch
 from tqdm import tqdm
+from vla_common.catalogue import load_catalogue
 from vla_detector.decode import letterbox, postprocess
 
 from vla_detector_training.dataset import (
@@ -64,6 +65,7 @@ class TrainConfig:
     init: str | None = None  # warm start from this detector (.safetensors, .onnx or a run folder)
     drop_old_classes: bool = False  # with init: the model's classes are the data's only
     mix_synth: int = 0  # synthetic renders of the scene mixed in (10 % of them into validation)
+    catalogue: str | None = None  # the objects of those renders (None: vla_common's default)
 
 
 @dataclass
@@ -205,7 +207,7 @@ def synthetic_mix(cfg: TrainConfig, out: Path) -> tuple[list[str], ArrayData, Ar
     if not (root / "data.yaml").is_file():
         _log(f"rendering {cfg.mix_synth} synthetic images into {root}", cfg.progress)
         synthesize(root, cfg.mix_synth, cfg.seed, "auto", 0.1, cfg.input_width, cfg.input_height,
-                   cfg.progress)
+                   cfg.progress, load_catalogue(cfg.catalogue) if cfg.catalogue else None)
     dcfg = load_data_config(root)
     train_part = load_arrays(dcfg, "train", cfg.input_width, cfg.input_height)
     val_part = load_arrays(dcfg, "val", cfg.input_width, cfg.input_height) if "val" in dcfg.splits else None

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 from vla_common.camera_model import SIM_WEBCAM
+from vla_common.catalogue import Catalogue, default_catalogue
 from vla_common.kinematics import PandaKinematics
-from vla_common.objects import OBJECT_CLASSES
 from vla_common.tasks import parse_task, task_layout
 from vla_demo_recorder.dataset import Demo
 from vla_sim.planner import plan_task, random_start_pose
@@ -22,19 +22,21 @@ def webcam_projection(image_size: tuple[int, int] = IMAGE_SIZE):
     return SIM_WEBCAM.projector(*image_size)
 
 
-def planner_demo(task: str, seed: int, kin=None, rate_hz: float = 10.0):
-    """(Demo, plan, goal ObjectPose) of one planned ``task`` episode; layout and start pose from ``seed``."""
+def planner_demo(task: str, seed: int, kin=None, rate_hz: float = 10.0, catalogue: Catalogue | None = None):
+    """(Demo, plan, goal ObjectPose) of one planned ``task`` episode; layout and start pose from ``seed``;
+    the task, its object's shape and the class index from ``catalogue`` (default: vla_common's)."""
     kin = kin or PandaKinematics()
+    catalogue = catalogue or default_catalogue()
     rng = np.random.default_rng(seed)
-    spec = parse_task(task)
-    obj = task_layout(spec, rng, n_objects=1)[0]
-    plan = plan_task(kin, spec, obj, random_start_pose(rng), rng)
+    spec = parse_task(task, catalogue)
+    obj = task_layout(spec, rng, n_objects=1, catalogue=catalogue)[0]
+    plan = plan_task(kin, spec, obj, random_start_pose(rng), rng, catalogue=catalogue)
     t = np.arange(0.0, plan.duration + 1e-9, 1.0 / rate_hz)
     q = np.array([plan.reference(ti)[0] for ti in t])
     cx, cy = webcam_projection()([obj.x, obj.y, 0.03])
     det = {
         "class_id": spec.object_class,
-        "class_index": OBJECT_CLASSES.index(spec.object_class),
+        "class_index": catalogue.class_index(spec.object_class),
         "score": 0.9,
         "cx": float(cx),
         "cy": float(cy),
@@ -54,11 +56,11 @@ def planner_demo(task: str, seed: int, kin=None, rate_hz: float = 10.0):
     return demo, plan, obj
 
 
-def planner_demos(tasks, per_task: int, seed: int = 0, kin=None) -> list:
+def planner_demos(tasks, per_task: int, seed: int = 0, kin=None, catalogue: Catalogue | None = None) -> list:
     """``per_task`` demos of each task (distinct layouts), as Demo objects."""
     kin = kin or PandaKinematics()
     return [
-        planner_demo(task, seed + 1000 * k + i, kin)[0]
+        planner_demo(task, seed + 1000 * k + i, kin, catalogue=catalogue)[0]
         for k, task in enumerate(tasks)
         for i in range(per_task)
     ]

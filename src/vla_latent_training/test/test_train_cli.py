@@ -175,6 +175,15 @@ def test_bags_without_episode_metadata_train_with_one_task(tmp_path, capsys):
     assert "bread has no task 'push_nowhere'" in capsys.readouterr().err
 
 
+def test_pairs_reads_untagged_bags_with_a_task(tmp_path, capsys):
+    write_recorded_bag(tmp_path / "recorded" / "rec0", make_demo("bread", np.random.default_rng(3), T=30), 0)
+    assert main(["pairs", str(tmp_path / "recorded")]) == 1
+    assert "no task was given" in capsys.readouterr().out
+    assert main(["pairs", str(tmp_path / "recorded"), "--task", "bread:push_east"]) == 0
+    out = capsys.readouterr().out
+    assert "bread/push_east, 30 samples at 10 Hz" in out and "1 demos, 0 skipped" in out
+
+
 def test_transfer_is_base_bags_plus_new_untagged_ones(tmp_path):
     """The paper's transfer variant: all base demonstrations plus k new ones, in one model."""
     rng = np.random.default_rng(1)

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 import numpy as np
+from vla_common.catalogue import CatalogueError, load_catalogue
 from vla_demo_recorder.dataset import load_demos
 
 from vla_latent_training.pairs import make_pairs
@@ -14,10 +16,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("paths", nargs="+", help="bag folders or folders of bags")
     p.add_argument("--require", choices=("image", "detection"), default=None)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--task", default=None, help="the task of bags without episode metadata (ros2 bag record)")
+    p.add_argument("--catalogue", default=None, help="where --task is defined (default: vla_common's)")
 
 
 def run(args: argparse.Namespace) -> int:
-    demos, skipped = load_demos(args.paths, require=args.require)
+    try:
+        task = load_catalogue(args.catalogue).task(args.task).name if args.task else None
+    except (CatalogueError, OSError) as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    demos, skipped = load_demos(args.paths, require=args.require, task=task)
     for path, reason in skipped:
         print(f"skipped {path}: {reason}")
     rng = np.random.default_rng(args.seed)

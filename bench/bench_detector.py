@@ -4,8 +4,8 @@
    rendered 320x240 and 640x480 scenes, the network alone beside it (target <= 15 ms at 320x240).
 2. Image transport between two processes: 640x480 rgb8 at 30 Hz from a publisher with the camera
    node's QoS to a subscriber, for the old setting (best-effort SensorDataQoS subscriber, Fast DDS's
-   default transports), each fix alone, and the shipped default (reliable subscriber, the large-image
-   shared-memory profile): frames received of those published, latency median and p99.
+   default transports, keep-last 5), each fix alone, and the shipped default (reliable, the large-image
+   shared-memory profile, keep-last 30): frames received of those published, latency median and p99.
 3. The same through the installed detector_node at 30 Hz (frames published -> detections received),
    old and new QoS in the same run.
 4. Closed loop through detector_node (next frame when the detections arrive): sustained frames/s.
@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from sensor_msgs.msg import Image
-from vla_common.ros.qos import IMAGE_QOS, image_qos, use_large_image_transport
+from vla_common.ros.qos import IMAGE_DEPTH, image_qos, use_large_image_transport
 from vla_detector.decode import letterbox, to_input_tensor
 from vla_detector.inference import Detector, default_model_path
 
@@ -56,14 +56,16 @@ class Setting:
     name: str
     subscriber: str  # "reliable" | "best_effort"
     profile: bool  # the publisher applies use_large_image_transport()
+    depth: int = 5  # keep-last depth of publisher and subscriber (the old camera, bridge and detector: 5)
 
 
-OLD = Setting("old: best-effort subscriber, default Fast DDS", "best_effort", False)
-NEW = Setting("new (shipped): reliable, large-image profile", "reliable", True)
+OLD = Setting("old: best effort, default Fast DDS, depth 5", "best_effort", False)
+NEW = Setting(f"new (shipped): reliable, profile, depth {IMAGE_DEPTH}", "reliable", True, IMAGE_DEPTH)
 TRANSPORT_SETTINGS = [
     OLD,
-    Setting("best-effort subscriber, large-image profile", "best_effort", True),
-    Setting("reliable subscriber, default Fast DDS", "reliable", False),
+    Setting("best effort, large-image profile, depth 5", "best_effort", True),
+    Setting("reliable, default Fast DDS, depth 5", "reliable", False),
+    Setting("reliable, large-image profile, depth 5", "reliable", True),
     NEW,
 ]
 
@@ -153,7 +155,7 @@ def role_camera(a: argparse.Namespace) -> None:
     _prepare_transport(a.profile)
     rclpy.init()
     node = rclpy.create_node("bench_camera")
-    pub = node.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+    pub = node.create_publisher(Image, "camera/image_raw", image_qos("reliable", a.depth))
     msgs = _image_messages(a.frames)
     end = time.monotonic() + 30.0
     while pub.get_subscription_count() < 1 and time.monotonic() < end:
@@ -187,7 +189,7 @@ def role_listen(a: argparse.Namespace) -> None:
     if a.topic == "detections":
         node.create_subscription(DetectionArray, "detections", on_msg, 100)
     else:
-        node.create_subscription(Image, "camera/image_raw", on_msg, image_qos(a.reliability))
+        node.create_subscription(Image, "camera/image_raw", on_msg, image_qos(a.reliability, a.depth))
     stop = threading.Event()
     threading.Thread(target=lambda: (sys.stdin.read(), stop.set()), daemon=True).start()
     print("ready", flush=True)
@@ -209,7 +211,7 @@ def role_loop(a: argparse.Namespace) -> None:
         got.append(float("nan") if msg.header.frame_id == WARMUP_FRAME else _age_ms(msg.header))
 
     node.create_subscription(DetectionArray, "detections", on_detections, 10)
-    pub = node.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+    pub = node.create_publisher(Image, "camera/image_raw", image_qos("reliable", a.depth))
     msgs = _image_messages(a.frames)
     end = time.monotonic() + 30.0
     while (pub.get_subscription_count() < 1 or node.count_publishers("detections") < 1) \
@@ -255,8 +257,9 @@ def _last_json(text: str) -> dict:
     return json.loads(text.strip().splitlines()[-1])
 
 
-def _start_detector(reliability: str) -> subprocess.Popen:
-    return subprocess.Popen([str(EXE), "--ros-args", "-p", f"image_reliability:={reliability}"],
+def _start_detector(setting: Setting) -> subprocess.Popen:
+    return subprocess.Popen([str(EXE), "--ros-args", "-p", f"image_reliability:={setting.subscriber}",
+                             "-p", f"image_queue:={setting.depth}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=_child_env())
 
 
@@ -273,15 +276,16 @@ def open_loop(frames: str, setting: Setting, seconds: float, rate: float, throug
     """Publisher process -> (detector_node ->) listener process; frames sent and received."""
     topic = "detections" if through_detector else "image"
     listener = subprocess.Popen(
-        _script("--role", "listen", "--topic", topic, "--reliability", setting.subscriber),
+        _script("--role", "listen", "--topic", topic, "--reliability", setting.subscriber,
+                "--depth", str(setting.depth)),
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True, env=_child_env())
-    detector = _start_detector(setting.subscriber) if through_detector else None
+    detector = _start_detector(setting) if through_detector else None
     try:
         if listener.stdout.readline().strip() != "ready":
             raise RuntimeError("the listener did not start")
         camera = subprocess.run(
             _script("--role", "camera", "--frames", frames, "--seconds", str(seconds), "--rate", str(rate),
-                    *(["--profile"] if setting.profile else [])),
+                    "--depth", str(setting.depth), *(["--profile"] if setting.profile else [])),
             capture_output=True, text=True, env=_child_env(), timeout=seconds + 90)
         if camera.returncode != 0:
             raise RuntimeError(f"the publisher failed: {camera.stderr[-2000:]}")
@@ -298,10 +302,11 @@ def open_loop(frames: str, setting: Setting, seconds: float, rate: float, throug
 
 
 def closed_loop(frames: str, seconds: float) -> dict:
-    detector = _start_detector(NEW.subscriber)
+    detector = _start_detector(NEW)
     try:
-        loop = subprocess.run(_script("--role", "loop", "--frames", frames, "--seconds", str(seconds),
-                                      "--profile"), capture_output=True, text=True, env=_child_env(),
+        args = ("--role", "loop", "--frames", frames, "--seconds", str(seconds), "--depth", str(NEW.depth),
+                "--profile")
+        loop = subprocess.run(_script(*args), capture_output=True, text=True, env=_child_env(),
                               timeout=seconds + 90)
     finally:
         _stop(detector)
@@ -334,15 +339,15 @@ def main_bench(a: argparse.Namespace) -> int:
             files[size] = str(Path(tmp) / f"frames_{size[0]}x{size[1]}.npy")
             np.save(files[size], np.stack(frames), allow_pickle=False)
         big = files[(640, 480)]
-        print(f"\nimage transport, 640x480 rgb8 at {a.rate:g} Hz for {a.seconds:g} s, publisher and "
-              "subscriber in two processes (publisher: reliable keep-last 5, the camera node's):")
+        print(f"\nimage transport, 640x480 rgb8 at {a.rate:g} Hz for {a.seconds:g} s, publisher (reliable, "
+              "as the camera node) and subscriber in two processes:")
         for setting in TRANSPORT_SETTINGS:
             r = open_loop(big, setting, a.seconds, a.rate, through_detector=False)
-            print(f"  {setting.name:48s} {received(r)}  latency {stats(r['latency_ms'])}")
+            print(f"  {setting.name:45s} {received(r)}  latency {stats(r['latency_ms'])}")
         print(f"\ndetector_node, 640x480 rgb8 at {a.rate:g} Hz: frames published -> detections received")
         for setting in (OLD, NEW):
             r = open_loop(big, setting, a.seconds, a.rate, through_detector=True)
-            print(f"  {setting.name:48s} {received(r)}  latency {stats(r['latency_ms'])}")
+            print(f"  {setting.name:45s} {received(r)}  latency {stats(r['latency_ms'])}")
         print("\ndetector_node, closed loop (next frame when the detections arrive), shipped default:")
         for size in ((320, 240), (640, 480)):
             r = closed_loop(files[size], a.seconds)
@@ -363,6 +368,7 @@ def main() -> int:
     ap.add_argument("--topic", default="image", help=argparse.SUPPRESS)
     ap.add_argument("--reliability", default="reliable", help=argparse.SUPPRESS)
     ap.add_argument("--profile", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--depth", type=int, default=IMAGE_DEPTH, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.role is not None:
         {"camera": role_camera, "listen": role_listen, "loop": role_loop}[a.role](a)

@@ -98,7 +98,7 @@ class CameraNode(Node):
         self._last_state: SourceState | None = None
         self._message = ""
 
-        # Reliable keep-last: matched by reliable and by best-effort (SensorDataQoS) subscribers alike.
+        # Reliable keep-last 30: matched by reliable and by best-effort (SensorDataQoS) subscribers alike.
         self._image_pub = self.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
         self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info", IMAGE_QOS)
         self._status_pub = self.create_publisher(CameraStatus, "~/status", 10)

@@ -15,10 +15,11 @@ from vla_common.ros.qos import (
 
 
 def test_images_reliable_sensors_best_effort():
-    assert IMAGE_QOS.reliability == ReliabilityPolicy.RELIABLE and IMAGE_QOS.depth == 5
+    assert IMAGE_QOS.reliability == ReliabilityPolicy.RELIABLE and IMAGE_QOS.depth == 30
     assert SENSOR_QOS.reliability == ReliabilityPolicy.BEST_EFFORT
-    assert image_qos("reliable") is IMAGE_QOS
-    assert image_qos("best_effort").reliability == ReliabilityPolicy.BEST_EFFORT
+    assert image_qos("reliable") == IMAGE_QOS
+    assert image_qos("best_effort", 2).reliability == ReliabilityPolicy.BEST_EFFORT
+    assert image_qos("best_effort", 2).depth == 2
     with pytest.raises(ValueError, match="best_effort"):
         image_qos("sometimes")
 
@@ -40,5 +41,5 @@ def test_profile_file_holds_a_large_shared_memory_segment():
     ns = {"f": "http://www.eprosima.com/XMLSchemas/fastRTPS_Profiles"}
     root = ET.parse(LARGE_IMAGE_PROFILE).getroot()
     sizes = [int(e.text) for e in root.iterfind(".//f:segment_size", ns)]
-    assert sizes and min(sizes) >= 5 * 640 * 480 * 3  # the publisher's history of 640x480 rgb8 frames
+    assert sizes and min(sizes) >= 10 * 640 * 480 * 3  # 640x480 rgb8 frames in flight to a slow reader
     assert root.find(".//f:participant[@is_default_profile='true']", ns) is not None

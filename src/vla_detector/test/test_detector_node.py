@@ -237,11 +237,12 @@ def test_image_subscription_is_reliable_by_default(harness):
     assert [i.qos_profile.reliability for i in mine] == [ReliabilityPolicy.RELIABLE]
 
 
-@pytest.mark.parametrize("harness", [{"image_reliability": "best_effort"}], indirect=True)
+@pytest.mark.parametrize("harness", [{"image_reliability": "best_effort", "image_queue": 2}], indirect=True)
 def test_best_effort_camera_with_image_reliability_best_effort(harness, scene):
     infos = harness.peer.get_subscriptions_info_by_topic("/camera/image_raw")
     assert [i.qos_profile.reliability for i in infos if i.node_name == "detector_node"] == [
         ReliabilityPolicy.BEST_EFFORT]
+    assert harness.node.sub.qos_profile.depth == 2  # the graph does not report depths
     best_effort = harness.peer.create_publisher(Image, "camera/image_raw", SENSOR_QOS)
     assert harness.spin_until(lambda: best_effort.get_subscription_count() >= 1)
     n = len(harness.dets)

@@ -21,13 +21,12 @@ from vla_common.image_convert import UnsupportedImageError, draw_detections, to_
 from vla_common.ros.convert import detection_array
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
-from vla_common.ros.qos import IMAGE_QOS, image_qos, use_large_image_transport
+from vla_common.ros.qos import IMAGE_DEPTH, IMAGE_QOS, RELIABILITIES, image_qos, use_large_image_transport
 
 from vla_detector.inference import Detector, ModelError, default_model_path
 from vla_interfaces.msg import DetectionArray
 
 WARN_PERIOD_S = 5.0
-RELIABILITIES = ("reliable", "best_effort")
 
 PARAMS = ParameterTable([
     Param("catalogue", "", "YAML file of the object classes ('': the default catalogue, "
@@ -44,7 +43,10 @@ PARAMS = ParameterTable([
     Param("num_threads", 2, "ONNX Runtime intra-op threads", range=(1, 64)),
     Param("image_reliability", "reliable", "camera/image_raw subscription: reliable (every frame; the "
           "camera must publish reliable) or best_effort (for a best-effort camera driver)",
-          choices=RELIABILITIES),
+          choices=tuple(RELIABILITIES)),
+    Param("image_queue", IMAGE_DEPTH, "camera/image_raw frames held while detection runs: they ride out a "
+          "stall (1 s at 30 Hz); a model slower than the camera lags by as many frames, use 1-2 for it",
+          range=(1, 100)),
 ])
 
 
@@ -67,7 +69,8 @@ class DetectorNode(Node):
         )
         events = SubscriptionEventCallbacks(incompatible_qos=self._on_incompatible_qos)
         self.sub = self.create_subscription(Image, "camera/image_raw", self._on_image,
-                                            image_qos(p["image_reliability"]), event_callbacks=events)
+                                            image_qos(p["image_reliability"], p["image_queue"]),
+                                            event_callbacks=events)
         self.srv = self.create_service(SetBool, "~/enable", self._on_enable)
         self.frames = 0
         self.skipped = 0

@@ -14,7 +14,7 @@ from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
-from vla_common.ros.qos import IMAGE_QOS, use_large_image_transport
+from vla_common.ros.qos import IMAGE_QOS
 
 from vla_camera.camera_info import Calibration, CalibrationError, load_calibration
 from vla_camera.source import (
@@ -250,7 +250,6 @@ class CameraNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    use_large_image_transport()  # before the first node: whole frames through shared memory
     return run_node(CameraNode, "camera_node", args)
 
 

@@ -21,7 +21,7 @@ from vla_common.image_convert import UnsupportedImageError, draw_detections, to_
 from vla_common.ros.convert import detection_array
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
-from vla_common.ros.qos import IMAGE_DEPTH, IMAGE_QOS, RELIABILITIES, image_qos, use_large_image_transport
+from vla_common.ros.qos import IMAGE_DEPTH, IMAGE_QOS, RELIABILITIES, image_qos
 
 from vla_detector.inference import Detector, ModelError, default_model_path
 from vla_interfaces.msg import DetectionArray
@@ -183,7 +183,6 @@ class DetectorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    use_large_image_transport()  # before the first node: the overlay images go through shared memory
     return run_node(DetectorNode, "detector_node", args)
 
 

@@ -27,6 +27,7 @@ from vla_common.robot import JOINT_NAMES, ROBOTS
 from vla_common.ros.convert import detections_from_array
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.qos import IMAGE_QOS
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray
 from vla_interfaces.srv import SetMode
@@ -235,7 +236,7 @@ class ControllerNode(Node):
         m = self.core.model
         if m is not None and m.encoder in CNN_ENCODERS and self._image_sub is None:
             self._image_sub = self.create_subscription(
-                Image, "camera/image_raw", self._on_image, qos_profile_sensor_data
+                Image, "camera/image_raw", self._on_image, IMAGE_QOS
             )
 
     # ------------------------------------------------------------------ inputs

@@ -17,12 +17,12 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from vla_common.robot import READY_POSE
+from vla_common.ros.qos import IMAGE_QOS
 from vla_panda_bridge.bridge_node import ConfigError, PandaBridge
 from vla_sim.sim import PandaSim
 
@@ -389,8 +389,8 @@ def test_bad_reset_is_refused_with_a_clear_error_and_the_scene_unchanged(harness
 def test_camera_publishes_the_configured_size_and_encoding(harness):
     h = harness(camera_rate=30.0, camera_width=96, camera_height=64, real_time_factor=1.0)
     images, infos = [], []
-    h.probe.create_subscription(Image, "camera/image_raw", images.append, qos_profile_sensor_data)
-    h.probe.create_subscription(CameraInfo, "camera/camera_info", infos.append, qos_profile_sensor_data)
+    h.probe.create_subscription(Image, "camera/image_raw", images.append, IMAGE_QOS)
+    h.probe.create_subscription(CameraInfo, "camera/camera_info", infos.append, IMAGE_QOS)
     assert h.wait(lambda: len(images) >= 3 and infos, 20.0)
     img, info = images[-1], infos[-1]
     assert (img.width, img.height, img.encoding, img.step) == (96, 64, "rgb8", 96 * 3)

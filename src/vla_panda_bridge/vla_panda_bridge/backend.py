@@ -59,6 +59,7 @@ class Host(Protocol):
     params: Mapping[str, Any]
     spec: RobotSpec
     base_frame: str                 # frame_id of poses in the robot base
+    image_qos: Any                  # the QoS of camera images (vla_common.ros.qos.IMAGE_QOS)
 
     def control_step(self) -> None:
         """One control period: filter the latest command against the measured state, write it."""

@@ -32,8 +32,6 @@ from vla_sim.sim_clock import SimPacer
 from vla_interfaces.msg import SceneObject, SceneObjectArray
 from vla_panda_bridge.backend import RESET, TEACHING, BackendBase, BackendError, Host, JointSample
 
-CAMERA_QOS_DEPTH = 5   # reliable keep-last (the default QoS): matched by SensorDataQoS readers too
-
 
 def scene_object_msg(o: ObjectPose) -> SceneObject:
     s = SceneObject(class_id=o.class_id, x=float(o.x), y=float(o.y), yaw=float(o.yaw))
@@ -90,8 +88,8 @@ class MujocoBackend(BackendBase):
         self._clock_pub = host.create_publisher(Clock, "/clock", 10) if p["publish_clock"] else None
         self._camera: CameraWorker | None = None
         if p["camera_rate"] > 0:
-            self._image_pub = host.create_publisher(Image, "camera/image_raw", CAMERA_QOS_DEPTH)
-            self._info_pub = host.create_publisher(CameraInfo, "camera/camera_info", CAMERA_QOS_DEPTH)
+            self._image_pub = host.create_publisher(Image, "camera/image_raw", host.image_qos)
+            self._info_pub = host.create_publisher(CameraInfo, "camera/camera_info", host.image_qos)
             self._camera = CameraWorker(p["camera_width"], p["camera_height"], self.sim.physics_dt,
                                         self._publish_frame,
                                         lambda m: host.get_logger().error(m, throttle_duration_sec=2.0),

@@ -28,6 +28,7 @@ from vla_common.robot import PANDA, ROBOTS, robot_spec
 from vla_common.ros.convert import quat_wxyz_from_matrix, stamp_from_ns
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.qos import IMAGE_QOS
 
 from vla_interfaces.msg import SafetyStatus
 from vla_interfaces.srv import ResetScene
@@ -131,6 +132,7 @@ class PandaBridge(Node):
         self._validate(p)
         self.spec = robot_spec(p["robot_model"])
         self.base_frame = p["base_frame_id"] or self.spec.base_frame
+        self.image_qos = IMAGE_QOS
         self._dt = 1.0 / p["control_rate"]
         self.filter = SafetyFilter(SafetyConfig(
             dt=self._dt, velocity_scale=p["velocity_scale"], acceleration_scale=p["acceleration_scale"],

@@ -5,6 +5,9 @@
   (`use_sim_time` without /clock): the node stops within 2 s of a signal, always.
 - Before the context goes down the node's `on_shutdown()` runs (a zero command, acknowledged): with
   rclpy's own signal handling the context would already be invalid.
+- Fast DDS gets the large-image transport profile (`qos.use_large_image_transport`) before
+  rclpy.init, unless the environment chooses transports itself: whole camera frames go through
+  shared memory, for every node alike.
 - Exit codes: 0 after a signal or when the node sets `finished`; 2 for a refused parameter
   (`ConfigError`, one line on stderr); 1 for any other failure at startup or in a callback (its
   message on stderr, no traceback for a startup error). A second signal during cleanup is ignored.
@@ -22,6 +25,8 @@ import rclpy
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+
+from vla_common.ros.qos import use_large_image_transport
 
 SPIN_SLICE_S = 0.1
 
@@ -63,6 +68,7 @@ def spin_until_stopped(node: Node, executor, stop: Callable[[], bool]) -> None:
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
     """Create the node with `make_node()`, spin it until a signal, shut it down; return the exit code."""
+    use_large_image_transport()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     signals = _Signals()
     node: Node | None = None

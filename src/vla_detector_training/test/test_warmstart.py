@@ -11,6 +11,7 @@ import torch
 from drawn_datasets import COLOURS, H, W, draw_dataset
 from vla_common.objects import OBJECT_CLASSES
 from vla_detector.inference import default_model_path
+from vla_detector_training.cli import build_parser, learning_rate
 from vla_detector_training.cli import main as cli_main
 from vla_detector_training.dataset import Box, write_data_config, write_sample
 from vla_detector_training.export import load_checkpoint
@@ -121,6 +122,13 @@ def test_train_init_adds_classes_and_reports_ap_per_class(tmp_path, capsys):
     assert rc == 0
     _, classes, _ = load_checkpoint(tmp_path / "run3" / "best.safetensors")
     assert classes == ["blue", "red"]
+
+
+def test_fine_tuning_has_its_own_default_learning_rate():
+    def lr(*flags):
+        return learning_rate(build_parser().parse_args(["train", "--data", "d", "--out", "o", *flags]))
+
+    assert lr() == 3e-3 and lr("--init", "shipped") == 1e-3 and lr("--init", "m.onnx", "--lr", "0.01") == 0.01
 
 
 def test_drop_old_classes_needs_init(tmp_path, capsys):

@@ -38,4 +38,6 @@ def run(args: argparse.Namespace) -> int:
               f"image {'yes' if demo.first_image is not None else 'no'}, "
               f"detection {demo.detection['class_id'] if demo.detection else 'no'}")
     print(f"{len(demos)} demos, {len(skipped)} skipped, {total} pairs")
+    if not demos and not skipped:
+        print(f"no bags in {' '.join(args.paths)} (a folder is searched one level deep for bag folders)")
     return 0 if demos else 1

@@ -135,7 +135,9 @@ def run(args: argparse.Namespace) -> int:
         print("hint: bags without episode metadata need their task: one --task, or --default-task",
               file=sys.stderr)
     if not demos:
-        print(f"error: no usable demonstrations in {' '.join(args.bags)}", file=sys.stderr)
+        print(f"error: no usable demonstrations in {' '.join(args.bags)}"
+              + ("" if skipped else " (no bags: a folder is searched one level deep for bag folders)"),
+              file=sys.stderr)
         return 1
     print(f"loaded {len(demos)} demos from {' '.join(args.bags)} ({len(skipped)} bags skipped)")
     try:

@@ -8,6 +8,10 @@
 - Fast DDS gets the large-image transport profile (`qos.use_large_image_transport`) before
   rclpy.init, unless the environment chooses transports itself: whole camera frames go through
   shared memory, for every node alike.
+- Shutdown is bounded: if it has not finished `SHUTDOWN_GRACE_S` after it began (Fast DDS 2.14 can
+  busy-wait in participant deletion when several nodes leave the graph at once, eProsima/Fast-DDS
+  #6513), a C-level watchdog (faulthandler, it needs no Python lock) prints where each thread is and
+  ends the process with exit code 1, instead of leaving it for a SIGKILL.
 - Exit codes: 0 after a signal or when the node sets `finished`; 2 for a refused parameter
   (`ConfigError`, one line on stderr); 1 for any other failure at startup or in a callback (its
   message on stderr, no traceback for a startup error). A second signal during cleanup is ignored.
@@ -15,6 +19,7 @@
 
 from __future__ import annotations
 
+import faulthandler
 import signal
 import sys
 import traceback
@@ -29,6 +34,7 @@ from rclpy.signals import SignalHandlerOptions
 from vla_common.ros.qos import use_large_image_transport
 
 SPIN_SLICE_S = 0.1
+SHUTDOWN_GRACE_S = 3.0
 
 
 class ConfigError(ValueError):
@@ -92,7 +98,9 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         code = 1
     finally:
         signals.ignore()
+        faulthandler.dump_traceback_later(SHUTDOWN_GRACE_S, exit=True)
         _shutdown(node, name)
+        faulthandler.cancel_dump_traceback_later()
     return code
 
 

@@ -27,14 +27,16 @@ import rclpy
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64MultiArray
+from vla_common.detection import Detection
 from vla_common.robot import JOINT_NAMES, READY_POSE
 from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
-from vla_latent_controller.context import Det, context_dim
+from vla_latent_controller.context import context_dim
 from vla_latent_controller.controller_node import joint_speed_limits
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
 
-from vla_interfaces.msg import Detection, DetectionArray
+from vla_interfaces.msg import Detection as DetectionMsg
+from vla_interfaces.msg import DetectionArray
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -123,7 +125,7 @@ def bench_core(model_dir: Path, n: int) -> None:
     core = TeleopCore(TeleopParams(dq_max=joint_speed_limits()), model=LatentModel.load(model_dir))
     names = ["panda_finger_joint1", *JOINT_NAMES]  # a robot that also reports its gripper
     positions = [0.04, *(float(v) for v in READY_POSE)]
-    core.on_detections([Det("bread", 0.9, 320.0, 240.0)], (640, 480), 0.0)
+    core.on_detections([Detection("bread", 0.9, 320.0, 240.0)], (640, 480), 0.0)
     clock = time.perf_counter_ns
     t_js, t_step = np.empty(n), np.empty(n)
     for i in range(n):
@@ -182,7 +184,7 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
     def inputs():
         js.publish(JointState(name=list(JOINT_NAMES), position=[float(v) for v in READY_POSE]))
         d = DetectionArray(image_width=640, image_height=480)
-        d.detections = [Detection(class_id="bread", score=0.9, center_x=320.0, center_y=240.0)]
+        d.detections = [DetectionMsg(class_id="bread", score=0.9, center_x=320.0, center_y=240.0)]
         det.publish(d)
 
     def spin_for(seconds: float) -> None:

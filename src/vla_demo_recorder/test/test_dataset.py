@@ -7,7 +7,7 @@ from recorder_testing import detections, image, joint_state, string, typestore
 from rosbags.rosbag2 import StoragePlugin, Writer
 from vla_common.detection import Detection
 from vla_demo_recorder.bag_writer import BagWriter, EpisodeInfo
-from vla_demo_recorder.dataset import Demo, DemoError, load_demo, load_demos
+from vla_demo_recorder.dataset import DemoError, load_demo, load_demos
 
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 T0 = 1_700_000_000 * 10**9
@@ -66,19 +66,12 @@ def test_loader_resamples_and_reads_context(tmp_path):
     assert demo.detection == Detection("soda_can", 0.8, 300.5, 200.25, 40.0, 60.0, class_index=1)
 
 
-def test_the_detection_still_reads_as_the_old_dict(tmp_path):
-    """Readers outside this package index `demo.detection["class_id"]` or build from it."""
+def test_the_detection_is_the_common_detection_type(tmp_path):
+    """One Detection type: a loaded demo's detection is a plain vla_common Detection (no dict view)."""
     ep = EpisodeInfo(task="soda_can/push_south", outcome="kept")
     det = load_demo(write_rosbags_bag(tmp_path / "b", episode=ep)).detection
-    assert isinstance(det, Detection) and det.class_id == "soda_can"
-    assert det["class_id"] == "soda_can" and det.get("width") == 40.0 and det.get("w") is None
-    assert dict(det) == Detection("soda_can", 0.8, 300.5, 200.25, 40.0, 60.0, class_index=1).as_dict()
-    assert Detection.from_dict(det) == det
-    with pytest.raises(KeyError):
-        det["image_size"]
-    built = Demo("bread/push_east", "bread", np.zeros(2), np.zeros((2, 7)), None,
-                 {"class_id": "bread", "cx": 1.0, "cy": 2.0}, (640, 480), "")
-    assert built.detection == Detection("bread", 1.0, 1.0, 2.0)  # the old dict shape is converted
+    assert type(det) is Detection and det.class_id == "soda_can" and det.width == 40.0
+    assert Detection.from_dict(det.as_dict()) == det
 
 
 def test_a_sqlite3_bag_loads_like_its_mcap_twin(tmp_path):

@@ -13,9 +13,9 @@ Training pairs are made from these demonstrations by `vla_latent_training.pairs`
 from __future__ import annotations
 
 import sqlite3
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import cv2
@@ -51,39 +51,6 @@ class DemoError(ValueError):
     """A bag that cannot serve as a demonstration; the message says why."""
 
 
-class DemoDetection(Detection):
-    """The demo's `vla_common.detection.Detection`, also readable as the dict it used to be
-    (`d["class_id"]`, `d.get("width")`, `dict(d)`), for readers that still index it; equal to a
-    plain Detection with the same fields. Read attributes in new code."""
-
-    _KEYS = tuple(f.name for f in fields(Detection))
-
-    @classmethod
-    def of(cls, d: Detection | Mapping | None) -> DemoDetection | None:
-        if d is None or isinstance(d, DemoDetection):
-            return d
-        d = d if isinstance(d, Detection) else Detection.from_dict(d)
-        return cls(**{k: getattr(d, k) for k in cls._KEYS})
-
-    def __getitem__(self, key: str):
-        if key not in self._KEYS:
-            raise KeyError(key)
-        return getattr(self, key)
-
-    def get(self, key: str, default=None):
-        return getattr(self, key) if key in self._KEYS else default
-
-    def keys(self) -> tuple[str, ...]:
-        return self._KEYS
-
-    def __eq__(self, other) -> bool:
-        if not isinstance(other, Detection):
-            return NotImplemented
-        return all(getattr(self, k) == getattr(other, k) for k in self._KEYS)
-
-    __hash__ = Detection.__hash__
-
-
 @dataclass
 class Demo:
     task: str
@@ -95,10 +62,6 @@ class Demo:
     image_size: tuple[int, int] | None  # (w, h)
     bag_path: str
     image_error: str = ""         # why first_image is None, when a camera topic was there
-
-    def __post_init__(self) -> None:
-        # callers that build demos elsewhere (planner demos) may still pass the old dict shape
-        self.detection = DemoDetection.of(self.detection)
 
 
 # -- message decoding --------------------------------------------------------------------------

@@ -3,6 +3,7 @@ import json
 
 import numpy as np
 import pytest
+from vla_common.detection import Detection
 from vla_common.robot import DQ_MAX, Q_MAX, READY_POSE
 from vla_evaluation.metrics import EpisodeResult, LimitMonitor, SafetyTally
 
@@ -120,7 +121,7 @@ def _demo(cls, rng, T=50):
     q0 = READY_POSE + rng.normal(0, 0.02, 7)
     s = np.linspace(0, 1, T)
     q = q0 + np.outer(3 * s**2 - 2 * s**3, _direction(cls) + 0.2 * (x - 0.5))
-    det = {"class_id": cls, "class_index": CLASSES.index(cls), "score": 0.9, "cx": x * 640, "cy": y * 480}
+    det = Detection(cls, 0.9, x * 640, y * 480, class_index=CLASSES.index(cls))
     return _Demo(cls, q, det)
 
 
@@ -148,13 +149,12 @@ def trained(tmp_path_factory):
 def test_kinematic_teleoperator_drives_trained_model_to_the_demo_goal(trained):
     from vla_common.objects import ObjectPose
     from vla_evaluation.kinematic import Layout, TeleopSettings, run_episode
-    from vla_latent_controller.context import Det
 
     model, demos = trained
     settings = TeleopSettings(rate=20.0, switch_time=6.0, time_limit=12.0)
     errors = []
     for demo in demos[::4]:
-        det = Det.from_dict(demo.detection)
+        det = demo.detection
         lay = Layout(demo.task, 0, [], ObjectPose(demo.object_class, 0.5, 0.0, 0.0), demo.q[0].copy(),
                      [demo.q[len(demo.q) // 2], demo.q[-1]], image=None, image_size=(640, 480),
                      detections=[det])

@@ -16,7 +16,6 @@ from vla_common.kinematics import PandaKinematics
 from vla_common.tasks import BASE_TASKS, parse_task
 from vla_evaluation.experiments import Plan
 from vla_evaluation.planner_demos import planner_demo, planner_demos
-from vla_latent_controller.context import Det
 from vla_latent_controller.model import LatentModel
 from vla_latent_training.pairs import make_pairs
 from vla_latent_training.train import train_model
@@ -49,7 +48,7 @@ def test_positive_latent_does_the_task(setup, task, tmp_path):
     to_hover, along, back = [], [], []
     for seed in range(50_000, 50_004):  # layouts and start poses never trained on
         demo, plan, _ = planner_demo(task, seed, kin)
-        model.decoder.set_context(model.context(Det.from_dict(demo.detection), demo.image_size))
+        model.decoder.set_context(model.context(demo.detection, demo.image_size))
         g = model.gain(demo.object_class)
         assert g > 0  # the signed latent: + is the demonstrated direction by construction
         # One second at z = +gain from the start brings the arm closer to the hover configuration

@@ -139,12 +139,12 @@ def random_model(path, seed=0):
 
 def test_stick_to_command_matches_the_controller_core(tmp_path):
     """The teleoperator must predict exactly what the controller will command for each stick value."""
+    from vla_common.detection import Detection
     from vla_evaluation.sim_teleoperator import StickToCommand
-    from vla_latent_controller.context import Det
     from vla_latent_controller.teleop import TeleopCore, TeleopParams
 
     model = random_model(tmp_path / "m")
-    det = Det("soda_can", 0.9, 320.0, 200.0)
+    det = Detection("soda_can", 0.9, 320.0, 200.0)
     params = TeleopParams(deadband=0.1, axis_scale=1.3, action_scale=2.0, max_joint_speed=1.5)
     core = TeleopCore(params, model)
     core.on_joint_states([f"panda_joint{i}" for i in range(1, 8)], Q0.tolist(), 0.0)

@@ -128,7 +128,7 @@ def simulate_demos(task: str, episodes: int, seed: int, detector, sim=None, kin=
         image = sim.render()
         dets = [d for d in detector.detect(image)] if detector is not None else []
         same = [d for d in dets if d.class_id == spec.object_class] or dets
-        det = max(same, key=lambda d: d.score).as_dict() if same else None
+        det = max(same, key=lambda d: d.score) if same else None
         qs, t0 = [sim.q], sim.time
         every = int(round(0.1 / sim.physics_dt))
         n = int(np.ceil((plan.duration + 0.5) / sim.physics_dt))

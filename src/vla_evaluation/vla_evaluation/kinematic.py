@@ -12,11 +12,12 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from vla_common.detection import Detection
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
 from vla_common.tasks import parse_task, task_layout
-from vla_latent_controller.context import ContextError, Det, select_detection
+from vla_latent_controller.context import ContextError, select_detection
 from vla_sim.planner import PlanError, plan_task
 
 from vla_evaluation.metrics import EpisodeResult, final_state_error
@@ -69,7 +70,7 @@ class Layout:
     waypoints: list[np.ndarray]
     image: np.ndarray | None = None
     image_size: tuple[int, int] | None = None
-    detections: list[Det] = field(default_factory=list)
+    detections: list[Detection] = field(default_factory=list)
 
 
 def sample_layout_objects(task_name: str, seed: int, n_objects: int = 1) -> list[ObjectPose]:
@@ -111,7 +112,7 @@ def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=
                     image = sim.render()
                     size = (image.shape[1], image.shape[0])
                     if detector is not None:
-                        dets = [_as_det(d) for d in detector.detect(image)]
+                        dets = list(detector.detect(image))
             out.append(Layout(task, used, list(objects), goal, q_start.copy(), wps, image, size, dets))
             if progress:
                 progress(f"layout {task} seed {used}")
@@ -131,13 +132,6 @@ def plannable_layout(kin, task: str, cls: str, seed: int, q_start: np.ndarray, n
         except PlanError as e:
             last = e
     raise ValueError(f"{task}: no plannable layout from seed {seed} in {attempts} attempts ({last})")
-
-
-def _as_det(d) -> Det:
-    return Det(class_id=str(d.class_id), score=float(d.score), cx=float(d.cx), cy=float(d.cy),
-               width=float(getattr(d, "w", getattr(d, "width", 0.0))),
-               height=float(getattr(d, "h", getattr(d, "height", 0.0))),
-               class_index=int(getattr(d, "class_index", -1)))
 
 
 def layout_context(model, layout: Layout,

@@ -9,6 +9,7 @@ from __future__ import annotations
 import numpy as np
 from vla_common.camera_model import SIM_WEBCAM
 from vla_common.catalogue import Catalogue, default_catalogue
+from vla_common.detection import Detection
 from vla_common.kinematics import PandaKinematics
 from vla_common.tasks import parse_task, task_layout
 from vla_demo_recorder.dataset import Demo
@@ -34,15 +35,8 @@ def planner_demo(task: str, seed: int, kin=None, rate_hz: float = 10.0, catalogu
     t = np.arange(0.0, plan.duration + 1e-9, 1.0 / rate_hz)
     q = np.array([plan.reference(ti)[0] for ti in t])
     cx, cy = webcam_projection()([obj.x, obj.y, 0.03])
-    det = {
-        "class_id": spec.object_class,
-        "class_index": catalogue.class_index(spec.object_class),
-        "score": 0.9,
-        "cx": float(cx),
-        "cy": float(cy),
-        "width": 30.0,
-        "height": 30.0,
-    }
+    det = Detection(spec.object_class, 0.9, float(cx), float(cy), 30.0, 30.0,
+                    class_index=catalogue.class_index(spec.object_class))
     demo = Demo(
         task=spec.name,
         object_class=spec.object_class,

@@ -118,7 +118,7 @@ def load_task_demos(folder: Path, task: str, detector=None, limit: int | None = 
             )
             if dets:
                 best = max(dets, key=lambda x: x.score)
-                d.detection = best.as_dict()
+                d.detection = best
                 d.image_size = (d.first_image.shape[1], d.first_image.shape[0])
         out.append(d)
     return out[:limit] if limit else out

@@ -1,8 +1,8 @@
 import numpy as np
 import pytest
+from vla_common.detection import Detection
 from vla_latent_controller.context import (
     ContextError,
-    Det,
     context_dim,
     detector_context,
     preprocess_image,
@@ -12,7 +12,7 @@ from vla_latent_controller.testing import CLASSES
 
 
 def test_detector_context_is_one_hot_and_normalised_centre():
-    c = detector_context(Det("milk_carton", 0.9, 320.0, 120.0), (640, 480), CLASSES)
+    c = detector_context(Detection("milk_carton", 0.9, 320.0, 120.0), (640, 480), CLASSES)
     assert c.shape == (context_dim("detector", len(CLASSES)),)
     np.testing.assert_array_equal(c[:5], [0, 0, 1, 0, 0])
     np.testing.assert_allclose(c[5:], [0.5, 0.25])
@@ -20,19 +20,20 @@ def test_detector_context_is_one_hot_and_normalised_centre():
 
 def test_unknown_class_and_bad_size_raise_clear_errors():
     with pytest.raises(ContextError, match="not one of the model's classes"):
-        detector_context(Det("teapot", 0.9, 1, 1), (640, 480), CLASSES)
+        detector_context(Detection("teapot", 0.9, 1, 1), (640, 480), CLASSES)
     with pytest.raises(ContextError, match="image size"):
-        detector_context(Det("bread", 0.9, 1, 1), (0, 480), CLASSES)
+        detector_context(Detection("bread", 0.9, 1, 1), (0, 480), CLASSES)
 
 
 def test_select_detection_policies():
-    dets = [Det("bread", 0.5, 100, 100), Det("soda_can", 0.9, 500, 400), Det("teapot", 0.99, 0, 0)]
+    dets = [Detection("bread", 0.5, 100, 100), Detection("soda_can", 0.9, 500, 400),
+            Detection("teapot", 0.99, 0, 0)]
     assert select_detection(dets, "highest_score", CLASSES).class_id == "soda_can"
     assert select_detection(dets, "nearest_to_ee", CLASSES, ee_pixel=(90, 90)).class_id == "bread"
     assert select_detection(dets, "nearest_to_ee", CLASSES, ee_pixel=None).class_id == "soda_can"
     assert select_detection(dets, "bread", CLASSES).class_id == "bread"
     assert select_detection(dets, "cereal_box", CLASSES) is None
-    assert select_detection([Det("bread", float("nan"), 1, 1)], "highest_score", CLASSES) is None
+    assert select_detection([Detection("bread", float("nan"), 1, 1)], "highest_score", CLASSES) is None
 
 
 def test_preprocess_image_shape_and_range():

@@ -4,8 +4,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vla_common.detection import Detection
 from vla_latent_controller.artifacts import load_model, save_model
-from vla_latent_controller.context import Det
 from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams, stick_to_unit
@@ -32,7 +32,7 @@ def make_core(model_dir=None, **kw):
     return TeleopCore(TeleopParams(**kw), model=model, kinematics=FakeKin())
 
 
-BREAD = (Det("bread", 0.9, 320, 240),)
+BREAD = (Detection("bread", 0.9, 320, 240),)
 
 
 def feed(core, now, axis=0.8, buttons=(0, 0, 0), dets=BREAD, q=READY):
@@ -122,7 +122,7 @@ def test_waiting_and_timeouts(random_model_dir):
     core = make_core(random_model_dir, joy_timeout=0.1, joint_states_timeout=0.5)
     assert core.step(0.0)[1].code == Code.WAITING_FOR_JOINT_STATES
     core.on_joint_states(NAMES, list(READY), 0.0)
-    core.on_detections([Det("bread", 0.9, 1, 1)], SIZE, 0.0)
+    core.on_detections([Detection("bread", 0.9, 1, 1)], SIZE, 0.0)
     assert core.step(0.0)[1].code == Code.WAITING_FOR_JOY
     core.on_joy([0.9], [], 0.0)
     assert core.step(0.05)[1].code == Code.ACTIVE
@@ -151,10 +151,10 @@ def test_no_detection_waits_then_latches_once(random_model_dir):
     assert st.code == Code.WAITING_FOR_DETECTION and np.all(cmd == 0)
     core.on_detections([], SIZE, 0.0)
     assert core.step(0.0)[1].code == Code.WAITING_FOR_DETECTION
-    core.on_detections([Det("bread", 0.5, 64, 48), Det("soda_can", 0.9, 320, 240)], SIZE, 0.1)
+    core.on_detections([Detection("bread", 0.5, 64, 48), Detection("soda_can", 0.9, 320, 240)], SIZE, 0.1)
     _, st = core.step(0.1)
     assert st.code == Code.ACTIVE and st.latched_class == "soda_can"
-    core.on_detections([Det("bread", 0.99, 64, 48)], SIZE, 0.2)  # latched: later detections are ignored
+    core.on_detections([Detection("bread", 0.99, 64, 48)], SIZE, 0.2)  # latched: later detections are ignored
     assert core.step(0.2)[1].latched_class == "soda_can"
 
 
@@ -165,7 +165,7 @@ def test_redetect_and_max_age(random_model_dir):
     core.on_joy([0.8, 0.0], [0, 0, 1], 0.5)  # button press: re-detect
     _, st = core.step(0.5)
     assert st.code == Code.WAITING_FOR_DETECTION and st.latched_class == ""
-    core.on_detections([Det("milk_carton", 0.9, 100, 100)], SIZE, 0.6)
+    core.on_detections([Detection("milk_carton", 0.9, 100, 100)], SIZE, 0.6)
     core.on_joy([0.8, 0.0], [0, 0, 1], 0.6)  # held, not a new press
     core.on_joint_states(NAMES, list(READY), 0.6)
     assert core.step(0.6)[1].latched_class == "milk_carton"
@@ -173,15 +173,15 @@ def test_redetect_and_max_age(random_model_dir):
     core.on_joy([0.8, 0.0], [0, 0, 0], 1.7)
     _, st = core.step(1.7)  # latched 1.1 s ago, no newer detection
     assert st.code == Code.WAITING_FOR_DETECTION
-    core.on_detections([Det("glass_bottle", 0.9, 100, 100)], SIZE, 1.7)
+    core.on_detections([Detection("glass_bottle", 0.9, 100, 100)], SIZE, 1.7)
     assert core.step(1.7)[1].latched_class == "glass_bottle"
 
 
 def test_fixed_goal_class(random_model_dir):
     core = make_core(random_model_dir, goal_selection="milk_carton")
-    feed(core, 0.0, dets=[Det("bread", 0.9, 1, 1)])
+    feed(core, 0.0, dets=[Detection("bread", 0.9, 1, 1)])
     assert core.step(0.0)[1].code == Code.WAITING_FOR_DETECTION
-    core.on_detections([Det("bread", 0.9, 1, 1), Det("milk_carton", 0.2, 5, 5)], SIZE, 0.0)
+    core.on_detections([Detection("bread", 0.9, 1, 1), Detection("milk_carton", 0.2, 5, 5)], SIZE, 0.0)
     assert core.step(0.0)[1].latched_class == "milk_carton"
     core.params.goal_selection = "teapot"
     cmd, st = core.step(0.0)
@@ -191,7 +191,7 @@ def test_fixed_goal_class(random_model_dir):
 def test_classes_unknown_to_the_model(tmp_path):
     d = write_random_model(tmp_path / "m", classes=("apple", "pear"))
     core = make_core(d)
-    feed(core, 0.0, dets=[Det("bread", 0.9, 1, 1)])
+    feed(core, 0.0, dets=[Detection("bread", 0.9, 1, 1)])
     cmd, st = core.step(0.0)
     assert st.code == Code.MODEL_ERROR and "not in the model's classes" in st.reason and np.all(cmd == 0)
 
@@ -272,11 +272,11 @@ def test_stick_to_unit_vectorised_matches_scalar():
 def test_malformed_detection_and_joy(random_model_dir):
     core = make_core(random_model_dir)
     feed(core, 0.0, dets=None)
-    core.on_detections([Det("bread", 0.9, 320, 240)], (0, 0), 0.0)
+    core.on_detections([Detection("bread", 0.9, 320, 240)], (0, 0), 0.0)
     cmd, st = core.step(0.0)
     assert st.code == Code.BAD_INPUT and "image size" in st.reason and np.all(cmd == 0)
     core.on_joy(None, None, 0.0)
-    core.on_detections([Det("bread", 0.9, 320, 240)], SIZE, 0.0)
+    core.on_detections([Detection("bread", 0.9, 320, 240)], SIZE, 0.0)
     cmd, st = core.step(0.0)
     assert st.code == Code.BAD_INPUT and np.all(cmd == 0)
 

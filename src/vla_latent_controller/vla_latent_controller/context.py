@@ -29,11 +29,6 @@ class ContextError(ValueError):
     """The context cannot be built from the given inputs (unknown class, bad image, ...)."""
 
 
-# The detection type of the whole project; `Det` stays as an alias for the training and evaluation
-# packages that still import it from here.
-Det = Detection
-
-
 def context_dim(encoder: str, num_classes: int, feature_dim: int = CNN_FEATURE_DIM) -> int:
     """Length of the context vector fed to the decoder for ``encoder``."""
     if encoder == "detector":

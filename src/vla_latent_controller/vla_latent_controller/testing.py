@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from vla_common.detection import Detection
 from vla_common.robot import JOINT_NAMES, READY_POSE
 
 from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
@@ -28,7 +29,7 @@ class FakeDemo:
     t: np.ndarray
     q: np.ndarray
     first_image: np.ndarray | None
-    detection: dict | None
+    detection: Detection | None
     image_size: tuple[int, int] | None
     bag_path: str
 
@@ -48,15 +49,7 @@ def make_demo(cls: str, rng: np.random.Generator, T: int = 60, with_image: bool 
     p = 3 * s**2 - 2 * s**3
     q = q0 + np.outer(p, class_direction(cls) + shift)
     w, h = IMAGE_SIZE
-    det = {
-        "class_id": cls,
-        "class_index": CLASSES.index(cls),
-        "score": 0.9,
-        "cx": x * w,
-        "cy": y * h,
-        "width": 40.0,
-        "height": 40.0,
-    }
+    det = Detection(cls, 0.9, x * w, y * h, 40.0, 40.0, class_index=CLASSES.index(cls))
     img = None
     if with_image:
         img = np.full((h, w, 3), 60, np.uint8)

@@ -1,11 +1,12 @@
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 from vla_common.detection import Detection
 from vla_latent_controller.artifacts import CONFIG_FILE, load_model
-from vla_latent_controller.context import Det, preprocess_image
+from vla_latent_controller.context import preprocess_image
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.testing import CLASSES, class_direction, make_demos, make_pairs
 from vla_latent_training.cae import CAE, ContextCNN, Tanh
@@ -35,7 +36,7 @@ def test_trained_decoder_does_the_task_and_rests_at_zero(trained_model_dir):
     assert cfg["training"]["demos_per_task"] == {f"{c}/push": 3 for c in CLASSES[:4]}
     assert len(cfg["fingerprint"]["sha256"]) == 64
     for demo in make_demos(per_class=2, seed=7, T=30):  # unseen positions
-        model.decoder.set_context(model.context(Det.from_dict(demo.detection), demo.image_size))
+        model.decoder.set_context(model.context(demo.detection, demo.image_size))
         g = model.gain(demo.object_class)
         v = class_direction(demo.object_class)
         q_mid = demo.q[len(demo.q) // 2]
@@ -72,7 +73,7 @@ def test_paper_exact_switches_the_improvements_off(tmp_path):
 def test_prepare_demos_skips_with_reasons():
     demos = make_demos(per_class=1)
     demos[0].detection = None
-    demos[1].detection = dict(demos[1].detection, class_id="teapot")
+    demos[1].detection = replace(demos[1].detection, class_id="teapot")
     demos[2].q = demos[2].q[:, :6]
     kept, skipped = prepare_demos(demos, "detector", CLASSES)
     assert len(kept) == 1
@@ -194,7 +195,7 @@ def test_trained_detector_context_is_standardised_as_configured(scale):
     res = train_model(demos, TrainConfig(epochs=2, hidden=16, position_scale=scale), classes=CLASSES,
                       pairs_fn=make_pairs, progress=False, log=lambda s: None)
     std = res.config["normalisation"]["context_std"][-2:]
-    xy = np.array([[d.detection["cx"] / d.image_size[0], d.detection["cy"] / d.image_size[1]] for d in demos])
+    xy = np.array([[d.detection.cx / d.image_size[0], d.detection.cy / d.image_size[1]] for d in demos])
     want = np.maximum(xy.std(0), 0.02) if scale is None else [scale, scale]
     assert std == pytest.approx(want)
     assert res.config["hyper_parameters"]["position_scale"] == scale

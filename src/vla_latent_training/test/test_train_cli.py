@@ -2,6 +2,7 @@
 rosbags (an independent writer) without episode metadata, as `ros2 bag record` leaves them."""
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -28,11 +29,11 @@ def write_bag(path, demo):
     msg = DetectionArray(image_width=640, image_height=480)
     msg.detections = [
         Detection(
-            class_id=d["class_id"],
-            class_index=d["class_index"],
+            class_id=d.class_id,
+            class_index=d.class_index,
             score=0.9,
-            center_x=d["cx"],
-            center_y=d["cy"],
+            center_x=d.cx,
+            center_y=d.cy,
             size_x=30.0,
             size_y=30.0,
         )
@@ -145,8 +146,8 @@ def write_recorded_bag(path, demo, cls_index):
     with Writer(path, version=9, storage_plugin=StoragePlugin.MCAP) as w:
         js = w.add_connection("/joint_states", "sensor_msgs/msg/JointState", typestore=ts)
         det = w.add_connection("/detections", "vla_interfaces/msg/DetectionArray", typestore=ts)
-        box = t["vla_interfaces/msg/Detection"](class_id=d["class_id"], class_index=cls_index, score=0.9,
-                                                center_x=d["cx"], center_y=d["cy"], size_x=30.0, size_y=30.0)
+        box = t["vla_interfaces/msg/Detection"](class_id=d.class_id, class_index=cls_index, score=0.9,
+                                                center_x=d.cx, center_y=d.cy, size_x=30.0, size_y=30.0)
         msg = t["vla_interfaces/msg/DetectionArray"](header=header(T0), image_width=640, image_height=480,
                                                      detections=[box])
         w.write(det, T0, ts.serialize_cdr(msg, "vla_interfaces/msg/DetectionArray"))
@@ -211,7 +212,7 @@ def test_catalogue_brings_new_classes_and_tasks(tmp_path, capsys):
         "           friction: 0.5, tasks: [push_north]}\n")
     rng = np.random.default_rng(2)
     demo = make_demo("bread", rng, T=30)
-    demo.detection = dict(demo.detection, class_id="teapot", class_index=5)
+    demo.detection = replace(demo.detection, class_id="teapot", class_index=5)
     write_recorded_bag(tmp_path / "recorded" / "rec0", demo, 5)
     args = ["train", "--bags", str(tmp_path / "recorded"), "--task", "teapot/push_north", "--epochs", "1",
             "--hidden", "8", "--quiet"]

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 
 import numpy as np
 from vla_common.catalogue import Catalogue, default_catalogue
-from vla_common.detection import best
-from vla_latent_controller.context import CNN_INPUT_SIZE, ContextError, Det, preprocess_image
+from vla_common.detection import Detection, best
+from vla_latent_controller.context import CNN_INPUT_SIZE, ContextError, preprocess_image
 
 
 @dataclass
@@ -21,7 +21,7 @@ class DemoInput:
     class_id: str
     q: np.ndarray
     bag_path: str
-    det: Det | None = None
+    det: Detection | None = None
     image_size: tuple[int, int] | None = None
     image: np.ndarray | None = None  # preprocessed (3, h, w) float32
 
@@ -69,12 +69,12 @@ def _trajectory(demo) -> np.ndarray:
     return q
 
 
-def _detection(demo, classes: Sequence[str], detector) -> tuple[Det, tuple[int, int]]:
+def _detection(demo, classes: Sequence[str], detector) -> tuple[Detection, tuple[int, int]]:
     """The demo's recorded detection, else the detector's on its first image; and the image size."""
     recorded = getattr(demo, "detection", None)
     image = getattr(demo, "first_image", None)
     if recorded is not None:
-        det = Det.from_dict(recorded)
+        det = recorded
         size = tuple(int(v) for v in demo.image_size) if demo.image_size else None
     elif image is not None and detector is not None:
         img = np.asarray(image)

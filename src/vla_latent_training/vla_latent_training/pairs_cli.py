@@ -36,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         total += len(q_noisy)
         print(f"{demo.bag_path}: {demo.task}, {len(demo.t)} samples at 10 Hz, {len(q_noisy)} pairs, "
               f"image {'yes' if demo.first_image is not None else 'no'}, "
-              f"detection {demo.detection['class_id'] if demo.detection else 'no'}")
+              f"detection {demo.detection.class_id if demo.detection else 'no'}")
     print(f"{len(demos)} demos, {len(skipped)} skipped, {total} pairs")
     if not demos and not skipped:
         print(f"no bags in {' '.join(args.paths)} (a folder is searched one level deep for bag folders)")

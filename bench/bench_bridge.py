@@ -29,12 +29,7 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.qos import QoSProfile  # noqa: E402
 from rosgraph_msgs.msg import Clock  # noqa: E402
 from sensor_msgs.msg import JointState  # noqa: E402
-
-
-def _executable() -> str:
-    from ament_index_python.packages import get_package_prefix
-
-    return os.path.join(get_package_prefix("vla_panda_bridge"), "lib", "vla_panda_bridge", "panda_bridge")
+from vla_launch.run import find_executable  # noqa: E402
 
 
 def _stamp(t) -> float:
@@ -43,7 +38,7 @@ def _stamp(t) -> float:
 
 def run_node(params: dict, duration: float, warmup: float = 1.0) -> dict:
     """Start the installed node with params, record joint_states arrivals and /clock for `duration`."""
-    args = [sys.executable, _executable(), "--ros-args"]
+    args = [sys.executable, find_executable("vla_panda_bridge", "panda_bridge"), "--ros-args"]
     for k, v in params.items():
         args += ["-p", f"{k}:={v}"]
     proc = subprocess.Popen(args, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)

@@ -34,11 +34,10 @@ from vla_latent_controller.context import context_dim
 from vla_latent_controller.controller_node import joint_speed_limits
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
+from vla_launch.run import RunError, find_executable
 
 from vla_interfaces.msg import Detection as DetectionMsg
 from vla_interfaces.msg import DetectionArray
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def stats(us: np.ndarray) -> str:
@@ -146,9 +145,10 @@ def bench_core(model_dir: Path, n: int) -> None:
 def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
 
 
-    exe = ROOT / "install" / "vla_latent_controller" / "lib" / "vla_latent_controller" / "controller_node"
-    if not exe.exists():
-        print("end-to-end: skipped (controller_node not installed: make setup)")
+    try:
+        exe = find_executable("vla_latent_controller", "controller_node")
+    except RunError as err:
+        print(f"end-to-end: skipped (controller_node: {err}; make setup)")
         return
     env = os.environ.copy()
     env.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))

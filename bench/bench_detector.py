@@ -37,11 +37,10 @@ from sensor_msgs.msg import Image
 from vla_common.ros.qos import IMAGE_DEPTH, image_qos, use_large_image_transport
 from vla_detector.decode import letterbox, to_input_tensor
 from vla_detector.inference import Detector, default_model_path
+from vla_launch.run import RunError, find_executable
 
 from vla_interfaces.msg import DetectionArray
 
-ROOT = Path(__file__).resolve().parents[1]
-EXE = ROOT / "install" / "vla_detector" / "lib" / "vla_detector" / "detector_node"
 TRANSPORT_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFILES_FILE",
                        "FASTDDS_BUILTIN_TRANSPORTS")
 WARMUP_FRAME = "warmup"  # frame_id of frames that are not counted (discovery, ONNX Runtime's first runs)
@@ -258,7 +257,8 @@ def _last_json(text: str) -> dict:
 
 
 def _start_detector(setting: Setting) -> subprocess.Popen:
-    return subprocess.Popen([str(EXE), "--ros-args", "-p", f"image_reliability:={setting.subscriber}",
+    exe = find_executable("vla_detector", "detector_node")
+    return subprocess.Popen([exe, "--ros-args", "-p", f"image_reliability:={setting.subscriber}",
                              "-p", f"image_queue:={setting.depth}"],
                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=_child_env())
 
@@ -330,8 +330,10 @@ def main_bench(a: argparse.Namespace) -> int:
         print(f"detect() {size[0]}x{size[1]}: {stats(full)}   network only: {stats(net)}")
     if a.no_node:
         return 0
-    if not EXE.exists():
-        print(f"{EXE} missing: run make setup for the end-to-end figures")
+    try:
+        find_executable("vla_detector", "detector_node")
+    except RunError as err:
+        print(f"detector_node: {err}: run make setup for the end-to-end figures")
         return 1
     with tempfile.TemporaryDirectory(prefix="bench_detector_") as tmp:
         files = {}

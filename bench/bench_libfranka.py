@@ -45,16 +45,11 @@ from rclpy.executors import SingleThreadedExecutor  # noqa: E402
 from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Joy  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
+from vla_launch.run import find_executable  # noqa: E402
 from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavailable  # noqa: E402
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 IMAGE = os.path.join(REPO, "docs", "scene.png")        # a 640x480 view of the simulated scene
-
-
-def _executable(pkg: str, name: str) -> str:
-    from ament_index_python.packages import get_package_prefix
-
-    return os.path.join(get_package_prefix(pkg), "lib", pkg, name)
 
 
 def _graph(fr3: bool) -> list[subprocess.Popen]:
@@ -70,8 +65,8 @@ def _graph(fr3: bool) -> list[subprocess.Popen]:
         ("vla_latent_controller", "controller_node", controller),
     ]
     quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-    return [subprocess.Popen([sys.executable, _executable(pkg, exe), "--ros-args", *args], env=env, **quiet)
-            for pkg, exe, args in nodes]
+    return [subprocess.Popen([sys.executable, find_executable(pkg, exe), "--ros-args", *args], env=env,
+                             **quiet) for pkg, exe, args in nodes]
 
 
 def _stats(values) -> dict:

@@ -28,10 +28,9 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 from vla_demo_recorder.bag_writer import read_metadata_yaml
+from vla_launch.run import RunError, find_executable
 
 from vla_interfaces.srv import StartEpisode
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def cpu_seconds(pid: int) -> float:
@@ -51,9 +50,10 @@ def main() -> int:
 
     os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(30, 200)))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by rclpy.init and the child
-    exe = ROOT / "install/vla_demo_recorder/lib/vla_demo_recorder/recorder_node"
-    if not exe.exists():
-        print(f"{exe} missing: run `make setup`", file=sys.stderr)
+    try:
+        exe = find_executable("vla_demo_recorder", "recorder_node")
+    except RunError as err:
+        print(f"recorder_node: {err}: run `make setup`", file=sys.stderr)
         return 1
     out = Path(tempfile.mkdtemp(prefix="bench_recorder_"))
     proc = subprocess.Popen([str(exe), "--ros-args", "-r", "__node:=bench_recorder",

@@ -18,6 +18,7 @@ from std_srvs.srv import SetBool
 from vla_camera.camera_node import CameraNode
 from vla_common.ros.node_main import ConfigError
 from vla_common.ros.testing import RosHarness
+from vla_launch.run import RunError, find_executable
 
 from vla_interfaces.msg import CameraStatus
 
@@ -213,11 +214,10 @@ def test_bringup_parameter_file_loads():
 
 
 def _exe():
-    root = Path(__file__).resolve().parents[3]
-    exe = root / "install/vla_camera/lib/vla_camera/camera_node"
-    if not exe.exists():
-        pytest.skip("camera_node not installed (run make setup)")
-    return str(exe)
+    try:
+        return find_executable("vla_camera", "camera_node")
+    except RunError as err:
+        pytest.skip(f"camera_node: {err} (run make setup)")
 
 
 def test_executable_exits_zero_at_end_and_two_on_bad_source(tmp_path):

@@ -17,6 +17,7 @@ from vla_common.ros.node_main import ConfigError
 from vla_demo_recorder.bag_files import find_mcap, has_footer
 from vla_demo_recorder.bag_writer import EpisodeInfo, read_metadata_yaml
 from vla_demo_recorder.recorder_node import RecorderNode
+from vla_launch.run import RunError, find_executable
 
 from vla_interfaces.msg import Detection, DetectionArray, RecorderStatus
 from vla_interfaces.srv import StartEpisode
@@ -181,10 +182,10 @@ def test_unwritable_output_dir_is_reported(ros, tmp_path):
 
 
 def _installed(exe: str) -> str:
-    path = ROOT / "install" / "vla_demo_recorder" / "lib" / "vla_demo_recorder" / exe
-    if not path.exists():
-        pytest.skip(f"{path} not installed (run make setup)")
-    return str(path)
+    try:
+        return find_executable("vla_demo_recorder", exe)
+    except RunError as err:
+        pytest.skip(f"{exe}: {err} (run make setup)")
 
 
 def test_sigkill_mid_episode_then_recover(ros, tmp_path):

@@ -18,12 +18,12 @@ from vla_common.ros.node_main import ConfigError
 from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.ros.testing import RosHarness
 from vla_detector.detector_node import DetectorNode
+from vla_launch.run import RunError, find_executable
 
 from vla_interfaces.msg import DetectionArray
 
 pytestmark = [pytest.mark.ros, pytest.mark.slow]
 ROOT = Path(__file__).resolve().parents[3]
-EXE = ROOT / "install" / "vla_detector" / "lib" / "vla_detector" / "detector_node"
 
 
 @pytest.fixture(scope="module")
@@ -160,10 +160,12 @@ def test_overlay_and_max_detections(harness, scene):
 
 
 def run_exe(*ros_args, timeout=60):
-    if not EXE.exists():
-        pytest.skip(f"{EXE} not installed (run make setup)")
+    try:
+        exe = find_executable("vla_detector", "detector_node")
+    except RunError as err:
+        pytest.skip(f"detector_node: {err} (run make setup)")
     return subprocess.run(
-        [str(EXE), "--ros-args", *ros_args],
+        [exe, "--ros-args", *ros_args],
         capture_output=True,
         text=True,
         timeout=timeout,

@@ -28,6 +28,7 @@ from vla_joystick.joystick import (
     normalize_axis,
     open_joystick,
 )
+from vla_launch.run import RunError, find_executable
 
 ABS_X, ABS_Y, ABS_Z, ABS_RZ, ABS_HAT0X = 0x00, 0x01, 0x02, 0x05, 0x10
 BTN_SOUTH, BTN_EAST, BTN_NORTH, BTN_WEST, BTN_TL, BTN_TR = 0x130, 0x131, 0x133, 0x134, 0x136, 0x137
@@ -499,11 +500,10 @@ def test_uinput_device_end_to_end():
 
 # -- the installed process: refused parameters and signals -----------------------------------------
 def _joy_exe():
-    exe = Path(__file__).resolve().parents[3] / "install" / "vla_joystick" / "lib" / "vla_joystick"
-    exe = exe / "joy_node"
-    if not exe.exists():
-        pytest.skip("joy_node not installed (make setup)")
-    return str(exe)
+    try:
+        return find_executable("vla_joystick", "joy_node")
+    except RunError as err:
+        pytest.skip(f"joy_node: {err} (run make setup)")
 
 
 @pytest.mark.slow

@@ -19,6 +19,7 @@ from vla_common.ros.node_main import ConfigError, StartupError
 from vla_common.ros.testing import RosHarness
 from vla_latent_controller.controller_node import PARAMETERS, ControllerNode
 from vla_latent_controller.testing import CLASSES, READY, make_demos, make_pairs, write_random_model
+from vla_launch.run import RunError, find_executable
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
 from vla_interfaces.srv import SetMode
@@ -233,16 +234,16 @@ def test_a_failed_reload_keeps_the_model_and_refuses_the_parameter(harness, tmp_
     assert res[0].successful and harness.node.core.model.artifacts.path == other
 
 
-def _installed(exe: str) -> Path:
-    root = Path(__file__).resolve().parents[3]
-    return root / "install" / "vla_latent_controller" / "lib" / "vla_latent_controller" / exe
+def _installed(exe: str) -> str:
+    try:
+        return find_executable("vla_latent_controller", exe)
+    except RunError as err:
+        pytest.skip(f"{exe}: {err} (run make setup)")
 
 
 @pytest.mark.slow
 def test_process_publishes_zero_on_shutdown(random_model_dir):
     exe = _installed("controller_node")
-    if not exe.exists():
-        pytest.skip("controller_node not installed (make setup)")
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
     node = rclpy.create_node("shutdown_probe", context=ctx)
@@ -331,15 +332,13 @@ def test_image_encoder_latches_a_camera_frame(tmp_path):
 @pytest.mark.slow
 def test_process_exits_non_zero_when_its_model_does_not_load(tmp_path):
     exe = _installed("controller_node")
-    if not exe.exists():
-        pytest.skip("controller_node not installed (make setup)")
     (tmp_path / "config.json").write_text("{broken")
     r = subprocess.run([str(exe), "--ros-args", "-p", f"model_path:={tmp_path}"], capture_output=True,
                        text=True, timeout=30, env=os.environ.copy())
     assert r.returncode == 1 and "corrupt JSON" in r.stderr and "Traceback" not in r.stderr
 
 
-def _start_and_wait(exe: Path, model_dir, *args: str):
+def _start_and_wait(exe: str, model_dir, *args: str):
     """Start the node process and a probe that subscribes to its command; return when it is up."""
     probe = RosHarness()
     node = probe.add(rclpy.create_node("signal_probe", context=probe.context))
@@ -362,8 +361,6 @@ def test_process_stops_on_a_signal_with_sim_time_and_no_clock(random_model_dir, 
     """With use_sim_time and no /clock no timer ever fires; the node must still stop on the first signal,
     send the zero command, exit 0, and a second signal during cleanup prints no traceback."""
     exe = _installed("controller_node")
-    if not exe.exists():
-        pytest.skip("controller_node not installed (make setup)")
     proc, probe, cmds, up = _start_and_wait(exe, random_model_dir, "-p", "use_sim_time:=true")
     try:
         assert up, "controller_node never came up"

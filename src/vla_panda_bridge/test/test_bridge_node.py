@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from vla_common.robot import READY_POSE
 from vla_common.ros.qos import IMAGE_QOS
+from vla_launch.run import RunError, find_executable
 from vla_panda_bridge.bridge_node import ConfigError, PandaBridge
 from vla_sim.sim import PandaSim
 
@@ -434,11 +435,10 @@ def test_integer_value_for_a_rate_is_accepted(harness):
 
 
 def _installed(exe: str) -> str:
-    prefix = os.environ.get("VLA_ROOT", os.getcwd())
-    path = os.path.join(prefix, "install", "vla_panda_bridge", "lib", "vla_panda_bridge", exe)
-    if not os.path.exists(path):
-        pytest.skip(f"{path} not installed (make setup)")
-    return path
+    try:
+        return find_executable("vla_panda_bridge", exe)
+    except RunError as err:
+        pytest.skip(f"{exe}: {err} (run make setup)")
 
 
 @pytest.mark.slow

@@ -26,6 +26,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from vla_common.kinematics import PandaKinematics
 from vla_common.ros.testing import RosHarness
+from vla_launch.run import find_executable
 from vla_panda_bridge.libfranka_loop import LOOP_DISCONNECTED, LOOP_OK, LOOP_REFLEX
 from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavailable
 
@@ -336,9 +337,7 @@ def test_shutdown_ends_the_motion_and_the_loop_process(bridge, sim):
 def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_path):
     """The installed node as `ros2 run` starts it; Ctrl-C (SIGINT to its process group) mid-motion,
     after the module's bridge let go of franka-sim's one client slot."""
-    from ament_index_python.packages import get_package_prefix
-
-    exe = os.path.join(get_package_prefix("vla_panda_bridge"), "lib", "vla_panda_bridge", "panda_bridge")
+    exe = find_executable("vla_panda_bridge", "panda_bridge")
     params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
               "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()),
               "robot_model": "fr3", "loop_priority": RT_PRIORITY, **FR3_SCALES}

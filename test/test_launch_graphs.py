@@ -97,7 +97,7 @@ def test_teleop_launch_moves_the_arm_the_way_the_stick_commands(ros, tmp_path):
 
 
 def test_demo_launch_teleoperator_drives_towards_its_waypoint(ros, tmp_path):
-    with LaunchProcess("vla_bringup", "demo.launch.yaml", "real_time_factor:=2.0", "camera_rate:=5.0",
+    with LaunchProcess("vla_evaluation", "demo.launch.yaml", "real_time_factor:=2.0", "camera_rate:=5.0",
                        log_path=tmp_path / "launch.log") as run:
         obs = ros.add(Observer(ros.context))
         assert ros.spin_until(lambda: obs.graph_up() and obs.teleop is not None, 90.0), run.text()[-3000:]

@@ -14,7 +14,7 @@ CONFIG_FILES = {
     "detector_node": "detector",
     "controller_node": "controller",
     "recorder_node": "recorder",
-    "sim_teleoperator": "sim_teleoperator",
+    "sim_teleoperator": "sim_teleoperator",  # read by vla_evaluation's demo.launch.yaml
 }
 
 
@@ -33,7 +33,6 @@ def _stub_ctx(tmp_path):
         ("sim", ["panda_bridge"]),
         ("teleop", ["panda_bridge", "detector_node", "controller_node"]),
         ("record", ["panda_bridge", "detector_node", "recorder_node"]),
-        ("demo", ["panda_bridge", "detector_node", "controller_node", "sim_teleoperator"]),
     ],
 )
 def test_shipped_launch_files(tmp_path, name, execs):
@@ -49,7 +48,7 @@ def test_shipped_launch_files(tmp_path, name, execs):
             assert isinstance(d, ParamDict)
         inline = {k: v for d in p.params if isinstance(d, ParamDict) for k, v in d.values.items()}
         if p.executable != "panda_bridge":
-            assert inline["use_sim_time"] is (name == "demo")  # the demo runs on simulated time
+            assert inline["use_sim_time"] is False  # the simulated-time graph is vla_evaluation's demo
         # one BLAS thread per graph process unless the user's environment says otherwise
         blas = None if name == "sim" else os.environ.get("OPENBLAS_NUM_THREADS", "1")
         assert p.env.get("OPENBLAS_NUM_THREADS") == blas
@@ -97,7 +96,7 @@ def test_config_files_are_ros_parameter_files():
             assert isinstance(body["ros__parameters"], dict), (path, node)
 
 
-@pytest.mark.parametrize("name", ["sim", "teleop", "record", "demo"])
+@pytest.mark.parametrize("name", ["sim", "teleop", "record"])
 def test_shipped_launch_files_with_the_real_config_files(name):
     """Every parameter file the launch file names exists in config/ (once its owner has written it)."""
     path = os.path.join(PKG_DIR, "launch", f"{name}.launch.yaml")
@@ -122,7 +121,7 @@ ARGUMENT_DEFAULTS = {
 }
 
 
-@pytest.mark.parametrize("name", ["sim", "teleop", "record", "demo"])
+@pytest.mark.parametrize("name", ["sim", "teleop", "record"])
 def test_argument_defaults_are_the_shipped_parameter_values(name):
     """An argument that overrides a parameter defaults to the parameter file's value, so a launch
     without arguments runs with the shipped configuration."""

@@ -1,6 +1,6 @@
 """`make demo` / `vla_evaluation demo`: the project's main job.
 
-Launches the graph users launch, `vla_bringup demo.launch.yaml` (bridge with MuJoCo physics and
+Launches the graph users launch, `vla_evaluation demo.launch.yaml` (bridge with MuJoCo physics and
 camera, detector, latent-action controller, simulated teleoperator), with the models shipped in the
 repository, runs the simulated user over the base tasks and the unseen-object (cereal box) tasks on
 fresh layouts, prints a table (task, success, final state error, time), saves it as results.json in

@@ -1,7 +1,7 @@
-"""`--mode graph`: the graph users launch, `vla_bringup demo.launch.yaml`, driven like a person drives it.
+"""`--mode graph`: the graph users launch, `vla_evaluation demo.launch.yaml`, driven like a person drives it.
 
 The launch file starts, through vla_launch (the same Launcher, parameter files and commands as
-`vla launch vla_bringup demo.launch.yaml`):
+`vla launch vla_evaluation demo.launch.yaml`):
   panda_bridge (MuJoCo physics, safety layer, camera rendering, /clock at `real_time_factor`)
   detector_node (ONNX detector on the rendered images)
   controller_node (latent-action decoder; joy -> joint_velocity_cmd)
@@ -63,7 +63,7 @@ from vla_interfaces.msg import (
 from vla_interfaces.srv import ResetScene, StartEpisode
 
 BRIDGE, DETECTOR, CONTROLLER, TELEOP = "panda_bridge", "detector_node", "controller_node", "sim_teleoperator"
-LAUNCH_FILE = ("vla_bringup", "demo.launch.yaml")
+LAUNCH_FILE = ("vla_evaluation", "demo.launch.yaml")
 CAMERA_SIZE = (640, 480)  # the bridge's camera (config/panda_bridge.yaml)
 
 

@@ -5,7 +5,7 @@ same parameter files and the same commands as a user's launch, supervised by the
 background thread. Output goes, prefixed like on a terminal, to a log file whose last lines come with
 every error.
 
-    with LaunchSession("vla_bringup", "demo.launch.yaml", {"real_time_factor": 2.0},
+    with LaunchSession("vla_evaluation", "demo.launch.yaml", {"real_time_factor": 2.0},
                        log_path=out / "graph.log") as graph:
         ...
         graph.check()  # LaunchError when a process has ended, with its last output lines

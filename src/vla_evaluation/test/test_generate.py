@@ -3,6 +3,7 @@ demonstrator in the test's process."""
 from pathlib import Path
 
 import pytest
+from vla_common.catalogue import default_catalogue, load_catalogue
 from vla_demo_recorder.bag_writer import EpisodeInfo, read_metadata_yaml
 from vla_demo_recorder.dataset import load_demo
 
@@ -10,13 +11,17 @@ from vla_demo_recorder.dataset import load_demo
 def test_parse_tasks(tmp_path):
     from vla_evaluation.generate import parse_tasks
 
+    cat = default_catalogue()
     f = tmp_path / "tasks.txt"
     f.write_text("# base\nsoda_can:push_south\n\ncereal_box/circle  # far\n")
-    assert parse_tasks(["bread:push_east"], f) == ["bread/push_east", "soda_can/push_south",
-                                                   "cereal_box/circle"]
-    assert len(parse_tasks([], None)) == 4  # the base tasks
+    tasks = parse_tasks(["bread:push_east"], f, cat)
+    assert [t.name for t in tasks] == ["bread/push_east", "soda_can/push_south", "cereal_box/circle"]
+    assert tasks[0] is cat.task("bread/push_east")  # parsed once, travels as the TaskSpec
+    assert len(parse_tasks([], None, cat)) == 4  # the base tasks
     with pytest.raises(ValueError, match="unknown object class"):
-        parse_tasks(["spaceship:push_east"], None)
+        parse_tasks(["spaceship:push_east"], None, cat)
+    spam = load_catalogue(Path(__file__).resolve().parents[3] / "test" / "data" / "spam_catalogue.yaml")
+    assert [t.name for t in parse_tasks(["spam/push_south_east"], None, spam)] == ["spam/push_south_east"]
 
 
 @pytest.mark.slow
@@ -24,8 +29,8 @@ def test_parse_tasks(tmp_path):
 def test_one_generated_episode_is_a_demo_bag(tmp_path):
     from vla_evaluation.generate import GenerateConfig, run_generation
 
-    cfg = GenerateConfig(tasks=["bread/push_east"], episodes=1, out=tmp_path / "demos", seed=3,
-                         log_dir=tmp_path / "logs")
+    cfg = GenerateConfig(tasks=[default_catalogue().task("bread/push_east")], episodes=1,
+                         out=tmp_path / "demos", seed=3, log_dir=tmp_path / "logs")
     records = run_generation(cfg, progress=lambda text: None)
     assert len(records) == 1
     rec = records[0]

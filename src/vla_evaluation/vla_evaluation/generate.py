@@ -43,10 +43,11 @@ from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
+from vla_common.catalogue import Catalogue, TaskSpec, load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES
-from vla_common.tasks import BASE_TASKS, parse_task, task_layout, task_success
+from vla_common.tasks import task_layout, task_success
 from vla_demo_recorder.dataset import DemoError, load_demo
 from vla_launch.session import LaunchError, LaunchSession
 from vla_sim.planner import PlanError, plan_task, random_start_pose
@@ -67,7 +68,7 @@ class GenerateError(RuntimeError):
 
 @dataclass
 class GenerateConfig:
-    tasks: list[str]
+    tasks: list[TaskSpec]  # parsed once, from the catalogue
     episodes: int = 10  # per task
     out: Path = Path("demos")
     seed: int = 0
@@ -83,10 +84,12 @@ class GenerateConfig:
     startup_timeout: float = 90.0
     domain_id: int | None = None
     log_dir: Path | None = None
+    catalogue: str = ""  # the object catalogue YAML ("": the default); the scene and recorder read it
 
     def launch_arguments(self) -> dict[str, object]:
         """record.launch.yaml's arguments."""
-        return {"use_sim_time": True, "real_time_factor": float(self.real_time_factor),
+        return {"catalogue": str(Path(self.catalogue).absolute()) if self.catalogue else "",
+                "use_sim_time": True, "real_time_factor": float(self.real_time_factor),
                 "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
                 "image_every_n": int(self.image_every_n), "output_dir": str(Path(self.out).absolute()),
                 "detector_model": str(self.detector_model or "")}
@@ -109,15 +112,16 @@ class EpisodeRecord:
     error: str = ""
 
 
-def parse_tasks(items: list[str], tasks_file: Path | None) -> list[str]:
-    """Task names from --task options and a file (one per line, # comments); base tasks if none."""
+def parse_tasks(items: list[str], tasks_file: Path | None, catalogue: Catalogue) -> list[TaskSpec]:
+    """The catalogue's tasks named by --task options and a file (one per line, # comments); the
+    catalogue's base tasks if none. Parsed here, once; they travel as TaskSpecs."""
     names = list(items)
     if tasks_file is not None:
         for line in Path(tasks_file).read_text().splitlines():
             line = line.split("#", 1)[0].strip()
             if line:
                 names.append(line)
-    return [parse_task(n).name for n in (names or BASE_TASKS)]
+    return [catalogue.task(n) for n in names] if names else catalogue.task_set("base")
 
 
 def _stamp(msg) -> float:
@@ -355,13 +359,14 @@ def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
         demo = graph.start()
         kin = PandaKinematics()
         master = np.random.default_rng(cfg.seed)
-        for task_name in cfg.tasks:
-            spec = parse_task(task_name)
+        catalogue = load_catalogue(cfg.catalogue)
+        for spec in cfg.tasks:
             for _ in range(cfg.episodes):
                 rec = EpisodeRecord(index=len(records) + 1, task=spec.name, seed=int(master.integers(2**31)))
                 wall0 = time.monotonic()
                 try:
-                    _run_episode(cfg, demo, kin, spec, np.random.default_rng(rec.seed), rec, graph.alive)
+                    _run_episode(cfg, demo, kin, spec, catalogue, np.random.default_rng(rec.seed), rec,
+                                 graph.alive)
                 except GenerateError as err:
                     rec.error = str(err)
                     graph.alive()  # a dead graph ends the generation
@@ -421,15 +426,15 @@ def _wait(demo: Demonstrator, predicate, timeout: float, what: str, alive) -> No
                 raise GenerateError(f"timed out after {timeout:.0f} s waiting for {what}") from None
 
 
-def _plan_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord, alive):
+def _plan_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: EpisodeRecord, alive):
     """A layout and start pose (the episode's variation), reset, and a plan from the measured scene; a
     layout the planner cannot do is re-drawn (counted in the report, never recorded)."""
     for attempt in range(cfg.max_plan_tries):
-        layout = task_layout(spec, rng)
+        layout = task_layout(spec, rng, catalogue=catalogue)
         q0 = random_start_pose(rng)
         start = _reset_scene(demo, spec, layout, q0, alive)
         try:
-            return start, plan_task(kin, spec, start, demo.q.copy(), rng)
+            return start, plan_task(kin, spec, start, demo.q.copy(), rng, catalogue)
         except PlanError as err:
             rec.replans = attempt + 1
             if attempt == cfg.max_plan_tries - 1:
@@ -457,9 +462,9 @@ def _record_plan(cfg, demo: Demonstrator, spec, plan, rec: EpisodeRecord, alive)
     return demo.now()
 
 
-def _run_episode(cfg, demo: Demonstrator, kin, spec, rng, rec: EpisodeRecord, alive) -> None:
+def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: EpisodeRecord, alive) -> None:
     """One episode: plan, record, judge; failures are marked discarded (or deleted)."""
-    start, plan = _plan_episode(cfg, demo, kin, spec, rng, rec, alive)
+    start, plan = _plan_episode(cfg, demo, kin, spec, catalogue, rng, rec, alive)
     rec.plan_params = {k: round(float(v), 4) for k, v in plan.params.items()}
     t_end = _record_plan(cfg, demo, spec, plan, rec, alive)
     rec.duration_s = plan.duration
@@ -518,20 +523,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--delete-failed", action="store_true",
                    help="delete episodes that failed the task instead of keeping them marked discarded")
     p.add_argument("--log-dir", type=Path, default=None, help="write the graph's output (record.log) here")
+    p.add_argument("--catalogue", default="",
+                   help="object catalogue YAML with the tasks and objects (default: the paper's five)")
 
 
 def run(args: argparse.Namespace) -> int:
     """CLI entry: `vla_evaluation generate ...`. Ctrl-C / SIGTERM stop cleanly (the graph included)."""
     signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
-        tasks = parse_tasks(args.task, args.tasks_file)
+        tasks = parse_tasks(args.task, args.tasks_file, load_catalogue(args.catalogue))
     except (ValueError, OSError) as err:
         print(f"error: {err}")
         return 2
     cfg = GenerateConfig(tasks=tasks, episodes=args.episodes, out=args.out, seed=args.seed,
                          real_time_factor=args.real_time_factor, camera_rate=args.camera_rate,
                          image_every_n=args.image_every_n, keep_failed=not args.delete_failed,
-                         detector_model=args.detector_model, log_dir=args.log_dir)
+                         detector_model=args.detector_model, log_dir=args.log_dir, catalogue=args.catalogue)
     try:
         records = run_generation(cfg)
     except (GenerateError, LaunchError) as err:

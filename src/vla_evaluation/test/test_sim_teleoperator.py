@@ -413,3 +413,29 @@ def test_trigger_joint_states_answers_each_joint_state_at_its_stamp(ros, tmp_pat
     stamps = [(j.header.stamp.sec, j.header.stamp.nanosec) for j in joys]
     assert stamps and set(stamps) <= set(sent)  # every stick value at a joint state's time
     assert len(stamps) == len(set(stamps))  # one per joint state
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+def test_image_subscription_is_on_the_image_qos(ros, tmp_path):
+    """An image-encoder model makes the node subscribe to camera/image_raw on IMAGE_QOS (reliable,
+    keep-last 30) like every image publisher; a SensorDataQoS (best-effort) subscriber lost frames."""
+    from rclpy.parameter import Parameter
+    from rclpy.qos import ReliabilityPolicy
+    from vla_common.ros.qos import IMAGE_DEPTH
+    from vla_evaluation.sim_teleoperator_node import SimTeleoperatorNode
+    from vla_latent_controller.testing import CLASSES as FAKE_CLASSES
+    from vla_latent_controller.testing import make_demos, make_pairs
+    from vla_latent_training.train import TrainConfig, train_model
+
+    demos = make_demos(per_class=1, with_image=True, T=20)
+    res = train_model(demos, TrainConfig(encoder="end_to_end", epochs=1), classes=FAKE_CLASSES,
+                      pairs_fn=make_pairs, progress=False, threads=1, log=lambda s: None)
+    ctx, ex, nodes = ros
+    model_path = str(res.save(tmp_path / "e2e"))
+    tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[Parameter("model_path", value=model_path)])
+    nodes.append(tele)
+    (info,) = tele.get_subscriptions_info_by_topic("/camera/image_raw")  # as the graph sees it
+    assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
+    (sub,) = [s for s in tele.subscriptions if s.topic_name == "/camera/image_raw"]
+    assert sub.qos_profile.depth == IMAGE_DEPTH  # discovery does not carry the depth

@@ -33,13 +33,13 @@ from rcl_interfaces.srv import SetParameters
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
 from vla_common.catalogue import TaskSpec
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES, READY_POSE
+from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.tasks import parse_task
 from vla_launch.session import LaunchError, LaunchSession
 
@@ -165,7 +165,7 @@ class _Observer:
         self.teleop_recv = -math.inf
         self.safety = None
         self.monitor: EpisodeMonitor | None = None
-        n, sensor = self.node, qos_profile_sensor_data
+        n, sensor = self.node, SENSOR_QOS
         n.create_subscription(JointState, "joint_states", self._joints, sensor)
         n.create_subscription(SceneObjectArray, "scene/objects", self._objects, sensor)
         n.create_subscription(DetectionArray, "detections", self._dets, sensor)
@@ -173,7 +173,7 @@ class _Observer:
         n.create_subscription(TeleopStatus, f"{TELEOP}/status", self._teleop, sensor)
         n.create_subscription(SafetyStatus, f"{BRIDGE}/status", self._safety, sensor)
         if keep_frames:
-            n.create_subscription(Image, "camera/image_raw", self._image, sensor)
+            n.create_subscription(Image, "camera/image_raw", self._image, IMAGE_QOS)
         self.reset_cli = n.create_client(ResetScene, f"{BRIDGE}/reset")
         self.redetect_cli = n.create_client(Trigger, f"{CONTROLLER}/redetect")
         self.start_cli = n.create_client(StartEpisode, f"{TELEOP}/start_episode")

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
 from rclpy.time import Time
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
@@ -31,6 +30,7 @@ from vla_common.objects import ObjectPose
 from vla_common.robot import DQ_MAX, JOINT_NAMES
 from vla_common.ros.node_main import StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.tasks import parse_task
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import ContextError
@@ -132,10 +132,10 @@ class SimTeleoperatorNode(Node):
 
         self.joy_pub = self.create_publisher(Joy, "joy", 10)
         self.status_pub = self.create_publisher(TeleopStatus, "~/status", 10)
-        self.create_subscription(JointState, "joint_states", self._on_joints, qos_profile_sensor_data)
-        self.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, qos_profile_sensor_data)
+        self.create_subscription(JointState, "joint_states", self._on_joints, SENSOR_QOS)
+        self.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, SENSOR_QOS)
         self.create_subscription(ControllerStatus, self.p["controller_status_topic"], self._on_ctrl,
-                                 qos_profile_sensor_data)
+                                 SENSOR_QOS)
         self._update_image_subscription()
         self.create_service(StartEpisode, "~/start_episode", self._srv_start)
         self.create_service(Trigger, "~/stop", self._srv_stop)
@@ -175,7 +175,7 @@ class SimTeleoperatorNode(Node):
     def _update_image_subscription(self) -> None:
         if self.model.needs_image and self._image_sub is None:
             self._image_sub = self.create_subscription(Image, "camera/image_raw", self._on_image,
-                                                       qos_profile_sensor_data)
+                                                       IMAGE_QOS)
 
     # ------------------------------------------------------------------ inputs
     def _on_joints(self, msg: JointState) -> None:

@@ -12,8 +12,8 @@ import sys
 import time
 from pathlib import Path
 
+from vla_common.catalogue import Catalogue, default_catalogue, load_catalogue
 from vla_common.kinematics import PandaKinematics
-from vla_common.tasks import BASE_TASKS, UNSEEN_TASKS, parse_task
 from vla_detector.inference import Detector
 from vla_latent_controller.model import LatentModel
 
@@ -26,15 +26,18 @@ from vla_evaluation.resources import detector_model_path, latent_model_dir
 from vla_evaluation.sim_teleoperator import DEFAULT_HORIZON
 
 
-def task_list(spec: str) -> list[str]:
-    """"base", "unseen", "all" or comma-separated task names."""
-    named = {"base": BASE_TASKS, "unseen": UNSEEN_TASKS, "all": BASE_TASKS + UNSEEN_TASKS}
+def task_list(spec: str, catalogue: Catalogue | None = None) -> list[str]:
+    """"base", "unseen", "all", another task set of the catalogue, or comma-separated task names."""
+    cat = catalogue or default_catalogue()
     out: list[str] = []
     for part in spec.split(","):
         part = part.strip()
-        if not part:
-            continue
-        out.extend(named.get(part, [parse_task(part).name] if part not in named else []))
+        if part == "all":
+            out.extend(t.name for t in cat.task_set("base") + cat.task_set("unseen"))
+        elif part in cat.task_sets:
+            out.extend(t.name for t in cat.task_set(part))
+        elif part:
+            out.append(cat.task(part).name)
     if not out:
         raise ValueError(f"no tasks in {spec!r}")
     return out
@@ -66,7 +69,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="latent model directory (default: the shipped one)")
     p.add_argument("--detector-model", type=Path, default=None,
                    help="detector ONNX (default: the shipped one)")
-    p.add_argument("--tasks", default="base", help="base, unseen, all, or comma-separated task names")
+    p.add_argument("--tasks", default="base",
+                   help="base, unseen, all, a task set of the catalogue, or comma-separated task names")
+    p.add_argument("--catalogue", default="", help="object catalogue YAML (default: the paper's five)")
     p.add_argument("--layouts", type=int, default=10, help="fresh layouts per task")
     p.add_argument("--seed", type=int, default=VALIDATION_SEED_OFFSET, help="first layout seed")
     p.add_argument("--objects", type=int, default=1, help="objects per layout (the task's + distractors)")
@@ -80,7 +85,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    tasks = task_list(args.tasks)
+    catalogue = load_catalogue(args.catalogue)
+    tasks = task_list(args.tasks, catalogue)
     seeds = [args.seed + i for i in range(args.layouts)]
     model_dir = args.model or latent_model_dir("default")
     det_path = args.detector_model or detector_model_path()
@@ -94,14 +100,15 @@ def run(args) -> int:
     if args.mode != "kinematic" and args.rate == 20.0:
         settings.rate = 100.0  # the controller node's default rate
     if args.mode == "kinematic":
-        results = _kinematic(model_dir, det_path, tasks, seeds, settings, args.objects)
+        results = _kinematic(model_dir, det_path, tasks, seeds, settings, args.objects, catalogue)
     elif args.mode == "physics":
-        results = _physics(model_dir, det_path, tasks, seeds, settings, args.objects, args.stop_on_success)
+        results = _physics(model_dir, det_path, tasks, seeds, settings, args.objects, args.stop_on_success,
+                           catalogue)
     else:
         cfg = GraphConfig(model_path=str(model_dir), detector_model=str(det_path),
                           real_time_factor=args.real_time_factor, rate=settings.rate, settings=settings,
                           stop_on_success=args.stop_on_success, domain_id=args.domain_id,
-                          log_dir=args.out / "logs")
+                          log_dir=args.out / "logs", catalogue=args.catalogue)
         results = [rec.result for rec in evaluate_graph(cfg, tasks, seeds, label=Path(model_dir).name,
                                                         n_objects=args.objects)]
     meta = {"mode": args.mode, "model": str(model_dir), "detector_model": str(det_path), "tasks": tasks,
@@ -112,19 +119,21 @@ def run(args) -> int:
     return 0
 
 
-def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects):
+def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects, catalogue):
     model = LatentModel.load(model_dir)
     kin = PandaKinematics()
-    layouts = make_layouts(tasks, seeds, detector=Detector(det_path), kin=kin, n_objects=n_objects)
+    layouts = make_layouts(tasks, seeds, detector=Detector(det_path), kin=kin, n_objects=n_objects,
+                           catalogue=catalogue)
     return evaluate_kinematic(model, layouts, settings, kin=kin, label=Path(model_dir).name)
 
 
-def _physics(model_dir, det_path, tasks, seeds, settings, n_objects, stop_on_success):
+def _physics(model_dir, det_path, tasks, seeds, settings, n_objects, stop_on_success, catalogue):
     from vla_sim.sim import PandaSim  # MuJoCo, an optional heavy dependency: only for this mode
 
     model = LatentModel.load(model_dir)
-    sim = PandaSim(render=True)
-    layouts = make_layouts(tasks, seeds, sim=sim, detector=Detector(det_path), n_objects=n_objects)
+    sim = PandaSim(render=True, catalogue=catalogue)
+    layouts = make_layouts(tasks, seeds, sim=sim, detector=Detector(det_path), n_objects=n_objects,
+                           catalogue=catalogue)
     return evaluate_physics(model, layouts, settings, sim=sim, label=Path(model_dir).name,
                             stop_on_success=stop_on_success, log=print)
 

@@ -35,7 +35,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
-from vla_common.catalogue import TaskSpec
+from vla_common.catalogue import TaskSpec, load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES, READY_POSE
@@ -92,10 +92,12 @@ class GraphConfig:
     joy_timeout: float = 0.25
     log_level: str = "info"
     extra_params: dict[str, dict] = field(default_factory=dict)  # node -> run-time parameters
+    catalogue: str = ""  # object catalogue YAML ("": the default): the scene, detector and teleoperator
 
     def launch_arguments(self) -> dict[str, object]:
         """demo.launch.yaml's arguments: what the nodes read once, at startup."""
-        return {"use_sim_time": True, "real_time_factor": float(self.real_time_factor),
+        return {"catalogue": str(Path(self.catalogue).absolute()) if self.catalogue else "",
+                "use_sim_time": True, "real_time_factor": float(self.real_time_factor),
                 "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
                 "rate": float(self.rate), "detector_model": str(self.detector_model),
                 "controller_model": str(self.model_path), "log_level": self.log_level}
@@ -326,6 +328,7 @@ class GraphEvaluator:
     """Runs evaluation episodes on the live graph (use as a context manager)."""
 
     def __init__(self, config: GraphConfig, log: Callable[[str], None] = print) -> None:
+        self.catalogue = load_catalogue(config.catalogue)
         self.config = config
         self.log = log
         self.session: LaunchSession | None = None
@@ -444,7 +447,7 @@ class GraphEvaluator:
     def run_episode(self, task: str, seed: int, label: str = "", n_objects: int = 1) -> EpisodeRecord:
         """Reset to the seeded layout of `task`, latch the context, let the teleoperator drive."""
         wall0 = time.monotonic()
-        spec = parse_task(task)
+        spec = parse_task(task, self.catalogue)
         used_seed, start_pose, q_now = self._reset(spec, int(seed), n_objects)
         result = EpisodeResult(task=task, layout_seed=used_seed, mode="graph", model=label,
                                object_start=start_pose.to_dict())
@@ -471,8 +474,9 @@ class GraphEvaluator:
         """A fresh plannable layout through the bridge's ~/reset, settled and detected; (the layout's
         seed, the goal object's pose, the arm's joint positions)."""
         obs, cfg = self.obs, self.config
-        objects, _goal, _wps, used_seed = plannable_layout(self.kin, spec.name, spec.object_class, seed,
-                                                            np.asarray(READY_POSE), n_objects)
+        objects, _goal, _wps, used_seed = plannable_layout(self.kin, spec, spec.object_class, seed,
+                                                            np.asarray(READY_POSE), n_objects,
+                                                            catalogue=self.catalogue)
         req = ResetScene.Request()
         req.use_seed = False
         req.objects = [SceneObject(class_id=o.class_id, x=float(o.x), y=float(o.y), yaw=float(o.yaw))

@@ -12,6 +12,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from vla_common.catalogue import Catalogue, TaskSpec
 from vla_common.detection import Detection
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
@@ -73,35 +74,39 @@ class Layout:
     detections: list[Detection] = field(default_factory=list)
 
 
-def sample_layout_objects(task_name: str, seed: int, n_objects: int = 1) -> list[ObjectPose]:
+def sample_layout_objects(task_name: str | TaskSpec, seed: int, n_objects: int = 1,
+                          catalogue: Catalogue | None = None) -> list[ObjectPose]:
     """A seeded random layout for the task (its object first, placed so the task is reachable),
-    with n_objects - 1 distractors kept out of the pushing corridor."""
-    return task_layout(task_name, np.random.default_rng(seed), n_objects=n_objects)
+    with n_objects - 1 distractors of the catalogue kept out of the pushing corridor."""
+    return task_layout(task_name, np.random.default_rng(seed), n_objects=n_objects, catalogue=catalogue)
 
 
-def plan_waypoints(kin, task_name: str, goal: ObjectPose, q0: np.ndarray,
-                   plan_seed: int = 0) -> list[np.ndarray]:
+def plan_waypoints(kin, task_name: str | TaskSpec, goal: ObjectPose, q0: np.ndarray,
+                   plan_seed: int = 0, catalogue: Catalogue | None = None) -> list[np.ndarray]:
     """The teleoperator's joint-space waypoints from the planner (pre-push, post-push; a circle's loop)."""
     rng = np.random.default_rng(plan_seed)
-    plan = plan_task(kin, parse_task(task_name), goal, np.asarray(q0, float), rng)
+    plan = plan_task(kin, parse_task(task_name, catalogue), goal, np.asarray(q0, float), rng, catalogue)
     return teleop_waypoints(plan)
 
 
 def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=None, kin=None,
                  render: bool = True, q0: np.ndarray | None = None, n_objects: int = 1,
-                 progress: Callable[[str], None] | None = None) -> list[Layout]:
+                 progress: Callable[[str], None] | None = None,
+                 catalogue: Catalogue | None = None) -> list[Layout]:
     """Reset the simulator to each (task, seed) layout, render the first frame and detect on it."""
     kin = kin or PandaKinematics()
     if render and sim is None:
         from vla_sim.sim import PandaSim  # MuJoCo, an optional heavy dependency: only when rendering
 
-        sim = PandaSim(render=True)
+        sim = PandaSim(render=True, catalogue=catalogue)
     q_start = np.asarray(READY_POSE if q0 is None else q0, float)
     out = []
     for task in tasks:
-        cls = parse_task(task).object_class
+        spec = parse_task(task, catalogue)
+        cls = spec.object_class
         for seed in seeds:
-            objects, goal, wps, used = plannable_layout(kin, task, cls, int(seed), q_start, n_objects)
+            objects, goal, wps, used = plannable_layout(kin, spec, cls, int(seed), q_start, n_objects,
+                                                        catalogue=catalogue)
             image, size, dets = None, None, []
             if sim is not None:
                 sim.reset(objects=objects, q0=q_start)
@@ -113,25 +118,26 @@ def make_layouts(tasks: Sequence[str], seeds: Sequence[int], sim=None, detector=
                     size = (image.shape[1], image.shape[0])
                     if detector is not None:
                         dets = list(detector.detect(image))
-            out.append(Layout(task, used, list(objects), goal, q_start.copy(), wps, image, size, dets))
+            out.append(Layout(spec.name, used, list(objects), goal, q_start.copy(), wps, image, size, dets))
             if progress:
                 progress(f"layout {task} seed {used}")
     return out
 
 
-def plannable_layout(kin, task: str, cls: str, seed: int, q_start: np.ndarray, n_objects: int,
-                      attempts: int = 50):
+def plannable_layout(kin, task: str | TaskSpec, cls: str, seed: int, q_start: np.ndarray, n_objects: int,
+                      attempts: int = 50, catalogue: Catalogue | None = None):
     """The seed's layout, or the next derived seed's when the planner cannot plan it (IK limits)."""
     last = None
     for k in range(attempts):
         used = seed + k * LAYOUT_RETRY_STRIDE
-        objects = sample_layout_objects(task, used, n_objects)
+        objects = sample_layout_objects(task, used, n_objects, catalogue)
         goal = next(o for o in objects if o.class_id == cls)
         try:
-            return objects, goal, plan_waypoints(kin, task, goal, q_start), used
+            return objects, goal, plan_waypoints(kin, task, goal, q_start, catalogue=catalogue), used
         except PlanError as e:
             last = e
-    raise ValueError(f"{task}: no plannable layout from seed {seed} in {attempts} attempts ({last})")
+    name = getattr(task, "name", task)
+    raise ValueError(f"{name}: no plannable layout from seed {seed} in {attempts} attempts ({last})")
 
 
 def layout_context(model, layout: Layout,

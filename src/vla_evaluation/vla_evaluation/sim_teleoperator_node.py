@@ -24,14 +24,14 @@ from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
+from vla_common.catalogue import CatalogueError, load_catalogue
 from vla_common.detection import Detection
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import DQ_MAX, JOINT_NAMES
-from vla_common.ros.node_main import StartupError, run_node
+from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
-from vla_common.tasks import parse_task
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import ContextError
 from vla_latent_controller.model import LatentModel
@@ -64,6 +64,8 @@ PARAMETERS = ParameterTable([
     Param("model_path", "", "latent-action model directory (the controller's); empty: the shipped one; "
           "refused while an episode runs", dynamic=True),
     Param("task", "", "task to start at once, e.g. bread/push_east; empty: wait for ~/start_episode"),
+    Param("catalogue", "", "object catalogue YAML with the tasks and the objects' shapes (the planner's); "
+          "empty: the default (the paper's five)"),
     Param("rate", 100.0, "stick publishing rate (Hz): the controller's rate", range=(1.0, 1000.0)),
     Param("axis", 0, "index of the stick axis in Joy.axes (the controller's `axis`)", range=(0, 15),
           dynamic=True),
@@ -112,6 +114,10 @@ class SimTeleoperatorNode(Node):
     def __init__(self, **kwargs) -> None:
         super().__init__(NODE_NAME, **kwargs)
         self.p = PARAMETERS.declare(self, self._on_parameter)
+        try:
+            self.catalogue = load_catalogue(self.p["catalogue"])
+        except CatalogueError as e:
+            raise ConfigError(f"parameter 'catalogue': {e}") from e
         path = self.p["model_path"] or default_model_path()
         try:
             self.model = load_model(path)
@@ -227,7 +233,7 @@ class SimTeleoperatorNode(Node):
         return res
 
     def _request(self, task: str) -> None:
-        parse_task(task)  # ValueError with the known tasks
+        self.catalogue.task(task)  # CatalogueError (a ValueError) with the known tasks
         self.task = task
         self.state = TeleopStatus.WAITING
         self.reason = "waiting for joint states, scene and context"
@@ -261,7 +267,7 @@ class SimTeleoperatorNode(Node):
         if self.request_time is None or self.request_time.nanoseconds == 0:
             # requested before the first /clock (use_sim_time): the wait starts with simulated time
             self.request_time = now
-        spec = parse_task(self.task)
+        spec = self.catalogue.task(self.task)
         missing = self._missing_inputs(spec)
         if missing:
             self.reason = "waiting for " + ", ".join(missing)
@@ -291,7 +297,7 @@ class SimTeleoperatorNode(Node):
         command = StickToCommand(self.model, context, cls, p["deadband"], p["axis_scale"], p["action_scale"],
                                  p["max_joint_speed"], DQ_MAX)
         plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
-                         np.random.default_rng(int(p["plan_seed"])))
+                         np.random.default_rng(int(p["plan_seed"])), self.catalogue)
         schedule = WaypointSchedule(teleop_waypoints(plan), float(p["switch_time"]), float(p["time_limit"]))
         tele = SimTeleoperator(command, schedule, float(p["horizon"]), int(p["n_candidates"]),
                                float(p["max_stick_rate"]))

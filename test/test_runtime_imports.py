@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from node_processes import NodeProcesses
+from vla_launch.launcher import ProcessSpec
+from vla_launch.session import LaunchSession
 
 BLOCKER_DIR = Path(__file__).resolve().parent / "runtime_blocker"
 BLOCKED = ("torch", "mujoco", "vla_sim")
@@ -137,7 +138,7 @@ def _write_images(folder: Path) -> None:
         cv2.imwrite(str(folder / f"frame{i}.png"), rng.integers(0, 255, (240, 320, 3), dtype=np.uint8))
 
 
-def _observe(procs: NodeProcesses, timeout: float) -> dict[str, bool]:
+def _observe(procs: LaunchSession, timeout: float) -> dict[str, bool]:
     """Spin an observer until every node has shown its evidence, one has exited, or `timeout`."""
     from rclpy.node import Node
     from rclpy.qos import qos_profile_sensor_data as sensor
@@ -170,7 +171,7 @@ def _observe(procs: NodeProcesses, timeout: float) -> dict[str, bool]:
         n.create_subscription(SafetyStatus, "panda_bridge/status", mark("panda_bridge"), 10)
         joy = mark("joy_node", lambda _: "joy_node" in n.get_node_names())
         n.create_timer(0.5, lambda: joy(None))
-        h.spin_until(lambda: all(seen.values()) or not all(p.alive() for p in procs.procs.values()), timeout)
+        h.spin_until(lambda: all(seen.values()) or bool(procs.ended()), timeout)
     finally:
         h.shutdown()
     return seen
@@ -182,17 +183,23 @@ def runtime_nodes(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("runtime_nodes")
     images, bags, log = tmp / "images", tmp / "bags", tmp / "blocker.jsonl"
     _write_images(images)
-    procs = NodeProcesses(tmp / "logs", blocked_env(log))
+    # supervised as `vla launch` does: own process groups, SIGINT then SIGTERM/SIGKILL after 10 s each,
+    # in reverse order; one node ending does not stop the others
+    specs = [ProcessSpec(label, _node_command(label, images, bags)) for label in NODES]
+    procs = LaunchSession.of_processes(specs, env=blocked_env(log), log_path=tmp / "logs" / "nodes.log",
+                                       keep_going=True, sigterm_timeout=10.0, sigkill_timeout=10.0)
     try:
-        pids = {label: procs.start(label, _node_command(label, images, bags)).popen.pid for label in NODES}
+        procs.start()
         t0 = time.monotonic()
         seen = _observe(procs, timeout=120.0)
         up_s = time.monotonic() - t0
-        alive = {label: p.alive() for label, p in procs.procs.items()}
+        pids = procs.pids
+        alive = {label: procs.alive(label) for label in NODES}
         description = procs.describe()
-        codes = procs.stop_all()
+        procs.stop()
+        codes = procs.exit_codes()
     finally:
-        procs.close()
+        procs.stop()
     events = blocker_events(log)
     print(f"runtime nodes up in {up_s:.1f} s: {seen}; exit codes {codes}")
     yield {"seen": seen, "alive": alive, "codes": codes, "pids": pids, "events": events,

@@ -20,8 +20,9 @@ import subprocess
 
 import pytest
 import two_hosts
-from node_processes import NodeProcesses
 from two_hosts import IMAGE_BYTES, NetnsUnavailableError, TwoHosts
+from vla_launch.launcher import ProcessSpec
+from vla_launch.session import LaunchSession
 
 
 @pytest.fixture
@@ -37,16 +38,16 @@ def hosts():
     pair.close()
 
 
-@pytest.fixture
-def procs(tmp_path):
-    env = dict(os.environ)
-    env.update(PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
-    # conftest's LOCALHOST discovery would keep each side to itself; two_hosts.sh sets SUBNET and the
-    # static peer for every process. The domain stays this run's own.
-    env.pop("ROS_AUTOMATIC_DISCOVERY_RANGE", None)
-    p = NodeProcesses(tmp_path / "logs", env)
-    yield p
-    p.close()
+# conftest's LOCALHOST discovery would keep each side to itself; two_hosts.sh sets SUBNET and the static
+# peer for every process. The domain stays this run's own.
+NODE_ENV = {"PYTHONUNBUFFERED": "1", "RCUTILS_COLORIZED_OUTPUT": "0", "ROS_AUTOMATIC_DISCOVERY_RANGE": None}
+
+
+def _session(specs: list[ProcessSpec], log_path) -> LaunchSession:
+    """The processes supervised as `vla launch` does (own process groups, SIGINT then SIGTERM/SIGKILL
+    after 10 s each, reverse order); one ending does not stop the others."""
+    return LaunchSession.of_processes(specs, env=NODE_ENV, log_path=log_path, keep_going=True,
+                                      sigterm_timeout=10.0, sigkill_timeout=10.0)
 
 
 def _vla_run(pkg: str, exe: str, config: str, *params: str) -> list[str]:
@@ -92,27 +93,30 @@ def test_a_half_made_pair_is_removed():
 @pytest.mark.slow
 @pytest.mark.ros
 @pytest.mark.timeout(420)
-def test_teleoperation_across_two_hosts(hosts, procs, tmp_path):
+def test_teleoperation_across_two_hosts(hosts, tmp_path):
     robot, vision = hosts.robot, hosts.vision
     before = hosts.link_bytes(robot)
-    procs.start("panda_bridge", hosts.command(robot, _vla_run(
-        "vla_panda_bridge", "panda_bridge", "panda_bridge.yaml",
-        # 5 frames/s of the shipped 640x480 (900 KiB each) keep a loaded 2-core machine responsive
-        "camera_rate:=5.0", "state_rate:=100.0")))
-    procs.start("controller_node", hosts.command(robot, _vla_run(
-        "vla_latent_controller", "controller_node", "controller.yaml",
-        "joy_timeout:=0.5")))  # the probe's 50 Hz joystick may stall for a moment on a busy machine
-    procs.start("detector_node", hosts.command(vision, _vla_run(
-        "vla_detector", "detector_node", "detector.yaml")))
-
-    probe = procs.start("probe", hosts.command(robot, [
-        "python", two_hosts.__file__, "probe", "--timeout", "150", "--move", "0.05"]))
-    probe.popen.wait(360)
-    lines = [ln for ln in probe.tail(200).splitlines() if ln.startswith("{")]
-    assert lines, f"the probe printed no report\n{procs.describe()}"
-    report = json.loads(lines[-1])
-    after = hosts.link_bytes(robot)
-    codes = procs.stop_all()
+    specs = [
+        ProcessSpec("panda_bridge", hosts.command(robot, _vla_run(
+            "vla_panda_bridge", "panda_bridge", "panda_bridge.yaml",
+            # 5 frames/s of the shipped 640x480 (900 KiB each) keep a loaded 2-core machine responsive
+            "camera_rate:=5.0", "state_rate:=100.0"))),
+        ProcessSpec("controller_node", hosts.command(robot, _vla_run(
+            "vla_latent_controller", "controller_node", "controller.yaml",
+            "joy_timeout:=0.5"))),  # the probe's 50 Hz joystick may stall for a moment on a busy machine
+        ProcessSpec("detector_node", hosts.command(vision, _vla_run(
+            "vla_detector", "detector_node", "detector.yaml"))),
+        ProcessSpec("probe", hosts.command(robot, [
+            "python", two_hosts.__file__, "probe", "--timeout", "150", "--move", "0.05"])),
+    ]
+    with _session(specs, tmp_path / "logs" / "nodes.log") as procs:
+        procs.wait("probe", 360)
+        lines = [ln for ln in procs.output("probe") if ln.startswith("{")]
+        assert lines, f"the probe printed no report\n{procs.describe()}"
+        report = json.loads(lines[-1])
+        after = hosts.link_bytes(robot)
+        procs.stop()
+        codes = procs.exit_codes()
     print(json.dumps(report), f"veth robot->vision {after['tx'] - before['tx']} B, "
           f"vision->robot {after['rx'] - before['rx']} B", codes)
 

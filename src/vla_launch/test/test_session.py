@@ -1,5 +1,6 @@
 """LaunchSession: a launch file's processes from Python, as `vla launch` starts them."""
 import os
+import signal
 import sys
 import time
 
@@ -49,3 +50,24 @@ def test_check_names_the_process_that_ended_with_its_output(tmp_path, fixtures_d
             s.check()
     finally:
         assert s.stop() == 3  # the launch's exit code: the first failure's
+
+
+def test_given_processes_with_their_own_environments_keep_going_past_a_failure(tmp_path, fixtures_dir):
+    """of_processes: commands as given (a prefix such as `ip netns exec` is part of cmd), each spec's
+    env over the session's; with keep_going one process failing leaves the others running."""
+    from vla_launch.launcher import ProcessSpec
+
+    script = os.path.join(fixtures_dir, "proc.py")
+    show = [sys.executable, "-c", "import os; print(os.environ['VLA_SIDE'], os.environ.get('VLA_BASE'))"]
+    specs = [ProcessSpec("robot", show, env={"VLA_SIDE": "robot"}),
+             ProcessSpec("vision", show, env={"VLA_SIDE": "vision", "VLA_BASE": None}),
+             ProcessSpec("bad", [sys.executable, script, "--exit-after", "0.2", "--code", "3"]),
+             ProcessSpec("long", [sys.executable, script])]
+    s = LaunchSession.of_processes(specs, env={"VLA_BASE": "base"}, log_path=tmp_path / "p.log",
+                                   keep_going=True)
+    with s:
+        assert s.wait("robot", 20) == 0 and s.wait("vision", 20) == 0 and s.wait("bad", 20) == 3
+        assert s.output("robot") == ["robot base"] and s.output("vision") == ["vision None"]
+        assert s.alive("long") and not s.alive("bad")
+        assert "--- bad (exit code 3)" in s.describe() and "--- long (running)" in s.describe()
+    assert s.exit_codes()["long"] == -signal.SIGINT and not s.alive("long")  # stopped by our SIGINT

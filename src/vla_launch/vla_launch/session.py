@@ -9,6 +9,9 @@ every error.
                        log_path=out / "graph.log") as graph:
         ...
         graph.check()  # LaunchError when a process has ended, with its last output lines
+
+`LaunchSession.of_processes([ProcessSpec(...), ...])` supervises given commands the same way (tests
+that start nodes under a command prefix such as `ip netns exec`, each with its own environment).
 """
 from __future__ import annotations
 
@@ -17,12 +20,13 @@ import os
 import shutil
 import tempfile
 import threading
+import time
 from collections.abc import Mapping
 from pathlib import Path
 
 from vla_launch import plan as plan_mod
 from vla_launch.launch_file import LaunchPlan
-from vla_launch.launcher import Launcher
+from vla_launch.launcher import Launcher, ProcessSpec
 
 
 class LaunchError(RuntimeError):
@@ -44,8 +48,10 @@ class LaunchSession:
     def __init__(self, package: str | None, file: str, arguments: Mapping[str, object] | None = None, *,
                  env: Mapping[str, str | None] | None = None, log_path: str | Path | None = None,
                  sigterm_timeout: float = 5.0, sigkill_timeout: float = 5.0,
-                 stop_stagger: float = 1.0) -> None:
+                 stop_stagger: float = 1.0, keep_going: bool = False) -> None:
         self.path = plan_mod.find_launch_file(package, file) if package else file
+        self._specs: list[ProcessSpec] | None = None  # given processes instead of the launch file's
+        self.keep_going = keep_going  # a process failing does not stop the others
         self.arguments = {k: argument_text(v) for k, v in (arguments or {}).items()}
         self.env = dict(os.environ)
         for key, value in (env or {}).items():
@@ -63,6 +69,14 @@ class LaunchSession:
         self._stopping = False
         self.launcher: Launcher | None = None
 
+    @classmethod
+    def of_processes(cls, specs: list[ProcessSpec], **options) -> LaunchSession:
+        """A session of the given processes (started in order) instead of a launch file's; the same
+        options (env: the base environment, each spec's env overrides it)."""
+        session = cls(None, "processes", **options)
+        session._specs = list(specs)
+        return session
+
     # ------------------------------------------------------------------------------- lifecycle
     def __enter__(self) -> LaunchSession:
         return self.start()
@@ -76,14 +90,18 @@ class LaunchSession:
             self.log_path = Path(self._tmpdir) / "launch.log"
         self.log_path.parent.mkdir(parents=True, exist_ok=True)
         try:
-            self._plan, specs = plan_mod.load(self.path, self.arguments, self._tmpdir)
+            if self._specs is not None:
+                specs = self._specs
+            else:
+                self._plan, specs = plan_mod.load(self.path, self.arguments, self._tmpdir)
         except Exception:
             self._cleanup()
             raise
         self._log = open(self.log_path, "a", buffering=1, encoding="utf-8")  # noqa: SIM115 - closed in stop()
         sigterm, sigkill, stagger = self._timeouts
         self.launcher = Launcher(specs, sigterm_timeout=sigterm, sigkill_timeout=sigkill,
-                                 stop_stagger=stagger, stdout=self._log, stderr=self._log, env=self.env)
+                                 stop_stagger=stagger, stdout=self._log, stderr=self._log, env=self.env,
+                                 keep_going=self.keep_going)
         self._thread = threading.Thread(target=self._run, name="vla-launch", daemon=True)
         self._thread.start()
         return self
@@ -125,6 +143,34 @@ class LaunchSession:
         """(label, exit code) of every process that has ended so far."""
         return list(self.launcher.ended) if self.launcher else []
 
+    def exit_codes(self) -> dict[str, int]:
+        """label -> exit code of each process that has ended (negative: killed by that signal)."""
+        return dict(self.ended())
+
+    def alive(self, label: str) -> bool:
+        return label in self.pids and label not in self.exit_codes()
+
+    def wait(self, label: str, timeout: float) -> int | None:
+        """Wait up to `timeout` s for one process to end; its exit code, or None if still running."""
+        end = time.monotonic() + timeout
+        while label not in self.exit_codes() and time.monotonic() < end:
+            time.sleep(0.1)
+        return self.exit_codes().get(label)
+
+    def describe(self, lines: int = 25) -> str:
+        """Every process's state and last output lines, for assertion messages."""
+        codes = self.exit_codes()
+        parts = []
+        for label in self.pids:
+            state = f"exit code {codes[label]}" if label in codes else "running"
+            parts.append(f"--- {label} ({state}):\n{self.tail(label, lines)}")
+        return "\n".join(parts)
+
+    def output(self, label: str) -> list[str]:
+        """Every output line of one process (not the launcher's lines about it), without the prefix."""
+        prefix = f"[{label}-"
+        return [t.split("] ", 1)[1] for t in self.tail(label, lines=0).splitlines() if t.startswith(prefix)]
+
     def check(self) -> None:
         """LaunchError if a process has ended (or could not start) while the launch was not stopping."""
         if self.launcher is None or self._stopping:
@@ -143,4 +189,4 @@ class LaunchSession:
             return ""
         if label is not None:
             text = [t for t in text if t.startswith(f"[{label}-") or f"[{label}-" in t[:80]]
-        return "\n".join(text[-lines:])
+        return "\n".join(text[-lines:] if lines else text)

@@ -37,6 +37,9 @@ export AMENT_PREFIX_PATH=$venv CMAKE_PREFIX_PATH=$venv
 export _ROS_WHEELS_BOOTSTRAP_COMPLETE=1
 export LD_LIBRARY_PATH=$venv/lib${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}
 for d in "$site"/ros_*.libs; do [ -d "$d" ] && LD_LIBRARY_PATH=$d:$LD_LIBRARY_PATH; done
+# A file moved or deleted in the tree leaves a dangling symlink in a symlink-install build, which
+# makes colcon fail ("can't copy ... doesn't exist"): drop dangling links first.
+find build install -xtype l -delete 2>/dev/null || true
 echo "[setup] colcon build"
 colcon --log-base build/log build --symlink-install --base-paths src \
   --event-handlers console_cohesion- status- summary+ \

@@ -106,9 +106,17 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
     assert all(_opt(c, "--catalogue") == str(CATALOGUE) and _opt(c, "--include") == "spam" for c in synth)
     assert _opt(synth[1], "--split") == "test" and _opt(synth[0], "--seed") != _opt(synth[1], "--seed")
     train = [c for c in f.calls if c[:2] == ["vla_detector_training", "train"]]
-    assert [_opt(c, "--out") for c in train] == [str(run / "detector"), str(run / "detector_scratch")]
-    assert "--init" in train[0] and "--init" not in train[1]  # fine-tuned, then from scratch
+    assert [Path(_opt(c, "--out")).relative_to(run).as_posix() for c in train] == [
+        "detector", "detector_mix", "detector_scratch",  # fine-tuned, with renders mixed in, from scratch
+        "timing/fine_tuned_1", "timing/scratch_1", "timing/fine_tuned_2", "timing/scratch_2"]
+    assert [_opt(c, "--init") if "--init" in c else None for c in train[:3]] == ["shipped", "shipped", None]
+    assert _opt(train[1], "--mix-synth") == "100" and _opt(train[1], "--catalogue") == str(CATALOGUE)
+    def without_out(c):
+        return [w for w in c if w != _opt(c, "--out")]
+    assert without_out(train[3]) == without_out(train[0]) and without_out(train[4]) == without_out(train[2])
     assert all(_opt(c, "--data") == str(run / "renders") for c in train)
+    assert set(res["detector"]) == {"fine_tuned", "fine_tuned_mix", "scratch"}
+    assert [len(t["runs_s"]) for t in res["detector_timing"].values()] == [3, 3]
     fine = str(run / "detector" / "detector.onnx")
     gen = next(c for c in f.calls if c[:2] == ["vla_evaluation", "generate"])
     assert _opt(gen, "--task") == TASK and _opt(gen, "--detector-model") == fine
@@ -132,7 +140,7 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
     saved = json.loads((run / "results.json").read_text())
     assert saved["transfer"]["3"]["success_rate"] == 0.9
     readme = (run / "README.md").read_text()
-    assert "| 3 | 10 | 90 % |" in readme and "spam 0.930" in readme
+    assert "| 3 | 10 | 90 % |" in readme and "spam 0.930" in readme and "| fine_tuned | " in readme
 
 
 def test_a_rerun_resumes_without_redoing_finished_steps(tmp_path, fake):
@@ -172,6 +180,7 @@ def test_failed_generated_episodes_are_topped_up_with_new_seeds(tmp_path, fake):
     assert [_opt(c, "--episodes") for c in gens] == ["5", "2"]
     assert _opt(gens[0], "--seed") != _opt(gens[1], "--seed")
     assert len(res["new_demos"]) == 5 and "scratch" not in res["detector"]
+    assert "detector_time_ratio" not in res and list(res["detector_timing"]) == ["fine_tuned"]
     assert not any("detector_scratch" in " ".join(c) for c in f.calls)
 
 
@@ -223,3 +232,13 @@ def test_smallest_sufficient_and_the_counts_to_measure():
     assert no.demo_counts(cfg, {3: 0.8}) == []
     assert no.demo_counts(cfg, {3: 0.7}) == [1, 2, 4, 5]
     assert no.demo_counts(cfg, {3: None}) == []  # not judged: nothing to sweep on
+
+
+def test_the_time_goal_is_judged_on_the_median_of_the_runs(tmp_path):
+    res = {"detector": {"fine_tuned": {"train_wall_s": 400.0, "new_class_ap50": 0.95,
+                                       "old_classes_map50": 0.94}},
+           "detector_timing": {"fine_tuned": {"runs_s": [400.0, 120.0, 130.0], "median_s": 130.0}},
+           "transfer": {"3": {"success_rate": 0.7}}}
+    v = no.verdicts(res, no.NewObjectConfig(catalogue=CATALOGUE, task=TASK, out=tmp_path))
+    assert v == {"new_class_ap50>=0.9": True, "old_classes_map50>=0.95": False,
+                 "fine_tune_median<=300s": True, "success_with_3_demos>=80%": False}

@@ -218,7 +218,8 @@ def test_a_reflex_holds_the_arm_until_recover_and_recovery_needs_a_zero_command(
     stream["cmd"] = [0.0, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0]      # back up: ignored while held
     t_reflex = _stamp(reflex)
     assert h.wait(lambda: _stamp(h.states[-1]) > t_reflex + 1.5, 10.0)   # it bounced off the table
-    assert np.abs(h.states[-1].velocity).max() < 0.01, _recent(h)
+    # held: it comes to rest (the hold servo damps the bounce) however the machine's load paced it
+    assert h.wait(lambda: np.abs(h.states[-1].velocity).max() < 1e-3, 20.0), _recent(h)
     t0 = _stamp(h.states[-1])
     q_held = np.array(h.states[-1].position)
     assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)

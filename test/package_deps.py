@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import ast
+import re
 import sys
 from pathlib import Path
 
@@ -49,5 +50,16 @@ def imported_modules(package: str) -> set[str]:
     return found - IGNORED - {package}
 
 
+def launched_packages(package: str) -> set[str]:
+    """Packages the package's launch files start or read files from (`pkg:` and `$(find-pkg-share X)`)."""
+    found: set[str] = set()
+    for f in (SRC / package / "launch").glob("*.launch.yaml"):
+        text = f.read_text()
+        found.update(re.findall(r"^\s*pkg:\s*([\w]+)", text, flags=re.M))
+        found.update(re.findall(r"\$\(find-pkg-share\s+([\w]+)\)", text))
+    return found - {package}
+
+
 def required_keys(package: str) -> set[str]:
-    return {MODULE_KEYS.get(m, m) for m in imported_modules(package)}
+    """What the package's code imports and its launch files start, as dependency keys."""
+    return {MODULE_KEYS.get(m, m) for m in imported_modules(package)} | launched_packages(package)

@@ -56,7 +56,10 @@ class FakeProject:
             row = {"task": _opt(cmd, "--tasks"), "episodes": int(_opt(cmd, "--layouts")),
                    "success_rate": self.success[k], "final_state_error": 0.3, "final_state_error_sem": 0.02,
                    "time_to_success_median": 11.0, "safety_interventions": 0, "limit_violations": 0}
-            (out / "results.json").write_text(json.dumps({"meta": {}, "summary": [row], "episodes": []}))
+            episodes = [{"task": row["task"], "detected_class": "spam" if i else "bread",
+                         "x_interventions_by_code": {"4": 2, "3": 1}} for i in range(row["episodes"])]
+            results = {"meta": {}, "summary": [row], "episodes": episodes}
+            (out / "results.json").write_text(json.dumps(results))
         else:
             raise AssertionError(f"unexpected command {cmd}")
         return 0
@@ -141,6 +144,9 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
     assert saved["transfer"]["3"]["success_rate"] == 0.9
     readme = (run / "README.md").read_text()
     assert "| 3 | 10 | 90 % |" in readme and "spam 0.930" in readme and "| fine_tuned | " in readme
+    row = res["transfer"]["3"]
+    assert row["detected_task_object"] == 9 and "| 9/10 |" in readme
+    assert row["interventions_by_code"] == {"ACCELERATION_LIMITED": 20, "VELOCITY_SCALED": 10}
 
 
 def test_a_rerun_resumes_without_redoing_finished_steps(tmp_path, fake):

@@ -34,12 +34,14 @@ import statistics
 import subprocess
 import sys
 import time
+from collections import Counter
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from vla_common.catalogue import CatalogueError, load_catalogue
 from vla_common.tasks import BASE_TASKS
+from vla_panda_bridge.safety import CODE_NAMES
 
 from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET
 from vla_evaluation.resources import detector_model_path
@@ -256,11 +258,22 @@ def evaluate_transfer(cfg: NewObjectConfig, k: int, model: Path, detector: Path,
 
 
 def summary_row(results: dict, task: str) -> dict:
-    """The evaluation's summary of `task` (success rate, final state error, time to success, ...)."""
+    """The evaluation's summary of `task` (success rate, final state error, time to success, ...),
+    with what its episodes say beyond it: how often the detector latched the task's object, and the
+    safety layer's interventions by kind."""
     rows = [r for r in results.get("summary", []) if r.get("task") == task]
     if not rows:
         raise RuntimeError(f"the evaluation has no summary of {task}")
-    return dict(rows[0])
+    row = dict(rows[0])
+    episodes = [e for e in results.get("episodes", []) if e.get("task") == task]
+    obj = task.split("/", 1)[0]
+    row["detected_task_object"] = sum(e.get("detected_class") == obj for e in episodes)
+    by_code: Counter = Counter()
+    for e in episodes:
+        for code, n in (e.get("x_interventions_by_code") or {}).items():
+            by_code[CODE_NAMES.get(int(code), str(code))] += int(n)
+    row["interventions_by_code"] = dict(by_code)
+    return row
 
 
 def demo_counts(cfg: NewObjectConfig, success: dict[int, float | None]) -> list[int]:
@@ -347,12 +360,16 @@ def report_markdown(res: dict) -> str:
         lines += ["", f"Median time ratio, from scratch / fine-tuned: {ratio:.2f}."]
     lines += ["", "## Transfer model, graph evaluation on fresh layouts", "",
               "| new demos | episodes | success | final state error (rad) | median time to success | "
-              "interventions | violations |", "|---|---|---|---|---|---|---|"]
+              "detected as the object | safety interventions (by kind) | limit violations |",
+              "|---|---|---|---|---|---|---|---|"]
     for k, r in sorted(res["transfer"].items(), key=lambda kv: int(kv[0])):
         tts = "-" if r.get("time_to_success_median") is None else f"{r['time_to_success_median']:.1f} s"
+        kinds = ", ".join(f"{n} {c}" for c, n in (r.get("interventions_by_code") or {}).items())
         lines.append(f"| {k} | {r['episodes']} | {_pct(r['success_rate'])} | "
                      f"{_num(r['final_state_error'])} +- {_num(r.get('final_state_error_sem'))} | {tts} | "
-                     f"{r.get('safety_interventions', '-')} | {r.get('limit_violations', '-')} |")
+                     f"{r.get('detected_task_object', '-')}/{r['episodes']} | "
+                     f"{r.get('safety_interventions', '-')}{f' ({kinds})' if kinds else ''} | "
+                     f"{r.get('limit_violations', '-')} |")
     k = res.get("smallest_sufficient_demos")
     lines += ["", f"Smallest number of new demonstrations reaching {_pct(cfg['goal'])}: "
                   f"{'none measured' if k is None else k}.", "", "## Goals", ""]

@@ -3,6 +3,7 @@ demonstration-count sweep and the report, with every project command replaced by
 what the real one writes (the real commands run in test/test_new_object_walkthrough.py)."""
 
 import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -120,6 +121,8 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
     assert all(_opt(c, "--data") == str(run / "renders") for c in train)
     assert set(res["detector"]) == {"fine_tuned", "fine_tuned_mix", "scratch"}
     assert [len(t["runs_s"]) for t in res["detector_timing"].values()] == [3, 3]
+    assert all(len(t["cpu_runs_s"]) == 3 and t["median_cpu_s"] is not None
+               for t in res["detector_timing"].values())
     fine = str(run / "detector" / "detector.onnx")
     gen = next(c for c in f.calls if c[:2] == ["vla_evaluation", "generate"])
     assert _opt(gen, "--task") == TASK and _opt(gen, "--detector-model") == fine
@@ -248,3 +251,8 @@ def test_the_time_goal_is_judged_on_the_median_of_the_runs(tmp_path):
     v = no.verdicts(res, no.NewObjectConfig(catalogue=CATALOGUE, task=TASK, out=tmp_path))
     assert v == {"new_class_ap50>=0.9": True, "old_classes_map50>=0.95": False,
                  "fine_tune_median<=300s": True, "success_with_3_demos>=80%": False}
+
+
+def test_timed_measures_the_commands_cpu_time():
+    t = no.timed([sys.executable, "-c", "sum(i * i for i in range(2_000_000))"], log=lambda m: None)
+    assert t["cpu_s"] > 0 and t["wall_s"] > 0

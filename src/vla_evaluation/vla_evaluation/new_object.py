@@ -29,6 +29,7 @@ import json
 import os
 import platform
 import re
+import resource
 import shutil
 import statistics
 import subprocess
@@ -86,11 +87,14 @@ class NewObjectConfig:
 
 
 # ---------------------------------------------------------------------------------------------- steps
-def timed(cmd: Sequence[str], log: Callable[[str], None], accept: Sequence[int] = (0,)) -> float:
-    """Run a project command (streamed), return its wall time in seconds."""
-    t0 = time.monotonic()
+def timed(cmd: Sequence[str], log: Callable[[str], None], accept: Sequence[int] = (0,)) -> dict[str, float]:
+    """Run a project command (streamed): its wall time and its CPU time (user + system, the command and
+    what it waited for), in seconds. On a shared machine the CPU time is the steadier figure."""
+    t0, r0 = time.monotonic(), resource.getrusage(resource.RUSAGE_CHILDREN)
     run_command(cmd, log, accept)
-    return time.monotonic() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+    return {"wall_s": time.monotonic() - t0, "cpu_s": cpu}
 
 
 def run_captured(cmd: Sequence[str], log: Callable[[str], None]) -> str:
@@ -124,24 +128,25 @@ def onnx_in(folder: Path) -> Path | None:
 
 
 def train_detector(cfg: NewObjectConfig, renders: Path, name: str, extra: Sequence[str],
-                   log: Callable[[str], None]) -> tuple[Path, float]:
-    """(ONNX, wall seconds of the training) of a detector trained on the renders (whose data.yaml
+                   log: Callable[[str], None]) -> tuple[Path, dict[str, float]]:
+    """(ONNX, wall and CPU seconds of the training) of a detector trained on the renders (whose data.yaml
     names the catalogue's classes) into out/<name>, with the train command's `extra` options
     (`--init shipped`: fine-tuning; none: from scratch)."""
     out = cfg.path(name)
     timing = out / "train_time.json"
     if onnx_in(out) is not None and timing.is_file():
         log(f"[new-object] reusing {out}")
-        return onnx_in(out), json.loads(timing.read_text())["wall_s"]
+        saved = json.loads(timing.read_text())
+        return onnx_in(out), {"wall_s": saved["wall_s"], "cpu_s": saved.get("cpu_s")}
     cmd = ["vla_detector_training", "train", "--data", str(renders), "--out", str(out), *extra, "--quiet"]
     if cfg.detector_epochs is not None:
         cmd += ["--epochs", str(cfg.detector_epochs)]
-    wall = timed(cmd, log)
+    times = timed(cmd, log)
     model = onnx_in(out)
     if model is None:
         raise RuntimeError(f"detector training wrote no .onnx into {out}")
-    timing.write_text(json.dumps({"wall_s": wall, "command": cmd}) + "\n")
-    return model, wall
+    timing.write_text(json.dumps({**times, "command": cmd}) + "\n")
+    return model, times
 
 
 def detector_variants(cfg: NewObjectConfig) -> dict[str, tuple[str, list[str]]]:
@@ -155,7 +160,7 @@ def detector_variants(cfg: NewObjectConfig) -> dict[str, tuple[str, list[str]]]:
     return out
 
 
-def median_timing(cfg: NewObjectConfig, renders: Path, first: dict[str, float],
+def median_timing(cfg: NewObjectConfig, renders: Path, first: dict[str, dict[str, float]],
                   log: Callable[[str], None]) -> dict[str, dict]:
     """Training time of the fine-tuned and the from-scratch detector over 1 + timing_repeats runs
     each (alternating, so that a change in the shared machine's load falls on both): runs and median."""
@@ -165,8 +170,13 @@ def median_timing(cfg: NewObjectConfig, renders: Path, first: dict[str, float],
     for r in range(1, cfg.timing_repeats + 1):
         for k in keys:
             runs[k].append(train_detector(cfg, renders, f"timing/{k}_{r}", variants[k][1], log)[1])
-    return {k: {"runs_s": [round(v, 1) for v in vs], "median_s": statistics.median(vs)}
-            for k, vs in runs.items()}
+    out = {}
+    for k, vs in runs.items():
+        wall, cpu = [v["wall_s"] for v in vs], [v["cpu_s"] for v in vs if v.get("cpu_s") is not None]
+        out[k] = {"runs_s": [round(v, 1) for v in wall], "median_s": statistics.median(wall),
+                  "cpu_runs_s": [round(v, 1) for v in cpu],
+                  "median_cpu_s": statistics.median(cpu) if cpu else None}
+    return out
 
 
 def parse_evaluation(text: str) -> dict:
@@ -191,7 +201,7 @@ def parse_evaluation(text: str) -> dict:
 
 
 def detector_figures(model: Path, test_renders: Path, new_class: str, old_classes: Sequence[str],
-                     wall_s: float | None, log: Callable[[str], None]) -> dict:
+                     times: dict[str, float], log: Callable[[str], None]) -> dict:
     """AP@0.5 per class on the held-out renders (`vla_detector_training evaluate`), the new class's,
     and the mean over the old classes."""
     text = run_captured(["vla_detector_training", "evaluate", "--model", str(model), "--data",
@@ -199,7 +209,8 @@ def detector_figures(model: Path, test_renders: Path, new_class: str, old_classe
     fig = parse_evaluation(text)
     ap = fig["ap50"]
     old = [ap[c] for c in old_classes if c in ap]
-    return {"model": str(model), "train_wall_s": wall_s, **fig, "new_class_ap50": ap.get(new_class),
+    return {"model": str(model), "train_wall_s": times["wall_s"], "train_cpu_s": times.get("cpu_s"),
+            **fig, "new_class_ap50": ap.get(new_class),
             "old_classes_map50": statistics.fmean(old) if old else None}
 
 
@@ -346,18 +357,24 @@ def report_markdown(res: dict) -> str:
         if not d:
             continue
         per = ", ".join(f"{c} {v:.3f}" for c, v in d["ap50"].items())
-        t = "-" if d["train_wall_s"] is None else f"{d['train_wall_s']:.0f} s"
+        cpu = d.get("train_cpu_s")
+        t = f"{d['train_wall_s']:.0f} s" + ("" if cpu is None else f" ({cpu:.0f} s CPU)")
         lines.append(f"| {name} | {t} | {_num(d['new_class_ap50'])} | {_num(d['old_classes_map50'])} | "
                      f"{_num(d['map50'])} | {per} |")
     timing = res.get("detector_timing") or {}
     if timing:
-        lines += ["", "Training time (wall; the same renders and epochs; the runs alternate):", "",
-                  "| detector | runs (s) | median (s) |", "|---|---|---|"]
-        lines += [f"| {k} | {', '.join(f'{v:.0f}' for v in t['runs_s'])} | {t['median_s']:.0f} |"
+        lines += ["", "Training time of the same renders and epochs (runs alternate; CPU = user + system of "
+                      "the command, steadier than wall time on the shared machine):", "",
+                  "| detector | wall, runs (s) | wall, median (s) | CPU, runs (s) | CPU, median (s) |",
+                  "|---|---|---|---|---|"]
+        lines += [f"| {k} | {', '.join(f'{v:.0f}' for v in t['runs_s'])} | {t['median_s']:.0f} | "
+                  f"{', '.join(f'{v:.0f}' for v in t.get('cpu_runs_s', []))} | "
+                  f"{_num(t.get('median_cpu_s'), '.0f')} |"
                   for k, t in timing.items()]
-    ratio = res.get("detector_time_ratio")
-    if ratio:
-        lines += ["", f"Median time ratio, from scratch / fine-tuned: {ratio:.2f}."]
+    ratios = [("wall", res.get("detector_time_ratio")), ("CPU", res.get("detector_cpu_time_ratio"))]
+    shown = [f"{w} {r:.2f}" for w, r in ratios if r]
+    if shown:
+        lines += ["", f"Median time ratio, from scratch / fine-tuned: {', '.join(shown)}."]
     lines += ["", "## Transfer model, graph evaluation on fresh layouts", "",
               "| new demos | episodes | success | final state error (rad) | median time to success | "
               "detected as the object | safety interventions (by kind) | limit violations |",
@@ -403,7 +420,7 @@ def run_pipeline(cfg: NewObjectConfig, log: Callable[[str], None] = print, comma
     t = time.monotonic()
     renders, test_renders = render(cfg, log)
     step("renders", t)
-    first: dict[str, float] = {}
+    first: dict[str, dict[str, float]] = {}
     models: dict[str, Path] = {}
     for key, (folder, extra) in detector_variants(cfg).items():
         t = time.monotonic()
@@ -415,6 +432,9 @@ def run_pipeline(cfg: NewObjectConfig, log: Callable[[str], None] = print, comma
     res["detector_timing"] = timing = median_timing(cfg, renders, first, log)
     if "scratch" in timing:
         res["detector_time_ratio"] = timing["scratch"]["median_s"] / timing["fine_tuned"]["median_s"]
+        if timing["scratch"]["median_cpu_s"] and timing["fine_tuned"]["median_cpu_s"]:
+            res["detector_cpu_time_ratio"] = (timing["scratch"]["median_cpu_s"]
+                                              / timing["fine_tuned"]["median_cpu_s"])
     step("detector timing repeats", t)
     fine = models["fine_tuned"]
     t = time.monotonic()

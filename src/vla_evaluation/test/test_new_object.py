@@ -154,13 +154,19 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
 
 def test_a_rerun_resumes_without_redoing_finished_steps(tmp_path, fake):
     fake({3: 0.9})
-    no.run_pipeline(_cfg(tmp_path), log=lambda m: None)
+    first = no.run_pipeline(_cfg(tmp_path), log=lambda m: None)
+    saved = tmp_path / "run" / "results.json"
+    earlier = {name: 100.0 + i for i, name in enumerate(first["steps_s"])}  # as if they had taken long
+    saved.write_text(json.dumps(dict(json.loads(saved.read_text()), steps_s=earlier)))
     f = fake({3: 0.9})
     res = no.run_pipeline(_cfg(tmp_path), log=lambda m: None)
     heavy = {("vla_detector_training", "synth"), ("vla_detector_training", "train"),
              ("vla_evaluation", "generate"), ("vla_latent_training", "train"), ("vla_evaluation", "evaluate")}
     assert not heavy & set(f.programs())
     assert res["transfer"]["3"]["success_rate"] == 0.9
+    # each reused step keeps the time of the run that did it
+    assert res["steps_s"] == earlier and set(res["steps_reused"]) == set(earlier)
+    assert "(an earlier run)" in (tmp_path / "run" / "README.md").read_text()
 
 
 def test_three_demonstrations_short_of_the_goal_measure_one_to_five(tmp_path, fake):

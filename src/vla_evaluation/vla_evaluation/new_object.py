@@ -87,11 +87,20 @@ class NewObjectConfig:
 
 
 # ---------------------------------------------------------------------------------------------- steps
+_RAN = {"commands": 0}  # project commands run by this process (a step that ran none was reused)
+
+
+def run_counted(cmd: Sequence[str], log: Callable[[str], None], accept: Sequence[int] = (0,)) -> int:
+    """`training_data.run_command`, counted."""
+    _RAN["commands"] += 1
+    return run_command(cmd, log, accept)
+
+
 def timed(cmd: Sequence[str], log: Callable[[str], None], accept: Sequence[int] = (0,)) -> dict[str, float]:
     """Run a project command (streamed): its wall time and its CPU time (user + system, the command and
     what it waited for), in seconds. On a shared machine the CPU time is the steadier figure."""
     t0, r0 = time.monotonic(), resource.getrusage(resource.RUSAGE_CHILDREN)
-    run_command(cmd, log, accept)
+    run_counted(cmd, log, accept)
     r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
     return {"wall_s": time.monotonic() - t0, "cpu_s": cpu}
@@ -116,7 +125,7 @@ def render(cfg: NewObjectConfig, log: Callable[[str], None]) -> tuple[Path, Path
         if (folder / "data.yaml").is_file():
             log(f"[new-object] reusing {folder}")
             continue
-        run_command(["vla_detector_training", "synth", "--catalogue", str(cfg.catalogue), "--include", obj,
+        run_counted(["vla_detector_training", "synth", "--catalogue", str(cfg.catalogue), "--include", obj,
                      "--count", str(count), "--seed", str(seed), "--split", split, "--out", str(folder),
                      "--quiet"], log)
     return sets[0][0], sets[1][0]
@@ -223,7 +232,7 @@ def new_task_demos(cfg: NewObjectConfig, detector: Path, log: Callable[[str], No
         have = count_bags(folder)
         if have >= cfg.max_demos:
             break
-        run_command(["vla_evaluation", "generate", "--catalogue", str(cfg.catalogue), "--task", cfg.task,
+        run_counted(["vla_evaluation", "generate", "--catalogue", str(cfg.catalogue), "--task", cfg.task,
                      "--episodes", str(cfg.max_demos - have),
                      "--seed", str(NEW_DEMO_SEED + 1000 * attempt + have),
                      "--detector-model", str(detector), "--out", str(folder), "--real-time-factor", "0",
@@ -246,7 +255,7 @@ def train_transfer(cfg: NewObjectConfig, k: int, base: Sequence[Path], new_bags:
     if (out / "config.json").is_file():
         log(f"[new-object] reusing {out}")
         return out
-    run_command(["vla_latent_training", "train", "--catalogue", str(cfg.catalogue),
+    run_counted(["vla_latent_training", "train", "--catalogue", str(cfg.catalogue),
                  "--bags", *map(str, base), *map(str, new_bags[:k]), "--max-per-task", str(BASE_EPISODES),
                  "--detector-model", str(detector), "--epochs", str(cfg.latent_epochs),
                  "--seed", str(cfg.latent_seed), "--out", str(out), "--quiet"], log)
@@ -258,7 +267,7 @@ def evaluate_transfer(cfg: NewObjectConfig, k: int, model: Path, detector: Path,
     """The graph evaluation of one transfer model on the fresh layouts: its summary row."""
     out = cfg.path("eval", f"k{k}")
     if not (out / "results.json").is_file():
-        run_command(["vla_evaluation", "evaluate", "--mode", "graph", "--catalogue", str(cfg.catalogue),
+        run_counted(["vla_evaluation", "evaluate", "--mode", "graph", "--catalogue", str(cfg.catalogue),
                      "--tasks", cfg.task, "--layouts", str(cfg.layouts), "--seed", str(cfg.layout_seed),
                      "--model", str(model), "--detector-model", str(detector),
                      "--real-time-factor", str(cfg.real_time_factor), "--out", str(out),
@@ -349,7 +358,8 @@ def report_markdown(res: dict) -> str:
              f"`{res['command']}`", "",
              f"{res['date']}, {m['cpu']}, {m['cores']} cores "
              f"(load {m['load_average_at_start'][0]:.1f} at start); "
-             f"{res['wall_s'] / 60:.1f} min in all.", "", "## Detector (held-out renders)", "",
+             f"{sum(res['steps_s'].values()) / 60:.1f} min in all (the steps' sum; this run "
+             f"{res['wall_s'] / 60:.1f} min).", "", "## Detector (held-out renders)", "",
              "| detector | train time | AP@0.5 new class | mAP@0.5 old classes | mAP@0.5 all "
              "| AP@0.5 per class |",
              "|---|---|---|---|---|---|"]
@@ -393,7 +403,9 @@ def report_markdown(res: dict) -> str:
     lines += [f"- {g}: {'-' if v is None else ('met' if v else 'NOT met')}"
               for g, v in res["verdicts"].items()]
     lines += ["", "## Steps (wall time)", ""]
-    lines += [f"- {s}: {w:.0f} s" for s, w in res["steps_s"].items()]
+    reused = set(res.get("steps_reused", []))
+    lines += [f"- {s}: {w:.0f} s{' (an earlier run)' if s in reused else ''}"
+              for s, w in res["steps_s"].items()]
     return "\n".join(lines) + "\n"
 
 
@@ -413,8 +425,17 @@ def run_pipeline(cfg: NewObjectConfig, log: Callable[[str], None] = print, comma
                  "detector": {}, "transfer": {}}
     steps = res["steps_s"]
 
+    before = _previous_steps(cfg)
+    ran = {"at": _RAN["commands"]}
+
     def step(name: str, t0: float) -> None:
-        steps[name] = round(time.monotonic() - t0, 1)
+        """Record a step's wall time; a step that ran no command keeps the time of the run that did it."""
+        if _RAN["commands"] == ran["at"] and name in before:
+            steps[name] = before[name]
+            res.setdefault("steps_reused", []).append(name)
+        else:
+            steps[name] = round(time.monotonic() - t0, 1)
+        ran["at"] = _RAN["commands"]
         _save(cfg, res)
 
     t = time.monotonic()
@@ -461,6 +482,14 @@ def run_pipeline(cfg: NewObjectConfig, log: Callable[[str], None] = print, comma
     _save(cfg, res)
     (Path(cfg.out) / "README.md").write_text(report_markdown(res))
     return res
+
+
+def _previous_steps(cfg: NewObjectConfig) -> dict[str, float]:
+    """The step times of an earlier run into the same folder (empty when there is none)."""
+    try:
+        return dict(json.loads((Path(cfg.out) / "results.json").read_text()).get("steps_s", {}))
+    except (OSError, ValueError):
+        return {}
 
 
 def _save(cfg: NewObjectConfig, res: dict) -> None:

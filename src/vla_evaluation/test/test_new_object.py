@@ -111,15 +111,16 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
     assert _opt(synth[1], "--split") == "test" and _opt(synth[0], "--seed") != _opt(synth[1], "--seed")
     train = [c for c in f.calls if c[:2] == ["vla_detector_training", "train"]]
     assert [Path(_opt(c, "--out")).relative_to(run).as_posix() for c in train] == [
-        "detector", "detector_mix", "detector_scratch",  # fine-tuned, with renders mixed in, from scratch
+        "detector", "detector_mix", "detector_scratch", "detector_scratch_4x",  # fine-tuned, mixed, scratch
         "timing/fine_tuned_1", "timing/scratch_1", "timing/fine_tuned_2", "timing/scratch_2"]
     assert [_opt(c, "--init") if "--init" in c else None for c in train[:3]] == ["shipped", "shipped", None]
     assert _opt(train[1], "--mix-synth") == "100" and _opt(train[1], "--catalogue") == str(CATALOGUE)
     def without_out(c):
         return [w for w in c if w != _opt(c, "--out")]
-    assert without_out(train[3]) == without_out(train[0]) and without_out(train[4]) == without_out(train[2])
+    assert without_out(train[4]) == without_out(train[0]) and without_out(train[5]) == without_out(train[2])
     assert all(_opt(c, "--data") == str(run / "renders") for c in train)
-    assert set(res["detector"]) == {"fine_tuned", "fine_tuned_mix", "scratch"}
+    assert set(res["detector"]) == {"fine_tuned", "fine_tuned_mix", "scratch", "scratch_4x_epochs"}
+    assert [_opt(c, "--epochs") for c in train[:4]] == ["10", "10", "10", "40"]
     assert [len(t["runs_s"]) for t in res["detector_timing"].values()] == [3, 3]
     assert all(len(t["cpu_runs_s"]) == 3 and t["median_cpu_s"] is not None
                for t in res["detector_timing"].values())

@@ -148,7 +148,7 @@ def train_detector(cfg: NewObjectConfig, renders: Path, name: str, extra: Sequen
         saved = json.loads(timing.read_text())
         return onnx_in(out), {"wall_s": saved["wall_s"], "cpu_s": saved.get("cpu_s")}
     cmd = ["vla_detector_training", "train", "--data", str(renders), "--out", str(out), *extra, "--quiet"]
-    if cfg.detector_epochs is not None:
+    if cfg.detector_epochs is not None and "--epochs" not in extra:
         cmd += ["--epochs", str(cfg.detector_epochs)]
     times = timed(cmd, log)
     model = onnx_in(out)
@@ -166,6 +166,8 @@ def detector_variants(cfg: NewObjectConfig) -> dict[str, tuple[str, list[str]]]:
                                                   "--catalogue", str(cfg.catalogue)])
     if cfg.scratch:
         out["scratch"] = ("detector_scratch", [])
+        if cfg.detector_epochs:  # how far from scratch gets with four times the epochs (and the time)
+            out["scratch_4x_epochs"] = ("detector_scratch_4x", ["--epochs", str(4 * cfg.detector_epochs)])
     return out
 
 

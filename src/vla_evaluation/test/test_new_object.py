@@ -223,8 +223,10 @@ def test_publish_copies_the_figures(tmp_path, fake):
     fake({3: 0.9})
     no.run_pipeline(_cfg(tmp_path), log=lambda m: None)
     (tmp_path / "run" / "eval" / "k3" / "summary.csv").write_text("task,success_rate\n")
+    (tmp_path / "run" / "eval" / "k3" / "paths_spam_push_south_east.png").write_bytes(b"png")
     copied = no.publish(tmp_path / "run", tmp_path / "docs")
-    assert sorted(p.name for p in copied) == ["README.md", "eval_k3_summary.csv", "results.json"]
+    assert sorted(p.name for p in copied) == ["README.md", "eval_k3_paths_spam_push_south_east.png",
+                                              "eval_k3_summary.csv", "results.json"]
     assert (tmp_path / "docs" / "README.md").read_text() == (tmp_path / "run" / "README.md").read_text()
 
 

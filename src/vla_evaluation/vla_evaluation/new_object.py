@@ -502,14 +502,14 @@ def _save(cfg: NewObjectConfig, res: dict) -> None:
 
 
 def publish(out: Path, target: Path) -> list[Path]:
-    """Copy a run's figures (README.md, results.json, the evaluations' summaries) to `target`."""
+    """Copy a run's figures (README.md, results.json, the evaluations' summaries and path plots) to
+    `target`."""
     target.mkdir(parents=True, exist_ok=True)
     copied = []
     for name in ("README.md", "results.json"):
         copied.append(Path(shutil.copy2(out / name, target / name)))
-    for summary in sorted((out / "eval").glob("k*/summary.csv")):
-        dst = target / f"eval_{summary.parent.name}_summary.csv"
-        copied.append(Path(shutil.copy2(summary, dst)))
+    for f in sorted((out / "eval").glob("k*/summary.csv")) + sorted((out / "eval").glob("k*/paths_*.png")):
+        copied.append(Path(shutil.copy2(f, target / f"eval_{f.parent.name}_{f.name}")))
     return copied
 
 

@@ -401,7 +401,7 @@ def report_markdown(res: dict) -> str:
                      f"{r.get('limit_violations', '-')} |")
     k = res.get("smallest_sufficient_demos")
     lines += ["", f"Smallest number of new demonstrations reaching {_pct(cfg['goal'])}: "
-                  f"{'none measured' if k is None else k}.", "", "## Goals", ""]
+                  f"{'none of the counts measured' if k is None else k}.", "", "## Goals", ""]
     lines += [f"- {g}: {'-' if v is None else ('met' if v else 'NOT met')}"
               for g, v in res["verdicts"].items()]
     lines += ["", "## Steps (wall time)", ""]

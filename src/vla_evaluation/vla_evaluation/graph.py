@@ -523,7 +523,7 @@ class GraphEvaluator:
         fails, its error measured against the planner's final waypoint."""
         result.note = f"no detection latched: {why}"
         result.success = False
-        final_wp = plan_waypoints(self.kin, spec.name, start_pose, q_now)[-1]
+        final_wp = plan_waypoints(self.kin, spec, start_pose, q_now, catalogue=self.catalogue)[-1]
         result.final_state_error = final_state_error(q_now, final_wp)
         self.log(f"[graph] {spec.name}: {result.note}")
 

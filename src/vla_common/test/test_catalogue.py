@@ -67,12 +67,12 @@ def test_replacing_catalogue_and_task_options(tmp_path):
     ("objects: {a: {shape: cone, size: [1, 1, 1], rgba: [1, 1, 1, 1], mass: 1, friction: 1}}\n",
      "shape must be one of"),
     ("objects: {a: {shape: box, size: [0.1, 0.1], rgba: [1, 1, 1, 1], mass: 1, friction: 1}}\n",
-     "size must be 3 finite numbers"),
+     "objects.a.size must be a list of 3 finite numbers"),
     ("objects: {a: {shape: box, size: [0.1, 0.1, 0.1], rgba: [1, 1, 1, 1], mass: 1, friction: 1, "
-     "tasks: [push_up]}}\n", "unknown task 'push_up'"),
+     "tasks: [push_up]}}\n", r"objects.a.tasks\[0\]: unknown task; a task is 'circle' or push_"),
     ("objects: {a: {shape: box, size: [0.1, 0.1, 0.1]}}\n", "lacks"),
-    ("objects: {}\ntask_sets: {x: [a/push_east]}\n", "which no object defines"),
-    ("objects: {}\nextra: 1\n", "unknown keys"),
+    ("objects: {}\ntask_sets: {x: [a/push_east]}\n", r"task_sets.x\[0\] names a task that no object defines"),
+    ("objects: {}\nextra: 1\n", "unknown key 'extra'; expected extends, objects, task_sets"),
     ("extends: c.yaml\nobjects: {}\n", "loops back"),
     ("objects: [\n", "invalid YAML"),
 ])

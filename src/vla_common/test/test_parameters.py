@@ -70,3 +70,72 @@ def test_run_time_changes_are_applied_or_refused(ctx):
     assert not r.successful and ("names", ["x"]) not in applied
     assert applied == [("mode", "end_effector")]
     node.destroy_node()
+
+
+# -- names the node does not declare (issue 20 item 7) ------------------------------------------------
+
+def _node_with_args(tmp_path, args, name="t"):
+    """A node created as `ros2 run` would, with `--ros-args ...` given to rcl (files, -p, remaps)."""
+    context = rclpy.context.Context()
+    rclpy.init(context=context, args=["prog", "--ros-args", *args])
+    try:
+        node = Node(name, context=context)
+        try:
+            return TABLE.declare(node)
+        finally:
+            node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+
+
+def _file(tmp_path, key, params):
+    body = "".join(f"    {k}: {v}\n" for k, v in params.items())
+    path = tmp_path / "params.yaml"
+    path.write_text(f"{key}:\n  ros__parameters:\n{body}")
+    return str(path)
+
+
+@pytest.mark.parametrize("source", ["file", "-p"])
+def test_a_misspelt_parameter_is_refused_naming_the_closest(tmp_path, source):
+    args = (["--params-file", _file(tmp_path, "/**", {"rat": 50.0})] if source == "file"
+            else ["-p", "rat:=50.0"])
+    with pytest.raises(ConfigError, match=r"/t has no parameter 'rat' \(did you mean 'rate'\?\)"):
+        _node_with_args(tmp_path, args)
+
+
+def test_a_name_far_from_every_parameter_lists_them(tmp_path):
+    with pytest.raises(ConfigError, match="'zzz'.*its parameters are count, fixed, mode, names, rate, "
+                                          "start_type_description_service, use_sim_time$"):
+        _node_with_args(tmp_path, ["-p", "zzz:=1"])
+
+
+def test_namespaced_and_renamed_nodes_check_their_own_section(tmp_path):
+    remap = ["-r", "__ns:=/arm", "-r", "__node:=left"]
+    with pytest.raises(ConfigError, match="/arm/left has no parameter 'modes'"):
+        _node_with_args(tmp_path, [*remap, "--params-file", _file(tmp_path, "/arm/left", {"modes": "x"})])
+    with pytest.raises(ConfigError, match="/arm/left has no parameter 'modes'"):
+        _node_with_args(tmp_path, [*remap, "--params-file", _file(tmp_path, "/**/left", {"modes": "x"})])
+    # another node's section is that node's concern; ours and rclpy's own names start
+    values = _node_with_args(tmp_path, [*remap, "--params-file",
+                                        _file(tmp_path, "/arm/right", {"modes": "x"})])
+    assert values["mode"] == "latent"
+    values = _node_with_args(tmp_path, [*remap, "--params-file", _file(
+        tmp_path, "/**", {"rate": 50, "use_sim_time": "true", "mode": "end_effector"})])
+    assert values["rate"] == 50.0 and values["mode"] == "end_effector"
+
+
+def test_constructor_overrides_are_checked_too(ctx):
+    with pytest.raises(ConfigError, match="did you mean 'count'"):
+        make(ctx, [Parameter("cuont", value=3)])
+
+
+def test_an_exception_in_on_change_refuses_the_change_and_the_node_lives(ctx):
+    def on_change(name, value):
+        raise TypeError("a defect in the node")
+
+    node, _ = make(ctx, on_change=on_change)
+    r = node.set_parameters([Parameter("mode", value="end_effector")])[0]
+    assert not r.successful and r.reason == ("parameter 'mode' could not be applied (TypeError); the node "
+                                             "keeps the previous value")
+    assert node.get_parameter("mode").value == "latent"
+    node.destroy_node()

@@ -6,22 +6,39 @@ omits `extends` to replace it. Everything that names a class or a task — recor
 training, controller, evaluation, the simulated scene — reads a `Catalogue`; nothing else lists them.
 A task is parsed once where it enters (a flag, a service request, a file) into a `TaskSpec` and
 travels as that object.
+
+A catalogue's path may come from anyone who can set a node's parameter, so a file is read as
+`vla_common.safe_yaml` reads one (a regular file of at most MAX_BYTES, no aliases, no duplicate
+keys) and checked strictly: unknown keys, colours outside [0, 1], numbers that are not YAML numbers
+are refused. Every defect is a CatalogueError naming the file and the key (`objects.spam.rgba[3]`),
+never quoting the file's content.
 """
 
 from __future__ import annotations
 
 import functools
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-import yaml
+
+from vla_common.safe_yaml import UnreadableError, YamlFileError, key_name, load_yaml
 
 DEFAULT_PATH = Path(__file__).parent / "data" / "catalogue.yaml"
 SHAPES = ("box", "cylinder")
+STYLES = ("loaf", "rims", "band", "carton", "bottle", "labels")  # vla_sim.scene draws each
 DEFAULT_PUSH_DISTANCE = 0.15
+# What a catalogue file may hold; anything else is refused (a misspelt key would otherwise be ignored).
+TOP_KEYS = ("extends", "objects", "task_sets")
+REQUIRED_OBJECT_KEYS = ("shape", "size", "rgba", "mass", "friction")
+OBJECT_KEYS = (*REQUIRED_OBJECT_KEYS, "accent_rgba", "style", "tasks")
+TASK_OPTION_KEYS = ("distance",)
+CLASS_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_-]{0,63}")
+MAX_BYTES = 256 * 1024  # the default catalogue is 2.3 KB; hundreds of objects fit
+MAX_EXTENDS = 8
 
 
 COMPASS: dict[str, tuple[float, float]] = {
@@ -58,7 +75,7 @@ class ObjectSpec:
     mass: float
     friction: float
     accent_rgba: tuple[float, float, float, float] | None = None
-    style: str = ""  # how the simulated scene decorates it (vla_sim.scene.STYLES); "": by shape
+    style: str = ""  # how the simulated scene decorates it (one of STYLES); "": by shape
 
     @property
     def height(self) -> float:
@@ -81,6 +98,14 @@ class ObjectSpec:
 
 class CatalogueError(ValueError):
     """A catalogue file that cannot be used, or a class or task it does not define."""
+
+
+class _UnreadableError(CatalogueError):
+    """The catalogue file `path` cannot be opened as a regular file of the allowed size."""
+
+    def __init__(self, message: str, path: Path, reason: str):
+        super().__init__(message)
+        self.path, self.reason = path, reason
 
 
 @dataclass(frozen=True)
@@ -174,77 +199,105 @@ def _action_key(text: str) -> str:
     return text.strip().lower().replace("-", "_").replace(" ", "_")
 
 
-def _parse_task(obj: str, entry, source: str) -> TaskSpec:
+def _number(value, where: str, lo: float, hi: float, unit: str = "") -> float:
+    """A YAML number (not a bool, not a string) in lo..hi."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CatalogueError(f"{where} must be a number{unit}")
+    out = float(value)
+    if not (math.isfinite(out) and lo <= out <= hi):
+        raise CatalogueError(f"{where} must be a number{unit} in {lo:g}..{hi:g}")
+    return out
+
+
+def _numbers(value, n: int, where: str, lo: float, hi: float, unit: str = "") -> tuple[float, ...]:
+    if not isinstance(value, list) or len(value) != n:
+        raise CatalogueError(f"{where} must be a list of {n} finite numbers{unit}")
+    return tuple(_number(v, f"{where}[{i}]", lo, hi, unit) for i, v in enumerate(value))
+
+
+def _unknown_keys(body: Mapping, allowed: tuple[str, ...], where: str) -> None:
+    unknown = [key_name(k) for k in body if k not in allowed]
+    if unknown:
+        raise CatalogueError(f"{where}: unknown key{'s' if len(unknown) > 1 else ''} {', '.join(unknown)}; "
+                             f"expected {', '.join(allowed)}")
+
+
+def _parse_task(obj: str, entry, where: str) -> TaskSpec:
+    """One entry of an object's `tasks` (`where` names it: file, object, position)."""
     distance = DEFAULT_PUSH_DISTANCE
     if isinstance(entry, Mapping):  # {push_east: {distance: 0.2}}
         if len(entry) != 1:
-            raise CatalogueError(f"{source}: {obj}: a task entry is a name or {{name: {{distance: m}}}}")
+            raise CatalogueError(f"{where}: a task entry is a name or {{name: {{distance: m}}}}")
         (action, opts), = entry.items()
-        distance = float((opts or {}).get("distance", distance))
+        if opts is not None:
+            if not isinstance(opts, Mapping):
+                raise CatalogueError(f"{where}: a task's options are a mapping, e.g. {{distance: 0.2}}")
+            _unknown_keys(opts, TASK_OPTION_KEYS, where)
+            if "distance" in opts:
+                distance = _number(opts["distance"], f"{where}: distance", 0.01, 0.5, " (m)")
     else:
         action = entry
-    action = _action_key(str(action))
+    if not isinstance(action, str):
+        raise CatalogueError(f"{where}: a task is a name, 'circle' or push_<direction>")
+    action = _action_key(action)
     name = f"{obj}/{action}"
     if action == "circle":
         return TaskSpec(name, obj, "circle", None)
     direction = action.removeprefix("push_")
     if not action.startswith("push_") or direction not in COMPASS:
-        raise CatalogueError(f"{source}: {obj}: unknown task {action!r}; a task is 'circle' or "
-                             f"push_<direction> with a direction in {sorted(COMPASS)}")
-    if not (math.isfinite(distance) and 0.01 <= distance <= 0.5):
-        raise CatalogueError(f"{source}: {name}: distance {distance} m is outside 0.01..0.5")
+        raise CatalogueError(f"{where}: unknown task; a task is 'circle' or push_<direction> with a "
+                             f"direction in {sorted(COMPASS)}")
     return TaskSpec(name, obj, "push", direction, distance)
 
 
-def _number_list(value, n: int, what: str) -> tuple[float, ...]:
-    try:
-        out = tuple(float(v) for v in value)
-    except (TypeError, ValueError):
-        raise CatalogueError(f"{what} must be a list of {n} numbers, got {value!r}") from None
-    if len(out) != n or not all(math.isfinite(v) for v in out):
-        raise CatalogueError(f"{what} must be {n} finite numbers, got {value!r}")
-    return out
-
-
 def _parse_object(name: str, body, source: str) -> tuple[ObjectSpec, list[TaskSpec]]:
-    where = f"{source}: object {name!r}"
+    where = f"{source}: objects.{name}"
     if not isinstance(body, Mapping):
-        raise CatalogueError(f"{where} must be a mapping with shape, size, rgba, mass, friction, tasks")
-    missing = [k for k in ("shape", "size", "rgba", "mass", "friction") if k not in body]
+        raise CatalogueError(f"{where} must be a mapping with {', '.join(REQUIRED_OBJECT_KEYS)}, tasks")
+    _unknown_keys(body, OBJECT_KEYS, where)
+    missing = [k for k in REQUIRED_OBJECT_KEYS if k not in body]
     if missing:
-        raise CatalogueError(f"{where} lacks {missing}")
+        raise CatalogueError(f"{where} lacks {', '.join(missing)}")
     shape = body["shape"]
     if shape not in SHAPES:
-        raise CatalogueError(f"{where}: shape must be one of {SHAPES}, got {shape!r}")
-    size = _number_list(body["size"], 3, f"{where}: size")
-    if not all(0.005 <= s <= 0.5 for s in size) or (shape == "cylinder" and size[0] != size[1]):
-        raise CatalogueError(f"{where}: size {size} must be 0.005..0.5 m (cylinder: radius, radius, height)")
-    rgba = _number_list(body["rgba"], 4, f"{where}: rgba")
+        raise CatalogueError(f"{where}.shape must be one of {', '.join(SHAPES)}")
+    size = _numbers(body["size"], 3, f"{where}.size", 0.005, 0.5, " (m)")
+    if shape == "cylinder" and size[0] != size[1]:
+        raise CatalogueError(f"{where}.size of a cylinder is radius, radius, height (m): two equal radii")
+    rgba = _numbers(body["rgba"], 4, f"{where}.rgba", 0.0, 1.0)
     accent = body.get("accent_rgba")
-    accent = _number_list(accent, 4, f"{where}: accent_rgba") if accent is not None else None
-    mass, friction = float(body["mass"]), float(body["friction"])
-    if not (0.01 <= mass <= 5.0 and 0.05 <= friction <= 2.0):
-        raise CatalogueError(f"{where}: mass {mass} kg must be 0.01..5, friction {friction} 0.05..2")
-    tasks = body.get("tasks") or []
+    accent = _numbers(accent, 4, f"{where}.accent_rgba", 0.0, 1.0) if accent is not None else None
+    mass = _number(body["mass"], f"{where}.mass", 0.01, 5.0, " (kg)")
+    friction = _number(body["friction"], f"{where}.friction", 0.05, 2.0)
+    style = body.get("style", "")
+    if style is None:
+        style = ""
+    if style not in ("", *STYLES):
+        raise CatalogueError(f"{where}.style must be one of {', '.join(STYLES)} (or left out)")
+    tasks = body.get("tasks")
+    tasks = [] if tasks is None else tasks
     if not isinstance(tasks, list):
-        raise CatalogueError(f"{where}: tasks must be a list, e.g. [push_east, circle]")
-    style = str(body.get("style", ""))
+        raise CatalogueError(f"{where}.tasks must be a list, e.g. [push_east, circle]")
     spec = ObjectSpec(shape, size, rgba, mass, friction, accent_rgba=accent, style=style)
-    return spec, [_parse_task(name, t, source) for t in tasks]
+    own = [_parse_task(name, t, f"{where}.tasks[{i}]") for i, t in enumerate(tasks)]
+    names = [t.name for t in own]
+    twice = [i for i, n in enumerate(names) if n in names[:i]]
+    if twice:
+        raise CatalogueError(f"{where}.tasks[{twice[0]}] repeats an earlier task of {name}")
+    return spec, own
 
 
 def _read(path: Path) -> dict:
     try:
-        data = yaml.safe_load(path.read_text())
-    except OSError as err:
-        raise CatalogueError(f"cannot read catalogue {path}: {err}") from None
-    except yaml.YAMLError as err:
-        raise CatalogueError(f"{path}: invalid YAML: {err}") from None
+        data = load_yaml(path, MAX_BYTES, "catalogue")
+    except UnreadableError as err:
+        raise _UnreadableError(str(err), path, err.reason) from None
+    except YamlFileError as err:
+        raise CatalogueError(str(err)) from None
     if not isinstance(data, Mapping) or not isinstance(data.get("objects"), Mapping):
-        raise CatalogueError(f"{path}: a catalogue is a mapping with an 'objects' mapping")
-    unknown = set(data) - {"extends", "objects", "task_sets"}
-    if unknown:
-        raise CatalogueError(f"{path}: unknown keys {sorted(unknown)}; expected extends, objects, task_sets")
+        # its keys are not named: a file that is no catalogue may be anyone's
+        raise CatalogueError(f"{path} is not a catalogue: a catalogue is a mapping with an 'objects' mapping")
+    _unknown_keys(data, TOP_KEYS, str(path))
     return data
 
 
@@ -252,7 +305,9 @@ def load_catalogue(path: str | Path | None = None) -> Catalogue:
     """The catalogue in `path` (with what it extends), or the default one when `path` is None or ''."""
     if path in (None, "", "default"):
         return default_catalogue()
-    return _load(Path(path).expanduser().resolve(), ())
+    if not isinstance(path, (str, Path)):
+        raise CatalogueError("a catalogue is given by its path")
+    return _load(_resolve(Path(path)), ())
 
 
 @functools.lru_cache(maxsize=1)
@@ -263,32 +318,64 @@ def default_catalogue() -> Catalogue:
 def _load(path: Path, chain: tuple[Path, ...]) -> Catalogue:
     if path in chain:
         raise CatalogueError(f"{path}: 'extends' loops back to itself")
+    if len(chain) >= MAX_EXTENDS:
+        raise CatalogueError(f"{chain[0]}: 'extends' goes more than {MAX_EXTENDS} files deep")
     data = _read(path)
     base = data.get("extends")
     objects: dict[str, ObjectSpec] = {}
     tasks: dict[str, TaskSpec] = {}
     sets: dict[str, tuple[str, ...]] = {}
     sources: tuple[str, ...] = ()
-    if base:
-        parent = default_catalogue() if base == "default" else _load((path.parent / base).resolve(),
-                                                                     chain + (path,))
+    if base is not None:
+        if not isinstance(base, str) or not base:
+            raise CatalogueError(f"{path}: extends must be 'default' or the path of another catalogue")
+        parent = default_catalogue() if base == "default" else _load_base(path, base, chain)
         objects, tasks, sets = dict(parent.objects), dict(parent.tasks), dict(parent.task_sets)
         sources = parent.sources
     for name, body in data["objects"].items():
-        if not isinstance(name, str) or not name or "/" in name or ":" in name:
-            raise CatalogueError(f"{path}: object class names are non-empty strings without '/' or ':', "
-                                 f"got {name!r}")
+        if not isinstance(name, str) or not CLASS_NAME.fullmatch(name):
+            raise CatalogueError(f"{path}: objects: class {key_name(name)}: a class name is 1-64 letters, "
+                                 "digits, '_' or '-'")
         spec, own = _parse_object(name, body, str(path))
         objects[name] = spec
         tasks = {k: t for k, t in tasks.items() if t.object_class != name} | {t.name: t for t in own}
-    for set_name, names in (data.get("task_sets") or {}).items():
+    task_sets = data.get("task_sets")
+    if task_sets is not None and not isinstance(task_sets, Mapping):
+        raise CatalogueError(f"{path}: task_sets must be a mapping of names to lists of tasks")
+    for set_name, names in (task_sets or {}).items():
+        where = f"{path}: task_sets.{set_name}" if isinstance(set_name, str) else f"{path}: task_sets"
+        if not isinstance(set_name, str) or not CLASS_NAME.fullmatch(set_name):
+            raise CatalogueError(f"{where}: set {key_name(set_name)}: a set name is 1-64 letters, digits, "
+                                 "'_' or '-'")
         if not isinstance(names, list):
-            raise CatalogueError(f"{path}: task set {set_name!r} must be a list of tasks")
+            raise CatalogueError(f"{where} must be a list of tasks")
         resolved = []
-        for t in names:
-            key = str(t).strip().replace(":", "/")
+        for i, t in enumerate(names):
+            key = t.strip().replace(":", "/") if isinstance(t, str) else None
             if key not in tasks:
-                raise CatalogueError(f"{path}: task set {set_name!r} names {t!r}, which no object defines")
+                raise CatalogueError(f"{where}[{i}] names a task that no object defines")
             resolved.append(key)
-        sets[str(set_name)] = tuple(resolved)
+        sets[set_name] = tuple(resolved)
     return Catalogue(objects, tasks, sets, sources + (str(path),))
+
+
+def _load_base(path: Path, base: str, chain: tuple[Path, ...]) -> Catalogue:
+    """The catalogue `path` extends; one that cannot be opened is not named (the name is the file's
+    content, and may not be a path at all)."""
+    try:
+        target = _resolve(path.parent / base)
+    except CatalogueError:
+        raise CatalogueError(f"{path}: extends: cannot read the catalogue it names") from None
+    try:
+        return _load(target, chain + (path,))
+    except _UnreadableError as err:
+        if err.path != target:
+            raise
+        raise CatalogueError(f"{path}: extends: cannot read the catalogue it names ({err.reason})") from None
+
+
+def _resolve(path: Path) -> Path:
+    try:
+        return path.expanduser().resolve()
+    except (OSError, RuntimeError, ValueError) as err:  # a symlink loop, a NUL byte
+        raise CatalogueError(f"cannot read catalogue {path}: {type(err).__name__}") from None

@@ -396,3 +396,59 @@ def test_tasks_come_from_the_catalogue(ros, tmp_path):
 def test_a_bad_catalogue_is_refused_at_startup(ros, tmp_path):
     with pytest.raises(ConfigError, match="catalogue.*missing.yaml"):
         make_recorder(ros, tmp_path, catalogue=str(tmp_path / "missing.yaml"))
+
+
+SECRET = "sk-live-7f3c9a1b2d4e"
+
+
+def _set_remotely(ros, client, value) -> tuple[bool, str]:
+    """`catalogue` set through the node's parameter service, as any DDS peer can."""
+    from rcl_interfaces.srv import SetParameters
+    req = SetParameters.Request(parameters=[Parameter("catalogue", value=str(value)).to_parameter_msg()])
+    result = ros.call(client, req).results[0]
+    return result.successful, result.reason
+
+
+def test_hostile_catalogues_set_by_a_peer_are_refused_and_the_open_episode_goes_on(ros, tmp_path):
+    """Issue 20 item 9: a malformed catalogue raised TypeError/AttributeError in the parameter callback
+    and the node died with the episode open; a refusal quoted the file's line. Now each is refused with
+    the file and the key, the node keeps recording, and the episode is kept whole."""
+    import os
+
+    from rcl_interfaces.srv import SetParameters
+    rec = make_recorder(ros, tmp_path / "demos")
+    c = Client(ros)
+    c.wait_subscribed(c.js)
+    params = c.node.create_client(SetParameters, "/recorder/set_parameters")
+    started = c.start("bread/push_east")
+    assert started.success
+    c.publish_joints(50)
+
+    malformed = tmp_path / "malformed.yaml"  # AttributeError before: options of a task that are a number
+    malformed.write_text("objects:\n  a: {shape: box, size: [0.1, 0.1, 0.1], rgba: [1, 0, 0, 1], mass: 0.3, "
+                         "friction: 0.5, tasks: [{push_east: 5}]}\n")
+    typed = tmp_path / "typed.yaml"  # TypeError before: a mass that is a list
+    typed.write_text("objects:\n  a: {shape: box, size: [0.1, 0.1, 0.1], rgba: [1, 0, 0, 1], mass: [1], "
+                     "friction: 0.5}\n")
+    secret = tmp_path / "credentials.yaml"  # its line was quoted back
+    secret.write_text(f"objects: [\n  {SECRET}\n  - x: y\n")
+    bomb = tmp_path / "bomb.yaml"
+    bomb.write_text('a0: &a0 ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]\n'
+                    + "".join(f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 9)}]\n" for i in range(1, 9))
+                    + "objects: {}\n")
+    fifo = tmp_path / "fifo.yaml"
+    os.mkfifo(fifo)
+    cases = [(malformed, "objects.a.tasks[0]: a task's options are a mapping"),
+             (typed, "objects.a.mass must be a number (kg)"),
+             (secret, "invalid YAML: line 3"),
+             (bomb, "anchors and aliases (& and *) are not allowed"),
+             (fifo, "is not a regular file"), ("/dev/zero", "is not a regular file")]
+    for path, words in cases:
+        ok, reason = _set_remotely(ros, params, path)
+        assert not ok and str(path) in reason and words in reason and SECRET not in reason, (path, reason)
+        assert rec.recorder.recording and rec.get_parameter("catalogue").value == ""
+    c.publish_joints(50, start=50)
+    assert settle(ros, lambda: rec.recorder.state().messages_written, 100)
+    stop = c.stop()
+    assert stop.success and "kept episode 1" in stop.message, stop.message
+    assert rosbags_counts(started.bag_path) == {"/joint_states": 100}

@@ -6,17 +6,26 @@ whether it may change at run time. `ParameterTable.declare(node)`:
   shows them and rclpy refuses values outside; choices in `additional_constraints`; read-only where
   the entry is not `dynamic`), so the node loads `/**` YAML files and `-p name:=value` overrides;
 - accepts an integer for a floating-point parameter (`state_rate: 500` in YAML);
+- refuses to start (`ConfigError`, exit code 2) on a parameter the node does not declare, from a
+  parameter file or `-p`, naming the closest declared one: `velocity_scal: 0.3` must not leave
+  `velocity_scale` at 1.0 without a word. The names checked are the overrides rcl gave this node
+  (its `/**` and its own fully qualified name's sections, after renaming and namespacing), so a
+  file's section for another node is not this node's concern;
 - refuses, at startup with `ConfigError` and at run time with a reason, a value outside the choices
   or one the entry's `check` rejects;
 - hands each accepted run-time change to the node's `on_change(name, value)`, which either applies
   it or returns a reason to refuse it. A parameter is therefore always either applied or refused.
   In a batch (`set_parameters_atomically`) every value is checked first; a node that refuses one
   in `on_change` keeps the ones before it applied, so nodes apply batches one parameter at a time.
+  An exception in `on_change` refuses the change (its type in the reason, the traceback in the
+  node's log): a parameter set by any DDS peer never takes the node down.
 """
 
 from __future__ import annotations
 
+import difflib
 import math
+import traceback
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -111,8 +120,27 @@ class ParameterTable:
             if reason:
                 raise ConfigError(reason)
             values[p.name] = value
-        node.add_on_set_parameters_callback(lambda changes: self._on_set(changes, on_change))
+        self._refuse_undeclared(node, overrides)
+        logger = node.get_logger()
+        node.add_on_set_parameters_callback(lambda changes: self._on_set(changes, on_change, logger))
         return values
+
+    @staticmethod
+    def _refuse_undeclared(node: Node, overrides: dict[str, Parameter]) -> None:
+        """ConfigError for an override that names no parameter of the node (ours, or rclpy's own
+        such as use_sim_time, declared when the node was created)."""
+        unknown = sorted(n for n in overrides if not node.has_parameter(n))
+        if not unknown:
+            return
+        declared = sorted(node.list_parameters([], 0).names)
+        hints, unmatched = [], False
+        for name in unknown:
+            close = difflib.get_close_matches(name, declared, n=1, cutoff=0.6)
+            hints.append(f"'{name}' (did you mean '{close[0]}'?)" if close else f"'{name}'")
+            unmatched |= not close
+        known = f"; its parameters are {', '.join(declared)}" if unmatched else ""
+        raise ConfigError(f"{node.get_fully_qualified_name()} has no parameter {', '.join(hints)} (given in "
+                          f"a parameter file or with -p; refused rather than ignored){known}")
 
     @staticmethod
     def _declare_one(node: Node, p: Param) -> Any:
@@ -131,15 +159,21 @@ class ParameterTable:
             node.set_descriptor(p.name, p.descriptor())
         return value
 
-    def _on_set(self, changes: list[Parameter],
-                on_change: Callable[[str, Any], str | None] | None) -> SetParametersResult:
+    def _on_set(self, changes: list[Parameter], on_change: Callable[[str, Any], str | None] | None,
+                node_logger) -> SetParametersResult:
         ours = [(self.params[c.name], c) for c in changes if c.name in self.params]  # not use_sim_time
         for p, change in ours:  # every value checked before any is applied
             reason = p.refusal(change.value)
             if reason:
                 return SetParametersResult(successful=False, reason=reason)
         for p, change in ours:
-            reason = on_change(p.name, change.value) if on_change is not None else None
+            try:
+                reason = on_change(p.name, change.value) if on_change is not None else None
+            except Exception as exc:  # a defect in the node must not take it down: refuse, say so
+                node_logger.error(f"parameter '{p.name}': {type(exc).__name__} while applying it:\n"
+                                  f"{traceback.format_exc()}")
+                reason = (f"parameter '{p.name}' could not be applied ({type(exc).__name__}); the node "
+                          "keeps the previous value")
             if reason:  # the node refused it; the changes before it in this batch stay applied
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)

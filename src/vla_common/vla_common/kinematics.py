@@ -1,8 +1,8 @@
 """Panda kinematics with Pinocchio on example-robot-data's URDF — the same file MuJoCo imports, so
 the simulator, the planner and the controllers share one kinematic truth.
 
-The fingers are locked closed (the arm pushes with the closed gripper), leaving the 7 arm joints.
-The tool centre point (TCP) is the URDF's `panda_hand_tcp` frame, between the closed finger tips.
+The fingers are locked (their gap does not move the hand), leaving the 7 arm joints. The tool
+centre point (TCP) is the URDF's `panda_hand_tcp` frame, between the finger tips.
 """
 from __future__ import annotations
 
@@ -12,11 +12,11 @@ import os
 import numpy as np
 import pinocchio as pin
 
-from vla_common.robot import Q_MAX, Q_MIN, READY_POSE
+from vla_common.robot import HAND, Q_MAX, Q_MIN, READY_POSE
 
 TCP_FRAME = "panda_hand_tcp"
 FLANGE_FRAME = "panda_link8"
-FINGER_JOINTS = ("panda_finger_joint1", "panda_finger_joint2")
+FINGER_JOINTS = HAND.finger_joints
 
 
 def panda_description_dir() -> str:

@@ -7,6 +7,9 @@
   against franka-sim with the limits enforced); torque limits the Panda's table. FR3 velocity limits
   also depend on the position (libfranka >= 0.15); these are the constant maxima.
 
+Both carry the Franka Hand (`HandSpec`): its finger joints (`<model>_finger_joint1/2`, each half the
+gap between the fingers) and its range, which the gripper layer enforces.
+
 The module-level names (`JOINT_NAMES`, `Q_MIN`, `DQ_MAX`, ...) are the Panda's: the simulator, the
 planners and the controllers import them.
 """
@@ -27,6 +30,17 @@ def _frozen(values) -> np.ndarray:
     return a
 
 
+@dataclass(frozen=True)
+class HandSpec:
+    """The Franka Hand (datasheet): stroke 0..80 mm between the fingers, 70 N continuous grasping
+    force (140 N peak, not offered), 50 mm/s per finger (0.1 m/s of width)."""
+
+    finger_joints: tuple[str, str]
+    max_width: float = 0.08        # m between the fingers
+    max_force: float = 70.0        # N, continuous grasping force
+    max_speed: float = 0.1         # m/s of width
+
+
 @dataclass(frozen=True, eq=False)
 class RobotSpec:
     """One arm model: joint names and the limit table the safety layer enforces."""
@@ -41,6 +55,7 @@ class RobotSpec:
     tau_max: np.ndarray
     ready_pose: np.ndarray
     base_frame: str           # the robot's base link (frame of Cartesian poses)
+    hand: HandSpec            # the Franka Hand on its flange
 
     @property
     def num_joints(self) -> int:
@@ -63,6 +78,7 @@ PANDA = RobotSpec(
     tau_max=_frozen(_PANDA_TAU),
     ready_pose=_frozen(_READY),
     base_frame="panda_link0",
+    hand=HandSpec(("panda_finger_joint1", "panda_finger_joint2")),
 )
 
 FR3 = RobotSpec(
@@ -78,6 +94,7 @@ FR3 = RobotSpec(
     tau_max=_frozen(_PANDA_TAU),
     ready_pose=_frozen(_READY),
     base_frame="fr3_link0",
+    hand=HandSpec(("fr3_finger_joint1", "fr3_finger_joint2")),
 )
 
 ROBOTS: dict[str, RobotSpec] = {r.name: r for r in (PANDA, FR3)}
@@ -100,3 +117,4 @@ DDQ_MAX = PANDA.ddq_max
 DDDQ_MAX = PANDA.dddq_max
 TAU_MAX = PANDA.tau_max
 READY_POSE = PANDA.ready_pose
+HAND = PANDA.hand

@@ -4,8 +4,8 @@ of their own beyond what they precompute):
 - `CollisionChecker`: is a joint configuration in collision with the robot itself or the table/floor?
   (MuJoCo only generates robot-table contacts, and never robot-robot ones: the robot's links do not
   collide with each other in the scene.) Pairs of links in the same rigid group (a link and what is
-  fixed to it, e.g. link7, flange, hand, fingers) or in adjacent groups (joined by one joint) always
-  touch and are not checked, as MoveIt's "adjacent" pairs; the base stands on the table.
+  fixed to it, e.g. link7, flange, hand) or in adjacent groups (joined by one joint, or the two
+  fingers on the hand) always touch and are not checked, as MoveIt's "adjacent" pairs; the base stands on the table.
 - `ReflexMonitor`: has the measured state gone past the robot's limits (what libfranka reports as a
   reflex)? Names as libfranka's `franka::Errors`: `joint_position_limits_violation`,
   `joint_velocity_violation`, `joint_reflex` (an external torque beyond the joint's torque limit:
@@ -48,8 +48,12 @@ class CollisionChecker:
                  if model.body(model.geom_bodyid[g]).name.startswith(robot_prefix)]
         group = {g: _rigid_group(model, int(model.geom_bodyid[g])) for g in robot}
 
-        def adjacent(a: int, b: int) -> bool:
-            return a == b or model.body_parentid[a] == b or model.body_parentid[b] == a
+        def parent_group(a: int) -> int:
+            return _rigid_group(model, int(model.body_parentid[a])) if a != 0 else 0
+
+        def adjacent(a: int, b: int) -> bool:  # or both moved off the same link: the two fingers
+            pa, pb = parent_group(a), parent_group(b)
+            return a == b or pa == b or pb == a or (a != 0 and b != 0 and pa == pb)
 
         def label(g: int) -> str:
             return model.geom(g).name or model.body(model.geom_bodyid[g]).name

@@ -1,5 +1,6 @@
 """Construction of the MuJoCo scene: example-robot-data's Panda URDF (the file Pinocchio loads) with
-fingers fixed closed, a table whose top is z = 0, lights, a fixed webcam-like camera and the five
+its two fingers (coupled by the URDF's mimic joint, driven by one force-limited servo on their gap:
+hand.py), a table whose top is z = 0, lights, a fixed webcam-like camera and the five
 objects on free joints, plus the joint servos that turn velocity commands into position targets.
 
 Pure model building (MjSpec); the simulator itself lives in `sim.py`.
@@ -16,7 +17,7 @@ from vla_common.camera_model import SIM_WEBCAM
 from vla_common.catalogue import Catalogue, ObjectSpec, default_catalogue
 from vla_common.kinematics import FINGER_JOINTS, panda_description_dir, panda_urdf_path
 from vla_common.layout import TABLE_X, TABLE_Y
-from vla_common.robot import JOINT_NAMES, TAU_MAX
+from vla_common.robot import HAND, JOINT_NAMES, TAU_MAX
 
 # Table: the robot is mounted on the table top (z = 0) at the origin, x away from the robot.
 TABLE_THICKNESS = 0.04
@@ -40,6 +41,20 @@ ROBOT_FRICTION = 0.3
 MOTOR_PREFIX = "motor_"
 TABLE_FRICTION = 0.3
 
+# The hand: a tendon whose length is the gap between the fingers, and a position servo on it whose
+# force (on each finger) the simulator limits to the commanded grasp force (vla_sim.hand.SimHand).
+HAND_TENDON = "hand_width"
+HAND_ACTUATOR = "hand"
+HAND_KP = 3000.0                 # N/m: 1 cm short of the target pushes with 30 N (then force-limited)
+FINGER_ARMATURE = 0.05
+FINGER_DAMPING = 20.0            # N s/m: the finger servo critically damped (no ringing)
+# Contacts: elliptic friction cones with a high impedance ratio, so that a squeezed object does not
+# creep out of the grasp (pyramidal cones let a held can slide 1.4 cm in 2 s; these 0.7 mm).
+CONTACT_IMPRATIO = 10.0
+FINGER_BODIES = ("panda_leftfinger", "panda_rightfinger")
+FINGER_MASS = 1e-6               # kg: see _add_hand
+FINGER_LIMIT_TIMECONST = 0.004   # s: stiff finger stops (MuJoCo keeps it >= 2 physics steps)
+
 # Collision bits: robot (1) hits table and objects but not itself; objects (2) hit everything.
 _ROBOT_CT, _ROBOT_CA = 1, 0
 _TABLE_CT, _TABLE_CA = 2, 1
@@ -57,16 +72,16 @@ _DEFAULT_LINK_RGBA = (0.95, 0.95, 0.95, 1.0)
 
 def mujoco_urdf_text() -> str:
     """The Panda URDF rewritten for MuJoCo's importer: STL collision meshes by absolute path (the
-    .dae visuals are unreadable), finger joints fixed closed, static bodies kept (the TCP frame)."""
+    .dae visuals are unreadable), static bodies kept (the TCP frame). The finger joints stay
+    prismatic; the importer turns their mimic into an equality constraint (they move together)."""
     with open(panda_urdf_path()) as f:
         text = f.read()
     mesh_dir = os.path.join(panda_description_dir(), "meshes", "collision")
     text = re.sub(r'filename="[^"]*/meshes/(?:visual|collision)/(\w+)\.(?:dae|stl)"',
                   lambda m: f'filename="{os.path.join(mesh_dir, m.group(1) + ".stl")}"', text)
     for joint in FINGER_JOINTS:
-        text, n = re.subn(rf'(<joint\s+name="{joint}"\s+type=")prismatic"', r'\1fixed"', text)
-        if n != 1:
-            raise ValueError(f"could not fix finger joint {joint} in the Panda URDF")
+        if not re.search(rf'<joint\s+name="{joint}"\s+type="prismatic"', text):
+            raise ValueError(f"no prismatic finger joint {joint} in the Panda URDF")
     compiler = ('<mujoco><compiler fusestatic="false" discardvisual="true" strippath="false" '
                 'balanceinertia="true"/></mujoco>')
     text, n = re.subn(r"(<robot\b[^>]*>)", r"\1" + compiler, text, count=1)
@@ -200,6 +215,40 @@ def park_position(index: int) -> tuple[float, float, float]:
     return (PARK_X, -1.0 + 0.5 * index, 0.5)
 
 
+def _add_hand(spec: mujoco.MjSpec) -> None:
+    """The fingers' drive: a tendon (joint1 + joint2 = the gap) and a force-limited position servo.
+    The fingers' mass moves to the hand: light fingers on their own joints would couple into the
+    arm's computed-torque servo (M's arm-finger terms), 1e-4 of ddq_max past the table; the drive's
+    reflected inertia (armature) is what their joints feel."""
+    hand = spec.body("panda_hand")
+    hand.explicitinertial = True
+    for body_name in FINGER_BODIES:
+        finger = spec.body(body_name)
+        hand.mass += finger.mass
+        finger.explicitinertial = True
+        finger.mass = FINGER_MASS
+        finger.fullinertia = [FINGER_MASS * 1e-4] * 3 + [0.0] * 3
+    for name in FINGER_JOINTS:
+        j = spec.joint(name)
+        j.armature = FINGER_ARMATURE
+        j.damping = [FINGER_DAMPING, 0.0, 0.0]
+        j.range = [0.0, HAND.max_width / 2]
+        j.solref_limit = [FINGER_LIMIT_TIMECONST, 1.0]   # closed fingers stop at 0, not 6 mm past it
+        j.solimp_limit = [0.95, 0.99, 0.001, 0.5, 2.0]
+    tendon = spec.add_tendon()
+    tendon.name = HAND_TENDON
+    for name in FINGER_JOINTS:
+        tendon.wrap_joint(name, 1.0)
+    a = spec.add_actuator()
+    a.name = HAND_ACTUATOR
+    a.target = HAND_TENDON
+    a.trntype = mujoco.mjtTrn.mjTRN_TENDON
+    a.set_to_position(kp=HAND_KP, kv=0.0)
+    a.ctrllimited = mujoco.mjtLimited.mjLIMITED_FALSE
+    a.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
+    a.forcerange = [-HAND.max_force, HAND.max_force]
+
+
 def build_spec(physics_dt: float = 0.002, catalogue: Catalogue | None = None) -> mujoco.MjSpec:
     """The whole scene as an MjSpec (compile with `.compile()`), with every object of the catalogue."""
     spec = mujoco.MjSpec.from_string(mujoco_urdf_text())
@@ -207,6 +256,8 @@ def build_spec(physics_dt: float = 0.002, catalogue: Catalogue | None = None) ->
     spec.compiler.discardvisual = False  # the URDF's visuals were dropped at parse time; keep ours
     spec.option.timestep = physics_dt
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.option.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    spec.option.impratio = CONTACT_IMPRATIO
     spec.visual.global_.offwidth, spec.visual.global_.offheight = MAX_OFFSCREEN
     spec.visual.quality.shadowsize = 0
     spec.visual.quality.offsamples = 0  # no multisampling: 4x MSAA costs ~4x per frame on Mesa (CPU)
@@ -230,6 +281,7 @@ def build_spec(physics_dt: float = 0.002, catalogue: Catalogue | None = None) ->
         j.actgravcomp = True
         j.actfrclimited = mujoco.mjtLimited.mjLIMITED_TRUE
         j.actfrcrange = [-float(TAU_MAX[i]), float(TAU_MAX[i])]
+    _add_hand(spec)
     tcp_body = spec.body("panda_hand_tcp")
     site = tcp_body.add_site()
     site.name = TCP_SITE

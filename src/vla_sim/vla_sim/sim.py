@@ -11,8 +11,9 @@ M(q) times it plus the Coriolis and gravity terms. So in free motion the arm fol
 respects the table to ~1e-12 rad/s, and whatever the command, its measured velocity and
 acceleration stay inside the table; `reflex()` reports where contact forced it past its limits, as
 a real Panda's reflexes do. Teaching mode switches the servo off (gravity compensation stays).
-Rendering is optional (render=False never creates a GL context), headless with MUJOCO_GL=egl,
-without shadows.
+The hand (`hand`, vla_sim.hand.SimHand) is a force-limited servo on the gap between the fingers,
+stepped with the arm; `held_objects()` names what both fingers touch. Rendering is optional
+(render=False never creates a GL context), headless with MUJOCO_GL=egl, without shadows.
 """
 from __future__ import annotations
 
@@ -31,9 +32,10 @@ from vla_common.layout import (  # noqa: F401  (re-exported for callers of the s
     validate_layout,
 )
 from vla_common.objects import ObjectPose, quat_yaw, yaw_quat
-from vla_common.robot import DDQ_MAX, DQ_MAX, JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN, READY_POSE, TAU_MAX
+from vla_common.robot import DDQ_MAX, DQ_MAX, HAND, JOINT_NAMES, NUM_JOINTS, Q_MAX, Q_MIN, READY_POSE, TAU_MAX
 
 from vla_sim.arm_checks import CollisionChecker, ReflexMonitor
+from vla_sim.hand import SimHand
 from vla_sim.scene import (
     CAMERA_NAME,
     MAX_OFFSCREEN,
@@ -103,6 +105,7 @@ class PandaSim:
         self._geom_contype = m.geom_contype.copy()
         self._geom_conaffinity = m.geom_conaffinity.copy()
         self._active: list[str] = []
+        self.hand = SimHand(m, self.data)         # the fingers' servo, stepped with the arm's
         self.reset(seed=0)
 
     # ------------------------------------------------------------------ state
@@ -178,6 +181,7 @@ class PandaSim:
                 self._servo(h, q, v)
             else:
                 self._integrate_targets(h)
+            self.hand.step(h)
             mujoco.mj_step2(m, d)
             self._cmd_prev = self._cmd
 
@@ -266,8 +270,9 @@ class PandaSim:
 
     # ------------------------------------------------------------------ scene
     def reset(self, seed: int | None = None, objects: Sequence | None = None,
-              q0=None, refuse_collisions: bool = False) -> list[ObjectPose]:
-        """New episode: arm at q0 (default ready pose) at rest, zero command, time 0, and either an
+              q0=None, refuse_collisions: bool = False, hand_width: float = 0.0) -> list[ObjectPose]:
+        """New episode: arm at q0 (default ready pose) at rest, zero command, time 0, the hand at
+        `hand_width` (m; default closed, fingers pressed together), and either an
         explicit object layout (ObjectPose, dict or (class, x, y, yaw) items) or a random one from
         `seed` (1..4 distinct objects; same seed -> same layout). Returns the resulting layout.
         Raises ValueError with a clear message on bad input, leaving the scene unchanged; with
@@ -284,7 +289,10 @@ class PandaSim:
                                      or seed < 0):
                 raise ValueError(f"seed must be a non-negative integer or None, got {seed!r}")
             layout = random_layout(np.random.default_rng(seed), catalogue=self.catalogue)
-        self._apply(layout, q_init)
+        if not (isinstance(hand_width, (int, float)) and math.isfinite(hand_width)
+                and 0.0 <= hand_width <= HAND.max_width):
+            raise ValueError(f"hand_width must be within 0..{HAND.max_width} m, got {hand_width!r}")
+        self._apply(layout, q_init, float(hand_width))
         return self.object_poses()
 
     def _validate_q0(self, q0) -> np.ndarray:
@@ -305,7 +313,7 @@ class PandaSim:
         """Normalise and check an explicit layout; ValueError says what is wrong."""
         return validate_layout(objects, self.catalogue)
 
-    def _apply(self, layout: list[ObjectPose], q_init: np.ndarray) -> None:
+    def _apply(self, layout: list[ObjectPose], q_init: np.ndarray, hand_width: float = 0.0) -> None:
         m, d = self.model, self.data
         mujoco.mj_resetData(m, d)
         d.qpos[self._qadr] = q_init
@@ -332,7 +340,12 @@ class PandaSim:
                 m.body_gravcomp[self._obj_body[c]] = 1.0
                 m.geom_contype[geoms] = 0
                 m.geom_conaffinity[geoms] = 0
+        self.hand.reset(hand_width)
         mujoco.mj_forward(m, d)
+
+    def held_objects(self) -> list[str]:
+        """Classes of the layout's objects that both fingers touch now (what the hand holds)."""
+        return self.hand.holding({c: self._obj_body[c] for c in self._active})
 
     def object_poses(self) -> list[ObjectPose]:
         """Ground-truth poses of the objects in the current layout (centre, yaw, full quaternion)."""

@@ -120,11 +120,12 @@ def test_constant_command_moves_joints_as_integrated(harness):
     first = window[0]
     last = next(s for s in window if _stamp(s) - _stamp(first) >= 0.5 - 1e-6)
     dt = _stamp(last) - _stamp(first)
-    moved = np.array(last.position) - np.array(first.position)
+    moved = np.array(last.position[:7]) - np.array(first.position[:7])
     np.testing.assert_allclose(moved, cmd * dt, atol=2e-3)
-    np.testing.assert_allclose(last.velocity, cmd, atol=0.02)
-    assert list(last.name) == [f"panda_joint{i}" for i in range(1, 8)]
-    assert len(last.effort) == 7
+    np.testing.assert_allclose(last.velocity[:7], cmd, atol=0.02)
+    assert list(last.name) == [f"panda_joint{i}" for i in range(1, 8)] + ["panda_finger_joint1",
+                                                                           "panda_finger_joint2"]
+    assert len(last.effort) == 9
     # joint_states at 200 Hz of simulated time, stamped with the simulation clock that /clock publishes.
     # (A loaded machine may drop a message in transport; the stamps stay on the 5 ms grid.)
     steps = np.diff([_stamp(s) for s in window]) / 0.005
@@ -221,16 +222,16 @@ def test_a_reflex_holds_the_arm_until_recover_and_recovery_needs_a_zero_command(
     # held: it comes to rest (the hold servo damps the bounce) however the machine's load paced it
     assert h.wait(lambda: np.abs(h.states[-1].velocity).max() < 1e-3, 20.0), _recent(h)
     t0 = _stamp(h.states[-1])
-    q_held = np.array(h.states[-1].position)
+    q_held = np.array(h.states[-1].position[:7])
     assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)
-    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3, _recent(h)
+    assert np.abs(np.array(h.states[-1].position[:7]) - q_held).max() < 2e-3, _recent(h)
     assert h.status[-1].code == SafetyStatus.REFLEX, _recent(h)
     assert h.status[-1].last_intervention == SafetyStatus.REFLEX
     res = h.call(Trigger, "panda_bridge/recover", Trigger.Request())
     assert res.success and "recovered from" in res.message and "zero" in res.message
     t0 = _stamp(h.states[-1])
     assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)
-    assert np.abs(np.array(h.states[-1].position) - q_held).max() < 2e-3, _recent(h)   # starts nothing
+    assert np.abs(np.array(h.states[-1].position[:7]) - q_held).max() < 2e-3, _recent(h)   # starts nothing
     assert h.status[-1].code == SafetyStatus.AWAITING_ZERO, _recent(h)
     stream["cmd"] = [0.0] * 7
     n = len(h.states)
@@ -246,7 +247,7 @@ def _travel_after(h, t_from: float, seconds: float) -> float:
     subscriber may lag the simulation) for `seconds`, from where it was at t_from."""
     assert h.wait(lambda: _stamp(h.states[-1]) > t_from + seconds, 10.0)
     window = [s for s in h.states if t_from <= _stamp(s) <= t_from + seconds]
-    hand = [np.array(h.bridge._fk(np.array(s.position))[0]) for s in window]
+    hand = [np.array(h.bridge._fk(np.array(s.position[:7]))[0]) for s in window]
     return max(float(np.linalg.norm(p - hand[0])) for p in hand)
 
 
@@ -361,7 +362,7 @@ def test_reset_with_the_same_seed_reproduces_the_layout(harness):
     assert res.success, res.message
     assert [o.class_id for o in res.objects] == ["soda_can"]
     assert res.objects[0].x == pytest.approx(0.5, abs=1e-6) and res.objects[0].pose.position.z > 0
-    assert h.wait(lambda: np.allclose(h.states[-1].position, q0, atol=2e-3), 5.0)
+    assert h.wait(lambda: np.allclose(h.states[-1].position[:7], q0, atol=2e-3), 5.0)
 
 
 @pytest.mark.parametrize("objects,q0,why", [
@@ -377,7 +378,7 @@ def test_reset_with_the_same_seed_reproduces_the_layout(harness):
 def test_bad_reset_is_refused_with_a_clear_error_and_the_scene_unchanged(harness, objects, q0, why):
     h = harness(real_time_factor=4.0)
     before = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(seed=3, use_seed=True))
-    q_before = np.array(h.states[-1].position)
+    q_before = np.array(h.states[-1].position[:7])
     res = h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(objects=objects, initial_positions=q0))
     assert not res.success
     assert "scene unchanged" in res.message and why in res.message
@@ -385,7 +386,7 @@ def test_bad_reset_is_refused_with_a_clear_error_and_the_scene_unchanged(harness
     n = len(h.scenes)
     assert h.wait(lambda: len(h.scenes) > n, 5.0)
     assert _same_scene(h.scenes[-1].objects, before.objects)
-    np.testing.assert_allclose(h.states[-1].position, q_before, atol=1e-3)
+    np.testing.assert_allclose(h.states[-1].position[:7], q_before, atol=1e-3)
 
 
 def test_camera_publishes_the_configured_size_and_encoding(harness):
@@ -567,7 +568,7 @@ def test_scripted_push_through_joint_velocity_cmd_moves_the_object(harness):
     start = res.objects[0]
     n = len(h.states)
     assert h.wait(lambda: len(h.states) > n + 2, 10.0)
-    q_start = np.array(h.states[-1].position)
+    q_start = np.array(h.states[-1].position[:7])
     plan = plan_task(PandaKinematics(), task, ObjectPose(start.class_id, start.x, start.y, start.yaw),
                      q_start, rng)
     t0 = _stamp(h.states[-1])
@@ -575,7 +576,7 @@ def test_scripted_push_through_joint_velocity_cmd_moves_the_object(harness):
 
     def on_state(msg: JointState) -> None:
         t = _stamp(msg) - t0
-        h.command(plan.command(t, np.array(msg.position)))
+        h.command(plan.command(t, np.array(msg.position[:7])))
         if t > plan.duration + 0.5:
             done.append(True)
 

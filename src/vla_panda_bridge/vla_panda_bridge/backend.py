@@ -13,6 +13,8 @@ The node has one control path. Once per control period `Host.control_step()` run
   (`write`), stamps (`now`, `now_ns`, `JointSample.stamp_ns`);
 - the publishers and services it adds (`capabilities` names the optional services it serves; the
   node refuses the others with a clear message);
+- the hand, if it drives one: `hand`, a non-blocking `gripper.HandDriver` (None: no hand; the
+  node's gripper layer, the same for every backend, checks every request before it gets there);
 - shutdown: after the node has braked through the filter, `close()` commands zero and waits
   (bounded) for it to be acknowledged.
 
@@ -128,11 +130,12 @@ class Backend(Protocol):
 
 
 class BackendBase:
-    """Defaults for the optional parts of `Backend`: no optional services, nothing to recover."""
+    """Defaults for the optional parts of `Backend`: no optional services, nothing to recover, no hand."""
 
     kind = "base"
     capabilities: frozenset[str] = frozenset()
     publishes_joint_states = True
+    hand = None   # a gripper.HandDriver when the robot's hand is driven (the gripper layer wraps it)
 
     def reset(self, request: Any, response: Any) -> Any:
         raise UnsupportedError(f"~/reset needs the mujoco backend (a {self.kind} arm cannot be reset)")

@@ -30,7 +30,54 @@ from vla_sim.sim import PandaSim
 from vla_sim.sim_clock import SimPacer
 
 from vla_interfaces.msg import SceneObject, SceneObjectArray
+from vla_panda_bridge import gripper
 from vla_panda_bridge.backend import RESET, TEACHING, BackendBase, BackendError, Host, JointSample
+
+# A simulated hand's motion ends when its fingers have stood still (under STILL_SPEED) this long with
+# the servo's target at its goal or its force at the limit (squeezing what stopped them).
+STILL_SPEED = 1e-3   # m/s
+STILL_TIME = 0.03    # s of simulated time
+MOVE_FORCE = 20.0    # N: what a move (not a grasp) may push with
+
+
+class SimHandDriver:
+    """PandaSim's hand behind gripper.HandDriver: motions are its servo's, finished by the fingers'
+    standing still; what it holds is what both fingers touch."""
+
+    def __init__(self, sim: PandaSim, max_width: float) -> None:
+        self.sim, self.max_width = sim, max_width
+        self._active = False
+        self._still_since: float | None = None
+
+    def start(self, op: gripper.HandOp) -> None:
+        hand = self.sim.hand
+        if op.kind == gripper.GRASP:
+            hand.command(0.0, op.speed, op.force)       # close until the object stops the fingers
+        else:
+            hand.command(op.width, op.speed, MOVE_FORCE)
+        self._active, self._still_since = True, None
+
+    def stop(self) -> None:
+        self.sim.hand.stop()
+        self._active = False
+
+    def reset(self) -> None:
+        self._active, self._still_since = False, None
+
+    def read(self) -> gripper.HandReading:
+        sim, hand = self.sim, self.sim.hand
+        if abs(hand.width_speed) < STILL_SPEED:
+            if self._still_since is None:
+                self._still_since = sim.time
+        else:
+            self._still_since = None
+        if self._active and self._still_since is not None and sim.time - self._still_since >= STILL_TIME:
+            squeezing = abs(hand.finger_forces[0]) >= 0.95 * hand.force
+            if not hand.moving or squeezing:
+                self._active = False
+        held = sim.held_objects()
+        return gripper.HandReading(width=hand.width, moving=self._active, grasped=bool(held),
+                                   holding=", ".join(held), finger_velocity=hand.width_speed)
 
 
 def scene_object_msg(o: ObjectPose) -> SceneObject:
@@ -63,6 +110,7 @@ class MujocoBackend(BackendBase):
         except ValueError as exc:
             raise BackendError(f"parameter 'initial_positions': {exc}") from exc
         self.fault = ""                               # the reflex the arm stopped with, until recovered
+        self.hand = SimHandDriver(self.sim, host.spec.hand.max_width)
         damping = np.asarray(p["teaching_damping"], dtype=float)
         if damping.shape != (7,) or not np.all(np.isfinite(damping) & (damping >= 0.0)):
             raise BackendError(f"parameter 'teaching_damping' must be 7 values >= 0 (Nm s/rad), "
@@ -196,6 +244,7 @@ class MujocoBackend(BackendBase):
             return response
         self._measure = True
         self.fault = ""
+        self.hand.reset()
         self.publish_scene()
         self._host.publish_state()
         self._request_frame()

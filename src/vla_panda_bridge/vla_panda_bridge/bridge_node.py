@@ -35,6 +35,7 @@ from vla_interfaces.srv import ResetScene
 from vla_panda_bridge import safety
 from vla_panda_bridge.backend import TEACHING, BackendError, UnsupportedError
 from vla_panda_bridge.backends import BACKENDS
+from vla_panda_bridge.gripper_ros import GripperInterface
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
@@ -168,6 +169,9 @@ class PandaBridge(Node):
             self.backend = BACKENDS[p["backend"]].make(self)
         except BackendError as exc:
             raise ConfigError(str(exc)) from exc
+        self.gripper = GripperInterface(self, self.backend.hand, self.backend.now,
+                                        lambda: stamp_from_ns(self.backend.now_ns()))
+        self._js.name = list(self.spec.joint_names) + list(self.gripper.finger_joints)
         self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._on_command, 10)
         self.create_service(SetBool, "~/estop", self._on_estop)
         self.create_service(Trigger, "~/recover", self._on_recover)
@@ -177,6 +181,7 @@ class PandaBridge(Node):
         self.filter.reset(q)
         self.backend.start(self)
         self.create_timer(1.0 / p["status_rate"], self._publish_status)
+        self.create_timer(1.0 / p["status_rate"], self.gripper.publish)
         self._publish_status()
         self.get_logger().info(self.backend.describe())
 
@@ -226,12 +231,14 @@ class PandaBridge(Node):
         if sample is None:
             return
         stamp = stamp_from_ns(sample.stamp_ns)
+        self.gripper.update()
         if self.backend.publishes_joint_states:
             js = self._js
             js.header.stamp = stamp
-            js.position = _doubles(sample.position)
-            js.velocity = _doubles(sample.velocity)
-            js.effort = _doubles(sample.effort)
+            fq, fv = self.gripper.finger_state()
+            js.position = _doubles(sample.position, fq)
+            js.velocity = _doubles(sample.velocity, fv)
+            js.effort = _doubles(sample.effort, [0.0] * len(fq))
             self._js_pub.publish(js)
             self.states_published += 1
         pos, rot = self._fk(sample.position)
@@ -257,6 +264,8 @@ class PandaBridge(Node):
         msg.commands_rejected = f.commands_rejected
         msg.interventions = f.interventions
         msg.estop_active = f.estop_active
+        if hasattr(self, "gripper"):
+            msg.gripper, msg.gripper_lost = self.gripper.summary()
         self._status_pub.publish(msg)
         self._published_code = code
 
@@ -268,6 +277,7 @@ class PandaBridge(Node):
             except (UnsupportedError, RuntimeError) as exc:
                 self.get_logger().error(f"e-stop: could not leave teaching mode: {exc}")
         self.filter.set_estop(request.data)
+        self.gripper.set_estop(request.data)              # stops a moving hand; never opens a closed one
         response.success = True
         response.message = ("e-stop latched: braking to zero, commands ignored until released"
                             if request.data else "e-stop released: send a zero command, then move")
@@ -342,6 +352,7 @@ class PandaBridge(Node):
             return response
         if response.success:
             self.filter.reset(self.backend.position())
+            self.gripper.reset("reset with the scene: closed, holding nothing")
             if self.filter.clear_fault():                  # a new scene is a recovered arm
                 response.message += "; reflex cleared: send a zero command, then move"
             self.get_logger().info(response.message)
@@ -365,6 +376,8 @@ class PandaBridge(Node):
                     break
                 self.control_step()
                 self.backend.advance(self._dt)
+            if self.gripper.core is not None:
+                self.gripper.core.set_estop(True)          # a moving hand stops; a holding one holds
             self.backend.close()
         except Exception as exc:  # context already gone: nothing more can be sent
             print(f"panda_bridge: could not send the final zero command: {exc}", file=sys.stderr)
@@ -374,9 +387,12 @@ class PandaBridge(Node):
         super().destroy_node()
 
 
-def _doubles(values: np.ndarray) -> array.array:
-    """A float64 sequence field without the per-element checks a list gets."""
-    return array.array("d", np.ascontiguousarray(values, dtype=float).tobytes())
+def _doubles(values: np.ndarray, extra=()) -> array.array:
+    """A float64 sequence field without the per-element checks a list gets (plus `extra` values)."""
+    out = array.array("d", np.ascontiguousarray(values, dtype=float).tobytes())
+    if extra:
+        out.extend(extra)
+    return out
 
 
 def main(args=None) -> int:

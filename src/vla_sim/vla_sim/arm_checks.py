@@ -4,8 +4,9 @@ of their own beyond what they precompute):
 - `CollisionChecker`: is a joint configuration in collision with the robot itself or the table/floor?
   (MuJoCo only generates robot-table contacts, and never robot-robot ones: the robot's links do not
   collide with each other in the scene.) Pairs of links in the same rigid group (a link and what is
-  fixed to it, e.g. link7, flange, hand) or in adjacent groups (joined by one joint, or the two
-  fingers on the hand) always touch and are not checked, as MoveIt's "adjacent" pairs; the base stands on the table.
+  fixed to it, e.g. link7, flange, hand) or in adjacent groups (joined by one joint, or the
+  two fingers on the hand) always touch and are not checked, as MoveIt's "adjacent" pairs; the
+  base stands on the table.
 - `ReflexMonitor`: has the measured state gone past the robot's limits (what libfranka reports as a
   reflex)? Names as libfranka's `franka::Errors`: `joint_position_limits_violation`,
   `joint_velocity_violation`, `joint_reflex` (an external torque beyond the joint's torque limit:

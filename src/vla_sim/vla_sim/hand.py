@@ -17,7 +17,6 @@ import math
 
 import mujoco
 from vla_common.kinematics import FINGER_JOINTS
-
 from vla_common.robot import HAND
 
 from vla_sim.scene import FINGER_BODIES, HAND_ACTUATOR, HAND_TENDON
@@ -108,9 +107,10 @@ class SimHand:
         values = (width, speed, force)
         if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in values):
             raise ValueError(f"hand command must be finite numbers, got {values!r}")
-        if not (0.0 <= width <= HAND.max_width and 0.0 < speed <= HAND.max_speed and 0.0 < force <= HAND.max_force):
-            raise ValueError(f"hand command outside its range: width {width} m (0..{HAND.max_width}), "
-                             f"speed {speed} m/s (0..{HAND.max_speed}], force {force} N (0..{HAND.max_force}]")
+        h = HAND
+        if not (0.0 <= width <= h.max_width and 0.0 < speed <= h.max_speed and 0.0 < force <= h.max_force):
+            raise ValueError(f"hand command outside its range: width {width} m (0..{h.max_width}), "
+                             f"speed {speed} m/s (0..{h.max_speed}], force {force} N (0..{h.max_force}]")
         self.goal, self.speed, self.force = float(width), float(speed), float(force)
         # a motion starts from where the fingers are (not from a preloaded target behind them)
         self.target = min(max(self.width, 0.0), HAND.max_width)

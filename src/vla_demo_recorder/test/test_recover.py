@@ -6,11 +6,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from recorder_testing import joint_state, typestore
+from recorder_testing import detections, joint_state, typestore
 from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 from vla_demo_recorder.bag_files import find_mcap, has_footer
 from vla_demo_recorder.bag_writer import BagError, BagWriter, EpisodeInfo, read_metadata_yaml
+from vla_demo_recorder.dataset import load_demos
 from vla_demo_recorder.recover import recover
 
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
@@ -111,3 +112,68 @@ def test_a_bare_mcap_file_is_recovered_beside_it(tmp_path):
     assert sorted(p.name for p in loose.iterdir()) == ["crashed.mcap", "crashed.recovered.mcap"]
     assert (loose / "crashed.mcap").read_bytes() == (bag / "ep.mcap").read_bytes()
     assert has_footer(loose / "crashed.recovered.mcap")
+
+
+def kept_then_cut_short(path: Path, seconds: int = 6, keep_chunks: int = 2) -> Path:
+    """A 6 s demonstration closed as `kept` (one chunk per second), whose MCAP then lost its end (a
+    copy cut short, a disk that failed after the episode): only the first `keep_chunks` chunks
+    remain, the final metadata.yaml still says `kept`."""
+    bag = BagWriter(path, EpisodeInfo(task="bread/push_east", index=7, start_time_ns=10**9)).open()
+    bag.add_topic("/joint_states", JS)
+    bag.add_topic("/detections", "vla_interfaces/msg/DetectionArray")
+    bag.write("/detections", 10**9, detections(10**9, [("bread", 0, 0.9, 320, 240, 50, 40)]))
+    sizes = []
+    for c in range(seconds):
+        for i in range(10):
+            t = 10**9 + (c * 10 + i) * 10**8
+            bag.write("/joint_states", t, joint_state(t, NAMES, np.full(7, 0.01 * (c * 10 + i))))
+        bag.flush()
+        sizes.append(find_mcap(path).stat().st_size)
+    bag.close(outcome="kept", end_time_ns=10**9 + seconds * 10**9)
+    mcap = find_mcap(path)
+    mcap.write_bytes(mcap.read_bytes()[: sizes[keep_chunks - 1] + 7])  # a torn record after the chunks
+    assert EpisodeInfo.from_custom_data(read_metadata_yaml(path)["custom_data"]).outcome == "kept"
+    return path
+
+
+def test_a_kept_episode_cut_short_is_recovered_as_recovered_and_training_says_so(tmp_path):
+    """Issue 20 item 11: recovering a truncated bag whose outcome was `kept` wrote `kept`, so 2 s of a
+    6 s demonstration trained as complete."""
+    bag = kept_then_cut_short(tmp_path / "ep0007")
+    report = recover(bag)
+    assert report.messages == 21  # the detection and 2 s of joint states
+    ep = EpisodeInfo.from_custom_data(read_metadata_yaml(bag)["custom_data"])
+    assert ep.outcome == "recovered" and ep.task == "bread/push_east"
+    assert "recovered from 2 complete chunks" in ep.error and "the outcome was 'kept'" in ep.error
+
+    demos, skipped = load_demos([bag])
+    assert demos == [] and len(skipped) == 1
+    assert "episode outcome is 'recovered'" in skipped[0][1] and "--include-incomplete" in skipped[0][1]
+    demos, skipped = load_demos([bag], include_incomplete=True)
+    assert skipped == [] and demos[0].outcome == "recovered" and demos[0].t[-1] == pytest.approx(1.9)
+
+
+def test_a_discarded_episode_stays_discarded_and_another_writers_bag_reads_as_recovered(tmp_path):
+    bag = kept_then_cut_short(tmp_path / "ep0008")
+    meta = bag / "metadata.yaml"
+    meta.write_text(meta.read_text().replace("episode.outcome: kept", "episode.outcome: discarded"))
+    recover(bag)
+    assert EpisodeInfo.from_custom_data(read_metadata_yaml(bag)["custom_data"]).outcome == "discarded"
+
+    other = BagWriter(tmp_path / "other").open()  # like another writer's: no episode metadata
+    other.add_topic("/joint_states", JS)
+    other.add_topic("/detections", "vla_interfaces/msg/DetectionArray")
+    other.write("/detections", 10**9, detections(10**9, [("bread", 0, 0.9, 320, 240, 50, 40)]))
+    for i in range(40):
+        other.write("/joint_states", 10**9 + i * 10**8, joint_state(10**9 + i * 10**8, NAMES, np.zeros(7)))
+        if i % 10 == 9:
+            other.flush()
+    other.abort()
+    loose = tmp_path / "loose"
+    loose.mkdir()
+    (loose / "theirs.mcap").write_bytes(other.mcap_path.read_bytes())
+    assert recover(loose / "theirs.mcap").messages == 41
+    demos, skipped = load_demos([loose / "theirs.recovered.mcap"], task="bread/push_east")
+    assert demos == [] and "episode outcome is 'recovered'" in skipped[0][1], skipped
+    demos, _ = load_demos([loose / "theirs.recovered.mcap"], task="bread/push_east", include_incomplete=True)
+    assert demos[0].task == "bread/push_east" and demos[0].detection.class_id == "bread"

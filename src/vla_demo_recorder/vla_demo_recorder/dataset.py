@@ -39,6 +39,12 @@ JOINT_STATE_TYPES = ("sensor_msgs/msg/JointState",)
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DETECTION_TYPES = ("vla_interfaces/msg/DetectionArray", "vision_msgs/msg/Detection2DArray")
 USABLE_OUTCOMES = ("kept",)
+# Demonstrations that may end before the task did: used only when asked (include_incomplete).
+INCOMPLETE_OUTCOMES = {
+    "recovered": "the file was cut short and `recover` kept its complete chunks, so the demonstration "
+                 "may end early",
+    "interrupted": "the recorder shut down during the episode",
+}
 # A camera frame stamped this long before the episode start was queued before it: never the context.
 STALE_FRAME_S = 1.0
 # Joint-state checks: a longer silence means lost messages (resampling would invent a straight line),
@@ -62,6 +68,7 @@ class Demo:
     image_size: tuple[int, int] | None  # (w, h)
     bag_path: str
     image_error: str = ""         # why first_image is None, when a camera topic was there
+    outcome: str = ""             # the episode's outcome ("kept", "recovered", ...); "": no episode metadata
 
 
 # -- message decoding --------------------------------------------------------------------------
@@ -223,8 +230,11 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
     """Read one demonstration bag (folder, .mcap or .db3 file; MCAP or sqlite3 storage). Raises
     DemoError with a clear reason.
 
-    `task` is used when the bag carries no episode metadata (bags from other writers); the context
-    (first image / detection) must arrive within `context_window_s` of the first joint state.
+    `task` is used when the bag carries no episode metadata (bags from other writers) or its task is
+    empty (another writer's bag after `recover`); the context (first image / detection) must arrive
+    within `context_window_s` of the first joint state. Only `kept` episodes (and bags without
+    episode metadata) load; with `include_incomplete` also `recovered` and `interrupted` ones, which
+    may end before the task did.
     """
     path = Path(path)
     file, open_bag = _opener(path)
@@ -233,11 +243,10 @@ def load_demo(path: str | Path, task: str | None = None, *, joint_names: Sequenc
             _check_outcome(episode, include_incomplete)
             scan = _Scan(list(joint_names))
             if episode is not None:
-                scan.prefer = episode.object_class
                 scan.stale_before = max(0, episode.start_time_ns - int(STALE_FRAME_S * 1e9)) \
                     if episode.start_time_ns else 0
-            elif task:
-                scan.prefer = object_class_of(task)
+            scan.prefer = (episode.object_class if episode is not None else "") or \
+                (object_class_of(task) if task else None)
             for schema, log_time, msg in messages:
                 scan.add(schema, log_time, msg)
     except DemoError:
@@ -269,9 +278,13 @@ def _opener(path: Path):
 def _check_outcome(episode: EpisodeInfo | None, include_incomplete: bool) -> None:
     if episode is None or episode.outcome in USABLE_OUTCOMES:
         return
-    if include_incomplete and episode.outcome in ("interrupted", "recovered"):
+    if include_incomplete and episode.outcome in INCOMPLETE_OUTCOMES:
         return
     reason = f" ({episode.error})" if episode.error else ""
+    if episode.outcome in INCOMPLETE_OUTCOMES:
+        why = INCOMPLETE_OUTCOMES[episode.outcome]
+        raise DemoError(f"episode outcome is {episode.outcome!r}{reason}: {why}; left out "
+                        "(include_incomplete, --include-incomplete, uses it)")
     raise DemoError(f"episode outcome is {episode.outcome!r}{reason}")
 
 
@@ -305,7 +318,8 @@ def _demo_of(scan: _Scan, episode: EpisodeInfo | None, task: str, bag_path: str,
         image_size = image_size or scan.det_size
     object_class = episode.object_class if episode is not None else object_class_of(task)
     return Demo(task=task, object_class=object_class, t=grid, q=q10, first_image=image,
-                detection=detection, image_size=image_size, bag_path=bag_path, image_error=image_err)
+                detection=detection, image_size=image_size, bag_path=bag_path, image_error=image_err,
+                outcome=episode.outcome if episode is not None else "")
 
 
 def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[np.ndarray, np.ndarray]:

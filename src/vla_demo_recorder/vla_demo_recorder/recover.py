@@ -10,7 +10,9 @@ expected counts does it take the original's place; the original MCAP and metadat
 it as `*.orig`. A bare .mcap outside a bag folder is recovered beside it (`<name>.recovered.mcap`).
 Nothing is changed when nothing can be recovered or the storage is not MCAP (sqlite3 bags keep
 their own journal). The episode metadata of the interim metadata.yaml is kept, with outcome
-`recovered`. No rclpy import.
+`recovered` whatever it said before (a `kept` episode whose file lost its end did not keep all of
+it), except `discarded`; `error` says what was dropped and what the outcome was. Training leaves
+recovered episodes out unless asked (vla_demo_recorder.dataset). No rclpy import.
 """
 from __future__ import annotations
 
@@ -109,13 +111,32 @@ def _rewrite(mcap: Path, dest: Path, report: RecoveryReport) -> BagWriter:
         raise BagError(f"cannot write the recovered copy beside {mcap}: {err}") from err
     try:
         _scan(mcap, out, hashes, report)
-        out.close(outcome="recovered" if episode and episode.outcome == "recording"
-                  else (episode.outcome if episode else "recovered"),
+        out.episode = _recovered_episode(episode, complete=has_footer(mcap), report=report)
+        out.close(outcome=out.episode.outcome,
                   end_time_ns=out.last_ns or (episode.start_time_ns if episode else 0))
     except BaseException:
         out.abort()
         raise
     return out
+
+
+def _recovered_episode(episode: EpisodeInfo | None, complete: bool, report: RecoveryReport) -> EpisodeInfo:
+    """The episode metadata of the recovered copy. A file cut short becomes `recovered` whatever it
+    said before (a `kept` episode whose file lost its end is not a complete demonstration), except
+    `discarded`, which stays what the operator chose; a bag without episode metadata (another writer)
+    gets one with an empty task, so that the copy too reads as recovered. A complete file (--force)
+    keeps its outcome."""
+    if episode is None:
+        episode = EpisodeInfo(task="")
+    before = episode.outcome
+    if complete and before != "recording":
+        return episode
+    if before != "discarded":
+        episode.outcome = "recovered"
+    note = (f"recovered from {report.chunks} complete chunks; {report.bytes_dropped} trailing bytes dropped"
+            + (f"; the outcome was {before!r}" if before not in ("recording", episode.outcome) else ""))
+    episode.error = f"{episode.error}; {note}" if episode.error else note
+    return episode
 
 
 def _old_metadata(bag_dir: Path) -> tuple[dict[str, str], dict[str, str]]:

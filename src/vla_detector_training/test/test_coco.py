@@ -131,3 +131,66 @@ def test_mapping_errors():
         parse_mapping(["bread"])
     with pytest.raises(DatasetError):
         import_coco("/nonexistent.json", "/", "/tmp/never", OBJECT_CLASSES)
+
+
+def _import(tmp_path, doc, maps=("Bread=bread", "person=")):
+    (tmp_path / "annotations.json").write_text(json.dumps(doc))
+    return cli_main(["import-coco", str(tmp_path / "annotations.json"), "--images", str(tmp_path / "photos"),
+                     "--out", str(tmp_path / "yolo"), "--map", *maps])
+
+
+def test_crowd_regions_are_skipped_and_counted_not_boxes(tmp_path, capsys):
+    """Issue 20 item 11: CVAT exports `iscrowd: 1` regions (many objects under one outline); they were
+    imported as one object's box."""
+    write_images(tmp_path / "photos")
+    doc = cvat_coco()
+    doc["annotations"][0]["iscrowd"] = 1       # bread on frame_000
+    doc["annotations"][3]["iscrowd"] = 1       # person on frame_001: no --map needed for a crowd only
+    assert _import(tmp_path, doc, maps=("Bread=bread",)) == 0
+    out = capsys.readouterr().out
+    assert "skipped (iscrowd, a region of many objects, not a box): 1 Bread regions" in out
+    labels = (tmp_path / "yolo" / "labels" / "train" / "frame_000.txt").read_text().splitlines()
+    assert len(labels) == 1 and labels[0].startswith(f"{OBJECT_CLASSES.index('soda_can')} ")
+    report = import_coco(tmp_path / "annotations.json", tmp_path / "photos", tmp_path / "yolo2",
+                         OBJECT_CLASSES, parse_mapping(["Bread=bread"]))
+    assert report.boxes == 2 and report.crowd == {"Bread": 1, "person": 1}
+
+
+@pytest.mark.parametrize("where, change, message", [
+    ("image", lambda d: d["images"][0].update(id=[1]), "annotations.json: image #0: id must be an integer"),
+    ("annotation", lambda d: d["annotations"][1].update(image_id={"a": 1}),
+     "annotations.json: annotation 2: image_id must be an integer or a string, got dict"),
+    ("annotation", lambda d: d["annotations"][1].update(id=[2], category_id=[1]),
+     "annotations.json: annotation #1: category_id must be an integer or a string, got list"),
+    ("category", lambda d: d["categories"][2].update(id={"x": 3}),
+     "annotations.json: category #2: id must be"),
+])
+def test_an_unhashable_id_is_a_clean_error(tmp_path, capsys, where, change, message):
+    """Issue 20 item 11: an id that is a list or a mapping raised a TypeError."""
+    write_images(tmp_path / "photos")
+    doc = cvat_coco()
+    change(doc)
+    assert _import(tmp_path, doc) == 2
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err
+    assert not (tmp_path / "yolo").exists()
+
+
+@pytest.mark.parametrize("name, message", [
+    ("../outside/x.png", "the file name climbs out of"),
+    ("images/../../outside/x.png", "the file name climbs out of"),
+    ("/ABS/outside/x.png", "not found in"),       # looked up inside --images, never at that path
+    ("linked.png", "is a link to a file outside"),
+])
+def test_image_paths_never_leave_the_images_folder(tmp_path, capsys, name, message):
+    """Issue 20 item 11: `../outside/x.png` was copied from outside --images."""
+    write_images(tmp_path / "photos")
+    outside = tmp_path / "outside"
+    outside.mkdir()
+    cv2.imwrite(str(outside / "x.png"), np.full((H, W, 3), 7, np.uint8))
+    (tmp_path / "photos" / "linked.png").symlink_to(outside / "x.png")
+    doc = cvat_coco()
+    doc["images"][2]["file_name"] = name.replace("/ABS", str(tmp_path))
+    assert _import(tmp_path, doc) == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "yolo").exists()

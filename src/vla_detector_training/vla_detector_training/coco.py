@@ -5,8 +5,12 @@ COCO boxes are [x, y, w, h] in pixels from the image's top-left corner; YOLO lin
 (identical names map themselves; `--map coco_name=our_name` for others, `coco_name=` leaves a
 category out). The dataset's `data.yaml` names the catalogue's classes, so class indices are those of
 the detector everywhere. Images are copied (never moved); an image the file lists without annotations
-gets an empty label file (a deliberate background image). Every problem is a DatasetError naming the
-file and the annotation, image or category id.
+gets an empty label file (a deliberate background image). Crowd regions (`iscrowd: 1`, which CVAT
+exports for a region of many objects) are not boxes of one object: they are skipped and counted.
+An image is only ever read from inside the images folder: a file name that climbs out of it (`..`)
+or a symbolic link that points out of it is refused (an absolute name is looked up inside it). Ids
+are integers or strings. Every problem is a DatasetError naming the file and the annotation, image
+or category id.
 """
 
 from __future__ import annotations
@@ -41,12 +45,15 @@ class CocoImport:
     backgrounds: int = 0  # images listed without annotations: empty label files
     per_class: Counter = field(default_factory=Counter)
     left_out: Counter = field(default_factory=Counter)  # annotations of categories mapped to nothing
+    crowd: Counter = field(default_factory=Counter)  # iscrowd regions skipped, by category name
 
     def lines(self) -> list[str]:
         out = [f"imported {self.images} images, {self.boxes} boxes ({self.backgrounds} images without "
                "objects: empty label files)"]
         out += [f"  {name}: {n} boxes" for name, n in sorted(self.per_class.items())]
         out += [f"  left out (--map {name}=): {n} boxes" for name, n in sorted(self.left_out.items())]
+        out += [f"  skipped (iscrowd, a region of many objects, not a box): {n} {name} regions"
+                for name, n in sorted(self.crowd.items())]
         return out
 
 
@@ -75,15 +82,32 @@ def _load(path: Path) -> dict:
     return doc
 
 
+def _is_id(value) -> bool:
+    """COCO ids are integers (strings from some tools); a list or a mapping is no id (nor hashable)."""
+    return isinstance(value, (int, str)) and not isinstance(value, bool)
+
+
 def _entries_by_id(path: Path, entries: list, what: str) -> dict:
     out = {}
     for k, e in enumerate(entries):
         if not isinstance(e, dict) or "id" not in e:
             raise DatasetError(f"{path}: {what} #{k} has no id")
+        if not _is_id(e["id"]):
+            raise DatasetError(f"{path}: {what} #{k}: id must be an integer or a string, got a "
+                               f"{type(e['id']).__name__}")
         if e["id"] in out:
             raise DatasetError(f"{path}: {what} {e['id']}: id used twice")
         out[e["id"]] = e
     return out
+
+
+def _annotation_name(k: int, ann: dict) -> str:
+    return f"annotation {ann['id']}" if _is_id(ann.get("id")) else f"annotation #{k}"
+
+
+def is_crowd(ann: dict) -> bool:
+    """A crowd region (`iscrowd: 1`): many objects under one outline, not one object's box."""
+    return ann.get("iscrowd") in (1, True)
 
 
 def category_classes(path: Path, categories: dict, used: set, mapping: Mapping[str, str | None],
@@ -114,12 +138,19 @@ def category_classes(path: Path, categories: dict, used: set, mapping: Mapping[s
 
 def find_image(path: Path, images_dir: Path, image: dict) -> Path:
     """The image file: images_dir/file_name, else images_dir/<its base name> (Label Studio and CVAT
-    prefix folders such as `images/` or `/data/upload/3/`)."""
-    name = str(image.get("file_name") or "")
-    if not name:
+    prefix folders such as `images/` or `/data/upload/3/`); never a file outside images_dir."""
+    name = image.get("file_name")
+    if not isinstance(name, str) or not name:
         raise DatasetError(f"{path}: image {image['id']}: no file_name")
+    if ".." in Path(name).parts:
+        raise DatasetError(f"{path}: image {image['id']} ({name!r}): the file name climbs out of "
+                           f"{images_dir} (images are read only from the images folder)")
+    root = images_dir.resolve()
     for candidate in (images_dir / name.lstrip("/"), images_dir / Path(name).name):
         if candidate.is_file():
+            if not candidate.resolve().is_relative_to(root):
+                raise DatasetError(f"{path}: image {image['id']} ({name!r}): {candidate} is a link to a file "
+                                   f"outside {images_dir} (images are read only from the images folder)")
             return candidate
     raise DatasetError(f"{path}: image {image['id']} ({name!r}): not found in {images_dir}")
 
@@ -195,19 +226,26 @@ def import_coco(annotations: str | os.PathLike, images_dir: str | os.PathLike, o
     categories = _entries_by_id(path, doc["categories"], "category")
     anns = doc.get("annotations", [])
     by_image: dict = {i: [] for i in images}
+    report = CocoImport()
     for k, ann in enumerate(anns):
         if not isinstance(ann, dict):
             raise DatasetError(f"{path}: annotation #{k} is not an object")
-        if ann.get("image_id") not in images:
-            raise DatasetError(f"{path}: annotation {ann.get('id')}: image_id {ann.get('image_id')!r} is not "
-                               "in 'images'")
-        if ann.get("category_id") not in categories:
-            raise DatasetError(f"{path}: annotation {ann.get('id')}: category_id "
-                               f"{ann.get('category_id')!r} is not in 'categories'")
+        where = f"{path}: {_annotation_name(k, ann)}"
+        for key in ("image_id", "category_id"):
+            if not _is_id(ann.get(key)):
+                raise DatasetError(f"{where}: {key} must be an integer or a string, got "
+                                   f"{type(ann.get(key)).__name__}")
+        if ann["image_id"] not in images:
+            raise DatasetError(f"{where}: image_id {ann['image_id']!r} is not in 'images'")
+        if ann["category_id"] not in categories:
+            raise DatasetError(f"{where}: category_id {ann['category_id']!r} is not in 'categories'")
+        if is_crowd(ann):
+            report.crowd[str(categories[ann["category_id"]].get("name"))] += 1
+            continue
         by_image[ann["image_id"]].append(ann)
-    ours = category_classes(path, categories, {a["category_id"] for a in anns}, mapping or {}, classes)
+    used = {a["category_id"] for boxes in by_image.values() for a in boxes}
+    ours = category_classes(path, categories, used, mapping or {}, classes)
     present = _check_out(out, classes)
-    report = CocoImport()
     stems: dict[str, object] = {}
     for image_id, image in images.items():  # everything is checked before anything is written
         file = find_image(path, images_dir, image)

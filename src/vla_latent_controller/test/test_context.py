@@ -44,3 +44,21 @@ def test_preprocess_image_shape_and_range():
     assert x[:, :, :32].max() == 0.0 and x[:, :, 32:].min() == 1.0
     with pytest.raises(ContextError):
         preprocess_image(np.zeros((10, 10)))
+
+
+@pytest.mark.parametrize("cx, cy", [(1e6, -1e6), (-50.0, 240.0), (320.0, 480 * 1.03), (float("inf"), 1.0)])
+def test_a_detection_outside_the_image_is_no_context(cx, cy):
+    """Issue 20 item 8: (1e6, -1e6) or -50 px in a 640x480 image were latched and drove the arm."""
+    det = Detection("bread", 0.9, cx, cy)
+    with pytest.raises(ContextError, match="outside the 640x480 image|not finite"):
+        detector_context(det, (640, 480), CLASSES)
+    assert select_detection([det], "highest_score", CLASSES, image_size=(640, 480)) is None
+
+
+def test_the_border_margin_and_a_valid_detection_beside_a_bad_one():
+    for cx, cy in ((-12.0, 0.0), (652.0, 489.0), (0.0, 480.0)):  # within 2 % of the image size
+        detector_context(Detection("bread", 0.9, cx, cy), (640, 480), CLASSES)
+    dets = [Detection("soda_can", 0.99, 1e6, -1e6), Detection("bread", 0.5, 100, 100)]
+    assert select_detection(dets, "highest_score", CLASSES, image_size=(640, 480)).class_id == "bread"
+    with pytest.raises(ContextError, match="image size must be 1..16384 px a side, got 100000x480"):
+        detector_context(Detection("bread", 0.9, 5e4, 1), (100_000, 480), CLASSES)

@@ -98,6 +98,17 @@ def test_latent_command_deadband_and_status(harness):
     assert np.all(cmd == 0.0)
 
 
+@pytest.mark.parametrize("centre", [(1e6, -1e6), (-50.0, 240.0)])
+def test_a_detection_outside_the_image_gives_zero_and_bad_input(harness, centre):
+    """Issue 20 item 8: a detection at (1e6, -1e6) or -50 px in a 640x480 image drove the arm at
+    0.28-0.33 rad/s; now the command stays zero with BAD_INPUT until a detection in the image comes."""
+    st, cmd = harness.settle(ControllerStatus.BAD_INPUT, axis=1.0, dets=(("bread", *centre),))
+    assert np.all(cmd == 0.0) and "outside the 640x480 image" in st.reason and st.latched_class == ""
+    assert all(not any(c) for c in harness.cmds)
+    st, cmd = harness.settle(ControllerStatus.ACTIVE, axis=1.0)
+    assert np.linalg.norm(cmd) > 0 and st.latched_x == pytest.approx(0.5)
+
+
 def test_bad_inputs_give_zero_and_status(harness):
     st, cmd = harness.settle(ControllerStatus.MODEL_ERROR, names=NAMES[:6], q=READY[:6])
     assert "lack panda_joint7" in st.reason and np.all(cmd == 0.0)

@@ -281,6 +281,20 @@ def test_malformed_detection_and_joy(random_model_dir):
     assert st.code == Code.BAD_INPUT and np.all(cmd == 0)
 
 
+@pytest.mark.parametrize("cx, cy", [(1e6, -1e6), (-50.0, 240.0), (float("nan"), 240.0)])
+def test_a_detection_outside_the_image_is_bad_input_and_never_latched(random_model_dir, cx, cy):
+    """Issue 20 item 8: outside the image (plus a small margin) is BAD_INPUT, like NaN; a valid
+    detection that arrives later is latched."""
+    core = make_core(random_model_dir)
+    feed(core, 0.0, axis=1.0, dets=(Detection("bread", 0.9, cx, cy),))
+    cmd, st = core.step(0.01)
+    assert st.code == Code.BAD_INPUT and np.all(cmd == 0) and core.latched is None
+    assert "bread detection" in st.reason
+    feed(core, 0.02, axis=1.0)
+    cmd, st = core.step(0.03)
+    assert st.code == Code.ACTIVE and st.latched_x == pytest.approx(0.5)
+
+
 def _permuted_model(src: Path, dst: Path, order: list[int]) -> Path:
     """The same network as `src` with its joints listed in `order`: by joint name, the same function."""
     art = load_model(src)

@@ -23,6 +23,8 @@ CNN_INPUT_SIZE = (64, 48)  # (width, height) of the downscaled image the CNN see
 CNN_FEATURE_DIM = 16
 
 GOAL_SELECTIONS = ("highest_score", "nearest_to_ee")
+IMAGE_MARGIN = 0.02  # a box centre may lie this share of the image size outside it (rounding at a border)
+MAX_IMAGE_SIDE = 16384  # px
 
 
 class ContextError(ValueError):
@@ -51,15 +53,29 @@ def one_hot(class_id: str, classes: Sequence[str]) -> np.ndarray:
     return v
 
 
+def detection_problem(det: Detection, image_size: tuple[int, int]) -> str | None:
+    """Why `det` cannot be a context in an image of `image_size` (w, h) pixels, or None: a size that is
+    no camera's, a value that is not finite, or a box centre outside the image by more than
+    IMAGE_MARGIN of its size (a detector's box lies in its image; (1e6, -1e6) px from a peer would
+    otherwise be latched and drive the arm)."""
+    w, h = image_size
+    if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
+        return f"image size must be 1..{MAX_IMAGE_SIDE} px a side, got {w}x{h}"
+    if not det.is_finite():
+        return f"a {det.class_id} detection is not finite (centre {det.cx}, {det.cy}; score {det.score})"
+    mx, my = IMAGE_MARGIN * w, IMAGE_MARGIN * h
+    if not (-mx <= det.cx <= w + mx and -my <= det.cy <= h + my):
+        return f"a {det.class_id} detection at ({det.cx:.6g}, {det.cy:.6g}) px is outside the {w}x{h} image"
+    return None
+
+
 def detector_context(det: Detection, image_size: tuple[int, int], classes: Sequence[str]) -> np.ndarray:
     """one-hot(class) ⊕ (cx / w, cy / h): the paper's structured context."""
+    problem = detection_problem(det, image_size)
+    if problem:
+        raise ContextError(problem)
     w, h = image_size
-    if not (w > 0 and h > 0):
-        raise ContextError(f"image size must be positive, got {image_size}")
-    x, y = det.cx / w, det.cy / h
-    if not (np.isfinite(x) and np.isfinite(y)):
-        raise ContextError(f"detection centre is not finite: ({det.cx}, {det.cy})")
-    return np.concatenate([one_hot(det.class_id, classes), [x, y]])
+    return np.concatenate([one_hot(det.class_id, classes), [det.cx / w, det.cy / h]])
 
 
 def preprocess_image(rgb: np.ndarray, size: tuple[int, int] = CNN_INPUT_SIZE) -> np.ndarray:
@@ -73,23 +89,29 @@ def preprocess_image(rgb: np.ndarray, size: tuple[int, int] = CNN_INPUT_SIZE) ->
     return np.ascontiguousarray(small.transpose(2, 0, 1), dtype=np.float32) / np.float32(255.0)
 
 
+def candidates(dets: Sequence[Detection], policy: str,
+               classes: Sequence[str] | None = None) -> list[Detection]:
+    """The detections that may be the goal under ``policy`` (of ``classes`` when given), valid or not."""
+    cands = [d for d in dets if classes is None or d.class_id in classes]
+    return cands if policy in GOAL_SELECTIONS else [d for d in cands if d.class_id == policy]
+
+
 def select_detection(
     dets: Sequence[Detection],
     policy: str,
     classes: Sequence[str] | None = None,
     ee_pixel: tuple[float, float] | None = None,
+    image_size: tuple[int, int] | None = None,
 ) -> Detection | None:
     """Pick the goal object among ``dets``.
 
     ``policy``: ``highest_score``; ``nearest_to_ee`` (box centre closest to the end effector's pixel,
     falls back to the highest score when ``ee_pixel`` is unknown); or a class name (the best-scoring
-    detection of that class). When ``classes`` is given only those classes are candidates.
+    detection of that class). When ``classes`` is given only those classes are candidates. A detection
+    that is not finite, or (``image_size`` given) not in the image, is never picked.
     """
-    cands = [d for d in dets if np.isfinite(d.score) and np.isfinite(d.cx) and np.isfinite(d.cy)]
-    if classes is not None:
-        cands = [d for d in cands if d.class_id in classes]
-    if policy not in GOAL_SELECTIONS:
-        cands = [d for d in cands if d.class_id == policy]
+    cands = [d for d in candidates(dets, policy, classes)
+             if (d.is_finite() if image_size is None else detection_problem(d, image_size) is None)]
     if not cands:
         return None
     if policy == "nearest_to_ee" and ee_pixel is not None:

@@ -17,7 +17,13 @@ import numpy as np
 from vla_common.detection import Detection
 from vla_common.robot import JOINT_NAMES
 
-from vla_latent_controller.context import GOAL_SELECTIONS, ContextError, select_detection
+from vla_latent_controller.context import (
+    GOAL_SELECTIONS,
+    ContextError,
+    candidates,
+    detection_problem,
+    select_detection,
+)
 from vla_latent_controller.ee_baseline import EE_AXES, EndEffectorBaseline
 from vla_latent_controller.joints import JointBinding, JointResolver
 
@@ -449,6 +455,10 @@ class TeleopCore:
         det = self._pick(q)
         if det is not None:
             return det, None
+        for d in candidates(self._dets, p.goal_selection, m.classes):  # only malformed ones: refuse them
+            problem = detection_problem(d, self._dets_size)
+            if problem:
+                return None, (Code.BAD_INPUT, problem)
         seen = sorted({d.class_id for d in self._dets})
         if seen and not any(c in m.classes for c in seen):
             reason = (f"detected classes {seen} are not in the model's classes {m.classes} "
@@ -485,7 +495,7 @@ class TeleopCore:
                 ee_px = self.ee_pixel(q)
             except Exception:  # an uncalibrated camera falls back to the highest score
                 ee_px = None
-        return select_detection(self._dets, p.goal_selection, self.model.classes, ee_px)
+        return select_detection(self._dets, p.goal_selection, self.model.classes, ee_px, self._dets_size)
 
 
 __all__ = ["Code", "EE_AXES", "MODES", "Status", "TeleopCore", "TeleopParams", "stick_to_unit"]

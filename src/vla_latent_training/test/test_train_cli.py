@@ -222,3 +222,22 @@ def test_catalogue_brings_new_classes_and_tasks(tmp_path, capsys):
     cfg = json.loads((tmp_path / "m" / "config.json").read_text())
     assert cfg["classes"] == [*CLASSES, "teapot"]
     assert cfg["training"]["demos_per_task"] == {"teapot/push_north": 1}
+
+
+def test_recovered_episodes_are_left_out_unless_asked_and_training_says_which(tmp_path, capsys):
+    """Issue 20 item 11: training says what it does with recovered (and interrupted) episodes."""
+    rng = np.random.default_rng(4)
+    for i in range(3):
+        demo = make_demo("bread", rng, T=30)
+        demo.task = "bread/push_east"
+        bag = write_bag(tmp_path / "demos" / f"ep{i}", demo)
+    meta = bag / "metadata.yaml"  # the last one: what `recover` leaves of a file cut short
+    meta.write_text(meta.read_text().replace("episode.outcome: kept", "episode.outcome: recovered"))
+    args = ["train", "--bags", str(tmp_path / "demos"), "--epochs", "1", "--hidden", "8", "--quiet"]
+    assert main(args + ["--out", str(tmp_path / "m")]) == 0
+    out = capsys.readouterr()
+    assert "loaded 2 demos" in out.out and f"skipped {bag}: episode outcome is 'recovered'" in out.err
+    assert "left out 1 incomplete episodes" in out.err and "--include-incomplete trains on them" in out.err
+    assert main(args + ["--out", str(tmp_path / "all"), "--include-incomplete"]) == 0
+    out = capsys.readouterr()
+    assert "loaded 3 demos" in out.out and "training on 1 incomplete demos" in out.err

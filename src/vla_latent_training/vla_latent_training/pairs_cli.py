@@ -18,6 +18,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--task", default=None, help="the task of bags without episode metadata (ros2 bag record)")
     p.add_argument("--catalogue", default=None, help="where --task is defined (default: vla_common's)")
+    p.add_argument("--include-incomplete", action="store_true",
+                   help="also recovered and interrupted episodes (as `train --include-incomplete`)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -26,7 +28,8 @@ def run(args: argparse.Namespace) -> int:
     except (CatalogueError, OSError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
-    demos, skipped = load_demos(args.paths, require=args.require, task=task)
+    demos, skipped = load_demos(args.paths, require=args.require, task=task,
+                                include_incomplete=args.include_incomplete)
     for path, reason in skipped:
         print(f"skipped {path}: {reason}")
     rng = np.random.default_rng(args.seed)

@@ -15,7 +15,7 @@ from collections import Counter
 from pathlib import Path
 
 from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
-from vla_demo_recorder.dataset import load_demos
+from vla_demo_recorder.dataset import INCOMPLETE_OUTCOMES, load_demos
 from vla_detector.inference import Detector, default_model_path
 
 from vla_latent_training.config import TrainConfig, check_position_scale
@@ -69,6 +69,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--catalogue", default=None,
                    help="object classes and tasks (a catalogue YAML; default: vla_common's)")
     p.add_argument("--max-per-task", type=int, default=0, help="keep at most N demos per task (0: all)")
+    p.add_argument("--include-incomplete", action="store_true",
+                   help="also train on episodes whose outcome is recovered (a file cut short, made "
+                        "readable by `vla_demo_recorder recover`) or interrupted; left out by default, "
+                        "since they may end before the task did")
     p.add_argument(
         "--threads", type=int, default=1, help="torch threads (1 is fastest on a busy 2-core machine)"
     )
@@ -101,6 +105,20 @@ def select_demos(demos: list, tasks: list[str] | None, max_per_task: int) -> lis
     return kept
 
 
+def report_incomplete(demos: list, skipped: list[tuple[str, str]], included: bool) -> None:
+    """Say what happens to recovered and interrupted episodes (they may end before the task did)."""
+    if included:
+        n = sum(d.outcome in INCOMPLETE_OUTCOMES for d in demos)
+        if n:
+            print(f"training on {n} incomplete demos (outcome recovered or interrupted), as "
+                  "--include-incomplete asks", file=sys.stderr)
+        return
+    n = sum(any(f"outcome is {o!r}" in reason for o in INCOMPLETE_OUTCOMES) for _, reason in skipped)
+    if n:
+        print(f"left out {n} incomplete episodes (outcome recovered or interrupted: they may end before "
+              "the task did); --include-incomplete trains on them", file=sys.stderr)
+
+
 def resolve_tasks(args: argparse.Namespace, catalogue: Catalogue) -> tuple[list[str], str | None]:
     """(the --task names, the task of bags without episode metadata), parsed by the catalogue."""
     tasks = [catalogue.task(t).name for t in args.task or []]
@@ -127,10 +145,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     demos, skipped = load_demos(args.bags, require="image" if args.encoder != "detector" else None,
-                                task=untagged_task)
+                                task=untagged_task, include_incomplete=args.include_incomplete)
     demos = select_demos(demos, tasks, args.max_per_task)
     for path, reason in skipped:
         print(f"skipped {path}: {reason}", file=sys.stderr)
+    report_incomplete(demos, skipped, args.include_incomplete)
     if any("no task was given" in reason for _, reason in skipped):
         print("hint: bags without episode metadata need their task: one --task, or --default-task",
               file=sys.stderr)

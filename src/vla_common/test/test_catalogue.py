@@ -69,7 +69,8 @@ def test_replacing_catalogue_and_task_options(tmp_path):
     ("objects: {a: {shape: box, size: [0.1, 0.1], rgba: [1, 1, 1, 1], mass: 1, friction: 1}}\n",
      "objects.a.size must be a list of 3 finite numbers"),
     ("objects: {a: {shape: box, size: [0.1, 0.1, 0.1], rgba: [1, 1, 1, 1], mass: 1, friction: 1, "
-     "tasks: [push_up]}}\n", r"objects.a.tasks\[0\]: unknown task; a task is 'circle' or push_"),
+     "tasks: [push_up]}}\n",
+     r"objects.a.tasks\[0\]: unknown task; a task is 'circle', 'lift', push_<direction> or pick_place_"),
     ("objects: {a: {shape: box, size: [0.1, 0.1, 0.1]}}\n", "lacks"),
     ("objects: {}\ntask_sets: {x: [a/push_east]}\n", r"task_sets.x\[0\] names a task that no object defines"),
     ("objects: {}\nextra: 1\n", "unknown key 'extra'; expected extends, objects, task_sets"),

@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+from vla_common.catalogue import CatalogueError, default_catalogue, load_catalogue
 from vla_common.layout import overlap
 from vla_common.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose, compass_vector
 from vla_common.tasks import (
@@ -22,7 +23,9 @@ def test_task_table_matches_the_paper():
     assert BASE_TASKS == ["bread/push_east", "soda_can/push_south", "milk_carton/push_south_west",
                           "glass_bottle/push_west"]
     assert UNSEEN_TASKS == ["cereal_box/push_south", "cereal_box/push_south_east", "cereal_box/circle"]
-    assert set(TASKS) == set(BASE_TASKS + UNSEEN_TASKS)
+    hand = [t.name for t in default_catalogue().task_set("hand")]
+    assert hand == ["soda_can/lift", "soda_can/pick_place_west"]
+    assert set(TASKS) == set(BASE_TASKS + UNSEEN_TASKS + hand)
     t = TASKS["milk_carton/push_south_west"]
     assert (t.object_class, t.kind, t.direction, t.distance) == ("milk_carton", "push", "south_west", 0.15)
     circle = TASKS["cereal_box/circle"]
@@ -50,7 +53,7 @@ def test_parse_task_gives_the_catalogue_task():
 @pytest.mark.parametrize("text, message", [
     ("toaster/push_east", "unknown object class"),
     ("bread/push_up", "has no task 'push_up'"),
-    ("soda_can:push_north_west", "its tasks are \\['push_south'\\]"),
+    ("soda_can:push_north_west", "its tasks are \\['push_south', 'lift', 'pick_place_west'\\]"),
     ("bread", "must look like"),
     ("bread/push_east/x", "must look like"),
     (42, "must be a string"),
@@ -138,3 +141,59 @@ def test_footprint_circle_and_short_half_side():
     assert math.isclose(bread.footprint_radius, 0.5 * math.hypot(0.20, 0.10))
     assert math.isclose(bread.min_half_extent, 0.05)
     assert can.footprint_radius == can.min_half_extent == can.size[0]
+
+
+def test_hand_tasks_success():
+    from vla_common.tasks import held_lift_seconds, place_target, task_success
+
+    lift = default_catalogue().task("soda_can/lift")
+    start = ObjectPose("soda_can", 0.5, 0.0, 0.0, 0.061)
+    t = np.arange(0.0, 5.0, 0.01)
+    high = np.where((t > 1.0) & (t < 3.5), 0.09, 0.0)
+    assert held_lift_seconds(t, high) == pytest.approx(2.49, abs=0.011)
+    assert task_success(lift, start, start, lift=(t, high))[0]
+    short = np.where((t > 1.0) & (t < 2.5), 0.09, 0.0)              # held 1.5 s
+    assert not task_success(lift, start, start, lift=(t, short))[0]
+    low = np.where((t > 1.0) & (t < 4.0), 0.04, 0.0)                # only 4 cm
+    assert not task_success(lift, start, start, lift=(t, low))[0]
+    gap = np.where((t > 1.0) & (t < 4.0) & (np.abs(t - 2.0) > 0.02), 0.09, 0.0)   # dropped for a moment
+    assert not task_success(lift, start, start, lift=(t, gap))[0]
+    assert not task_success(lift, start, start)[0]                   # no heights: never
+
+    place = default_catalogue().task("soda_can/pick_place_west")
+    target = place_target(place, start)
+    assert target == pytest.approx([0.5, 0.15])
+    near = ObjectPose("soda_can", 0.52, 0.18, 0.0, 0.061)
+    ok, err, above = task_success(place, start, near)
+    assert ok and err == pytest.approx(np.hypot(0.02, 0.03))
+    assert not task_success(place, start, ObjectPose("soda_can", 0.5, 0.21, 0.0, 0.061))[0]   # 6 cm off
+    assert not task_success(place, start, ObjectPose("soda_can", 0.5, 0.15, 0.0, 0.15))[0]    # still held
+    assert not task_success(place, start, start)[0]
+
+
+def test_hand_tasks_need_an_object_that_fits_the_open_hand(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_text("extends: default\nobjects:\n  tray: {shape: box, size: [0.2, 0.2, 0.03], "
+                 "rgba: [1, 1, 1, 1], mass: 0.2, friction: 0.5, tasks: [lift]}\n")
+    with pytest.raises(CatalogueError, match="fit the open hand"):
+        load_catalogue(f)
+    f.write_text("extends: default\nobjects:\n  cup: {shape: cylinder, size: [0.03, 0.03, 0.09], "
+                 "rgba: [1, 1, 1, 1], mass: 0.2, friction: 0.5, tasks: [lift, {pick_place_north: "
+                 "{distance: 0.1}}]}\n")
+    cat = load_catalogue(f)
+    t = cat.task("cup/pick_place_north")
+    assert (t.kind, t.direction, t.distance, t.uses_hand) == ("pick_place", "north", 0.1, True)
+    assert cat.task("cup/lift").distance == 0.10
+    assert not cat.task("bread/push_east").uses_hand
+
+
+def test_hand_task_layouts_keep_the_target_in_reach():
+    from vla_common.tasks import GRASP_REGION_X, GRASP_REGION_Y, place_target
+
+    spec = default_catalogue().task("soda_can/pick_place_west")
+    rng = np.random.default_rng(4)
+    for _ in range(30):
+        layout = task_layout(spec, rng)
+        target = place_target(spec, layout[0])
+        assert GRASP_REGION_X[0] <= target[0] <= GRASP_REGION_X[1]
+        assert GRASP_REGION_Y[0] <= target[1] <= GRASP_REGION_Y[1]

@@ -25,12 +25,17 @@ from pathlib import Path
 
 import numpy as np
 
+from vla_common.robot import HAND
 from vla_common.safe_yaml import UnreadableError, YamlFileError, key_name, load_yaml
 
 DEFAULT_PATH = Path(__file__).parent / "data" / "catalogue.yaml"
 SHAPES = ("box", "cylinder")
 STYLES = ("loaf", "rims", "band", "carton", "bottle", "labels")  # vla_sim.scene draws each
 DEFAULT_PUSH_DISTANCE = 0.15
+DEFAULT_LIFT_HEIGHT = 0.10     # m a `lift` demonstration raises the object (success needs 5 cm)
+# The tasks with the hand (lift, pick_place_<direction>) need the object to fit the open hand at any
+# yaw (the learned model sees no yaw): its footprint circle this much narrower than the hand's gap.
+GRASP_CLEARANCE = 0.006
 # What a catalogue file may hold; anything else is refused (a misspelt key would otherwise be ignored).
 TOP_KEYS = ("extends", "objects", "task_sets")
 REQUIRED_OBJECT_KEYS = ("shape", "size", "rgba", "mass", "friction")
@@ -110,7 +115,9 @@ class _UnreadableError(CatalogueError):
 
 @dataclass(frozen=True)
 class TaskSpec:
-    """One task: `kind` "push" (with a compass `direction`) or "circle" (direction None)."""
+    """One task: `kind` "push" (with a compass `direction`), "circle" (direction None), "lift"
+    (grasp it and raise it by `distance`; direction None) or "pick_place" (grasp it and put it down
+    `distance` away in the compass `direction`)."""
 
     name: str  # "<object class>/<action>"
     object_class: str
@@ -123,8 +130,13 @@ class TaskSpec:
         return self.name.split("/", 1)[1]
 
     @property
+    def uses_hand(self) -> bool:
+        """The task grasps the object (the hand opens and closes during it)."""
+        return self.kind in HAND_KINDS
+
+    @property
     def direction_vector(self) -> np.ndarray:
-        """Unit (x, y) push direction in the world frame (push tasks only)."""
+        """Unit (x, y) push or placing direction in the world frame (push and pick_place tasks)."""
         if self.direction is None:
             raise ValueError(f"task {self.name} has no push direction")
         return compass_vector(self.direction)
@@ -222,9 +234,12 @@ def _unknown_keys(body: Mapping, allowed: tuple[str, ...], where: str) -> None:
                              f"expected {', '.join(allowed)}")
 
 
+HAND_KINDS = ("lift", "pick_place")
+
+
 def _parse_task(obj: str, entry, where: str) -> TaskSpec:
     """One entry of an object's `tasks` (`where` names it: file, object, position)."""
-    distance = DEFAULT_PUSH_DISTANCE
+    distance = None
     if isinstance(entry, Mapping):  # {push_east: {distance: 0.2}}
         if len(entry) != 1:
             raise CatalogueError(f"{where}: a task entry is a name or {{name: {{distance: m}}}}")
@@ -243,11 +258,15 @@ def _parse_task(obj: str, entry, where: str) -> TaskSpec:
     name = f"{obj}/{action}"
     if action == "circle":
         return TaskSpec(name, obj, "circle", None)
-    direction = action.removeprefix("push_")
-    if not action.startswith("push_") or direction not in COMPASS:
-        raise CatalogueError(f"{where}: unknown task; a task is 'circle' or push_<direction> with a "
-                             f"direction in {sorted(COMPASS)}")
-    return TaskSpec(name, obj, "push", direction, distance)
+    if action == "lift":
+        return TaskSpec(name, obj, "lift", None, DEFAULT_LIFT_HEIGHT if distance is None else distance)
+    for kind in ("push", "pick_place"):
+        direction = action.removeprefix(kind + "_")
+        if action.startswith(kind + "_") and direction in COMPASS:
+            return TaskSpec(name, obj, kind, direction,
+                            DEFAULT_PUSH_DISTANCE if distance is None else distance)
+    raise CatalogueError(f"{where}: unknown task; a task is 'circle', 'lift', push_<direction> or "
+                         f"pick_place_<direction> with a direction in {sorted(COMPASS)}")
 
 
 def _parse_object(name: str, body, source: str) -> tuple[ObjectSpec, list[TaskSpec]]:
@@ -280,6 +299,11 @@ def _parse_object(name: str, body, source: str) -> tuple[ObjectSpec, list[TaskSp
         raise CatalogueError(f"{where}.tasks must be a list, e.g. [push_east, circle]")
     spec = ObjectSpec(shape, size, rgba, mass, friction, accent_rgba=accent, style=style)
     own = [_parse_task(name, t, f"{where}.tasks[{i}]") for i, t in enumerate(tasks)]
+    gap = HAND.max_width - GRASP_CLEARANCE
+    for i, t in enumerate(own):
+        if t.uses_hand and 2 * spec.footprint_radius > gap:
+            raise CatalogueError(f"{where}.tasks[{i}]: {t.action} needs the object to fit the open hand at "
+                                 f"any yaw: {2 * spec.footprint_radius:.3f} m across, at most {gap:.3f} m")
     names = [t.name for t in own]
     twice = [i for i, n in enumerate(names) if n in names[:i]]
     if twice:

@@ -1,4 +1,5 @@
-"""Tasks: when a push or a circle succeeded, and where an episode's objects may lie.
+"""Tasks: when a push, a circle, a lift or a pick-and-place succeeded, and where an episode's
+objects may lie.
 
 Tasks are defined as data in the catalogue (`vla_common.catalogue`); the default one has the paper's:
 base set (demonstrated) bread -> east, soda can -> south, milk carton -> south-west, glass bottle ->
@@ -21,6 +22,14 @@ PUSH_SUCCESS_ANGLE_DEG = 30.0
 # least CIRCLE_MIN_SWEEP_DEG) without knocking the object more than CIRCLE_MAX_DISPLACEMENT.
 CIRCLE_MAX_DISPLACEMENT = 0.03
 CIRCLE_MIN_SWEEP_DEG = 330.0
+# With the hand: a lift succeeds when the object was raised at least LIFT_MIN_HEIGHT above where it
+# lay and stayed that high LIFT_HOLD_S without a break; a pick-and-place when it ends within
+# PLACE_TOLERANCE (horizontally) of its start moved `distance` in `direction`, standing on the table
+# (its centre within PLACE_REST_TOLERANCE of its resting height: put down, not dropped over, not held).
+LIFT_MIN_HEIGHT = 0.05
+LIFT_HOLD_S = 2.0
+PLACE_TOLERANCE = 0.05
+PLACE_REST_TOLERANCE = 0.01
 
 
 # The default catalogue's task lists; code that takes a user's catalogue reads its task sets.
@@ -47,8 +56,29 @@ def circle_sweep_deg(path_xy, center) -> float:
     return float(np.degrees(bearing.max() - bearing.min()))
 
 
+def place_target(task: TaskSpec | str, start: ObjectPose) -> np.ndarray:
+    """Where a pick-and-place task puts the object down: (x, y)."""
+    spec = parse_task(task)
+    return np.array([start.x, start.y]) + spec.direction_vector * spec.distance
+
+
+def held_lift_seconds(times, heights, min_height: float = LIFT_MIN_HEIGHT) -> float:
+    """The longest stretch (s) over which the object's rise above its start (`heights`, m, at
+    `times`, s) stayed at least `min_height` without a break."""
+    t = np.asarray(times, dtype=float).reshape(-1)
+    h = np.asarray(heights, dtype=float).reshape(-1)
+    best, since = 0.0, None
+    for ti, hi in zip(t, h):
+        if math.isfinite(hi) and hi >= min_height:
+            since = ti if since is None else since
+            best = max(best, ti - since)
+        else:
+            since = None
+    return float(best)
+
+
 def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose,
-                 path_xy=None) -> tuple[bool, float, float]:
+                 path_xy=None, lift=None, catalogue: Catalogue | None = None) -> tuple[bool, float, float]:
     """(ok, displacement_m, angle_err_deg) of the object's motion from `start` to `end`.
 
     push: ok when displaced >= 0.10 m within +-30 deg of the intended direction.
@@ -56,10 +86,25 @@ def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose,
     at least 330 deg round the object's start; angle_err_deg is then the sweep's shortfall (0 when
     it went round, NaN without a path). Without a path only the object is judged: callers whose arm
     may not move (evaluations of learned models) must pass it.
+    lift: ok when `lift` = (times, heights above the start) held >= 5 cm for >= 2 s; returns (ok,
+    the highest rise (m), the seconds held). Without `lift` never ok.
+    pick_place: ok when the object ends within 5 cm of its target (place_target), resting on the
+    table; returns (ok, the distance to the target (m), the height above its rest (m)).
     """
-    spec = parse_task(task)
+    spec = parse_task(task, catalogue)
     delta = np.array([end.x - start.x, end.y - start.y], dtype=float)
     disp = float(np.linalg.norm(delta))
+    if spec.kind == "lift":
+        if lift is None:
+            return False, float("nan"), 0.0
+        times, heights = lift
+        held = held_lift_seconds(times, heights)
+        top = float(np.nanmax(heights)) if len(heights) else float("nan")
+        return held >= LIFT_HOLD_S, top, held
+    if spec.kind == "pick_place":
+        error = float(np.linalg.norm(np.array([end.x, end.y]) - place_target(spec, start)))
+        above = float(end.z - start.z)
+        return error <= PLACE_TOLERANCE and abs(above) <= PLACE_REST_TOLERANCE, error, above
     if spec.kind == "circle":
         still = disp < CIRCLE_MAX_DISPLACEMENT
         if path_xy is None:
@@ -80,6 +125,9 @@ def task_success(task: TaskSpec | str, start: ObjectPose, end: ObjectPose,
 PUSH_REGION_X = (0.27, 0.64)
 PUSH_REGION_Y = (-0.32, 0.32)
 PUSH_REGION_R = 0.70
+# Grasps are from above, the hand pointing down: the object (and a place target) in this region.
+GRASP_REGION_X = (0.38, 0.62)
+GRASP_REGION_Y = (-0.22, 0.22)
 # Circles are done above the object; its centre must leave room for the loop.
 CIRCLE_REGION_X = (0.40, 0.55)
 CIRCLE_REGION_Y = (-0.15, 0.15)
@@ -107,6 +155,17 @@ def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int |
             c = np.array([rng.uniform(*CIRCLE_REGION_X), rng.uniform(*CIRCLE_REGION_Y)])
             corridor = None
             break
+        if spec.uses_hand:
+            c = np.array([rng.uniform(*GRASP_REGION_X), rng.uniform(*GRASP_REGION_Y)])
+            corridor = None
+            if spec.kind == "lift":
+                break
+            target = c + spec.direction_vector * spec.distance
+            if GRASP_REGION_X[0] <= target[0] <= GRASP_REGION_X[1] and \
+                    GRASP_REGION_Y[0] <= target[1] <= GRASP_REGION_Y[1]:
+                corridor = (c, target)   # the carried object's path stays clear
+                break
+            continue
         d = spec.direction_vector
         c = np.array([rng.uniform(0.30, 0.66), rng.uniform(-0.30, 0.30)])
         # The planner's pusher starts outside the footprint's circle (whatever the yaw) and stops

@@ -73,6 +73,16 @@ class TaskPlan:
     segments: list[_Segment]
     params: dict = field(default_factory=dict)
     gain: float = TRACKING_GAIN
+    # what the hand does when (tasks with the hand): (time s, "open" | "grasp"), in time order
+    hand_events: list[tuple[float, str]] = field(default_factory=list)
+
+    def hand_command_at(self, t: float) -> str | None:
+        """The hand's last event at or before time t (None before the first)."""
+        last = None
+        for when, what in self.hand_events:
+            if when <= t:
+                last = what
+        return last
 
     @property
     def duration(self) -> float:
@@ -390,6 +400,8 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         b.dwell(p["dwell"])
         b.line([*end_xy, zp], rot, p["push_speed"])
         b.dwell(p["hold"])
+    elif spec.uses_hand:
+        p = _plan_grasp(b, spec, shape, c, rng)
     elif spec.kind == "circle":
         p = {
             "radius": shape.footprint_radius + float(rng.uniform(0.05, 0.08)),
@@ -408,7 +420,51 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         b.loop(pts[1:], DOWN, p["speed"])
     else:
         raise PlanError(f"unknown task kind {spec.kind!r}")
-    return TaskPlan(spec, q0, b.waypoints, np.array(b.times), b.tcp, b.segments, p)
+    events = p.pop("_hand_events", [])
+    return TaskPlan(spec, q0, b.waypoints, np.array(b.times), b.tcp, b.segments, p, hand_events=events)
+
+
+# Grasps from above: the finger tips this far below the object's top (the free finger is ~5 cm), and
+# never below its middle; the hand opens during the approach, closes at the bottom, a place ends
+# with the object this far above its resting height when the hand opens.
+GRASP_DEPTH = 0.035
+PLACE_CLEARANCE = 0.004
+HAND_CLOSE_S = 1.4   # s the demonstrator waits for the fingers to close and squeeze (80 mm at 0.08 m/s)
+HAND_OPEN_S = 0.8
+
+
+def _plan_grasp(b: _Builder, spec: TaskSpec, shape: ObjectSpec, c: np.ndarray, rng) -> dict:
+    """Lift: hover above, descend (hand open), close, raise by the task distance, hold. Pick and
+    place: ... then carry at that height to the target, lower it to the table, open, retreat up.
+    The hand points down (DOWN, fingers closing along world y): objects that fit the open hand at
+    any yaw (the catalogue checks it), so the poses depend on (x, y) only, as the model's context."""
+    z_grasp = max(shape.height - GRASP_DEPTH, shape.height / 2)
+    p = {
+        "hover_height": z_grasp + float(rng.uniform(0.08, 0.12)),
+        "lift": float(spec.distance if spec.kind == "lift" else rng.uniform(0.08, 0.11)),
+        "grasp_offset": float(rng.uniform(-0.004, 0.004)),   # along x: how well the hand is centred
+        "transit_speed": float(rng.uniform(0.15, 0.22)),
+        "approach_speed": float(rng.uniform(0.06, 0.09)),
+        "carry_speed": float(rng.uniform(0.08, 0.12)),
+        "hold": float(rng.uniform(2.4, 2.8) if spec.kind == "lift" else rng.uniform(0.3, 0.5)),
+    }
+    g = np.array([c[0] + p["grasp_offset"], c[1]])
+    events = [(0.0, "open")]
+    b.joint_move([*g, p["hover_height"]], DOWN, p["transit_speed"])
+    b.line([*g, z_grasp], DOWN, p["approach_speed"])
+    events.append((b.t, "grasp"))
+    b.dwell(HAND_CLOSE_S)
+    b.line([*g, z_grasp + p["lift"]], DOWN, p["approach_speed"])
+    if spec.kind == "pick_place":
+        goal = g + spec.direction_vector * spec.distance
+        b.line([*goal, z_grasp + p["lift"]], DOWN, p["carry_speed"])
+        b.line([*goal, z_grasp + PLACE_CLEARANCE], DOWN, p["approach_speed"])
+        events.append((b.t, "open"))
+        b.dwell(HAND_OPEN_S)
+        b.line([*goal, z_grasp + p["lift"]], DOWN, p["approach_speed"])
+    b.dwell(p["hold"])
+    p["_hand_events"] = events
+    return p
 
 
 def execute_plan(sim, plan: TaskPlan, safety=None, settle: float = 0.5, control_every: int = 1) -> float:

@@ -29,13 +29,14 @@ from ruamel.yaml import YAML
 from vla_common.detection import Detection, best
 from vla_common.image_convert import UnsupportedImageError, to_rgb
 from vla_common.objects import OBJECT_CLASSES
-from vla_common.robot import DQ_MAX, JOINT_NAMES
+from vla_common.robot import DQ_MAX, HAND, JOINT_NAMES
 
 from vla_demo_recorder.bag_files import DATA_SUFFIXES, bag_file, has_footer, storage_of
 from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, object_class_of, read_metadata_yaml
 
 RATE_HZ = 10.0
 JOINT_STATE_TYPES = ("sensor_msgs/msg/JointState",)
+FINGER_JOINTS = HAND.finger_joints
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DETECTION_TYPES = ("vla_interfaces/msg/DetectionArray", "vision_msgs/msg/Detection2DArray")
 USABLE_OUTCOMES = ("kept",)
@@ -69,6 +70,11 @@ class Demo:
     bag_path: str
     image_error: str = ""         # why first_image is None, when a camera topic was there
     outcome: str = ""             # the episode's outcome ("kept", "recovered", ...); "": no episode metadata
+    # the hand: the gap between the fingers (m) on the same 10 Hz grid (NaN where joint_states had no
+    # finger joints), and the grasp events from gripper/status: (t s, state code, what it holds), one
+    # per change of state
+    hand: np.ndarray | None = None
+    grasp_events: list[tuple[float, int, str]] = field(default_factory=list)
 
 
 # -- message decoding --------------------------------------------------------------------------
@@ -121,7 +127,8 @@ def top_detection(msg, schema: str, prefer_class: str | None = None) -> Detectio
 
 
 # -- bag reading -------------------------------------------------------------------------------
-_WANTED_TYPES = JOINT_STATE_TYPES + IMAGE_TYPES + DETECTION_TYPES
+GRIPPER_STATUS_TYPES = ("vla_interfaces/msg/GripperStatus",)
+_WANTED_TYPES = JOINT_STATE_TYPES + IMAGE_TYPES + DETECTION_TYPES + GRIPPER_STATUS_TYPES
 _READ_ERRORS = (McapError, OSError, ValueError, KeyError, EOFError, AnyReaderError, sqlite3.Error)
 
 
@@ -178,6 +185,8 @@ class _Scan:
     js_t: list[int] = field(default_factory=list)
     js_log: list[int] = field(default_factory=list)
     js_q: list[np.ndarray] = field(default_factory=list)
+    js_hand: list[float] = field(default_factory=list)
+    grasp: list[tuple[int, int, str]] = field(default_factory=list)   # (stamp ns, state, holding)
     image: np.ndarray | None = None
     image_err: str = ""
     image_t: int = 0
@@ -192,12 +201,16 @@ class _Scan:
             self._image(schema, log_time, msg)
         elif schema in DETECTION_TYPES and self.detection is None:
             self._detection(schema, log_time, msg)
+        elif schema in GRIPPER_STATUS_TYPES and (not self.grasp or self.grasp[-1][1] != msg.state):
+            self.grasp.append((_stamp_ns(msg) or log_time, int(msg.state), str(msg.holding)))
 
     def _joint_state(self, log_time: int, msg) -> None:
         index = {n: i for i, n in enumerate(msg.name)}
         if not all(n in index for n in self.names) or len(msg.position) < len(msg.name):
             return  # e.g. a gripper-only JointState
         self.js_q.append(np.array([msg.position[index[n]] for n in self.names], dtype=np.float64))
+        fingers = [index.get(n) for n in FINGER_JOINTS]
+        self.js_hand.append(sum(msg.position[i] for i in fingers) if None not in fingers else np.nan)
         self.js_t.append(_stamp_ns(msg))
         self.js_log.append(log_time)
 
@@ -296,7 +309,8 @@ def _demo_of(scan: _Scan, episode: EpisodeInfo | None, task: str, bag_path: str,
         raise DemoError(f"fewer than 2 joint_states messages with {names[0]}..{names[-1]}")
     stamps = np.array(scan.js_t if all(scan.js_t) else scan.js_log, dtype=np.int64)
     order = np.argsort(stamps, kind="stable")
-    stamps, q = stamps[order], np.stack(scan.js_q)[order]
+    hand_column = np.array(scan.js_hand, dtype=np.float64)[:, None]
+    stamps, q = stamps[order], np.hstack([np.stack(scan.js_q), hand_column])[order]
     keep = np.concatenate([[True], np.diff(stamps) > 0])
     stamps, q = stamps[keep], q[keep]
     if episode is not None:
@@ -305,6 +319,9 @@ def _demo_of(scan: _Scan, episode: EpisodeInfo | None, task: str, bag_path: str,
     if len(t_s) < 2:
         raise DemoError("joint_states have no time span")
     grid, q10 = resample(t_s, q, rate_hz)
+    q10, hand = q10[:, :-1], q10[:, -1]
+    t_first = int(stamps[0])
+    events = [((ns - t_first) / 1e9, state, holding) for ns, state, holding in scan.grasp if ns >= t_first]
     start_log = min(scan.js_log)
     image, image_err = scan.image, scan.image_err
     if image is not None and (scan.image_t - start_log) / 1e9 > context_window_s:
@@ -319,7 +336,8 @@ def _demo_of(scan: _Scan, episode: EpisodeInfo | None, task: str, bag_path: str,
     object_class = episode.object_class if episode is not None else object_class_of(task)
     return Demo(task=task, object_class=object_class, t=grid, q=q10, first_image=image,
                 detection=detection, image_size=image_size, bag_path=bag_path, image_error=image_err,
-                outcome=episode.outcome if episode is not None else "")
+                outcome=episode.outcome if episode is not None else "",
+                hand=None if np.all(np.isnan(hand)) else hand, grasp_events=events)
 
 
 def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[np.ndarray, np.ndarray]:
@@ -344,8 +362,9 @@ def _within_episode(stamps: np.ndarray, q: np.ndarray, start_ns: int) -> tuple[n
         at = (stamps[i] - stamps[0]) / 1e9
         raise DemoError(f"joint_states are missing for {dt[i]:.2f} s at {at:.1f} s into the episode "
                         "(messages lost while recording)")
-    steps = np.abs(np.diff(q, axis=0))
-    ratio = steps / np.maximum(dt, 1e-6)[:, None] / (MAX_SPEED_SHARE * np.asarray(DQ_MAX)[: q.shape[1]])
+    arm = q[:, :min(q.shape[1], len(DQ_MAX))]          # (a last column may be the hand's gap)
+    steps = np.abs(np.diff(arm, axis=0))
+    ratio = steps / np.maximum(dt, 1e-6)[:, None] / (MAX_SPEED_SHARE * np.asarray(DQ_MAX)[: arm.shape[1]])
     k = int(np.argmax(ratio.max(axis=1)))
     step = steps[k].max()
     if ratio[k].max() > 1.0 and step > 0.01:

@@ -33,7 +33,8 @@ from vla_demo_recorder.recorder import Recorder, RecorderError, validate_task
 from vla_interfaces.msg import RecorderStatus
 from vla_interfaces.srv import StartEpisode
 
-DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy"]
+DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy",
+                  "gripper/status"]
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 
 

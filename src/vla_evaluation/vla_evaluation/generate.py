@@ -53,13 +53,19 @@ from vla_launch.session import LaunchError, LaunchSession
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
 from vla_interfaces.msg import DetectionArray, RecorderStatus, SceneObject, SceneObjectArray
-from vla_interfaces.srv import ResetScene, StartEpisode
+from vla_interfaces.srv import GripperCommand, ResetScene, StartEpisode
 
 BRIDGE = "panda_bridge"
 RECORDER = "recorder"
 LAUNCH_FILE = ("vla_bringup", "record.launch.yaml")
 RECORD_TAIL_S = 0.2  # s of simulated time recorded past the end of the plan and its settling
 RECORDER_STATUS_PERIOD_S = 0.05  # the recorder's ~/status (its clock) while generating
+# What the demonstrator asks of the hand for a plan's events (the planner leaves time for them).
+HAND_REQUESTS = {
+    "open": GripperCommand.Request(command=GripperCommand.Request.OPEN, speed=0.08),
+    "grasp": GripperCommand.Request(command=GripperCommand.Request.GRASP, position=0.0, speed=0.08,
+                                    max_effort=30.0, epsilon_inner=0.005, epsilon_outer=0.08),
+}
 
 
 class GenerateError(RuntimeError):
@@ -149,6 +155,10 @@ class Demonstrator:
         self.plan_end = math.inf
         self.plan_done = threading.Event()
         self.commands = 0
+        self.hand_sent = 0                # the plan's hand events sent so far
+        self.hand_replies: list[str] = []
+        self.heights: list[tuple[float, float]] = []   # (sim s, the task object's z) while a plan runs
+        self.track: str | None = None
         self.cmd_pub = n.create_publisher(Float64MultiArray, "joint_velocity_cmd",
                                           QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         n.create_subscription(JointState, "joint_states", self._on_joints, sensor)
@@ -160,6 +170,7 @@ class Demonstrator:
         self.stop_cli = n.create_client(Trigger, f"{RECORDER}/stop_episode")
         self.discard_cli = n.create_client(Trigger, f"{RECORDER}/discard_episode")
         self.recorder_params_cli = n.create_client(SetParameters, f"{RECORDER}/set_parameters")
+        self.gripper_cli = n.create_client(GripperCommand, f"{BRIDGE}/gripper")
 
     def _on_joints(self, msg) -> None:
         names = list(msg.name)
@@ -179,15 +190,26 @@ class Demonstrator:
         elapsed = t - self.plan_t0
         dq = plan.command(elapsed, q) if elapsed <= plan.duration else np.zeros(7)
         self.cmd_pub.publish(Float64MultiArray(data=[float(v) for v in dq]))
+        events = plan.hand_events
+        while self.hand_sent < len(events) and events[self.hand_sent][0] <= elapsed:
+            future = self.gripper_cli.call_async(HAND_REQUESTS[events[self.hand_sent][1]])
+            future.add_done_callback(self._on_hand_reply)
+            self.hand_sent += 1
         self.commands += 1
         if elapsed >= self.plan_end:
             self.plan = None
             self.plan_done.set()
 
+    def _on_hand_reply(self, future) -> None:
+        res = future.result()
+        self.hand_replies.append(("" if res.success else "refused: ") + res.message)
+
     def _on_objects(self, msg) -> None:
-        objs = {o.class_id: ObjectPose(o.class_id, o.x, o.y, o.yaw) for o in msg.objects}
+        objs = {o.class_id: ObjectPose(o.class_id, o.x, o.y, o.yaw, o.pose.position.z) for o in msg.objects}
         with self.cond:
             self.objects, self.objects_stamp = objs, _stamp(msg)
+            if self.track in objs and self.plan is not None:
+                self.heights.append((self.objects_stamp, objs[self.track].z))
             self.cond.notify_all()
 
     def _on_detections(self, msg) -> None:
@@ -227,6 +249,8 @@ class Demonstrator:
         self.plan_done.clear()
         self.plan_t0 = None
         self.plan_end = plan.duration + settle
+        self.hand_sent, self.hand_replies, self.heights = 0, [], []
+        self.track = plan.task.object_class
         self.plan = plan
         if not self.plan_done.wait(timeout):
             self.plan = None
@@ -472,7 +496,15 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episod
     # stop only once the recorder's clock has passed the end of the plan (else the tail is lost)
     _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, 30, "the recorder to catch up", alive)
     end = demo.objects.get(spec.object_class, start)
-    rec.success, rec.displacement, rec.angle_err_deg = task_success(spec, start, end)
+    lift = None
+    if spec.kind == "lift" and demo.heights:
+        times, zs = zip(*demo.heights)
+        lift = (np.array(times), np.array(zs) - start.z)
+    rec.success, rec.displacement, rec.angle_err_deg = task_success(spec, start, end, lift=lift,
+                                                                    catalogue=catalogue)
+    refused = [r for r in demo.hand_replies if r.startswith("refused")]
+    if refused:
+        rec.success, rec.error = False, f"the hand {refused[0]}"
     res = demo.call(demo.stop_cli if rec.success else demo.discard_cli, Trigger.Request(), 60, "stop")
     if not res.success:
         raise GenerateError(f"stopping the episode failed: {res.message}")

@@ -399,3 +399,16 @@ def test_bad_joint_maps_are_refused(entries, match):
 def test_joint_map_parses_robot_to_model_pairs():
     assert parse_joint_map([" fr3_joint1 : panda_joint1", "b:a"]) == {"panda_joint1": "fr3_joint1", "a": "b"}
     assert parse_joint_map([]) == {}
+
+
+def test_the_grasp_button_counts_presses_not_holds(random_model_dir):
+    core = make_core(random_model_dir, grasp_button=1)
+    core.on_joy([0.0, 0.0], [0, 0, 0, 0], 0.0)
+    for k in range(10):                       # held down: one press
+        core.on_joy([0.0, 0.0], [0, 1, 0, 0], 0.1 + 0.01 * k)
+    assert core.grasp_presses == 1
+    core.on_joy([0.0, 0.0], [0, 0, 0, 0], 0.3)
+    core.on_joy([0.0, 0.0], [0, 1, 0, 0], 0.4)
+    assert core.grasp_presses == 2
+    core.on_joy([0.0], [], 0.5)               # a joy without that button: no press, no error
+    assert core.grasp_presses == 2

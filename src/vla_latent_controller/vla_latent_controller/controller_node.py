@@ -30,7 +30,7 @@ from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray
-from vla_interfaces.srv import SetMode
+from vla_interfaces.srv import GripperCommand, SetMode
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
 from vla_latent_controller.joints import parse_joint_map
@@ -82,6 +82,10 @@ PARAMETERS = ParameterTable([
           "(paper)", range=(0.0, 86400.0), dynamic=True),
     Param("redetect_button", -1, "button that re-latches the context from the next detection; -1: none",
           range=(-1, 63), dynamic=True),
+    Param("grasp_button", -1, "button whose press toggles the hand (grasp / open) through the bridge's "
+          "gripper service; -1: none", range=(-1, 63), dynamic=True),
+    Param("gripper_service", "panda_bridge/gripper", "the bridge's vla_interfaces/GripperCommand "
+          "service the grasp button calls"),
     Param("camera_position", [float(v) for v in SIM_WEBCAM.position], "camera optical centre in the "
           "world (m), for nearest_to_ee; default: the simulated webcam", dynamic=True, check=_xyz,
           array="double_array"),
@@ -172,6 +176,8 @@ class ControllerNode(Node):
         self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, sensor)
         self.create_service(SetMode, "~/set_mode", self._on_set_mode)
         self.create_service(Trigger, "~/redetect", self._on_redetect)
+        self._gripper = self.create_client(GripperCommand, self.get_parameter("gripper_service").value)
+        self._grasp_presses = 0
 
     # ------------------------------------------------------------------ parameters and model
     def _on_parameter(self, name: str, value: Any) -> str | None:
@@ -245,6 +251,26 @@ class ControllerNode(Node):
 
     def _on_joy(self, msg: Joy) -> None:
         self.core.on_joy(msg.axes, msg.buttons, self._now())
+        if self.core.grasp_presses != self._grasp_presses:    # one toggle per press; the bridge
+            self._grasp_presses = self.core.grasp_presses      # refuses presses too close together
+            self._toggle_hand()
+
+    def _toggle_hand(self) -> None:
+        if not self._gripper.service_is_ready():
+            self.get_logger().warn(f"grasp button: {self._gripper.srv_name} is not available",
+                                   throttle_duration_sec=2.0)
+            return
+        future = self._gripper.call_async(GripperCommand.Request(command=GripperCommand.Request.TOGGLE))
+        future.add_done_callback(self._on_toggle_reply)
+
+    def _on_toggle_reply(self, future) -> None:
+        res = future.result()
+        if res is None:
+            return
+        if res.success:
+            self.get_logger().info(f"grasp button: {res.message}")
+        else:
+            self.get_logger().warn(f"grasp button refused: {res.message}", throttle_duration_sec=1.0)
 
     def _on_joint_states(self, msg: JointState) -> None:
         self.core.on_joint_states(msg.name, msg.position, self._now())

@@ -57,6 +57,7 @@ class TeleopParams:
     action_scale: float = 1.0
     max_joint_speed: float = 1.5
     redetect_button: int = -1
+    grasp_button: int = -1   # a press toggles the hand (grasp / open): the node asks the bridge
     ee_mode_button: int = 0
     ee_debounce: float = 0.25
     ee_linear_speed: float = 0.2
@@ -176,6 +177,7 @@ class TeleopCore:
         self._foreign: tuple[float, tuple[str, ...]] | None = None  # (time, names) naming none of ours
         self._axes: list[float] | None = None
         self._buttons: list[int] = []
+        self.grasp_presses = 0  # presses of grasp_button so far (the node sends one toggle per press)
         self._joy_t = -math.inf
         self._dets: list[Detection] = []
         self._dets_size: tuple[int, int] | None = None
@@ -245,6 +247,8 @@ class TeleopCore:
             self.ee.press(now)
         if _pressed_now(self._buttons, prev, p.redetect_button):
             self.request_redetect(now)
+        if _pressed_now(self._buttons, prev, p.grasp_button):
+            self.grasp_presses += 1
 
     def on_joint_states(self, names: Sequence[str], positions: Sequence[float], now: float) -> None:
         """Keep the latest message that names any of our joints (resolved by name in :meth:`step`); one

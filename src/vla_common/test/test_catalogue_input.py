@@ -181,7 +181,8 @@ def test_a_refusal_never_quotes_the_file(tmp_path, text):
     with pytest.raises(CatalogueError) as err:
         load_catalogue(path)
     message = str(err.value)
-    assert str(path) in message and SECRET not in message and SECRET[:8] not in message, message
+    # nor a normalised copy of it (the old loader quoted the task `sk_live_7f3c9a1b2d4e`)
+    assert str(path) in message and "sk-live" not in message and "7f3c9a1b" not in message, message
 
 
 # -- the fuzzer -----------------------------------------------------------------------------------------
@@ -274,7 +275,7 @@ def test_fuzzed_catalogues_load_or_raise_a_catalogue_error(tmp_path):
             assert str(path) in message, (case, message)
             assert "\n" not in message, (case, message)
             if secret_is_a_value:
-                assert SECRET not in message, (case, text, message)
+                assert "7f3c9a1b" not in message, (case, text, message)
             assert not re.search(r"^\s*\^", message, re.M), (case, message)  # no quoted line and caret
         except Exception as err:  # noqa: BLE001 - any other exception type is the defect looked for
             pytest.fail(f"case {case}: {type(err).__name__}: {err}\n{text!r}")

@@ -142,6 +142,7 @@ def test_a_kept_episode_cut_short_is_recovered_as_recovered_and_training_says_so
     bag = kept_then_cut_short(tmp_path / "ep0007")
     report = recover(bag)
     assert report.messages == 21  # the detection and 2 s of joint states
+    assert "; episode outcome recovered;" in report.summary()
     ep = EpisodeInfo.from_custom_data(read_metadata_yaml(bag)["custom_data"])
     assert ep.outcome == "recovered" and ep.task == "bread/push_east"
     assert "recovered from 2 complete chunks" in ep.error and "the outcome was 'kept'" in ep.error

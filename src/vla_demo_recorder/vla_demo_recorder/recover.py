@@ -48,6 +48,7 @@ class RecoveryReport:
     stop_reason: str = ""
     output: Path | None = None  # the recovered MCAP file
     backup: Path | None = None  # where the original MCAP file now is (None: it did not move)
+    outcome: str = ""  # the episode outcome the copy carries
 
     def summary(self) -> str:
         if self.complete:
@@ -57,6 +58,8 @@ class RecoveryReport:
                 f"({topics}) into {self.output}; dropped {self.bytes_dropped} trailing bytes")
         if self.stop_reason:
             text += f" ({self.stop_reason})"
+        if self.outcome:
+            text += f"; episode outcome {self.outcome}"
         return text + f"; the original is kept as {self.backup or self.bag}"
 
 
@@ -112,6 +115,7 @@ def _rewrite(mcap: Path, dest: Path, report: RecoveryReport) -> BagWriter:
     try:
         _scan(mcap, out, hashes, report)
         out.episode = _recovered_episode(episode, complete=has_footer(mcap), report=report)
+        report.outcome = out.episode.outcome
         out.close(outcome=out.episode.outcome,
                   end_time_ns=out.last_ns or (episode.start_time_ns if episode else 0))
     except BaseException:

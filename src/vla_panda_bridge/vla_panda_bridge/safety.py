@@ -14,8 +14,9 @@ Pipeline per control period:
      ratio, so its direction is kept;
   3. watchdog / holds: no valid command for `command_timeout`, or a hold — a latched e-stop, a reflex
      the robot reported (until recovered), teaching mode — sets the target to zero and ignores
-     commands. After a hold is released motion needs a zero command first (a stick held through an
-     e-stop release does not start the arm);
+     commands. Every stop the operator did not choose (e-stop, watchdog, invalid state, reflex,
+     recovery, teaching; `disarm` for the backends' own) disarms the filter: motion then needs a zero
+     command first (`vla_common.arming`, the one owner of that rule);
   4. position margin, soft part: near a limit the target towards it is capped so the joint can still
      stop at `position_margin` from the limit; motion away is never capped;
   5. a per-joint jerk-limited tracker moves the output velocity towards the target;
@@ -45,6 +46,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from vla_common.arming import Arming
 from vla_common.robot import NUM_JOINTS, PANDA, RobotSpec
 
 # Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
@@ -156,8 +158,7 @@ class SafetyFilter:
         self._estop = False
         self._fault = ""                                    # reflex text while one is latched
         self._teaching = False
-        self._armed = True                                  # False: waiting for a zero command
-        self._armed_text = ""
+        self.arming = Arming()                              # disarmed: waiting for a zero command
         self._code = OK
         self.commands_received = 0
         self.commands_rejected = 0
@@ -198,7 +199,7 @@ class SafetyFilter:
 
     @property
     def awaiting_zero(self) -> bool:
-        return not self._armed
+        return not self.arming.armed
 
     @property
     def is_stopped(self) -> bool:
@@ -224,8 +225,8 @@ class SafetyFilter:
         active = bool(active)
         if active and not self._estop:
             self._count_intervention(ESTOP)
-        if not active and self._estop:
-            self._disarm("e-stop released")
+        if active or self._estop:
+            self.disarm("e-stop")
         self._estop = active
         self._zero_target()
 
@@ -233,6 +234,7 @@ class SafetyFilter:
         """The robot stopped itself with a reflex (`text` says which): hold zero until clear_fault()."""
         if not self._fault:
             self._count_intervention(REFLEX)
+        self.disarm(f"robot reflex: {text or 'reflex'}")
         self._fault = text or "reflex"
         self._zero_target()
 
@@ -241,7 +243,7 @@ class SafetyFilter:
         if not self._fault:
             return False
         self._fault = ""
-        self._disarm("recovered from a reflex")
+        self.disarm("recovered from a reflex")
         self._zero_target()
         return True
 
@@ -249,14 +251,15 @@ class SafetyFilter:
         """Teaching mode (the arm backdrivable): output zero, commands ignored. Leaving it needs a zero
         command before motion, as after an e-stop."""
         active = bool(active)
-        if self._teaching and not active:
-            self._disarm("teaching mode left")
+        if active or self._teaching:
+            self.disarm("teaching mode")
         self._teaching = active
         self._zero_target()
 
-    def _disarm(self, why: str) -> None:
-        self._armed = False
-        self._armed_text = f"{why}: send a zero command before moving"
+    def disarm(self, why: str) -> None:
+        """A stop the filter did not see itself (a lost connection, a silent robot, a recovery without
+        a reflex): motion needs a zero command first."""
+        self.arming.disarm(why)
 
     def _zero_target(self) -> None:
         self._target = [0.0] * NUM_JOINTS
@@ -272,7 +275,7 @@ class SafetyFilter:
             return REFLEX
         if self._teaching:
             return TEACHING
-        return OK if self._armed else AWAITING_ZERO
+        return OK if self.arming.armed else AWAITING_ZERO
 
     def stopping_time_bound(self) -> float:
         """Upper bound (s) on how long braking from the current state takes (for shutdown loops)."""
@@ -299,8 +302,11 @@ class SafetyFilter:
                 self._target_text = (f"no valid command for {self.config.command_timeout:.3g} s: "
                                      "decelerating to zero")
                 self._count_intervention(COMMAND_TIMEOUT)
+                self.arming.disarm("command watchdog (no valid command in time)")
 
         state_ok = self._sync_position(q)
+        if not state_ok:
+            self.arming.disarm("no valid measured joint position")
         q_ref = self._q_ref
         hold = self._estop or self._fault or self._teaching or not state_ok   # no valid position: brake
         h = self._h
@@ -355,8 +361,8 @@ class SafetyFilter:
             code, text = INVALID_STATE, "no valid measured joint position: braking to zero"
         elif (self._target_code == COMMAND_TIMEOUT or self._target_code in _REJECTIONS) and moving:
             code, text = self._target_code, self._target_text
-        elif not self._armed:
-            code, text = AWAITING_ZERO, self._armed_text
+        elif not self.arming.armed:
+            code, text = AWAITING_ZERO, f"stopped ({self.arming.reason}): send a zero command before moving"
         elif margin_joints:
             names = ", ".join(self._names[i] for i in margin_joints)
             code = POSITION_MARGIN
@@ -409,10 +415,8 @@ class SafetyFilter:
                                 f"({self.robot.dq_max[i]:g} rad/s); treated as zero")
         if self.holding:
             return OK, ""                                   # ignored while held
-        if not self._armed:
-            if float(np.abs(arr).max()) > ZERO_COMMAND:
-                return OK, ""                               # ignored until a zero command
-            self._armed, self._armed_text = True, ""
+        if not self.arming.offer(float(np.abs(arr).max()) <= ZERO_COMMAND):
+            return OK, ""                                   # ignored until a zero command
         self._last_valid = now
         ratios = np.abs(arr) / self.v_max
         ratio = float(ratios.max())

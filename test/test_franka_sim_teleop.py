@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
+from require import missing
 from sensor_msgs.msg import JointState, Joy
 from vla_common.ros.testing import RosHarness
 from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavailable
@@ -30,7 +31,7 @@ def sim():
         except ImportError:
             reason = "pylibfranka==0.21.3 is not installed in this venv"
     if reason:
-        pytest.skip(reason)
+        missing("FRANKA_SIM", reason)
     ns = Netns()
     server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True,
                              priority=RT_PRIORITY)

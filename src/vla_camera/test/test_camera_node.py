@@ -13,6 +13,7 @@ from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
+from require import missing
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
 from vla_camera.camera_node import CameraNode
@@ -217,7 +218,7 @@ def _exe():
     try:
         return find_executable("vla_camera", "camera_node")
     except RunError as err:
-        pytest.skip(f"camera_node: {err} (run make setup)")
+        missing("SETUP", f"camera_node: {err} (run make setup)")
 
 
 def test_executable_exits_zero_at_end_and_two_on_bad_source(tmp_path):

@@ -11,6 +11,7 @@ import pytest
 from mcap.reader import make_reader
 from mcap_ros2.decoder import DecoderFactory
 from recorder_testing import detections, joint_state, string
+from require import missing
 from rosbags.highlevel import AnyReader
 from vla_demo_recorder.bag_files import find_mcap, has_footer
 from vla_demo_recorder.bag_writer import (
@@ -197,7 +198,7 @@ def test_disk_full_on_a_real_tiny_filesystem(tmp_path):
     mnt.mkdir()
     if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=600k", "tmpfs", str(mnt)],
                       capture_output=True).returncode != 0:
-        pytest.skip("cannot mount a tmpfs here (needs root); the injected ENOSPC test covers it")
+        missing("TMPFS", "cannot mount a tmpfs here (needs root); the injected ENOSPC test covers it")
     try:
         rec = Recorder(mnt, flush_period_s=0.05, fsync=True)
         rec.start("bread/push_east")
@@ -207,7 +208,8 @@ def test_disk_full_on_a_real_tiny_filesystem(tmp_path):
         path = rec.start("bread/push_east")
         for i in range(5):
             rec.record("/joint_states", JS, [], i, joint_state(i, NAMES, np.zeros(7)))
-        time.sleep(0.3)  # flushed by the writer thread
+        writer = rec._episode.writer                  # the five are on disk as a complete chunk
+        assert _wait(lambda: writer.message_count >= 5 and not writer._unflushed)
         for i in range(200):  # 2 MB into 600 kB
             if not rec.record("/chatter", "std_msgs/msg/String", [], i, string("y" * 10_000)):
                 break

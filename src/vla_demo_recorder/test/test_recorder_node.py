@@ -10,6 +10,7 @@ from mcap.reader import make_reader
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from require import missing
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
@@ -185,7 +186,7 @@ def _installed(exe: str) -> str:
     try:
         return find_executable("vla_demo_recorder", exe)
     except RunError as err:
-        pytest.skip(f"{exe}: {err} (run make setup)")
+        missing("SETUP", f"{exe}: {err} (run make setup)")
 
 
 def test_sigkill_mid_episode_then_recover(ros, tmp_path):

@@ -12,6 +12,7 @@ from detector_fake_models import make_model
 from rclpy.context import Context
 from rclpy.parameter import Parameter
 from rclpy.qos import ReliabilityPolicy
+from require import missing
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
 from vla_common.ros.node_main import ConfigError
@@ -163,7 +164,7 @@ def run_exe(*ros_args, timeout=60):
     try:
         exe = find_executable("vla_detector", "detector_node")
     except RunError as err:
-        pytest.skip(f"detector_node: {err} (run make setup)")
+        missing("SETUP", f"detector_node: {err} (run make setup)")
     return subprocess.run(
         [exe, "--ros-args", *ros_args],
         capture_output=True,

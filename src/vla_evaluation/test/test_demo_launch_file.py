@@ -6,6 +6,7 @@ import os
 import pytest
 import yaml
 from ament_index_python.packages import get_package_share_directory
+from require import missing
 from vla_launch.launch_file import ParamDict, ParamFile, declared_arguments, load_launch_file
 from vla_launch.substitutions import SubstitutionContext
 
@@ -27,7 +28,7 @@ def bringup_share() -> str:
     try:
         return get_package_share_directory("vla_bringup")
     except (LookupError, ValueError):
-        pytest.skip("vla_bringup not installed (make setup)")
+        missing("SETUP", "vla_bringup not installed (make setup)")
 
 
 def test_demo_launch_file_starts_the_demo_graph_on_simulated_time(bringup_share):

@@ -8,6 +8,7 @@ import time
 from pathlib import Path
 
 import pytest
+from require import missing
 from vla_joystick.joystick import (
     BTN_MISC,
     BTN_TOUCH,
@@ -503,7 +504,7 @@ def _joy_exe():
     try:
         return find_executable("vla_joystick", "joy_node")
     except RunError as err:
-        pytest.skip(f"joy_node: {err} (run make setup)")
+        missing("SETUP", f"joy_node: {err} (run make setup)")
 
 
 @pytest.mark.slow

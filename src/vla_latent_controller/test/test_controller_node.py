@@ -12,6 +12,7 @@ import rclpy
 import yaml
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from require import missing
 from sensor_msgs.msg import Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
@@ -249,7 +250,7 @@ def _installed(exe: str) -> str:
     try:
         return find_executable("vla_latent_controller", exe)
     except RunError as err:
-        pytest.skip(f"{exe}: {err} (run make setup)")
+        missing("SETUP", f"{exe}: {err} (run make setup)")
 
 
 @pytest.mark.slow

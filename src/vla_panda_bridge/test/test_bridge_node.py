@@ -17,6 +17,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
+from require import missing
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Float64MultiArray
@@ -440,7 +441,7 @@ def _installed(exe: str) -> str:
     try:
         return find_executable("vla_panda_bridge", exe)
     except RunError as err:
-        pytest.skip(f"{exe}: {err} (run make setup)")
+        missing("SETUP", f"{exe}: {err} (run make setup)")
 
 
 @pytest.mark.slow

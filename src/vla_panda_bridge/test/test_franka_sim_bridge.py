@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
+from require import missing
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
@@ -64,7 +65,7 @@ def _skip_reason() -> str | None:
 def sim():
     reason = _skip_reason()
     if reason:
-        pytest.skip(reason)
+        missing("FRANKA_SIM", reason)
     ns = Netns()
     server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True,
                              priority=RT_PRIORITY)

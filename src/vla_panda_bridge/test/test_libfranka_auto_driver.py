@@ -11,6 +11,7 @@ import sys
 import time
 
 import pytest
+from require import missing
 from vla_panda_bridge.libfranka_simserver import Netns
 
 pytestmark = pytest.mark.slow
@@ -42,6 +43,7 @@ while True:
 CLIENT = """
 import json
 from vla_panda_bridge.libfranka_driver import DriverSettings, RobotError, open_driver
+from require import missing
 try:
     d = open_driver("auto", DriverSettings(robot_ip="127.0.0.1"))
     print(json.dumps({"driver": d.name}))
@@ -86,7 +88,7 @@ def _auto_against(version: int) -> dict:
 def ready():
     reason = _available()
     if reason:
-        pytest.skip(reason)
+        missing("FRANKA_SIM", reason)
 
 
 def test_a_robot_answering_with_the_pandas_protocol_gets_panda_py(ready):

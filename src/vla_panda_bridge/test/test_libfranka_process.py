@@ -11,6 +11,7 @@ import sys
 import time
 
 import pytest
+from require import missing
 from vla_panda_bridge.libfranka_loop import LOOP_CONNECTING, LoopSettings
 from vla_panda_bridge.libfranka_process import LoopProcess
 from vla_panda_bridge.libfranka_simserver import Netns
@@ -23,11 +24,11 @@ def netns():
     try:
         import pylibfranka  # noqa: F401
     except ImportError:
-        pytest.skip("pylibfranka==0.21.3 is not installed")
+        missing("FRANKA_SIM", "pylibfranka==0.21.3 is not installed")
     try:
         ns = Netns()
     except (OSError, subprocess.CalledProcessError) as exc:
-        pytest.skip(f"no network namespace: {exc}")
+        missing("NETNS", f"no network namespace: {exc}")
     yield ns
     ns.close()
 
@@ -65,6 +66,7 @@ _BRIDGE = """
 import sys, time
 from vla_panda_bridge.libfranka_loop import LoopSettings
 from vla_panda_bridge.libfranka_process import LoopProcess
+from require import missing
 p = LoopProcess(LoopSettings(robot={"robot_ip": "127.0.0.1", "realtime": "ignore"}), loop_prefix=sys.argv[1:])
 p.start()
 print(p.pid, p.slots.path, flush=True)

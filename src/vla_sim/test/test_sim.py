@@ -3,6 +3,7 @@ import math
 
 import numpy as np
 import pytest
+from require import missing
 from vla_common.kinematics import PandaKinematics
 from vla_common.layout import LAYOUT_X, LAYOUT_Y, overlap
 from vla_common.objects import OBJECT_CLASSES, OBJECT_SPECS, ObjectPose
@@ -23,7 +24,7 @@ def _render_sim(width=320, height=240):
         s.render()
     except Exception as exc:  # no EGL on this machine
         s.close()
-        pytest.skip(f"headless rendering unavailable: {exc}")
+        missing("RENDER", f"headless rendering unavailable: {exc}")
     return s
 
 

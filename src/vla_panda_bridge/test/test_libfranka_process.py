@@ -66,7 +66,6 @@ _BRIDGE = """
 import sys, time
 from vla_panda_bridge.libfranka_loop import LoopSettings
 from vla_panda_bridge.libfranka_process import LoopProcess
-from require import missing
 p = LoopProcess(LoopSettings(robot={"robot_ip": "127.0.0.1", "realtime": "ignore"}), loop_prefix=sys.argv[1:])
 p.start()
 print(p.pid, p.slots.path, flush=True)

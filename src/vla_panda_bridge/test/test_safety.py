@@ -135,8 +135,13 @@ def test_watchdog_brakes_after_command_timeout_within_limits():
     np.testing.assert_array_equal(vs[99], cmd)
     assert codes[101] == safety.COMMAND_TIMEOUT
     assert np.all(np.abs(vs[102]) < np.abs(cmd))
-    assert np.all(vs[-1] == 0.0) and codes[-1] == safety.OK
+    # At rest, the watchdog's stop holds: the same command again is ignored until a zero command.
+    assert np.all(vs[-1] == 0.0) and codes[-1] == safety.AWAITING_ZERO
     assert_within_limits(f, vs)
+    vs3, _, codes3 = run(f, [cmd] * 50, q0=MID, t0=1.0)
+    assert np.all(vs3 == 0.0) and codes3[-1] == safety.AWAITING_ZERO
+    vs4, _, _ = run(f, [np.zeros(7)] + [cmd] * 200, q0=MID, t0=2.0)
+    np.testing.assert_array_equal(vs4[-1], cmd)                        # neutral, then it moves
     # A command every 50 ms keeps it alive.
     f2 = SafetyFilter(SafetyConfig(command_timeout=0.1))
     vs2, _, codes2 = run(f2, [cmd if k % 50 == 0 else None for k in range(600)], q0=MID)

@@ -304,8 +304,9 @@ class SafetyFilter:
                 self._count_intervention(COMMAND_TIMEOUT)
                 self.arming.disarm("command watchdog (no valid command in time)")
 
+        had_state = self._q_ref is not None
         state_ok = self._sync_position(q)
-        if not state_ok:
+        if not state_ok and had_state:                      # lost, not yet to come: a stop
             self.arming.disarm("no valid measured joint position")
         q_ref = self._q_ref
         hold = self._estop or self._fault or self._teaching or not state_ok   # no valid position: brake

@@ -65,10 +65,13 @@ class Harness(RosHarness):
             self.joy.publish(Joy(axes=[float(axis), 0.0], buttons=[0, 0]))
 
     def settle(self, code, **send):
-        """Keep inputs fresh until the status reports `code`; the last command."""
+        """Keep inputs fresh until the status reports `code`; the last command. Like an operator, it
+        returns the stick to neutral when the controller asks for it (AWAITING_NEUTRAL)."""
         end = time.monotonic() + 5.0
         while time.monotonic() < end:
-            self.send(**send)
+            asked = self.status and self.status[-1].code == ControllerStatus.AWAITING_NEUTRAL
+            release = asked and code != ControllerStatus.AWAITING_NEUTRAL
+            self.send(**{**send, "axis": 0.0} if release else send)
             self.status.clear()
             self.spin_until(lambda: self.status, timeout=0.05)
             if self.status and self.status[-1].code == code:
@@ -266,6 +269,8 @@ def test_process_publishes_zero_on_shutdown(random_model_dir):
     joy = node.create_publisher(Joy, "joy", 10)
     js = node.create_publisher(JointState, "joint_states", 10)
     det = node.create_publisher(DetectionArray, "detections", 10)
+    codes = []
+    node.create_subscription(ControllerStatus, "controller_node/status", lambda m: codes.append(m.code), 10)
     proc = subprocess.Popen(
         [str(exe), "--ros-args", "-p", f"model_path:={random_model_dir}"],
         stdout=subprocess.PIPE,
@@ -280,7 +285,8 @@ def test_process_publishes_zero_on_shutdown(random_model_dir):
             msg = DetectionArray(image_width=640, image_height=480)
             msg.detections = [Detection(class_id="bread", score=0.9, center_x=320.0, center_y=240.0)]
             det.publish(msg)
-            joy.publish(Joy(axes=[0.9], buttons=[]))
+            at_neutral = ControllerStatus.ZERO_DEADBAND in codes     # armed: the operator was at neutral
+            joy.publish(Joy(axes=[0.9 if at_neutral else 0.0], buttons=[]))
             ex.spin_once(timeout_sec=0.02)
             active = bool(cmds) and any(v != 0.0 for v in cmds[-1])
         assert active, "controller never commanded motion"

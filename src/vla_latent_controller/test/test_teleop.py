@@ -27,9 +27,14 @@ class FakeKin:
         return self.J
 
 
-def make_core(model_dir=None, **kw):
+def make_core(model_dir=None, armed=True, **kw):
+    """A core whose operator has been at neutral (armed), unless `armed=False`: the arming rule
+    has its own tests (test_arming_core below and test/test_arming.py)."""
     model = LatentModel.load(model_dir) if model_dir is not None else None
-    return TeleopCore(TeleopParams(**kw), model=model, kinematics=FakeKin())
+    core = TeleopCore(TeleopParams(**kw), model=model, kinematics=FakeKin())
+    if armed:
+        core.arming.offer(True)
+    return core
 
 
 BREAD = (Detection("bread", 0.9, 320, 240),)
@@ -41,6 +46,13 @@ def feed(core, now, axis=0.8, buttons=(0, 0, 0), dets=BREAD, q=READY):
         core.on_joy([axis, 0.0], list(buttons), now)
     if dets is not None:
         core.on_detections(list(dets), SIZE, now)
+
+
+def neutral(core, now):
+    """The operator lets the stick go back to neutral for one tick (re-arms the controller)."""
+    axes = list(core._axes or [0.0])
+    core.on_joy([0.0] + axes[1:], list(core._buttons), now)
+    assert core.step(now)[1].code == Code.ZERO_DEADBAND
 
 
 def test_active_command_then_deadband_is_exactly_zero(random_model_dir):
@@ -125,6 +137,10 @@ def test_waiting_and_timeouts(random_model_dir):
     core.on_detections([Detection("bread", 0.9, 1, 1)], SIZE, 0.0)
     assert core.step(0.0)[1].code == Code.WAITING_FOR_JOY
     core.on_joy([0.9], [], 0.0)
+    cmd, st = core.step(0.01)                    # waiting was a stop: the held stick does nothing
+    assert st.code == Code.AWAITING_NEUTRAL and np.all(cmd == 0) and "neutral" in st.reason
+    neutral(core, 0.02)
+    core.on_joy([0.9], [], 0.03)
     assert core.step(0.05)[1].code == Code.ACTIVE
     cmd, st = core.step(0.2)
     assert st.code == Code.JOY_TIMEOUT and np.all(cmd == 0)
@@ -152,6 +168,10 @@ def test_no_detection_waits_then_latches_once(random_model_dir):
     core.on_detections([], SIZE, 0.0)
     assert core.step(0.0)[1].code == Code.WAITING_FOR_DETECTION
     core.on_detections([Detection("bread", 0.5, 64, 48), Detection("soda_can", 0.9, 320, 240)], SIZE, 0.1)
+    _, st = core.step(0.1)
+    assert st.code == Code.AWAITING_NEUTRAL and st.latched_class == "soda_can"   # latched, not moving
+    neutral(core, 0.1)
+    feed(core, 0.1, dets=None)
     _, st = core.step(0.1)
     assert st.code == Code.ACTIVE and st.latched_class == "soda_can"
     core.on_detections([Detection("bread", 0.99, 64, 48)], SIZE, 0.2)  # latched: later detections are ignored
@@ -292,7 +312,11 @@ def test_a_detection_outside_the_image_is_bad_input_and_never_latched(random_mod
     assert "bread detection" in st.reason
     feed(core, 0.02, axis=1.0)
     cmd, st = core.step(0.03)
-    assert st.code == Code.ACTIVE and st.latched_x == pytest.approx(0.5)
+    assert st.code == Code.AWAITING_NEUTRAL and np.all(cmd == 0) and st.latched_x == pytest.approx(0.5)
+    neutral(core, 0.04)
+    feed(core, 0.05, axis=1.0)
+    cmd, st = core.step(0.05)
+    assert st.code == Code.ACTIVE and np.linalg.norm(cmd) > 0
 
 
 def _permuted_model(src: Path, dst: Path, order: list[int]) -> Path:
@@ -366,6 +390,9 @@ def test_a_panda_model_is_refused_on_an_fr3_unless_mapped(random_model_dir):
     core.set_joint_map(FR3_MAP)
     robot = [FR3_NAMES[i] for i in (6, 0, 1, 2, 3, 4, 5)]  # in whatever order the FR3 lists them
     core.on_joint_states(robot, [READY[FR3_NAMES.index(n)] for n in robot], 0.0)
+    assert core.step(0.0)[1].code == Code.AWAITING_NEUTRAL            # the refusal was a stop
+    neutral(core, 0.0)
+    core.on_joy([0.8, 0.0], [0, 0, 0], 0.0)
     cmd, st = core.step(0.0)
     assert st.code == Code.ACTIVE and core.command_joints == tuple(robot)
     np.testing.assert_array_equal(cmd, [want[n.replace("fr3", "panda")] for n in robot])
@@ -412,3 +439,56 @@ def test_the_grasp_button_counts_presses_not_holds(random_model_dir):
     assert core.grasp_presses == 2
     core.on_joy([0.0], [], 0.5)               # a joy without that button: no press, no error
     assert core.grasp_presses == 2
+
+
+STOPS = {
+    # name: (what happens at t = 1.0 while the stick is held, the code it gives)
+    "joy timeout": (lambda core: None, Code.JOY_TIMEOUT),
+    "joint states late": (lambda core: setattr(core._js, "t", 0.0), Code.WAITING_FOR_JOINT_STATES),
+    "bad joy input": (lambda core: core.on_joy([float("nan")], [], 1.0), Code.BAD_INPUT),
+    "re-detect": (lambda core: core.request_redetect(1.0), Code.WAITING_FOR_DETECTION),
+}
+
+
+@pytest.mark.parametrize("stop", sorted(STOPS))
+@pytest.mark.parametrize("gap", [0.15, 0.3, 0.5])
+def test_a_stop_the_operator_did_not_choose_holds_until_neutral(random_model_dir, stop, gap):
+    """Issue 20 item 1: after any zero the operator did not choose, a held stick with input gaps of
+    0.15-0.5 s gives zero (AWAITING_NEUTRAL) until the stick returns to neutral; then it moves."""
+    core = make_core(random_model_dir, joy_timeout=0.1, joint_states_timeout=0.5)
+    feed(core, 0.0, axis=1.0)
+    assert core.step(0.0)[1].code == Code.ACTIVE
+    cause, code = STOPS[stop]
+    if stop == "joy timeout":
+        core.on_joint_states(NAMES, list(READY), 1.0)
+    else:
+        feed(core, {"joint states late": 0.4, "re-detect": 0.99}.get(stop, 1.0), axis=1.0)
+    cause(core)
+    assert core.step(1.0)[1].code == code
+    t, seen = 1.0, set()
+    for _ in range(12):                       # the stick stays held; its messages come with gaps
+        t += gap
+        feed(core, t, axis=1.0)
+        cmd, st = core.step(t + 0.01)
+        seen.add(st.code)
+        assert np.all(cmd == 0.0), (stop, st.code, st.reason)
+        cmd, st = core.step(t + gap * 0.9)    # and between them
+        assert np.all(cmd == 0.0), (stop, st.code, st.reason)
+    assert Code.AWAITING_NEUTRAL in seen
+    feed(core, t + 1.0, axis=0.0)
+    assert core.step(t + 1.0)[1].code == Code.ZERO_DEADBAND
+    feed(core, t + 1.05, axis=1.0)
+    cmd, st = core.step(t + 1.05)
+    assert st.code == Code.ACTIVE and np.linalg.norm(cmd) > 0
+
+
+def test_the_controller_starts_disarmed_and_a_deadman_release_is_a_neutral(random_model_dir):
+    core = make_core(random_model_dir, armed=False, enable_button=1)
+    feed(core, 0.0, axis=1.0, buttons=(0, 1))
+    cmd, st = core.step(0.0)
+    assert st.code == Code.AWAITING_NEUTRAL and np.all(cmd == 0.0) and "starting" in st.reason
+    feed(core, 0.01, axis=1.0, buttons=(0, 0))     # the operator lets go of the deadman
+    assert core.step(0.01)[1].code == Code.DEADMAN_RELEASED
+    feed(core, 0.02, axis=1.0, buttons=(0, 1))
+    cmd, st = core.step(0.02)
+    assert st.code == Code.ACTIVE and np.linalg.norm(cmd) > 0

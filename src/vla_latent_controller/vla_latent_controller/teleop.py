@@ -14,6 +14,7 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
+from vla_common.arming import Arming
 from vla_common.detection import Detection
 from vla_common.robot import JOINT_NAMES
 
@@ -42,6 +43,11 @@ class Code(enum.IntEnum):
     BAD_INPUT = 6
     DEADMAN_RELEASED = 7
     MODEL_ERROR = 8
+    AWAITING_NEUTRAL = 9
+
+
+# Zeros the operator chose: the only inputs that re-arm the controller after a stop (vla_common.arming).
+NEUTRAL_CODES = (Code.ZERO_DEADBAND, Code.DEADMAN_RELEASED)
 
 
 @dataclass
@@ -191,6 +197,8 @@ class TeleopCore:
         self._cmd = np.zeros(len(self.joint_names))
         self.command_joints: tuple[str, ...] = ()  # the command's joints (the robot's names and order)
         self._limits: tuple[tuple, np.ndarray | None] = ((), None)  # ((joints, id(dq_max)), limits)
+        # Motion needs the operator's neutral first: at start, and after every zero they did not choose.
+        self.arming = Arming(armed=False, reason="starting")
         self.status = Status(mode=self.mode, ee_axis=self.ee.axis, command=self._cmd.copy())
 
     # ----------------------------------------------------------------- configuration
@@ -278,9 +286,30 @@ class TeleopCore:
     def step(self, now: float) -> tuple[np.ndarray, Status]:
         """The command for this tick (in the robot's joint order) and the status; never raises."""
         try:
-            return self._step(now)
+            cmd, status = self._step(now)
         except Exception as e:  # a control loop must not die: report and command zero
-            return self._zero(Code.MODEL_ERROR, f"internal error: {type(e).__name__}: {e}")
+            cmd, status = self._zero(Code.MODEL_ERROR, f"internal error: {type(e).__name__}: {e}")
+        return self._armed(cmd, status)
+
+    def _armed(self, cmd: np.ndarray, status: Status) -> tuple[np.ndarray, Status]:
+        """The arming rule at the operator's end: a zero the operator chose (stick at neutral, deadman
+        released) re-arms; any other zero (input late, no joint states, no context, bad input, a model
+        error) is a stop they did not choose and disarms; while disarmed a moving stick gives zero and
+        AWAITING_NEUTRAL. The bridge re-arms on any zero command, so this is what keeps a stick held
+        through a stop from moving the arm (see vla_common.arming). An ACTIVE command that happens to
+        be ~0 cannot be abused to re-arm the bridge: it depends only on q and z, which stay constant
+        while the arm rests and the stick is held, so it stays ~0 until the operator moves the stick."""
+        code = status.code
+        if code == Code.ACTIVE:
+            if self.arming.armed:
+                return cmd, status
+            return self._zero(Code.AWAITING_NEUTRAL,
+                              f"stopped ({self.arming.reason}): return the stick to neutral to move")
+        if code in NEUTRAL_CODES:
+            self.arming.offer(True)
+        else:
+            self.arming.disarm(code.name.lower().replace("_", " "))
+        return cmd, status
 
     def _zero(self, code: Code, reason: str, z: float = 0.0) -> tuple[np.ndarray, Status]:
         self._cmd[:] = 0.0

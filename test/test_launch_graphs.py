@@ -67,6 +67,12 @@ def check_safety(obs: Observer) -> None:
 def hold_stick(h: RosHarness, obs: Observer, pub, value: float,
                seconds: float) -> tuple[np.ndarray, np.ndarray]:
     """Publish the stick at 50 Hz for `seconds`; (the arm's motion, the mean command while ACTIVE)."""
+    def at_neutral() -> bool:                    # a person lets the stick go when the controller asks
+        pub.publish(Joy(axes=[0.0, 0.0], buttons=[0] * 4))
+        h.spin_for(0.02)
+        return obs.ctrl is not None and obs.ctrl.code == ControllerStatus.ZERO_DEADBAND
+
+    assert h.spin_until(at_neutral, 10.0), obs.ctrl
     first = len(obs.ctrl_log)
     q0 = obs.q.copy()
     for _ in range(int(seconds * 50)):

@@ -185,9 +185,10 @@ def probe(timeout: float, move: float, stick: float) -> dict:
         if h.spin_until(lambda: seen["matched"] >= 3 and seen["q"] is not None and seen["ctrl"] is not None,
                         timeout):
             report["phase"] = "move"
+            node.create_timer(0.02, publish_joy)      # the stick at neutral first (it arms the controller)
+            h.spin_until(lambda: seen["ctrl"].code == ControllerStatus.ZERO_DEADBAND, timeout)
             q0 = seen["q"].copy()
             axis[0] = stick
-            node.create_timer(0.02, publish_joy)
 
             def moved() -> float:
                 return float(np.linalg.norm(seen["q"] - q0))

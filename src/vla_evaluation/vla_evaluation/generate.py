@@ -52,7 +52,7 @@ from vla_demo_recorder.dataset import DemoError, load_demo
 from vla_launch.session import LaunchError, LaunchSession
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
-from vla_interfaces.msg import DetectionArray, RecorderStatus, SceneObject, SceneObjectArray
+from vla_interfaces.msg import DetectionArray, RecorderStatus, SafetyStatus, SceneObject, SceneObjectArray
 from vla_interfaces.srv import GripperCommand, ResetScene, StartEpisode
 
 BRIDGE = "panda_bridge"
@@ -159,12 +159,16 @@ class Demonstrator:
         self.hand_replies: list[str] = []
         self.heights: list[tuple[float, float]] = []   # (sim s, the task object's z) while a plan runs
         self.track: str | None = None
+        # The bridge waits for a zero command after a stop (e.g. its watchdog, when this process fell
+        # behind): the demonstrator sends one, as the arming rule asks (vla_common.arming).
+        self.send_zero = True
         self.cmd_pub = n.create_publisher(Float64MultiArray, "joint_velocity_cmd",
                                           QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         n.create_subscription(JointState, "joint_states", self._on_joints, sensor)
         n.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, sensor)
         n.create_subscription(DetectionArray, "detections", self._on_detections, sensor)
         n.create_subscription(RecorderStatus, f"{RECORDER}/status", self._on_recorder, sensor)
+        n.create_subscription(SafetyStatus, f"{BRIDGE}/status", self._on_safety, 10)
         self.reset_cli = n.create_client(ResetScene, f"{BRIDGE}/reset")
         self.start_cli = n.create_client(StartEpisode, f"{RECORDER}/start_episode")
         self.stop_cli = n.create_client(Trigger, f"{RECORDER}/stop_episode")
@@ -189,6 +193,8 @@ class Demonstrator:
             self.plan_t0 = t
         elapsed = t - self.plan_t0
         dq = plan.command(elapsed, q) if elapsed <= plan.duration else np.zeros(7)
+        if self.send_zero:
+            self.send_zero, dq = False, np.zeros(7)
         self.cmd_pub.publish(Float64MultiArray(data=[float(v) for v in dq]))
         events = plan.hand_events
         while self.hand_sent < len(events) and events[self.hand_sent][0] <= elapsed:
@@ -199,6 +205,10 @@ class Demonstrator:
         if elapsed >= self.plan_end:
             self.plan = None
             self.plan_done.set()
+
+    def _on_safety(self, msg) -> None:
+        if msg.code == SafetyStatus.AWAITING_ZERO:
+            self.send_zero = True
 
     def _on_hand_reply(self, future) -> None:
         res = future.result()
@@ -251,6 +261,7 @@ class Demonstrator:
         self.plan_end = plan.duration + settle
         self.hand_sent, self.hand_replies, self.heights = 0, [], []
         self.track = plan.task.object_class
+        self.send_zero = True
         self.plan = plan
         if not self.plan_done.wait(timeout):
             self.plan = None

@@ -48,7 +48,7 @@ from vla_evaluation.sim_teleoperator import (
     WaypointSchedule,
     teleop_waypoints,
 )
-from vla_interfaces.msg import ControllerStatus, SceneObjectArray, TeleopStatus
+from vla_interfaces.msg import ControllerStatus, SafetyStatus, SceneObjectArray, TeleopStatus
 from vla_interfaces.srv import StartEpisode
 
 NODE_NAME = "sim_teleoperator"
@@ -93,6 +93,8 @@ PARAMETERS = ParameterTable([
           range=(0.1, 600.0), dynamic=True),
     Param("controller_status_topic", "controller_node/status",
           "the controller's ~/status topic (ControllerStatus)"),
+    Param("safety_status_topic", "panda_bridge/status",
+          "the bridge's ~/status topic (SafetyStatus): AWAITING_ZERO there releases the stick"),
     Param("use_controller_context", True, "take the latched class and position from controller_status "
           "(false: the detector encoder needs them, so it fails)", dynamic=True),
     Param("trigger", "timer", "timer: a stick value every 1/rate s; joint_states: one for every joint state, "
@@ -131,6 +133,7 @@ class SimTeleoperatorNode(Node):
         self.objects: dict[str, ObjectPose] = {}
         self.ctrl: ControllerStatus | None = None
         self.ctrl_time: Time | None = None
+        self.bridge_code: int | None = None   # the bridge's latest SafetyStatus code
         self.image: np.ndarray | None = None
         self.image_time: Time | None = None
         self._image_sub = None
@@ -142,6 +145,7 @@ class SimTeleoperatorNode(Node):
         self.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, SENSOR_QOS)
         self.create_subscription(ControllerStatus, self.p["controller_status_topic"], self._on_ctrl,
                                  SENSOR_QOS)
+        self.create_subscription(SafetyStatus, self.p["safety_status_topic"], self._on_safety, 10)
         self._update_image_subscription()
         self.create_service(StartEpisode, "~/start_episode", self._srv_start)
         self.create_service(Trigger, "~/stop", self._srv_stop)
@@ -207,6 +211,9 @@ class SimTeleoperatorNode(Node):
     def _on_ctrl(self, msg: ControllerStatus) -> None:
         self.ctrl = msg
         self.ctrl_time = self._now()
+
+    def _on_safety(self, msg: SafetyStatus) -> None:
+        self.bridge_code = msg.code
 
     def _on_image(self, msg: Image) -> None:
         if msg.encoding not in ("rgb8", "bgr8") or msg.height * msg.step > len(msg.data):
@@ -315,6 +322,8 @@ class SimTeleoperatorNode(Node):
         self._ticks += 1
         if self.state == TeleopStatus.WAITING:
             self._try_start()
+            if self.state == TeleopStatus.WAITING:
+                self._publish_joy(0.0)                # a person waits with the stick at rest
         if self.state == TeleopStatus.RUNNING:
             t = (self._now() - self.t0).nanoseconds * 1e-9
             q = self.q if self.q is not None else np.full(7, np.nan)
@@ -323,9 +332,17 @@ class SimTeleoperatorNode(Node):
             if step.done:
                 self._finish(TeleopStatus.DONE, "time limit")
                 return
-            self._publish_joy(step.axis)
+            self._publish_joy(0.0 if self._asked_for_neutral() else step.axis)
         if self._ticks % self._status_every == 0:
             self._publish_status()
+
+    def _asked_for_neutral(self) -> bool:
+        """The controller or the bridge says a stop happened and motion waits for the stick at
+        neutral: a person reading that (or seeing the arm stop) lets go of the stick (the arming rule,
+        vla_common.arming)."""
+        if self.bridge_code == SafetyStatus.AWAITING_ZERO:
+            return True
+        return self.ctrl is not None and self.ctrl.code == ControllerStatus.AWAITING_NEUTRAL
 
     def _publish_joy(self, value: float) -> None:
         axis = int(self.p["axis"])

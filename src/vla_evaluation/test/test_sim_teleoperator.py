@@ -147,6 +147,7 @@ def test_stick_to_command_matches_the_controller_core(tmp_path):
     det = Detection("soda_can", 0.9, 320.0, 200.0)
     params = TeleopParams(deadband=0.1, axis_scale=1.3, action_scale=2.0, max_joint_speed=1.5)
     core = TeleopCore(params, model)
+    core.arming.offer(True)                 # the operator has been at neutral (the arming rule aside)
     core.on_joint_states([f"panda_joint{i}" for i in range(1, 8)], Q0.tolist(), 0.0)
     core.on_detections([det], (640, 480), 0.0)
     ctx = model.context(det=det, image_size=(640, 480))

@@ -239,8 +239,16 @@ def test_a_reflex_holds_the_arm_until_recover_and_recovery_needs_a_zero_command(
     assert h.wait(lambda: len(h.states) > n + 10, 5.0)
     stream["cmd"] = [0.0, -0.3, 0.0, 0.0, 0.0, 0.0, 0.0]
     assert h.wait(lambda: h.states[-1].velocity[1] < -0.25, 5.0), _recent(h)
+    # Issue 20 item 4: ~/recover while moving without a reflex is a stop too: the arm brakes, the
+    # status says it waits for a zero command, and the held stick does not restart it.
     again = h.call(Trigger, "panda_bridge/recover", Trigger.Request())
-    assert again.success and "no reflex" in again.message
+    assert again.success and "no reflex" in again.message and "zero" in again.message
+    assert h.wait(lambda: h.status[-1].code == SafetyStatus.AWAITING_ZERO and "zero" in h.status[-1].text,
+                  5.0), _recent(h)
+    assert h.wait(lambda: abs(h.states[-1].velocity[1]) < 1e-3, 5.0), _recent(h)
+    t0 = _stamp(h.states[-1])
+    assert h.wait(lambda: _stamp(h.states[-1]) > t0 + 0.5, 5.0)
+    assert abs(h.states[-1].velocity[1]) < 1e-3 and h.status[-1].code == SafetyStatus.AWAITING_ZERO
 
 
 def _travel_after(h, t_from: float, seconds: float) -> float:

@@ -298,7 +298,9 @@ class PandaBridge(Node):
             return response
         if self.filter.clear_fault():
             self.filter.reset(self.backend.position())
-            text = f"{text}; send a zero command, then move"
+        else:                                               # a recovery is a stop all the same
+            self.filter.stop("~/recover")
+        text = f"{text}; the arm brakes and waits: send a zero command, then move"
         response.success, response.message = True, text
         self.get_logger().info(response.message)
         self._publish_status(self.filter.hold_code(), response.message)

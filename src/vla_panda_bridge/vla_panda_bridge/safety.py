@@ -257,9 +257,14 @@ class SafetyFilter:
         self._zero_target()
 
     def disarm(self, why: str) -> None:
-        """A stop the filter did not see itself (a lost connection, a silent robot, a recovery without
-        a reflex): motion needs a zero command first."""
+        """A stop the filter did not see itself (a lost connection, a silent robot): motion needs a zero
+        command first."""
         self.arming.disarm(why)
+
+    def stop(self, why: str) -> None:
+        """Brake to zero now and wait for a zero command (~/recover without a reflex, say)."""
+        self.disarm(why)
+        self._zero_target()
 
     def _zero_target(self) -> None:
         self._target = [0.0] * NUM_JOINTS

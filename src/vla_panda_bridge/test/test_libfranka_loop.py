@@ -16,6 +16,7 @@ from vla_panda_bridge.libfranka_slots import CONTROL, Slots
 from vla_panda_bridge.safety import NON_FINITE_COMMAND, WRONG_LENGTH
 
 from vla_panda_bridge import libfranka_loop as lf
+from vla_panda_bridge import safety as lf_safety
 
 Q0 = [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785]
 REFLEX_TEXT = ('ControlException: libfranka: Move command aborted: motion aborted by reflex! '
@@ -475,3 +476,22 @@ def test_the_loop_filter_has_the_robot_models_limits_at_the_robot_rate(model):
     f = lf.make_filter(LoopSettings(robot_model=model, safety={"velocity_scale": 0.5}))
     assert f.robot is robot_spec(model) and f.config.dt == lf.PERIOD
     np.testing.assert_allclose(f.v_max, robot_spec(model).dq_max * 0.5)
+
+
+@pytest.mark.parametrize("silence", [0.15, 0.5])
+def test_a_silent_robot_stops_the_arm_until_a_zero_command(rig, silence):
+    """Issue 20 item 2: the robot stops answering for 150 or 500 ms mid-motion while the node keeps
+    writing the held stick's command; when it answers again the arm must not resume by itself: the
+    filter is disarmed (AWAITING_ZERO) until a zero command, and only then moves again."""
+    rig.run(3, command=ZERO)
+    rig.run(300, command=velocity(3, 0.3))
+    assert rig.driver.velocities[-1][0][3] == pytest.approx(0.3)
+    rig.clock.t += silence                                 # no robot cycle for `silence` s (wall)
+    rig.run(1500, command=velocity(3, 0.3))                # the stick is still held
+    assert rig.loop.filter.awaiting_zero and "silent" in rig.loop.filter.arming.reason
+    tail = [v[3] for v, _ in rig.driver.velocities[-500:]] if rig.driver.in_motion else [0.0]
+    assert max(abs(v) for v in tail) < 1e-9                # braked, and nothing restarts it
+    assert rig.state().filter_code == lf_safety.AWAITING_ZERO
+    rig.run(5, command=ZERO)                               # the operator back at neutral
+    rig.run(400, command=velocity(3, 0.3))
+    assert rig.driver.velocities[-1][0][3] == pytest.approx(0.3)

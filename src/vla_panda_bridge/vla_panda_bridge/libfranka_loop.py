@@ -72,7 +72,6 @@ MODE_IDLE = 0
 MODE_VELOCITY = 1
 MODE_TORQUE = 2     # teaching
 
-ZERO_COMMAND = 1e-6  # rad/s: every |value| at or below this is a zero command
 MAX_SUBSTEPS = 50   # filter steps caught up after a gap in the robot's cycles
 # Zero commands that open every motion before the filter's first step: the robot (franka-sim's
 # checker too) judges the jerk of a velocity stream from its own history, which a motion starts
@@ -143,8 +142,7 @@ class ControlLoop:
         self._cmd_t = -math.inf          # robot time of the latest command taken
         self._cmd_arrived = math.nan
         self._latency_pending = False
-        self._want = False               # the latest valid command is non-zero
-        self._await_zero = False         # motion needs a zero command first (after a hold)
+        self._want = False               # the latest valid command is non-zero and the filter armed
         self._cause = ""                 # the error that lost the connection
         self._rest_since: float | None = None
         self._estop = False
@@ -234,7 +232,7 @@ class ControlLoop:
         self._answer_recover(True)
         self._on_state(state, None)
         self.filter.reset(state.q)
-        self._forget_commands()                      # a command from before the connection is stale
+        self._forget_commands("connected")           # a command from before the connection is stale
         self._publish(state, math.nan)
 
     def _connect_failed(self, exc: RobotError) -> None:
@@ -257,7 +255,7 @@ class ControlLoop:
         self.errors += 1
         self.filter.reset()
         self._dq = [0.0] * NUM_JOINTS
-        self._forget_commands()
+        self._forget_commands(f"robot error: {exc.text}")
         self._rest_since = None
         if exc.kind == REFLEX:
             self.mode = MODE_IDLE
@@ -304,7 +302,7 @@ class ControlLoop:
             return
         self._on_state(state, None)
         self.filter.reset(state.q)
-        self._forget_commands()
+        self._forget_commands("error recovery")
         self._set_status(LOOP_OK, "error recovery done: ready")
         self._answer_recover(True)
         self._publish(state, math.nan)
@@ -332,15 +330,16 @@ class ControlLoop:
         if estop != self._estop:
             self._estop = estop
             self.filter.set_estop(estop)
-            self._forget_commands()
+            self._forget_commands("e-stop")
 
     # ------------------------------------------------------------------------------------ commands
-    def _forget_commands(self) -> None:
-        """After a connection, a recovery, teaching or an e-stop change: the commands so far are stale,
-        and a new motion needs a zero command first (a stick held through it does not start the arm)."""
+    def _forget_commands(self, why: str) -> None:
+        """After a connection, an error, a recovery, teaching or an e-stop change: the commands so far
+        are stale, and the stop disarms the filter: a new motion needs a zero command first (a stick
+        held through it does not start the arm; the rule's one owner is vla_common.arming)."""
         self._cmd_seq = self._seq_in_slot()
         self._want = False
-        self._await_zero = True
+        self.filter.disarm(why)
 
     def _seq_in_slot(self) -> float:
         c = self.slots.read_command()
@@ -356,17 +355,13 @@ class ControlLoop:
             return
         n = int(c[CMD_N])
         values = c[CMD_VALUES:] if n == NUM_JOINTS else [0.0] * max(n, 0)
-        if self._await_zero:
-            if n != NUM_JOINTS or not bool(np.all(np.abs(values) <= ZERO_COMMAND)):
-                self._want = False
-                return                               # not moving until the node sends zero
-            self._await_zero = False
-        code, _ = self.filter.submit(values, self._t)
+        code, _ = self.filter.submit(values, self._t)     # ignored while disarmed, unless zero
         self._cmd_t = self._t
         if c[CMD_ARRIVED] != self._cmd_arrived:      # a new input (not the same one written again)
             self._cmd_arrived = c[CMD_ARRIVED]
             self._latency_pending = True
-        self._want = code == FILTER_OK and not self._estop and bool(np.any(values))
+        self._want = (code == FILTER_OK and not self._estop and bool(np.any(values))
+                      and self.filter.arming.armed)
 
     def _wants_motion(self) -> bool:
         return self._want and self._t - self._cmd_t <= self._timeout
@@ -464,7 +459,7 @@ class ControlLoop:
             if teaching is not None:
                 self._ack_teaching()
             self.filter.reset(state.q)               # the hand moved it: start from where it is
-            self._forget_commands()
+            self._forget_commands("teaching mode")
             self._set_status(LOOP_OK, "teaching ended: holding the pose")
         self._publish(state, math.nan, t0)
 
@@ -481,6 +476,8 @@ class ControlLoop:
         now = self._clock()
         self._period = math.nan if self._last_read is None else now - self._last_read
         self._last_read = now
+        if self._period > self._timeout:             # the robot was silent (or this loop stalled)
+            self.filter.disarm(f"robot silent for {self._period:.2f} s")
         self._t = state.time.to_sec()
         self.cycle += 1
         if dt is not None and dt > 1.5 * PERIOD:

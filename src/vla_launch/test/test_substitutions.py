@@ -111,3 +111,71 @@ def test_safe_eval_allows_simple_expressions():
 def test_safe_eval_refuses_code_and_huge_results(expr):
     with pytest.raises(SafeEvalError):
         safe_eval(expr)
+
+
+BOMBS = {  # issue 20 item 10: each hung, allocated gigabytes or crashed before
+    "nested str": "len(str([[0]*90000]*90000))",
+    "format width": "'%900000000d' % 1",
+    "format precision": "'%.900000000f' % 1",
+    "format star": "'%*d' % (900000000, 1)",
+    "deep unary": "-" * 5000 + "1",
+    "deep not": "not " * 2400 + "1",
+    "nested repeat": "[[[0]*300]*300]*300",
+}
+
+
+@pytest.mark.parametrize("name", sorted(BOMBS))
+def test_an_eval_bomb_in_a_launch_file_is_a_clean_error_within_bounded_memory(tmp_path, name):
+    """Run as a user does (`vla launch --dry-run`), in a process limited to 384 MiB of address space:
+    exit code 1 or 2, a message that names the file and says what was refused, and no traceback."""
+    import resource
+    import subprocess
+    import sys
+
+    launch = tmp_path / "bomb.launch.yaml"
+    expression = BOMBS[name].replace('"', "'")
+    launch.write_text(f'launch:\n- arg: {{name: x, default: "$(eval \\"{expression}\\")"}}\n')
+
+    def limit():
+        resource.setrlimit(resource.RLIMIT_AS, (384 << 20, 384 << 20))
+
+    out = subprocess.run([sys.executable, "-m", "vla_launch.cli", "launch", str(launch), "--dry-run"],
+                         capture_output=True, text=True, timeout=60, preexec_fn=limit)
+    assert out.returncode in (1, 2), (out.returncode, out.stderr[-2000:])
+    assert "Traceback" not in out.stderr and "bomb.launch.yaml" in out.stderr, out.stderr[-2000:]
+    assert any(w in out.stderr for w in ("larger than", "too large", "nested", "too long")), out.stderr[-800:]
+
+
+def test_a_seeded_fuzzer_of_eval_never_escapes_a_clean_refusal():
+    """Random expressions from the grammar's pieces, bounded in count: each gives a value or a
+    SafeEvalError, never another exception, and no value larger than the size bound."""
+    import random
+
+    from vla_launch.safe_eval import _MAX_LEN, _size
+    rng = random.Random(20)
+    atoms = ["0", "1", "9", "-7", "2.5", "'a'", "'%d'", "'%9999999d'", "[0]", "[1, 2]", "(1,)", "pi",
+             "true", "None", "[[0]*9]"]
+    ops = ["+", "-", "*", "/", "//", "%", "**", " and ", " or ", " in ", " == ", " < "]
+    funcs = ["str", "len", "abs", "int", "float", "max", "min", "round", "bool"]
+
+    def expr(depth: int) -> str:
+        k = rng.random()
+        if depth > 6 or k < 0.3:
+            return rng.choice(atoms)
+        if k < 0.6:
+            return f"({expr(depth + 1)}{rng.choice(ops)}{expr(depth + 1)})"
+        if k < 0.75:
+            return f"{rng.choice(funcs)}({expr(depth + 1)})"
+        if k < 0.85:
+            return f"[{expr(depth + 1)}] * {rng.choice(['3', '999', '99999', '10**6'])}"
+        if k < 0.93:
+            return f"{expr(depth + 1)}[{expr(depth + 1)}]"
+        return f"({expr(depth + 1)} if {expr(depth + 1)} else {expr(depth + 1)})"
+
+    for _ in range(3000):
+        e = expr(0)
+        try:
+            value = safe_eval(e)
+        except SafeEvalError:
+            continue
+        assert _size(value) <= _MAX_LEN, e

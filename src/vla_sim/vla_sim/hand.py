@@ -58,8 +58,9 @@ class SimHand:
     # ------------------------------------------------------------------ state
     @property
     def width(self) -> float:
-        """The measured gap between the fingers (m)."""
-        return float(self.data.qpos[self._qadr[0]] + self.data.qpos[self._qadr[1]])
+        """The measured gap between the fingers (m), never below 0: closed on nothing, MuJoCo's soft
+        joint limits let each finger sink ~0.3 mm past zero, which a real hand reports as 0."""
+        return max(0.0, float(self.data.qpos[self._qadr[0]] + self.data.qpos[self._qadr[1]]))
 
     @property
     def width_speed(self) -> float:

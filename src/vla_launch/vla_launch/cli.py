@@ -40,15 +40,13 @@ def _parser() -> argparse.ArgumentParser:
     lp.add_argument("-s", "--show-args", action="store_true",
                     help="list the file's launch arguments and exit")
     lp.add_argument("--dry-run", action="store_true", help="print the commands that would run and exit")
-    lp.add_argument("--keep-going", action="store_true",
-                    help="keep the other processes running when one dies (default: tear all down)")
+    lp.add_argument("--abort-on-exit", action="store_true",
+                    help="a process dying tears the others down, and its code is the exit code "
+                         "(default: as ros2 launch, the others keep running and the exit code is 0)")
     lp.add_argument("--sigterm-timeout", type=float, default=5.0, metavar="S",
                     help="seconds after SIGINT before SIGTERM (default 5)")
     lp.add_argument("--sigkill-timeout", type=float, default=5.0, metavar="S",
                     help="seconds after SIGTERM before SIGKILL (default 5)")
-    lp.add_argument("--stop-stagger", type=float, default=1.0, metavar="S",
-                    help="at shutdown, longest wait for a process to end before the next one is "
-                         "signalled (default 1)")
     lp.add_argument("launch_args", nargs="+", metavar="ARG",
                     help="<file.launch.yaml> | <package> <file.launch.yaml>, then name:=value ...")
     return p
@@ -86,7 +84,7 @@ def launch_main(ns: argparse.Namespace) -> int:
             print("[INFO] [launch]: nothing to launch", file=sys.stderr)
             return 0
         return Launcher(specs, sigterm_timeout=ns.sigterm_timeout, sigkill_timeout=ns.sigkill_timeout,
-                        keep_going=ns.keep_going, stop_stagger=ns.stop_stagger).run()
+                        keep_going=not ns.abort_on_exit).run()
     except (LaunchFileError, SubstitutionError, RunError) as e:
         print(f"vla launch: error: {e}", file=sys.stderr)
         return 1

@@ -53,8 +53,9 @@ class LaunchArgument:
 class ProcessDescription:
     """One process to start, with every substitution already evaluated."""
 
-    label: str
+    label: str  # how harnesses name the process: exec_name, node name, or executable basename
     executable: str  # executable name inside `pkg`, or a command/path when pkg is None
+    exec_name: str | None = None  # the output tag's stem, as ros2 launch (None: the label)
     pkg: str | None = None
     is_node: bool = True
     name: str | None = None
@@ -465,9 +466,10 @@ class LaunchFileLoader:
             if set(r) != {"from", "to"}:
                 raise re_.fail("a remap needs exactly 'from' and 'to'")
             remaps.append((_sub(re_, re_.text("from"), ctx), _sub(re_, re_.text("to"), ctx)))
-        label = _sub(ent, ent.text("exec_name"), ctx) or name or os.path.basename(exe)
+        exec_name = _sub(ent, ent.text("exec_name"), ctx)
         proc = ProcessDescription(
-            label=label, executable=exe, pkg=pkg, is_node=True, name=name, namespace=ns,
+            label=exec_name or name or os.path.basename(exe), executable=exe, pkg=pkg, is_node=True,
+            exec_name=exec_name or os.path.basename(exe), name=name, namespace=ns,
             params=_parse_params(ent, ctx, st.base_dir, self.plan.temp_files), remaps=remaps,
             ros_args=_split(ent, ent.text("ros_args"), ctx), args=_split(ent, ent.text("args"), ctx))
         self._process_common(ent, st, proc)

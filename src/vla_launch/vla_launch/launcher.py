@@ -7,19 +7,23 @@ output, exits and Ctrl-C are handled as they happen without polling threads.
   forwards it) and gets PR_SET_PDEATHSIG=SIGTERM, so it is stopped even if `vla launch` is killed.
   A dead-man reaper (`reaper.py`) SIGKILLs a child that outlives a killed launch by its
   `sigkill_timeout`, which a live launch would have done.
-- Each output line is printed as `[label-pid] line` (stdout to stdout, stderr to stderr).
-- Shutdown (Ctrl-C, SIGTERM, SIGHUP, or a node dying): the signal goes to the children's groups one
-  at a time, in reverse start order; the next one is signalled when the previous one has exited, or
-  `stop_stagger` s after it was signalled. Nodes that leave the DDS graph together can hang in Fast
-  DDS 2.14's participant deletion (eProsima/Fast-DDS#6513, busy-waiting on discovery callbacks of
-  the others' departure); one after the other they do not, and the robot side (started first)
-  stops last. After `sigterm_timeout` SIGTERM follows, after `sigkill_timeout` SIGKILL. Another
-  Ctrl-C (a second or more later) escalates every child at once. At the end every child group is
-  SIGKILLed, catching stray grandchildren.
-- By default a process exiting with a non-zero code tears the others down (`keep_going` disables
-  this); one exiting with 0 just ends (unless it has `on_exit: shutdown`); `respawn` restarts.
-- Exit code: 0 when every process ended cleanly (0, or stopped by our SIGINT/SIGTERM), otherwise the
-  first failure's code (128 + signal number for a death by signal; a SIGKILL escalation counts).
+As `ros2 launch` (launch 3.4) does it:
+- Every output line of a child, from its stdout or its stderr, is printed to stdout as
+  `[<exec>-<n>] line`: the executable's basename (or `exec_name`/`name`) and a counter of the
+  processes this launch has started (1, 2, ...; a respawn gets the next number). The launcher's own
+  lines (`[INFO] [launch]: ...`) go to stdout too.
+- A process that ends, whatever its code, leaves the others running; `respawn` restarts it after
+  `respawn_delay` s; `on_exit: shutdown` shuts the launch down. The exit code stays 0.
+  `keep_going=False` (harnesses) instead tears down on a non-zero exit and returns that code.
+- Shutdown (Ctrl-C, SIGTERM, SIGHUP): the signal goes to every child's group at once, so the stop
+  takes as long as the slowest node, not their sum. A node can hang in Fast DDS 2.14's participant
+  deletion when the others leave the graph with it (eProsima/Fast-DDS#6513); that is bounded per
+  node: SIGTERM after `sigterm_timeout`, SIGKILL after `sigkill_timeout`. Another Ctrl-C (a second
+  or more later) escalates every child at once. At the end every child group is SIGKILLed,
+  catching stray grandchildren.
+- Exit code: 0, unless a process could not start (127), did not stop cleanly at shutdown (its code;
+  128 + signal number for a death by signal, a SIGKILL escalation included), or died under
+  `keep_going=False`.
 """
 from __future__ import annotations
 
@@ -59,25 +63,22 @@ class ProcessSpec:
     respawn_delay: float = 0.0
     sigterm_timeout: float | None = None
     sigkill_timeout: float | None = None
+    exec_name: str | None = None  # the output tag's stem (ros2 launch: the executable's basename)
 
 
 @dataclass
 class _Child:
     spec: ProcessSpec
     popen: subprocess.Popen
+    tag: str
     fds: dict[int, bool] = field(default_factory=dict)  # fd -> is stderr
     partial: dict[int, bytearray] = field(default_factory=dict)
     stage: int = 0  # 0 running, 1 SIGINT sent, 2 SIGTERM sent, 3 SIGKILL sent
     deadline: float | None = None
-    signalled_at: float | None = None
 
     @property
     def pid(self) -> int:
         return self.popen.pid
-
-    @property
-    def tag(self) -> str:
-        return f"{self.spec.label}-{self.pid}"
 
 
 def _signal_name(num: int) -> str:
@@ -100,14 +101,13 @@ class Launcher:
     """Runs a list of processes until they end or a shutdown; `run()` returns the exit code."""
 
     def __init__(self, specs: list[ProcessSpec], *, sigterm_timeout: float = 5.0,
-                 sigkill_timeout: float = 5.0, keep_going: bool = False, stop_stagger: float = 1.0,
+                 sigkill_timeout: float = 5.0, keep_going: bool = True,
                  stdout: TextIO | None = None, stderr: TextIO | None = None,
                  env: Mapping[str, str] | None = None, use_reaper: bool = True) -> None:
         self.specs = specs
         self.sigterm_timeout = sigterm_timeout
         self.sigkill_timeout = sigkill_timeout
         self.keep_going = keep_going
-        self.stop_stagger = stop_stagger
         self.out = stdout or sys.stdout
         self.err = stderr or sys.stderr
         self.env = dict(os.environ if env is None else env)  # the children's base environment
@@ -115,16 +115,16 @@ class Launcher:
         self.children: list[_Child] = []
         self.all_pids: list[int] = []
         self.labels: dict[int, str] = {}  # pid -> label, of every process started
+        self.tags: dict[int, str] = {}  # pid -> output tag (`exec-n`), of every process started
         self.failures: list[tuple[str, int]] = []
         self.ended: list[tuple[str, int]] = []  # (label, exit code) of every process that ended
         self.shutting_down = False
-        self._stop_signal = signal.SIGINT
-        self._stop_queue: list[_Child] = []
         self._reaper: subprocess.Popen | None = None
         self._signals: list[int] = []
         self._last_escalation = 0.0
         self._wake_w: int | None = None
         self._respawns: list[tuple[float, ProcessSpec]] = []
+        self._count = 0  # processes started, for the `exec-n` tags
         self._sel = selectors.DefaultSelector()
 
     # -------------------------------------------------------------------------------- output
@@ -136,7 +136,7 @@ class Launcher:
             pass
 
     def log(self, msg: str, error: bool = False) -> None:
-        self._write(self.err, f"[{'ERROR' if error else 'INFO'}] [launch]: {msg}\n")
+        self._write(self.out, f"[{'ERROR' if error else 'INFO'}] [launch]: {msg}\n")
 
     def _emit(self, child: _Child, fd: int, data: bytes, final: bool = False) -> None:
         buf = child.partial.setdefault(fd, bytearray())
@@ -146,9 +146,8 @@ class Launcher:
             lines.append(rest)
             rest = b""
         child.partial[fd] = bytearray(rest)
-        stream = self.err if child.fds.get(fd, False) else self.out
         for line in lines:
-            self._write(stream, f"[{child.tag}] {line.decode('utf-8', 'replace').rstrip(chr(13))}\n")
+            self._write(self.out, f"[{child.tag}] {line.decode('utf-8', 'replace').rstrip(chr(13))}\n")
 
     def _read(self, child: _Child, fd: int, drain: bool = False) -> None:
         """Read what is available; on EOF (or `drain`), flush and stop watching the fd."""
@@ -191,7 +190,8 @@ class Launcher:
             if not self.keep_going:
                 self.begin_shutdown(signal.SIGINT, f"{spec.label} failed to start")
             return
-        child = _Child(spec, popen)
+        self._count += 1
+        child = _Child(spec, popen, f"{spec.exec_name or spec.label}-{self._count}")
         for stream, is_err in ((popen.stdout, False), (popen.stderr, True)):
             fd = os.dup(stream.fileno())
             stream.close()
@@ -201,8 +201,9 @@ class Launcher:
         self.children.append(child)
         self.all_pids.append(child.pid)
         self.labels[child.pid] = spec.label
+        self.tags[child.pid] = child.tag
         self._tell_reaper(f"{child.pid} {self._grace(spec):g}")
-        self.log(f"process started with pid [{child.pid}]: {spec.label}: {' '.join(spec.cmd)}")
+        self.log(f"[{child.tag}] process started with pid [{child.pid}]: {' '.join(spec.cmd)}")
 
     # ---------------------------------------------------------------------------------- reaper
     def _grace(self, spec: ProcessSpec) -> float:
@@ -257,7 +258,6 @@ class Launcher:
             with contextlib.suppress(ProcessLookupError, PermissionError):
                 os.kill(child.pid, sig)
         now = time.monotonic()
-        child.signalled_at = now
         if sig == signal.SIGINT:
             child.stage = 1
             t = child.spec.sigterm_timeout
@@ -279,33 +279,15 @@ class Launcher:
             self._send(child, signal.SIGKILL)
 
     def begin_shutdown(self, first_signal: int, reason: str) -> None:
+        """Signal every child at once (each one's escalation runs on its own deadlines)."""
         if self.shutting_down:
             return
         self.shutting_down = True
         self._respawns.clear()
         self.log(f"shutting down ({reason}): sending {_signal_name(first_signal)} to "
-                 f"{len(self.children)} process(es), one at a time in reverse start order")
-        self._stop_signal = first_signal
-        self._stop_queue = list(reversed(self.children))
-        self._advance_stop(time.monotonic())
-
-    def _advance_stop(self, now: float) -> None:
-        """Signal the next child once the one signalled before has ended or had `stop_stagger` s."""
-        while self._stop_queue:
-            busy = [c for c in self.children if c.stage > 0 and c.signalled_at is not None
-                    and now - c.signalled_at < self.stop_stagger]
-            if busy:
-                return
-            child = self._stop_queue.pop(0)
-            if child in self.children and child.stage == 0:
-                self._send(child, self._stop_signal)
-
-    def _next_stop_due(self, now: float) -> float | None:
-        if not self._stop_queue:
-            return None
-        times = [c.signalled_at + self.stop_stagger for c in self.children
-                 if c.stage > 0 and c.signalled_at is not None]
-        return max(times) if times else now
+                 f"{len(self.children)} process(es)")
+        for child in self.children:
+            self._send(child, first_signal)
 
     def _on_signal(self, signum: int, frame: object) -> None:
         self._signals.append(signum)
@@ -324,7 +306,6 @@ class Launcher:
                 # A repeated Ctrl-C escalates; one signal delivered twice (e.g. by `timeout`, which
                 # signals the child and then its own group) must not.
                 self._last_escalation = now
-                self._stop_queue.clear()
                 for child in self.children:
                     self._escalate(child)
 
@@ -352,12 +333,12 @@ class Launcher:
             return
         if rc == 0:
             self.log(f"process [{child.tag}] has finished cleanly")
-        elif spec.respawn:
-            self.log(f"process [{child.tag}] has died ({how}); respawning", error=True)
         else:
-            self.failures.append((spec.label, rc))
             self.log(f"process [{child.tag}] has died ({how}), cmd: {' '.join(spec.cmd)}", error=True)
+            if not self.keep_going and not spec.respawn:
+                self.failures.append((spec.label, rc))
         if spec.respawn:
+            self.log(f"respawning {spec.label} in {spec.respawn_delay:g} s")
             self._respawns.append((time.monotonic() + spec.respawn_delay, spec))
         elif spec.on_exit_shutdown:
             self.begin_shutdown(signal.SIGINT, f"{spec.label} exited and has on_exit: shutdown")
@@ -385,14 +366,10 @@ class Launcher:
                 self._respawns.remove(r)
                 if not self.shutting_down:
                     self._start(r[1])
-            if self.shutting_down:
-                self._advance_stop(now)
             if not self.children and not self._respawns:
                 return
             waits = [c.deadline - now for c in self.children if c.deadline is not None]
             waits += [t - now for t, _ in self._respawns]
-            if (due_stop := self._next_stop_due(now)) is not None:
-                waits.append(due_stop - now)
             timeout = max(0.0, min([0.5] + waits))
             for key, _ in self._sel.select(timeout):
                 if key.data is None:

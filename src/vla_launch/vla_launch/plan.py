@@ -59,7 +59,8 @@ def process_specs(plan: LaunchPlan, tmpdir: str) -> list[ProcessSpec]:
     return [ProcessSpec(label=p.label, cmd=build_command(p, tmpdir), env=p.env, cwd=p.cwd,
                         on_exit_shutdown=p.on_exit_shutdown, respawn=p.respawn,
                         respawn_delay=p.respawn_delay, sigterm_timeout=p.sigterm_timeout,
-                        sigkill_timeout=p.sigkill_timeout) for p in plan.processes]
+                        sigkill_timeout=p.sigkill_timeout, exec_name=p.exec_name)
+            for p in plan.processes]
 
 
 def load(path: str, arguments: Mapping[str, str], tmpdir: str) -> tuple[LaunchPlan, list[ProcessSpec]]:

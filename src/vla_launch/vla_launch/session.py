@@ -48,7 +48,7 @@ class LaunchSession:
     def __init__(self, package: str | None, file: str, arguments: Mapping[str, object] | None = None, *,
                  env: Mapping[str, str | None] | None = None, log_path: str | Path | None = None,
                  sigterm_timeout: float = 5.0, sigkill_timeout: float = 5.0,
-                 stop_stagger: float = 1.0, keep_going: bool = False) -> None:
+                 keep_going: bool = False) -> None:
         self.path = plan_mod.find_launch_file(package, file) if package else file
         self._specs: list[ProcessSpec] | None = None  # given processes instead of the launch file's
         self.keep_going = keep_going  # a process failing does not stop the others
@@ -60,7 +60,7 @@ class LaunchSession:
             else:
                 self.env[key] = value
         self.log_path = Path(log_path) if log_path is not None else None  # None: in the temporary folder
-        self._timeouts = (sigterm_timeout, sigkill_timeout, stop_stagger)
+        self._timeouts = (sigterm_timeout, sigkill_timeout)
         self._tmpdir: str | None = None
         self._plan: LaunchPlan | None = None
         self._log = None
@@ -98,9 +98,9 @@ class LaunchSession:
             self._cleanup()
             raise
         self._log = open(self.log_path, "a", buffering=1, encoding="utf-8")  # noqa: SIM115 - closed in stop()
-        sigterm, sigkill, stagger = self._timeouts
+        sigterm, sigkill = self._timeouts
         self.launcher = Launcher(specs, sigterm_timeout=sigterm, sigkill_timeout=sigkill,
-                                 stop_stagger=stagger, stdout=self._log, stderr=self._log, env=self.env,
+                                 stdout=self._log, stderr=self._log, env=self.env,
                                  keep_going=self.keep_going)
         self._thread = threading.Thread(target=self._run, name="vla-launch", daemon=True)
         self._thread.start()
@@ -166,10 +166,17 @@ class LaunchSession:
             parts.append(f"--- {label} ({state}):\n{self.tail(label, lines)}")
         return "\n".join(parts)
 
+    def _tags(self, label: str) -> tuple[str, ...]:
+        """The output tags (`[exec-n]`) of every process started under `label`, respawns included."""
+        tags = self.launcher.tags if self.launcher else {}
+        return tuple(f"[{tags[pid]}]" for pid, lab in self.launcher.labels.items() if lab == label) \
+            if self.launcher else ()
+
     def output(self, label: str) -> list[str]:
         """Every output line of one process (not the launcher's lines about it), without the prefix."""
-        prefix = f"[{label}-"
-        return [t.split("] ", 1)[1] for t in self.tail(label, lines=0).splitlines() if t.startswith(prefix)]
+        prefix = self._tags(label)
+        return [t.split("] ", 1)[1] for t in self.tail(label, lines=0).splitlines()
+                if prefix and t.startswith(prefix)]
 
     def check(self) -> None:
         """LaunchError if a process has ended (or could not start) while the launch was not stopping."""
@@ -182,11 +189,12 @@ class LaunchSession:
             raise LaunchError(f"{label} ended ({how}); last output of {label}:\n{self.tail(label)}")
 
     def tail(self, label: str | None = None, lines: int = 25) -> str:
-        """The last output lines of the launch, or of one process (`[<label>-<pid>]` lines)."""
+        """The last output lines of the launch, or of one process (lines with its `[exec-n]` tag)."""
         try:
             text = self.log_path.read_text(errors="replace").splitlines() if self.log_path else []
         except OSError:
             return ""
         if label is not None:
-            text = [t for t in text if t.startswith(f"[{label}-") or f"[{label}-" in t[:80]]
+            tags = self._tags(label)
+            text = [t for t in text if any(tag in t[:120] for tag in tags)]
         return "\n".join(text[-lines:] if lines else text)

@@ -492,3 +492,52 @@ def test_the_controller_starts_disarmed_and_a_deadman_release_is_a_neutral(rando
     feed(core, 0.02, axis=1.0, buttons=(0, 1))
     cmd, st = core.step(0.02)
     assert st.code == Code.ACTIVE and np.linalg.norm(cmd) > 0
+
+
+def test_select_target_by_class_index_pixel_and_back_to_policy(random_model_dir):
+    core = make_core(random_model_dir)
+    two = [Detection("bread", 0.9, 100, 100, 40, 40), Detection("soda_can", 0.5, 400, 300, 60, 80)]
+    feed(core, 0.0, dets=two)
+    st = core.step(0.0)[1]
+    assert st.latched_class == "bread" and st.latched_by == "goal_selection: highest_score"
+    ok, msg = core.select_target("pixel", "", -1, 410.0, 330.0, 0.1)
+    assert ok, msg
+    assert core.step(0.1)[1].code == Code.WAITING_FOR_DETECTION  # latched from the next detection only
+    feed(core, 0.2, dets=two)
+    st = core.step(0.2)[1]
+    assert st.latched_class == "soda_can" and st.latched_by == "operator: pixel (410, 330)"
+    assert core.select_target("index", "", 0, 0, 0, 0.3)[0]
+    feed(core, 0.4, dets=two)
+    st = core.step(0.4)[1]
+    assert st.latched_class == "bread" and st.latched_by == "operator: index 0"
+    assert core.select_target("class", "soda_can", -1, 0, 0, 0.5)[0]
+    feed(core, 0.6, dets=two)
+    assert core.step(0.6)[1].latched_by == "operator: class soda_can"
+    assert core.select_target("policy", "", -1, 0, 0, 0.7)[0]
+    feed(core, 0.8, dets=two)
+    st = core.step(0.8)[1]
+    assert st.latched_class == "bread" and st.latched_by == "goal_selection: highest_score"
+
+
+@pytest.mark.parametrize("by, cls, idx, x, y, text", [
+    ("class", "unicorn", -1, 0, 0, "not one of the model's classes"),
+    ("index", "", 5, 0, 0, "not in the latest"),
+    ("pixel", "", -1, math.nan, 0, "finite"),
+    ("nearest", "", -1, 0, 0, "unknown selection"),
+])
+def test_select_target_refusals_keep_the_latch(random_model_dir, by, cls, idx, x, y, text):
+    core = make_core(random_model_dir)
+    feed(core, 0.0)
+    assert core.step(0.0)[1].latched_class == "bread"
+    ok, msg = core.select_target(by, cls, idx, x, y, 0.1)
+    assert not ok and text in msg
+    assert core.step(0.1)[1].latched_class == "bread"
+
+
+def test_a_pick_not_in_view_waits_with_a_reason(random_model_dir):
+    core = make_core(random_model_dir)
+    feed(core, 0.0)
+    assert core.select_target("pixel", "", -1, 5.0, 5.0, 0.1)[0]
+    feed(core, 0.2)
+    st = core.step(0.2)[1]
+    assert st.code == Code.WAITING_FOR_DETECTION and "operator: pixel (5, 5)" in st.reason

@@ -30,7 +30,7 @@ from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray
-from vla_interfaces.srv import GripperCommand, SetMode
+from vla_interfaces.srv import GripperCommand, SelectTarget, SetMode
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
 from vla_latent_controller.joints import parse_joint_map
@@ -176,6 +176,7 @@ class ControllerNode(Node):
         self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, sensor)
         self.create_service(SetMode, "~/set_mode", self._on_set_mode)
         self.create_service(Trigger, "~/redetect", self._on_redetect)
+        self.create_service(SelectTarget, "~/select_target", self._on_select_target)
         self._gripper = self.create_client(GripperCommand, self.get_parameter("gripper_service").value)
         self._grasp_presses = 0
 
@@ -315,6 +316,11 @@ class ControllerNode(Node):
         resp.success, resp.message = True, "context dropped; the next detection will be latched"
         return resp
 
+    def _on_select_target(self, req: SelectTarget.Request, resp: SelectTarget.Response):
+        resp.success, resp.message = self.core.select_target(
+            req.by, req.class_id, int(req.index), float(req.x), float(req.y), self._now())
+        return resp
+
     # ------------------------------------------------------------------ loop
     def _tick(self) -> None:
         now = self._now()
@@ -337,6 +343,7 @@ class ControllerNode(Node):
         m.header.frame_id = "world"
         m.mode, m.code, m.reason = st.mode, int(st.code), st.reason
         m.latched_class = st.latched_class
+        m.latched_by = st.latched_by
         m.latched_x, m.latched_y = float(st.latched_x), float(st.latched_y)
         m.z, m.ee_axis = float(st.z), st.ee_axis
         m.command = [float(v) for v in st.command]

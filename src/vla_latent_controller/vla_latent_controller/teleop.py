@@ -101,6 +101,7 @@ class Status:
     latched_class: str = ""
     latched_x: float = math.nan
     latched_y: float = math.nan
+    latched_by: str = ""  # how the latched object was chosen: goal_selection or the operator's pick
     z: float = 0.0
     ee_axis: str = "x"
     command: np.ndarray = field(default_factory=lambda: np.zeros(7))
@@ -113,6 +114,7 @@ class Latched:
     y: float
     t: float
     gain: float
+    by: str = ""
 
 
 def stick_to_unit(stick, deadband: float, axis_scale: float = 1.0):
@@ -193,6 +195,8 @@ class TeleopCore:
         # context
         self.latched: Latched | None = None
         self._latch_after = -math.inf  # a new latch needs inputs received at or after this time
+        self._target: tuple[str, str, int, float, float] | None = None  # the operator's pick (select_target)
+        self._target_by = ""
         self.set_model(model, model_error)
         self._cmd = np.zeros(len(self.joint_names))
         self.command_joints: tuple[str, ...] = ()  # the command's joints (the robot's names and order)
@@ -241,7 +245,47 @@ class TeleopCore:
         self.latched = None
         self._latch_after = now
 
-    # ----------------------------------------------------------------- inputs
+    def select_target(
+        self, by: str, class_id: str, index: int, x: float, y: float, now: float
+    ) -> tuple[bool, str]:
+        """The operator picks the object to latch: by ``class`` (highest score of it), by ``index`` into the
+        latest detections, by ``pixel`` (the smallest box holding x, y in detector pixels), or ``policy``
+        (back to goal_selection). The pick is latched from the next detection; a refusal says why."""
+        if by == "policy":
+            self._target = None
+        elif by == "class":
+            classes = self.model.classes if self.model is not None else ()
+            if class_id not in classes:
+                return False, f"class {class_id!r} is not one of the model's classes {list(classes)}"
+            self._target = ("class", class_id, -1, math.nan, math.nan)
+        elif by == "index":
+            if not 0 <= index < len(self._dets):
+                return False, f"index {index} is not in the latest {len(self._dets)} detections"
+            self._target = ("index", "", index, math.nan, math.nan)
+        elif by == "pixel":
+            if not (_finite(x) and _finite(y)):
+                return False, "pixel coordinates must be finite"
+            self._target = ("pixel", "", -1, float(x), float(y))
+        else:
+            return False, f"unknown selection {by!r}; expected class, index, pixel or policy"
+        self.request_redetect(now)
+        return True, f"selection by {by}: latched from the next detection"
+
+    def _picked(self) -> tuple[Detection | None, str]:
+        """The operator's pick among the latest detections (None when it is not there) and how it was made."""
+        by, class_id, index, x, y = self._target
+        classes = self.model.classes if self.model is not None else ()
+        dets = [d for d in self._dets if d.class_id in classes]
+        if by == "class":
+            hits = [d for d in dets if d.class_id == class_id]
+            return (max(hits, key=lambda d: d.score) if hits else None), f"operator: class {class_id}"
+        if by == "index":
+            d = self._dets[index] if index < len(self._dets) else None
+            return (d if d in dets else None), f"operator: index {index}"
+        hits = [d for d in dets if abs(d.cx - x) <= d.width / 2 and abs(d.cy - y) <= d.height / 2]
+        best = min(hits, key=lambda d: d.width * d.height) if hits else None
+        return best, f"operator: pixel ({x:.0f}, {y:.0f})"
+
     def on_joy(self, axes: Sequence[float], buttons: Sequence[int], now: float) -> None:
         prev = self._buttons
         try:
@@ -321,6 +365,7 @@ class TeleopCore:
         lat = self.latched
         s.latched_class = (lat.class_id or "") if lat else ""
         s.latched_x, s.latched_y = (lat.x, lat.y) if lat else (math.nan, math.nan)
+        s.latched_by = lat.by if lat else ""
         s.command = self._cmd.copy()
         return s
 
@@ -485,6 +530,16 @@ class TeleopCore:
             return None, (Code.WAITING_FOR_DETECTION, "no detections received yet")
         if self._dets_t < self._latch_after:
             return None, (Code.WAITING_FOR_DETECTION, "waiting for a new detection to latch")
+        if self._target is not None:
+            det, by = self._picked()
+            if det is None:
+                reason = f"the chosen object ({by}) is not in the latest detections"
+                return None, (Code.WAITING_FOR_DETECTION, reason)
+            # a re-latch (e.g. detection_max_age) keeps the operator's object by its class
+            self._target = ("class", det.class_id, -1, math.nan, math.nan)
+            self._target_by = by
+            return det, None
+        self._target_by = f"goal_selection: {p.goal_selection}"
         det = self._pick(q)
         if det is not None:
             return det, None
@@ -517,7 +572,8 @@ class TeleopCore:
         else:
             x = y = math.nan
         gain_class = class_id if m.encoder != "end_to_end" else None
-        self.latched = Latched(class_id=class_id, x=x, y=y, t=t, gain=m.gain(gain_class))
+        by = self._target_by or f"goal_selection: {p.goal_selection}"
+        self.latched = Latched(class_id=class_id, x=x, y=y, t=t, gain=m.gain(gain_class), by=by)
         return None
 
     def _pick(self, q: np.ndarray) -> Detection | None:

@@ -13,6 +13,7 @@ MODULE_KEYS = {
     "numpy": "python3-numpy",
     "cv2": "python3-opencv",
     "yaml": "python3-yaml",
+    "lark": "python3-lark-parser",
     "ruamel": "python3-ruamel.yaml",
     "evdev": "python3-evdev",
     "matplotlib": "python3-matplotlib",

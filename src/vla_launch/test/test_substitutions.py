@@ -48,6 +48,49 @@ def test_parse_errors_are_clear(text, err):
         parse_template(text)
 
 
+def test_grammar_details():
+    assert parse_template("cost $5 $") == ("cost $5 $",)  # a `$` not followed by `(` is text
+    assert parse_template("a\\") == ("a\\",)  # a trailing backslash stays
+    assert parse_template("$(var  x  )") == (Substitution("var", (("x",),)),)
+    assert parse_template("$(x '' \"\")") == (Substitution("x", ((), ())),)
+    assert parse_template('$(v "a $(b c)d" e$f)g') == (
+        Substitution("v", (("a ", Substitution("b", (("c",),)), "d"), ("e$f",))), "g")
+
+
+@pytest.mark.parametrize("text,err", [
+    ("$(a b'c)", "unexpected \"'\" at position 5"),  # a quote only opens an argument
+    ("$()", "expected a substitution name"),
+    ("$(a $(b)", "unterminated"),
+])
+def test_more_parse_errors(text, err):
+    with pytest.raises(SubstitutionError, match=err):
+        parse_template(text)
+
+
+def test_nesting_is_bounded_without_recursion():
+    from vla_launch.substitutions import MAX_NESTING
+
+    deep = "$(not " * MAX_NESTING + "true" + ")" * MAX_NESTING
+    assert substitute(deep, ctx()) == "true"
+    with pytest.raises(SubstitutionError, match=f"nested deeper than {MAX_NESTING}"):
+        parse_template("$(not " * 5000 + "true" + ")" * 5000)
+
+
+def test_a_seeded_fuzzer_of_the_grammar_gives_a_template_or_a_clear_error():
+    """Random attribute strings from the grammar's characters: each parses to a template or fails
+    with a SubstitutionError that says where, never another exception."""
+    import random
+
+    rng = random.Random(21)
+    pieces = ["$(", "var", " ", "x", ")", "$", "\\", "'", '"', "(", "\t", "env ", "\n"]
+    for _ in range(3000):
+        text = "".join(rng.choice(pieces) for _ in range(rng.randint(0, 14)))
+        try:
+            parse_template(text)
+        except SubstitutionError as e:
+            assert "position" in str(e) or "nested" in str(e), (text, e)
+
+
 def test_evaluate_supported_substitutions():
     c = ctx(x="7", flag="true")
     assert substitute("$(var x)", c) == "7"
@@ -124,23 +167,31 @@ BOMBS = {  # issue 20 item 10: each hung, allocated gigabytes or crashed before
 }
 
 
-@pytest.mark.parametrize("name", sorted(BOMBS))
-def test_an_eval_bomb_in_a_launch_file_is_a_clean_error_within_bounded_memory(tmp_path, name):
-    """Run as a user does (`vla launch --dry-run`), in a process limited to 384 MiB of address space:
-    exit code 1 or 2, a message that names the file and says what was refused, and no traceback."""
+def _dry_run_in_384_mib(tmp_path, value: str):
+    """`vla launch --dry-run` of a file whose one argument defaults to `value`, as a user runs it, in a
+    process limited to 384 MiB of address space."""
     import resource
     import subprocess
     import sys
 
     launch = tmp_path / "bomb.launch.yaml"
-    expression = BOMBS[name].replace('"', "'")
-    launch.write_text(f'launch:\n- arg: {{name: x, default: "$(eval \\"{expression}\\")"}}\n')
+    launch.write_text(f'launch:\n- arg: {{name: x, default: "{value}"}}\n')
 
     def limit():
         resource.setrlimit(resource.RLIMIT_AS, (384 << 20, 384 << 20))
 
-    out = subprocess.run([sys.executable, "-m", "vla_launch.cli", "launch", str(launch), "--dry-run"],
-                         capture_output=True, text=True, timeout=60, preexec_fn=limit)
+    return subprocess.run([sys.executable, "-m", "vla_launch.cli", "launch", str(launch), "--dry-run"],
+                          capture_output=True, text=True, timeout=60, preexec_fn=limit)
+
+
+@pytest.mark.parametrize("name", sorted(BOMBS) + ["nested substitutions"])
+def test_an_eval_bomb_in_a_launch_file_is_a_clean_error_within_bounded_memory(tmp_path, name):
+    """Exit code 1 or 2, a message that names the file and says what was refused, no traceback."""
+    if name == "nested substitutions":
+        value = "$(not " * 3000 + "true" + ")" * 3000
+    else:
+        value = '$(eval \\"' + BOMBS[name].replace('"', "'") + '\\")'
+    out = _dry_run_in_384_mib(tmp_path, value)
     assert out.returncode in (1, 2), (out.returncode, out.stderr[-2000:])
     assert "Traceback" not in out.stderr and "bomb.launch.yaml" in out.stderr, out.stderr[-2000:]
     assert any(w in out.stderr for w in ("larger than", "too large", "nested", "too long")), out.stderr[-800:]

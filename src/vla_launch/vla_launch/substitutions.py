@@ -1,21 +1,23 @@
 """Launch substitutions (`$(var x)`, `$(find-pkg-share p)`, `$(env X d)`, `$(eval ...)`, ...).
 
-A hand-written parser for the grammar of ROS 2 launch's frontend (launch/frontend/grammar.lark):
-outside a substitution, text is literal and a backslash escapes the next character; inside one,
-arguments are separated by spaces and may be single- or double-quoted (then they may hold spaces and
-parentheses); substitutions nest. Evaluation never runs Python: `$(eval)` goes through `safe_eval`.
+The grammar of ROS 2 launch's frontend (launch/frontend/grammar.lark), written for lark: outside a
+substitution, text is literal and a backslash escapes the next character; inside one, arguments are
+separated by spaces and may be single- or double-quoted (then they may hold spaces and parentheses);
+substitutions nest. Evaluation never runs Python: `$(eval)` goes through `safe_eval`.
 """
 from __future__ import annotations
 
 import os
-import re
 import secrets
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
+from lark import Lark, Token, Transformer
+from lark.exceptions import LarkError, UnexpectedInput
+
 from vla_launch.safe_eval import SafeEvalError, safe_eval
 
-_IDENTIFIER = re.compile(r"[A-Za-z][A-Za-z0-9_-]*")
+MAX_NESTING = 32  # substitutions inside substitutions; deeper is refused, not a RecursionError
 
 
 class SubstitutionError(ValueError):
@@ -26,12 +28,11 @@ class SubstitutionError(ValueError):
 class Substitution:
     name: str
     args: tuple[Template, ...] = ()
+    depth: int = field(default=1, compare=False)  # nesting, counted while parsing
 
 
 # A template is a sequence of literal strings and substitutions, concatenated when evaluated.
 Template = tuple  # tuple[str | Substitution, ...]
-
-
 @dataclass
 class SubstitutionContext:
     """What substitutions can see: launch configurations, the file being read, the environment."""
@@ -52,125 +53,94 @@ class SubstitutionContext:
 
 
 # ----------------------------------------------------------------------------------------- parsing
-class _Parser:
-    def __init__(self, text: str) -> None:
-        self.text = text
-        self.i = 0
+# Each context (top level, unquoted, '-quoted and "-quoted argument) has its own rules, so that the
+# LALR states, and with them the terminals the contextual lexer tries, never mix two contexts.
+_GRAMMAR = r"""
+    template: (TEXT | ESCAPE | DOLLAR | top_sub)*
+    top_sub: "$(" _call ")"
+    _call: NAME (_WS argument)* _WS?
+    ?argument: unquoted | single | double
+    unquoted: (ARG_TEXT | ESCAPE | DOLLAR | unquoted_sub)+
+    unquoted_sub: "$(" _call ")"
+    single: "'" (SQ_TEXT | ESCAPE | DOLLAR | single_sub)* "'"
+    single_sub: "$(" _call ")"
+    double: "\"" (DQ_TEXT | ESCAPE | DOLLAR | double_sub)* "\""
+    double_sub: "$(" _call ")"
 
-    def error(self, what: str) -> SubstitutionError:
-        return SubstitutionError(f"{what} at position {self.i} in {self.text!r}")
+    NAME: /[A-Za-z][A-Za-z0-9_-]*/
+    TEXT: /[^\\$]+/
+    ARG_TEXT: /[^ \t()\\$'"]+/
+    SQ_TEXT: /[^'\\$]+/
+    DQ_TEXT: /[^"\\$]+/
+    ESCAPE: /\\(.|\n)?/
+    DOLLAR: "$"
+    _WS: /[ \t]+/
+"""
 
-    def peek(self, k: int = 0) -> str:
-        j = self.i + k
-        return self.text[j] if j < len(self.text) else ""
 
-    def at_subst(self) -> bool:
-        return self.text.startswith("$(", self.i)
+def _literal(tok: Token) -> str:
+    return tok[1:] or "\\" if tok.type == "ESCAPE" else str(tok)
 
-    def template(self) -> Template:
-        parts: list = []
-        buf: list[str] = []
-        while self.i < len(self.text):
-            c = self.text[self.i]
-            if c == "\\" and self.i + 1 < len(self.text):
-                buf.append(self.text[self.i + 1])
-                self.i += 2
-            elif self.at_subst():
-                if buf:
-                    parts.append("".join(buf))
-                    buf = []
-                parts.append(self.substitution())
-            else:
-                buf.append(c)
-                self.i += 1
-        if buf:
-            parts.append("".join(buf))
-        return tuple(parts)
 
-    def substitution(self) -> Substitution:
-        start = self.i
-        self.i += 2  # "$("
-        m = _IDENTIFIER.match(self.text, self.i)
-        if not m:
-            raise self.error("expected a substitution name after '$('")
-        name = m.group(0)
-        self.i = m.end()
-        args: list[Template] = []
-        while True:
-            c = self.peek()
-            if c == "":
-                self.i = start
-                raise self.error(f"unterminated substitution '$({name}'")
-            if c == ")":
-                self.i += 1
-                return Substitution(name, tuple(args))
-            if c not in " \t":
-                raise self.error(f"expected ' ' or ')' in '$({name} ...'")
-            while self.peek() in (" ", "\t"):
-                self.i += 1
-            if self.peek() == ")":
-                continue
-            args.append(self.argument())
+def _join(items: list) -> Template:
+    """Adjacent literal pieces merged: ("a", "$", "b", Substitution) -> ("a$b", Substitution)."""
+    parts: list = []
+    for item in items:
+        if isinstance(item, Substitution):
+            parts.append(item)
+        elif parts and isinstance(parts[-1], str):
+            parts[-1] += _literal(item)
+        else:
+            parts.append(_literal(item))
+    return tuple(parts)
 
-    def argument(self) -> Template:
-        q = self.peek()
-        if q in ("'", '"'):
-            return self.quoted(q)
-        parts: list = []
-        buf: list[str] = []
-        while True:
-            c = self.peek()
-            if c in ("", " ", "\t", ")"):
-                break
-            if c == "\\" and self.peek(1):
-                buf.append(self.peek(1))
-                self.i += 2
-            elif self.at_subst():
-                if buf:
-                    parts.append("".join(buf))
-                    buf = []
-                parts.append(self.substitution())
-            elif c == "(":
-                raise self.error("unescaped '(' in a substitution argument (quote the argument)")
-            else:
-                buf.append(c)
-                self.i += 1
-        if buf:
-            parts.append("".join(buf))
-        return tuple(parts)
 
-    def quoted(self, q: str) -> Template:
-        start = self.i
-        self.i += 1
-        parts: list = []
-        buf: list[str] = []
-        while True:
-            c = self.peek()
-            if c == "":
-                self.i = start
-                raise self.error(f"unterminated {q}-quoted argument")
-            if c == q:
-                self.i += 1
-                break
-            if c == "\\" and self.peek(1):
-                buf.append(self.peek(1))
-                self.i += 2
-            elif self.at_subst():
-                if buf:
-                    parts.append("".join(buf))
-                    buf = []
-                parts.append(self.substitution())
-            else:
-                buf.append(c)
-                self.i += 1
-        if buf:
-            parts.append("".join(buf))
-        return tuple(parts)
+class _ToTemplate(Transformer):
+    """Applied by the LALR parser as it reduces (bottom-up, no recursion over the nesting)."""
+
+    def template(self, items: list) -> Template:
+        return _join(items)
+
+    unquoted = single = double = template
+
+    def substitution(self, items: list) -> Substitution:
+        name, *args = items
+        depth = 1 + max((p.depth for a in args for p in a if isinstance(p, Substitution)), default=0)
+        if depth > MAX_NESTING:
+            raise SubstitutionError(f"substitutions nested deeper than {MAX_NESTING}")
+        return Substitution(str(name), tuple(args), depth)
+
+    top_sub = unquoted_sub = single_sub = double_sub = substitution
+
+
+_PARSER = Lark(_GRAMMAR, start="template", parser="lalr", lexer="contextual",
+               transformer=_ToTemplate(), maybe_placeholders=False)
+
+
+def _parse_error(text: str, e: UnexpectedInput) -> SubstitutionError:
+    token = getattr(e, "token", None)
+    pos = getattr(e, "pos_in_stream", None)
+    if pos is None or token is not None and token.type == "$END":
+        what, pos = "unterminated substitution or quoted argument", len(text)
+    elif text.startswith("$(", pos - 2):
+        what = "expected a substitution name after '$('"
+    elif text[pos] == "(":
+        what = "unescaped '(' in a substitution argument (quote the argument)"
+    else:
+        what = f"unexpected {text[pos]!r}"
+    return SubstitutionError(f"{what} at position {pos} in {text!r}")
 
 
 def parse_template(text: str) -> Template:
     """Parse a launch attribute string into literal text and substitutions."""
-    return _Parser(text).template()
+    try:
+        return _PARSER.parse(text)
+    except UnexpectedInput as e:
+        raise _parse_error(text, e) from None
+    except SubstitutionError as e:  # the nesting bound, raised while reducing
+        raise SubstitutionError(f"{e} in {text[:200]!r}") from None
+    except LarkError as e:
+        raise SubstitutionError(f"cannot parse {text!r}: {e}") from None
 
 
 def has_substitutions(template: Template) -> bool:
@@ -187,129 +157,64 @@ def _as_bool(value: str, what: str) -> bool:
     raise SubstitutionError(f"{what}: expected 'true', 'false', '1' or '0', got {value!r}")
 
 
-def _default_share(pkg: str) -> str:
-    from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+def _find(kind: str) -> Callable[[str], str]:
+    """The ament index lookup of $(find-pkg-share) or $(find-pkg-prefix) (tests pass their own)."""
+    def find(pkg: str) -> str:
+        from ament_index_python import packages
 
+        try:
+            return getattr(packages, f"get_package_{kind}")(pkg)
+        except (packages.PackageNotFoundError, ValueError) as e:
+            what = f"$(find-pkg-{kind.split('_')[0]} {pkg})"
+            raise SubstitutionError(f"{what}: package '{pkg}' not found") from e
+    return find
+
+
+def _var(ctx: SubstitutionContext, name: str) -> str:
+    if name not in ctx.configurations:
+        raise SubstitutionError(f"launch configuration '{name}' does not exist (no arg or let sets it)")
+    return ctx.configurations[name]
+
+
+def _env(ctx: SubstitutionContext, name: str, *default: str) -> str:
+    if name in ctx.environ or default:
+        return ctx.environ.get(name, *default)
+    raise SubstitutionError(f"environment variable '{name}' is not set (give a default: $(env NAME default))")
+
+
+def _eval(ctx: SubstitutionContext, expression: str) -> str:
     try:
-        return get_package_share_directory(pkg)
-    except (PackageNotFoundError, ValueError) as e:
-        raise SubstitutionError(f"$(find-pkg-share {pkg}): package '{pkg}' not found") from e
-
-
-def _default_prefix(pkg: str) -> str:
-    from ament_index_python.packages import PackageNotFoundError, get_package_prefix
-
-    try:
-        return get_package_prefix(pkg)
-    except (PackageNotFoundError, ValueError) as e:
-        raise SubstitutionError(f"$(find-pkg-prefix {pkg}): package '{pkg}' not found") from e
-
-
-def _nargs(name: str, args: list[str], lo: int, hi: int) -> None:
-    if not lo <= len(args) <= hi:
-        want = str(lo) if lo == hi else f"{lo} to {hi}"
-        raise SubstitutionError(f"$({name}) takes {want} argument(s), got {len(args)}: {args}")
-
-
-def _subst_var(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("var", args, 1, 1)
-    if args[0] not in ctx.configurations:
-        raise SubstitutionError(f"launch configuration '{args[0]}' does not exist (no arg or let sets it)")
-    return ctx.configurations[args[0]]
-
-
-def _subst_env(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("env", args, 1, 2)
-    if args[0] in ctx.environ:
-        return ctx.environ[args[0]]
-    if len(args) == 2:
-        return args[1]
-    raise SubstitutionError(
-        f"environment variable '{args[0]}' is not set (give a default: $(env NAME default))")
-
-
-def _subst_optenv(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("optenv", args, 1, 2)
-    return ctx.environ.get(args[0], args[1] if len(args) == 2 else "")
-
-
-def _subst_share(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("find-pkg-share", args, 1, 1)
-    return (ctx.find_share or _default_share)(args[0])
-
-
-def _subst_prefix(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("find-pkg-prefix", args, 1, 1)
-    return (ctx.find_prefix or _default_prefix)(args[0])
-
-
-def _subst_eval(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("eval", args, 1, 1)
-    try:
-        return str(safe_eval(args[0]))
+        return str(safe_eval(expression))
     except SafeEvalError as e:
-        raise SubstitutionError(f"$(eval {args[0]!r}): {e}") from e
+        raise SubstitutionError(f"$(eval {expression!r}): {e}") from e
 
 
-def _subst_dirname(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("dirname", args, 0, 0)
+def _file(ctx: SubstitutionContext) -> str:
     if ctx.current_file is None:
-        raise SubstitutionError("$(dirname) used outside a launch file")
-    return os.path.dirname(os.path.abspath(ctx.current_file))
-
-
-def _subst_filename(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("filename", args, 0, 0)
-    if ctx.current_file is None:
-        raise SubstitutionError("$(filename) used outside a launch file")
+        raise SubstitutionError("$(dirname)/$(filename) used outside a launch file")
     return os.path.abspath(ctx.current_file)
 
 
-def _subst_anon(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("anon", args, 1, 1)
-    return ctx.anon_names.setdefault(args[0], f"{args[0]}_{secrets.randbelow(10**9)}")
+def _bools(name: str, combine: Callable[..., bool]) -> Callable[..., str]:
+    return lambda ctx, *a: str(combine(*(_as_bool(v, f"$({name})") for v in a))).lower()
 
 
-def _subst_not(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("not", args, 1, 1)
-    return str(not _as_bool(args[0], "$(not)")).lower()
-
-
-def _subst_and(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("and", args, 2, 2)
-    return str(_as_bool(args[0], "$(and)") and _as_bool(args[1], "$(and)")).lower()
-
-
-def _subst_or(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("or", args, 2, 2)
-    return str(_as_bool(args[0], "$(or)") or _as_bool(args[1], "$(or)")).lower()
-
-
-def _subst_equals(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("equals", args, 2, 2)
-    return str(args[0] == args[1]).lower()
-
-
-def _subst_not_equals(ctx: SubstitutionContext, args: list[str]) -> str:
-    _nargs("not-equals", args, 2, 2)
-    return str(args[0] != args[1]).lower()
-
-
-_SUBSTITUTIONS: dict[str, Callable[[SubstitutionContext, list[str]], str]] = {
-    "var": _subst_var,
-    "env": _subst_env,
-    "optenv": _subst_optenv,
-    "find-pkg-share": _subst_share,
-    "find-pkg-prefix": _subst_prefix,
-    "eval": _subst_eval,
-    "dirname": _subst_dirname,
-    "filename": _subst_filename,
-    "anon": _subst_anon,
-    "not": _subst_not,
-    "and": _subst_and,
-    "or": _subst_or,
-    "equals": _subst_equals,
-    "not-equals": _subst_not_equals,
+# name -> (fewest arguments, most arguments, function of the context and the evaluated arguments)
+_SUBSTITUTIONS: dict[str, tuple[int, int, Callable[..., str]]] = {
+    "var": (1, 1, _var),
+    "env": (1, 2, _env),
+    "optenv": (1, 2, lambda ctx, name, default="": ctx.environ.get(name, default)),
+    "find-pkg-share": (1, 1, lambda ctx, p: (ctx.find_share or _find("share_directory"))(p)),
+    "find-pkg-prefix": (1, 1, lambda ctx, p: (ctx.find_prefix or _find("prefix"))(p)),
+    "eval": (1, 1, _eval),
+    "dirname": (0, 0, lambda ctx: os.path.dirname(_file(ctx))),
+    "filename": (0, 0, _file),
+    "anon": (1, 1, lambda ctx, n: ctx.anon_names.setdefault(n, f"{n}_{secrets.randbelow(10**9)}")),
+    "not": (1, 1, _bools("not", lambda a: not a)),
+    "and": (2, 2, _bools("and", lambda a, b: a and b)),
+    "or": (2, 2, _bools("or", lambda a, b: a or b)),
+    "equals": (2, 2, lambda ctx, a, b: str(a == b).lower()),
+    "not-equals": (2, 2, lambda ctx, a, b: str(a != b).lower()),
 }
 SUPPORTED_SUBSTITUTIONS = tuple(_SUBSTITUTIONS)
 
@@ -321,11 +226,15 @@ def evaluate(template: Template, ctx: SubstitutionContext) -> str:
         if isinstance(part, str):
             out.append(part)
             continue
-        fn = _SUBSTITUTIONS.get(part.name)
-        if fn is None:
+        if part.name not in _SUBSTITUTIONS:
             raise SubstitutionError(
                 f"unsupported substitution '$({part.name})'; supported: {', '.join(SUPPORTED_SUBSTITUTIONS)}")
-        out.append(fn(ctx, [evaluate(a, ctx) for a in part.args]))
+        lo, hi, fn = _SUBSTITUTIONS[part.name]
+        args = [evaluate(a, ctx) for a in part.args]
+        if not lo <= len(args) <= hi:
+            want = str(lo) if lo == hi else f"{lo} to {hi}"
+            raise SubstitutionError(f"$({part.name}) takes {want} argument(s), got {len(args)}: {args}")
+        out.append(fn(ctx, *args))
     return "".join(out)
 
 

@@ -94,56 +94,74 @@ def _eval(node: ast.AST, depth: int = 0) -> object:
     if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
         return _UNARY[type(node.op)](_eval(node.operand, depth))
     if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
-        left, right = _eval(node.left, depth), _eval(node.right, depth)
-        if isinstance(node.op, ast.Pow) and isinstance(right, (int, float)) and abs(right) > _MAX_EXPONENT:
-            raise SafeEvalError(f"exponent {right} too large")
-        if (isinstance(node.op, ast.Pow) and isinstance(left, int) and isinstance(right, int)
-                and left.bit_length() * right > 100_000):
-            raise SafeEvalError("power result too large")
-        if isinstance(node.op, ast.Mult):
-            for seq, n in ((left, right), (right, left)):
-                if isinstance(seq, (str, list, tuple)) and isinstance(n, int) and _size(seq) * n > _MAX_LEN:
-                    raise SafeEvalError(f"result larger than {_MAX_LEN} elements")
-        if isinstance(node.op, ast.Mod) and isinstance(left, str):
-            _check_format(left)
-        return _check_size(_BINOPS[type(node.op)](left, right))
+        return _binop(node, depth)
     if isinstance(node, ast.BoolOp):
-        if isinstance(node.op, ast.And):
-            value: object = True
-            for v in node.values:
-                value = _eval(v, depth)
-                if not value:
-                    return value
-            return value
-        value = False
-        for v in node.values:
-            value = _eval(v, depth)
-            if value:
-                return value
-        return value
+        return _boolop(node, depth)
     if isinstance(node, ast.Compare):
-        left = _eval(node.left, depth)
-        for op, comp in zip(node.ops, node.comparators):
-            if type(op) not in _COMPARE:
-                raise SafeEvalError(f"comparison {type(op).__name__} not allowed")
-            right = _eval(comp, depth)
-            if not _COMPARE[type(op)](left, right):
-                return False
-            left = right
-        return True
+        return _compare(node, depth)
+    if isinstance(node, ast.Call):
+        return _call(node, depth)
     if isinstance(node, ast.IfExp):
         return _eval(node.body, depth) if _eval(node.test, depth) else _eval(node.orelse, depth)
     if isinstance(node, ast.Subscript):
         return _eval(node.value, depth)[_eval(node.slice, depth)]
-    if isinstance(node, ast.Call):
-        if not isinstance(node.func, ast.Name) or node.func.id not in _FUNCTIONS or node.keywords:
-            raise SafeEvalError(f"call not allowed; allowed functions: {', '.join(_FUNCTIONS)}")
-        args = [_eval(a, depth) for a in node.args]
-        if node.func.id == "str" and sum(_size(a) for a in args) > _MAX_LEN // 4:
-            raise SafeEvalError(f"str() of a value larger than {_MAX_LEN // 4} elements")
-        return _check_size(_FUNCTIONS[node.func.id](*args))
     raise SafeEvalError(f"{type(node).__name__} not allowed in $(eval)")
 
+
+def _binop(node: ast.BinOp, depth: int) -> object:
+    """Arithmetic, with the size of the result checked before it is built where it can be."""
+    left, right = _eval(node.left, depth), _eval(node.right, depth)
+    if isinstance(node.op, ast.Pow) and isinstance(right, (int, float)) and abs(right) > _MAX_EXPONENT:
+        raise SafeEvalError(f"exponent {right} too large")
+    if (isinstance(node.op, ast.Pow) and isinstance(left, int) and isinstance(right, int)
+            and left.bit_length() * right > 100_000):
+        raise SafeEvalError("power result too large")
+    if isinstance(node.op, ast.Mult):
+        for seq, n in ((left, right), (right, left)):
+            if isinstance(seq, (str, list, tuple)) and isinstance(n, int) and _size(seq) * n > _MAX_LEN:
+                raise SafeEvalError(f"result larger than {_MAX_LEN} elements")
+    if isinstance(node.op, ast.Mod) and isinstance(left, str):
+        _check_format(left)
+    return _check_size(_BINOPS[type(node.op)](left, right))
+
+
+def _boolop(node: ast.BoolOp, depth: int) -> object:
+    """`and`/`or`, short-circuiting as Python does."""
+    if isinstance(node.op, ast.And):
+        value: object = True
+        for v in node.values:
+            value = _eval(v, depth)
+            if not value:
+                return value
+        return value
+    value = False
+    for v in node.values:
+        value = _eval(v, depth)
+        if value:
+            return value
+    return value
+
+
+def _compare(node: ast.Compare, depth: int) -> bool:
+    left = _eval(node.left, depth)
+    for op, comp in zip(node.ops, node.comparators):
+        if type(op) not in _COMPARE:
+            raise SafeEvalError(f"comparison {type(op).__name__} not allowed")
+        right = _eval(comp, depth)
+        if not _COMPARE[type(op)](left, right):
+            return False
+        left = right
+    return True
+
+
+def _call(node: ast.Call, depth: int) -> object:
+    """One of the pure functions of `_FUNCTIONS`, positional arguments only."""
+    if not isinstance(node.func, ast.Name) or node.func.id not in _FUNCTIONS or node.keywords:
+        raise SafeEvalError(f"call not allowed; allowed functions: {', '.join(_FUNCTIONS)}")
+    args = [_eval(a, depth) for a in node.args]
+    if node.func.id == "str" and sum(_size(a) for a in args) > _MAX_LEN // 4:
+        raise SafeEvalError(f"str() of a value larger than {_MAX_LEN // 4} elements")
+    return _check_size(_FUNCTIONS[node.func.id](*args))
 
 
 def safe_eval(expression: str) -> object:

@@ -36,6 +36,8 @@ def test_the_contracts_hold():
     ("vla_detector/inference.py", "import mujoco", "Only the bridge's MuJoCo backend imports the simulator"),
     ("vla_common/robot.py", "import vla_sim.sim", "Each layer imports only the layers below it"),
     ("vla_camera/source.py", "import vla_detector.decode", "Each layer imports only the layers below it"),
+    ("vla_panda_bridge/libfranka_driver.py", "import vla_panda_bridge.libfranka_panda_py",
+     "The libfranka drivers do not import each other"),
 ])
 def test_a_deliberate_violation_breaks_its_contract(tmp_path, module, line, contract):
     copy = copy_packages(tmp_path)

@@ -42,7 +42,8 @@ while True:
 
 CLIENT = """
 import json
-from vla_panda_bridge.libfranka_driver import DriverSettings, RobotError, open_driver
+from vla_panda_bridge.libfranka_driver import DriverSettings, RobotError
+from vla_panda_bridge.libfranka_open import open_driver
 try:
     d = open_driver("auto", DriverSettings(robot_ip="127.0.0.1"))
     print(json.dumps({"driver": d.name}))

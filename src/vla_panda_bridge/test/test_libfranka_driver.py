@@ -10,7 +10,7 @@ from vla_panda_bridge.backend import BackendError
 from vla_panda_bridge.backend_libfranka import loop_settings
 from vla_panda_bridge.libfranka_driver import CONNECTION, FATAL, REFLEX, DriverSettings, RobotError, classify
 
-from vla_panda_bridge import libfranka_driver as drv
+from vla_panda_bridge import libfranka_open as drv
 
 
 def _exc(name: str, text: str) -> Exception:

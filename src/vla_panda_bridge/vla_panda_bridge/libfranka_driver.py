@@ -1,6 +1,7 @@
 """The robot behind the libfranka loop: one small driver interface, its error kinds, and the
 pylibfranka driver (FR3, server protocol 10). The panda-py driver (Panda/FER) is in
-libfranka_panda_py.py; `open_driver` picks one, also from the robot's answer (`driver: auto`).
+libfranka_panda_py.py; `libfranka_open.open_driver` picks one, also from the robot's answer
+(`driver: auto`). This module imports neither (import-linter contract "libfranka-no-cycle").
 
 The loop calls, per motion: `start_velocity()`, then every cycle `read_cycle()` and one
 `write_velocity(dq, finished)` (the last with finished=True); `start_torque()` / `write_torque()` the
@@ -196,47 +197,3 @@ class PylibfrankaDriver:
         """Drop the connection (an unfinished ActiveControl is cancelled by libfranka: StopMove)."""
         self.ctl = None
         self.robot = None
-
-
-def open_driver(name: str, settings: DriverSettings) -> Driver:
-    """A connected driver. `auto` tries pylibfranka and, if the robot answers with the Panda's
-    protocol, panda-py; any other answer is a FATAL RobotError naming the version it saw."""
-    if name not in DRIVERS:
-        raise RobotError(FATAL, f"driver {name!r} is not one of {DRIVERS}")
-    if name == "panda_py":
-        return _connected(_panda_py(settings))
-    if name == "pylibfranka":
-        return _connected(_pylibfranka(settings))
-    try:
-        return _connected(_pylibfranka(settings))
-    except RobotError as exc:
-        version = server_version(exc.text)
-        if version is None:
-            raise
-        if version == PANDA_PY_PROTOCOL:
-            return _connected(_panda_py(settings))
-        raise RobotError(FATAL, (
-            f"driver auto: the robot at {settings.robot_ip} speaks server protocol {version}; "
-            f"pylibfranka 0.21.3 speaks {PYLIBFRANKA_PROTOCOL} (FR3, system >= 5.9) and panda-py 1.1.1 "
-            f"speaks {PANDA_PY_PROTOCOL} (Panda); install the libfranka binding for protocol {version} "
-            f"(libfranka said: {exc.text})")) from exc
-
-
-def _connected(driver: Driver) -> Driver:
-    driver.connect()
-    return driver
-
-
-def _pylibfranka(settings: DriverSettings) -> Driver:
-    try:
-        return PylibfrankaDriver(settings)
-    except ImportError as exc:
-        raise RobotError(FATAL, f"driver pylibfranka: {exc} (pip install pylibfranka==0.21.3)") from exc
-
-
-def _panda_py(settings: DriverSettings) -> Driver:
-    try:
-        from vla_panda_bridge.libfranka_panda_py import PandaPyDriver
-        return PandaPyDriver(settings)
-    except ImportError as exc:
-        raise RobotError(FATAL, f"driver panda_py: {exc} (pip install panda-python==1.1.1)") from exc

@@ -39,8 +39,8 @@ from vla_panda_bridge.libfranka_driver import (
     Driver,
     DriverSettings,
     RobotError,
-    open_driver,
 )
+from vla_panda_bridge.libfranka_open import open_driver
 from vla_panda_bridge.libfranka_slots import (
     CMD_ARRIVED,
     CMD_N,

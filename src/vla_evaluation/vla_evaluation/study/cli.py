@@ -1,0 +1,61 @@
+"""`vla_evaluation study`: run the user study's protocol (resumable), then its figures and tables.
+
+    vla_evaluation study --participants sim:9                  # the paper's protocol, shipped models
+    vla_evaluation study --protocol my.yaml --out out/study    # another protocol
+    vla_evaluation study --analyse-only --out out/study        # figures and tables from what ran
+Run it again with the same --out to resume; a different protocol in that --out is refused.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+from pathlib import Path
+
+from vla_evaluation.study.protocol import PAPER, ProtocolError, load_protocol, parse_participants
+
+SHIPPED = PAPER.with_name("shipped.yaml")
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--protocol", type=Path, default=SHIPPED,
+                   help=f"protocol YAML (default: {SHIPPED.name}, the paper's procedure with the shipped "
+                        "models; "
+                        f"{PAPER.name} also has latent-localization)")
+    p.add_argument("--participants", default=None, help="sim:N or comma-separated ids (overrides the file)")
+    p.add_argument("--out", type=Path, default=Path("out/study"), help="study folder (resumed if it exists)")
+    p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
+    p.add_argument("--trials", type=int, default=None, help="test trials per task (overrides the file)")
+    p.add_argument("--time-limit", type=float, default=None, help="s per trial (overrides the file)")
+    p.add_argument("--analyse-only", action="store_true", help="only the figures and tables")
+    p.add_argument("--figures", type=Path, default=None, help="where figures and tables go (default: --out)")
+
+
+def run(args) -> int:
+    from vla_evaluation.resources import latent_model_dir
+
+    try:
+        proto = load_protocol(args.protocol,
+                              model_exists=lambda m: (latent_model_dir(m) / "config.json").is_file())
+    except ProtocolError as e:
+        print(f"protocol refused:\n{e}", file=sys.stderr)
+        return 2
+    if args.participants:
+        try:
+            proto = dataclasses.replace(proto, participants=parse_participants(args.participants))
+        except ValueError as e:
+            print(f"--participants: {e}", file=sys.stderr)
+            return 2
+    if args.trials is not None:
+        proto = dataclasses.replace(proto, trials=args.trials)
+    if args.time_limit is not None:
+        proto = dataclasses.replace(proto, time_limit=args.time_limit)
+    if not args.analyse_only:
+        from vla_evaluation.study.runner import run_study
+
+        run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit)
+    from vla_evaluation.study.analysis import analyse
+
+    for line in analyse(args.out, args.figures or args.out):
+        print(line)
+    return 0

@@ -4,6 +4,16 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
+
+# The operator station's browser tests drive Debian's headless Chromium (FACTS.md section 7).
+if ! { [ -x /usr/lib/chromium/chromium ] && command -v chromedriver >/dev/null; }; then
+  if [ "$(id -u)" = 0 ]; then
+    echo "[setup] installing chromium and chromium-driver (apt)"
+    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium chromium-driver >/dev/null
+  else
+    echo "[setup] chromium/chromium-driver missing: run as root (apt-get install chromium chromium-driver)" >&2
+  fi
+fi
 venv=$root/.venv
 py=${PYTHON:-python3}
 
@@ -16,6 +26,11 @@ if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; 
   # One pip command for everything: colcon-core needs setuptools<80 and pip must see that pin.
   "$venv/bin/python" -m pip install -q --disable-pip-version-check -r requirements.txt 2>&1 \
     | grep -v '^WARNING: Location' || true
+  # axe-core for the accessibility tests: the bundle only (its playwright dependency is not used).
+  "$venv/bin/python" -m pip install -q --disable-pip-version-check --no-deps 'axe-playwright-python==0.1.8' 2>&1 \
+    | grep -v '^WARNING: Location' || true
+  "$venv/bin/python" -c "import aiohttp, selenium, axe_playwright_python" \
+    || { echo "[setup] the operator station's packages do not import" >&2; exit 1; }
   "$venv/bin/python" -c "import rclpy, mujoco, pinocchio, cv2, onnxruntime, torch, rosbags, mcap" \
     || { echo "[setup] the environment does not import; see the pip output above" >&2; exit 1; }
   echo "$want" > "$stamp"

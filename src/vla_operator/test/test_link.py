@@ -1,0 +1,117 @@
+"""The link's safety rules, without a browser or ROS: every rule of vla_operator.link."""
+import json
+
+import pytest
+from vla_operator.link import Link, LinkParams, handshake_refusal
+
+
+def msg(**kw) -> str:
+    return json.dumps(kw)
+
+
+def inp(seq, t_ms, axis) -> str:
+    return msg(type="input", seq=seq, t=t_ms, axis=axis)
+
+
+def driving(now=10.0) -> tuple[Link, int]:
+    link = Link()
+    c = link.connect(now)
+    assert link.on_message(c.cid, inp(0, 0.0, 0.0), now).publish  # neutral arms
+    return link, c.cid
+
+
+def test_a_new_driver_moves_only_after_neutral():
+    link = Link()
+    c = link.connect(0.0)
+    v = link.on_message(c.cid, inp(0, 0.0, 0.8), 0.0)
+    assert "neutral" in v.error and link.value(0.0) == 0.0 and link.counters.not_armed == 1
+    assert link.on_message(c.cid, inp(1, 10.0, 0.0), 0.01).publish
+    assert link.on_message(c.cid, inp(2, 30.0, 0.8), 0.03).publish
+    assert link.value(0.03) == 0.8
+
+
+def test_held_input_expires_after_the_staleness_bound():
+    link, cid = driving()
+    link.on_message(cid, inp(1, 100.0, 0.5), 10.1)
+    assert link.value(10.1 + 0.149) == 0.5
+    assert link.value(10.1 + 0.151) == 0.0   # no new input: a cut link stops without a close
+
+
+def test_late_and_reordered_inputs_are_dropped():
+    link, cid = driving(10.0)                      # base delay 10 s (browser clock at 0)
+    assert link.on_message(cid, inp(1, 100.0, 0.5), 10.1).publish
+    v = link.on_message(cid, inp(2, 200.0, 0.9), 10.2 + 0.2)   # sent at 0.2, arrived 0.2 s late
+    assert "late" in v.error and link.value(10.4) == 0.0
+    v = link.on_message(cid, inp(1, 300.0, 0.9), 10.3)         # a replayed sequence number
+    assert "not newer" in v.error and link.counters.stale == 2
+
+
+def test_inputs_faster_than_the_rate_are_coalesced_latest_wins():
+    link, cid = driving()
+    assert link.on_message(cid, inp(1, 100.0, 0.2), 10.1).publish
+    link.published(10.1)
+    v = link.on_message(cid, inp(2, 102.0, 0.4), 10.102)
+    assert not v.publish and not v.error and link.counters.coalesced == 1
+    assert link.value(10.105) == 0.4
+
+
+def test_close_hidden_and_silence_give_zero_at_once():
+    link, cid = driving()
+    link.on_message(cid, inp(1, 100.0, 0.5), 10.1)
+    assert link.on_message(cid, msg(type="hidden"), 10.11).publish and link.value(10.11) == 0.0
+    assert "neutral" in link.on_message(cid, inp(2, 120.0, 0.5), 10.12).error   # re-arm after hide
+    link.on_message(cid, inp(3, 130.0, 0.0), 10.13)
+    link.on_message(cid, inp(4, 140.0, 0.5), 10.14)
+    assert link.disconnect(cid) and link.value(10.14) == 0.0
+    link2, cid2 = driving()
+    link2.on_message(cid2, inp(1, 100.0, 0.5), 10.1)
+    assert not link2.tick(10.1 + 0.4)
+    assert link2.tick(10.1 + 0.6) and link2.value(10.6) == 0.0
+    assert "neutral" in link2.on_message(cid2, inp(2, 700.0, 0.5), 10.7).error   # must re-arm
+
+
+def test_one_driver_watchers_may_only_estop():
+    link, cid = driving()
+    w = link.connect(10.0)
+    assert not w.driver
+    for m in (inp(0, 0.0, 0.0), msg(type="gripper"), msg(type="release_estop", confirm=True),
+              msg(type="claim"), msg(type="episode", action="start", task="bread/push_east")):
+        assert link.on_message(w.cid, m, 10.1).error
+    assert link.on_message(w.cid, msg(type="estop"), 10.1).request == {"type": "estop"}
+    assert link.counters.forbidden == 5
+    link.disconnect(cid)
+    assert link.on_message(w.cid, msg(type="claim"), 10.2).request == {"type": "claim"}
+    assert link.driver() is w
+
+
+@pytest.mark.parametrize("raw, counter", [
+    ("{", "malformed"), ("[1]", "malformed"), ('{"type": 3}', "malformed"),
+    (msg(type="input", seq=1, t=0, axis=float("nan")), "malformed"),
+    ('{"type": "input", "seq": 1, "t": 0, "axis": NaN}', "malformed"),
+    (inp(1, 0, 1.5), "malformed"), (msg(type="input", seq=True, t=0, axis=0.5), "malformed"),
+    (msg(type="release_estop"), "malformed"), (msg(type="select", by="nearest"), "malformed"),
+    (msg(type="episode", action="start"), "malformed"), (msg(type="launch_missiles"), "unknown"),
+    ("x" * 5000, "oversized"), (b"\xff\xfe", "malformed"),
+])
+def test_bad_messages_are_counted_and_never_move(raw, counter):
+    link, cid = driving()
+    v = link.on_message(cid, raw, 10.1)
+    assert v.error and not v.publish and v.request is None
+    assert getattr(link.counters, counter) == 1 and link.value(10.1) == 0.0
+    assert link.on_message(cid, inp(5, 110.0, 0.3), 10.11).publish   # the connection survives
+
+
+def test_handshake():
+    ok = dict(bind="127.0.0.1", token="", given_token="", origin="http://127.0.0.1:8080",
+              host="127.0.0.1:8080")
+    assert handshake_refusal(**ok) is None
+    assert "Origin" in handshake_refusal(**{**ok, "origin": "http://evil.example"})
+    assert "Origin" in handshake_refusal(**{**ok, "origin": None})
+    far = {**ok, "bind": "0.0.0.0", "host": "10.0.0.2:8080", "origin": "http://10.0.0.2:8080"}
+    assert "needs a token" in handshake_refusal(**far)
+    assert "token" in handshake_refusal(**{**far, "token": "s3cret", "given_token": "guess"})
+    assert handshake_refusal(**{**far, "token": "s3cret", "given_token": "s3cret"}) is None
+
+
+def test_params_bound():
+    assert LinkParams().stale_after == 0.15

@@ -1,0 +1,1 @@
+"""The operator station: a page and a WebSocket for the person at the joystick (see README)."""

@@ -1,0 +1,269 @@
+"""The browser link's safety rules (no rclpy, no server): what a message from a page may do.
+
+Every rule here exists because an operator interface got it wrong (FACTS.md section 7):
+- input is stamped by the station when it arrives (browser clocks are not synced), rate-limited, and
+  only the latest is kept: nothing is queued or replayed after a lag or a reconnect;
+- an input older than ``stale_after`` (by the browser's sequence and clock, referred to the server's
+  clock) is dropped, and the held value expires ``stale_after`` after it arrived, so a cut link gives
+  zero without waiting for a close;
+- a closed socket, a missed heartbeat or a hidden page gives zero at once;
+- one client drives; the others watch and may only press the e-stop; a new driver starts at neutral,
+  so a reload never re-sends motion;
+- malformed, oversized, unknown or forbidden messages are dropped and counted; none moves the arm.
+"""
+from __future__ import annotations
+
+import hmac
+import json
+import math
+from dataclasses import dataclass, field
+from urllib.parse import urlsplit
+
+# What a page may ask for; everything but "input" and "heartbeat" becomes a request to a node.
+REQUESTS = {
+    "estop": "latch the bridge's e-stop (any client)",
+    "release_estop": "release it (the driver, with confirm: true)",
+    "select": "latch an object: by class, index or pixel",
+    "gripper": "toggle the hand",
+    "redetect": "drop the latched object and latch the next detection",
+    "teaching": "teaching mode on or off",
+    "episode": "start (with a task), stop or discard a recording",
+    "settings": "caregiver settings (speed scale, deadband, action mode, key map)",
+}
+KINDS = {"input", "heartbeat", "hidden", "claim", *REQUESTS}
+WATCHER_MAY = {"heartbeat", "estop", "claim", "hidden"}
+
+
+@dataclass(frozen=True)
+class LinkParams:
+    stale_after: float = 0.15        # s: an input older than this is dropped; a held one expires
+    min_interval: float = 0.01       # s: inputs closer than this are coalesced (the latest wins)
+    heartbeat_timeout: float = 0.5   # s without any message from the driver: zero
+    max_message_bytes: int = 2048
+
+
+@dataclass
+class Client:
+    cid: int
+    driver: bool = False
+    last_seen: float = -math.inf
+    last_seq: int = -1
+    offset: float = math.inf         # min over inputs of (server time - browser time): the link's base delay
+    armed: bool = False              # a driver's input moves only after a neutral one
+
+
+@dataclass
+class Counters:
+    received: int = 0
+    accepted: int = 0
+    malformed: int = 0
+    oversized: int = 0
+    unknown: int = 0
+    forbidden: int = 0
+    stale: int = 0
+    coalesced: int = 0
+    not_armed: int = 0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass
+class Verdict:
+    """What to do with one message: ``publish`` the new axis now, hand ``request`` to the node, or
+    reply ``error`` to the client (the connection always survives)."""
+
+    publish: bool = False
+    request: dict | None = None
+    error: str = ""
+
+
+@dataclass
+class Link:
+    params: LinkParams = field(default_factory=LinkParams)
+    clients: dict[int, Client] = field(default_factory=dict)
+    counters: Counters = field(default_factory=Counters)
+    axis: float = 0.0                # the latest accepted input, in [-1, 1]
+    axis_t: float = -math.inf        # when it arrived (server clock)
+    last_publish: float = -math.inf
+    _next_id: int = 0
+
+    # ------------------------------------------------------------------ clients
+    def connect(self, now: float) -> Client:
+        """A new client: the driver when nobody drives, else a watcher."""
+        self._next_id += 1
+        c = Client(self._next_id, driver=self.driver() is None, last_seen=now)
+        self.clients[c.cid] = c
+        return c
+
+    def disconnect(self, cid: int) -> bool:
+        """Forget a client; True when it drove (the caller publishes zero at once)."""
+        c = self.clients.pop(cid, None)
+        if c is not None and c.driver:
+            self.stop()
+            return True
+        return False
+
+    def driver(self) -> Client | None:
+        return next((c for c in self.clients.values() if c.driver), None)
+
+    def stop(self) -> None:
+        self.axis, self.axis_t = 0.0, -math.inf
+
+    def value(self, now: float) -> float:
+        """The axis to publish now: the latest input while it is fresh, else zero."""
+        if now - self.axis_t > self.params.stale_after:
+            return 0.0
+        return self.axis
+
+    def tick(self, now: float) -> bool:
+        """The heartbeat rule: True when the driver just went silent (publish zero). It keeps the role
+        (a busy browser is not a thief) but must send a neutral input again before moving."""
+        d = self.driver()
+        if d is not None and d.armed and now - d.last_seen > self.params.heartbeat_timeout:
+            d.armed = False
+            self.stop()
+            return True
+        return False
+
+    # ------------------------------------------------------------------ messages
+    def on_message(self, cid: int, raw: str | bytes, now: float) -> Verdict:
+        c = self.clients.get(cid)
+        self.counters.received += 1
+        if c is None:
+            return self._drop("unknown", "not connected")
+        if len(raw) > self.params.max_message_bytes:
+            return self._drop("oversized", f"message over {self.params.max_message_bytes} bytes")
+        msg = parse(raw)
+        if isinstance(msg, str):
+            return self._drop("malformed", msg)
+        kind = msg["type"]
+        if kind not in KINDS:
+            return self._drop("unknown", f"unknown message type {kind!r}")
+        c.last_seen = now
+        if not c.driver and kind not in WATCHER_MAY:
+            return self._drop("forbidden", "another station drives; a watcher may only press the e-stop")
+        if kind == "heartbeat":
+            self.counters.accepted += 1
+            return Verdict()
+        if kind == "claim":
+            if self.driver() is not None and not c.driver:
+                return self._drop("forbidden", "another station drives")
+            c.driver = True
+            self.counters.accepted += 1
+            return Verdict(request={"type": "claim"})
+        if kind == "hidden":
+            self.counters.accepted += 1
+            if c.driver:
+                c.armed = False
+                self.stop()
+                return Verdict(publish=True)
+            return Verdict()
+        if kind == "input":
+            return self._input(c, msg, now)
+        problem = check_request(msg)
+        if problem:
+            return self._drop("malformed", problem)
+        self.counters.accepted += 1
+        return Verdict(request=msg)
+
+    def _input(self, c: Client, msg: dict, now: float) -> Verdict:
+        seq, t, axis = msg.get("seq"), msg.get("t"), msg.get("axis")
+        if not (_int(seq) and _number(t) and _number(axis)) or not -1.0 <= axis <= 1.0:
+            return self._drop("malformed", "input needs an integer seq, a finite t (ms) and axis in [-1, 1]")
+        if seq <= c.last_seq:
+            return self._drop("stale", f"input {seq} is not newer than {c.last_seq}")
+        c.last_seq = seq
+        # The browser's clock is not ours: the smallest (arrival - sent) seen is the link's base delay,
+        # and an input that took longer than that by more than stale_after is old news.
+        delay = now - t / 1000.0
+        c.offset = min(c.offset, delay)
+        if delay - c.offset > self.params.stale_after:
+            return self._drop("stale", f"input {seq} arrived {delay - c.offset:.3f} s late")
+        if axis == 0.0:
+            c.armed = True
+        elif not c.armed:
+            return self._drop("not_armed", "motion needs a neutral input first (a new or reloaded page)")
+        self.counters.accepted += 1
+        self.axis, self.axis_t = float(axis), now
+        if now - self.last_publish < self.params.min_interval and axis != 0.0:
+            self.counters.coalesced += 1   # kept as the latest; the node's timer publishes it
+            return Verdict()
+        return Verdict(publish=True)
+
+    def published(self, now: float) -> None:
+        self.last_publish = now
+
+    def _drop(self, counter: str, why: str) -> Verdict:
+        setattr(self.counters, counter, getattr(self.counters, counter) + 1)
+        return Verdict(error=why)
+
+
+# ---------------------------------------------------------------------- validation
+def parse(raw: str | bytes) -> dict | str:
+    """The message as a dict with a string ``type``, or why it is malformed."""
+    try:
+        msg = json.loads(raw)
+    except (ValueError, UnicodeDecodeError):
+        return "not JSON"
+    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
+        return "not an object with a string 'type'"
+    return msg
+
+
+def check_request(msg: dict) -> str | None:
+    """Why a request is malformed, or None."""
+    kind = msg["type"]
+    if kind == "release_estop" and msg.get("confirm") is not True:
+        return "releasing the e-stop needs confirm: true"
+    if kind == "select":
+        by = msg.get("by")
+        if by == "class" and not isinstance(msg.get("class_id"), str):
+            return "select by class needs a class_id"
+        if by == "index" and not _int(msg.get("index")):
+            return "select by index needs an integer index"
+        if by == "pixel" and not (_number(msg.get("x")) and _number(msg.get("y"))):
+            return "select by pixel needs finite x, y"
+        if by not in ("class", "index", "pixel", "policy"):
+            return "select needs by: class, index, pixel or policy"
+    if kind == "teaching" and not isinstance(msg.get("on"), bool):
+        return "teaching needs on: true or false"
+    if kind == "episode":
+        action = msg.get("action")
+        if action not in ("start", "stop", "discard"):
+            return "episode needs action: start, stop or discard"
+        if action == "start" and not (isinstance(msg.get("task"), str) and msg["task"]):
+            return "starting an episode needs a task"
+    if kind == "settings" and not isinstance(msg.get("values"), dict):
+        return "settings needs values: {name: value}"
+    return None
+
+
+def _number(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _int(x) -> bool:
+    return isinstance(x, int) and not isinstance(x, bool)
+
+
+# ---------------------------------------------------------------------- handshake
+LOOPBACK = ("127.0.0.1", "::1", "localhost")
+
+
+def handshake_refusal(
+    bind: str, token: str, given_token: str, origin: str | None, host: str | None
+) -> str | None:
+    """Why a WebSocket upgrade is refused, or None. The page must come from this server (Origin equals
+    the Host the browser asked for: no other site's page may open the socket), and a server reachable
+    from other machines needs the token."""
+    if not origin or not host:
+        return "missing Origin or Host"
+    o = urlsplit(origin)
+    if o.scheme not in ("http", "https") or o.netloc != host:
+        return f"Origin {origin!r} is not this station"
+    if bind not in LOOPBACK and not token:
+        return "a station reachable from other machines needs a token"
+    if token and not hmac.compare_digest(token.encode(), given_token.encode()):
+        return "wrong or missing token"
+    return None

@@ -1,0 +1,208 @@
+"""The station's web server (aiohttp, no rclpy): the page's files, and one WebSocket per page that
+carries input in, and frames, detections and status out. The safety rules are :mod:`.link`'s; this
+module only moves bytes. It runs its own event loop in a thread; the node talks to it through
+``publish_axis`` / ``request`` callbacks and ``set_frame`` / ``set_state``, which are thread-safe."""
+from __future__ import annotations
+
+import asyncio
+import json
+import threading
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+from aiohttp import WSMsgType, web
+
+from vla_operator.link import Link, LinkParams, handshake_refusal
+
+FRAME_PERIOD = 1 / 30  # s: the station sends at most this often per page (the camera's rate)
+
+
+class Station:
+    def __init__(self, web_dir: Path, bind: str, port: int, token: str,
+                 publish_axis: Callable[[float], None],
+                 request: Callable[[dict, Callable[[dict], None]], None],
+                 params: LinkParams | None = None, clock: Callable[[], float] = time.monotonic):
+        self.web_dir, self.bind, self.port, self.token = web_dir, bind, port, token
+        self.publish_axis, self.request, self.clock = publish_axis, request, clock
+        self.link = Link(params or LinkParams())
+        self.lock = threading.Lock()          # the link is shared with the node's timer
+        self._sockets: dict[int, web.WebSocketResponse] = {}
+        self._frame: tuple[int, bytes, dict] = (0, b"", {})
+        self._state: dict = {}
+        self._events: dict[int, asyncio.Event] = {}  # per page: a newer frame is there
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._runner: web.AppRunner | None = None
+        self._thread: threading.Thread | None = None
+        self.address = ""
+        files = web_dir.iterdir() if web_dir.is_dir() else ()
+        self._files = {f.name for f in files if f.suffix in (".js", ".css")}
+
+    # ------------------------------------------------------------------ life cycle
+    def start(self, timeout: float = 10.0) -> str:
+        ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, args=(ready,), name="operator-station",
+                                        daemon=True)
+        self._thread.start()
+        if not ready.wait(timeout) or not self.address:
+            raise RuntimeError(f"the operator station could not listen on {self.bind}:{self.port}")
+        return self.address
+
+    def _run(self, ready: threading.Event) -> None:
+        self._loop = asyncio.new_event_loop()
+        asyncio.set_event_loop(self._loop)
+        app = web.Application(client_max_size=4096)
+        app.router.add_get("/ws", self._ws)
+        app.router.add_get("/", self._index)
+        app.router.add_get("/static/{name}", self._static)
+        self._runner = web.AppRunner(app, access_log=None)
+        try:
+            self._loop.run_until_complete(self._runner.setup())
+            site = web.TCPSite(self._runner, self.bind, self.port)
+            self._loop.run_until_complete(site.start())
+            port = self._runner.addresses[0][1]
+            host = f"[{self.bind}]" if ":" in self.bind else self.bind
+            self.address = f"http://{host}:{port}/" + (f"?token={self.token}" if self.token else "")
+        finally:
+            ready.set()
+        if self.address:
+            self._loop.run_forever()
+
+    def stop(self) -> None:
+        if self._loop is None:
+            return
+        async def close():
+            for ws in list(self._sockets.values()):
+                await ws.close()
+            await self._runner.cleanup()
+        try:
+            asyncio.run_coroutine_threadsafe(close(), self._loop).result(2.0)
+        except Exception:  # shutting down: the loop may be gone already
+            pass
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(2.0)
+
+    # ------------------------------------------------------------------ from the node
+    def set_frame(self, jpeg: bytes, meta: dict) -> None:
+        """The latest frame; pages get it when they are ready for one (never a backlog)."""
+        self._frame = (self._frame[0] + 1, jpeg, meta)
+        if self._loop is not None:
+            self._loop.call_soon_threadsafe(self._wake)
+
+    def _wake(self) -> None:
+        for e in self._events.values():
+            e.set()
+
+    def set_state(self, state: dict) -> None:
+        """Status for every page (the nodes' status in words); sent at once."""
+        self._state = state
+        self._broadcast({"type": "state", **state})
+
+    def reply(self, cid: int, reply: dict) -> None:
+        self._send(cid, {"type": "reply", **reply})
+
+    def wants_frames(self) -> bool:
+        return bool(self._sockets)
+
+    def _broadcast(self, msg: dict) -> None:
+        for cid in list(self._sockets):
+            self._send(cid, msg)
+
+    def _send(self, cid: int, msg: dict) -> None:
+        ws, loop = self._sockets.get(cid), self._loop
+        if ws is not None and loop is not None:
+            asyncio.run_coroutine_threadsafe(_send_quietly(ws, json.dumps(msg)), loop)
+
+    # ------------------------------------------------------------------ HTTP
+    async def _index(self, request: web.Request) -> web.StreamResponse:
+        return web.FileResponse(self.web_dir / "index.html", headers={
+            "Cache-Control": "no-store",
+            "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'",
+        })
+
+    async def _static(self, request: web.Request) -> web.StreamResponse:
+        """Only the page's own files, by name (no paths: nothing else on the disk is reachable)."""
+        name = request.match_info["name"]
+        if name not in self._files:
+            raise web.HTTPNotFound()
+        ctype = {".js": "text/javascript", ".css": "text/css"}[Path(name).suffix]
+        return web.FileResponse(self.web_dir / name,
+                                headers={"Content-Type": ctype, "Cache-Control": "no-store"})
+
+    async def _ws(self, request: web.Request) -> web.StreamResponse:
+        refusal = handshake_refusal(self.bind, self.token, request.query.get("token", ""),
+                                    request.headers.get("Origin"), request.headers.get("Host"))
+        if refusal:
+            return web.Response(status=403, text=refusal)
+        ws = web.WebSocketResponse(heartbeat=None, max_msg_size=self.link.params.max_message_bytes * 4)
+        await ws.prepare(request)
+        with self.lock:
+            client = self.link.connect(self.clock())
+        cid = client.cid
+        self._sockets[cid] = ws
+        await ws.send_str(json.dumps({"type": "hello", "client": cid, "driver": client.driver,
+                                      "stale_after": self.link.params.stale_after}))
+        if self._state:
+            await ws.send_str(json.dumps({"type": "state", **self._state}))
+        self._events[cid] = asyncio.Event()
+        sender = asyncio.ensure_future(self._send_frames(ws, self._events[cid]))
+        try:
+            async for m in ws:
+                if m.type in (WSMsgType.TEXT, WSMsgType.BINARY):
+                    self._on_message(cid, m.data)
+                else:
+                    break
+        finally:
+            sender.cancel()
+            self._sockets.pop(cid, None)
+            self._events.pop(cid, None)
+            with self.lock:
+                drove = self.link.disconnect(cid)
+            if drove:
+                self.publish_axis(0.0)
+            self._broadcast_roles()
+        return ws
+
+    def _on_message(self, cid: int, data: str | bytes) -> None:
+        now = self.clock()
+        with self.lock:
+            verdict = self.link.on_message(cid, data, now)
+            axis = self.link.value(now)
+            if verdict.publish:
+                self.link.published(now)
+        if verdict.publish:
+            self.publish_axis(axis)
+        if verdict.error:
+            self._send(cid, {"type": "refused", "reason": verdict.error})
+        if verdict.request is not None:
+            if verdict.request["type"] == "claim":
+                self._broadcast_roles()
+            else:
+                self.request(verdict.request, lambda reply: self.reply(cid, reply))
+
+    def _broadcast_roles(self) -> None:
+        for cid, c in list(self.link.clients.items()):
+            self._send(cid, {"type": "role", "driver": c.driver,
+                             "driver_present": self.link.driver() is not None})
+
+    async def _send_frames(self, ws: web.WebSocketResponse, event: asyncio.Event) -> None:
+        sent = 0
+        while not ws.closed:
+            await event.wait()
+            event.clear()
+            version, jpeg, meta = self._frame
+            if version == sent or not jpeg:
+                continue
+            sent = version
+            meta = {**meta, "type": "frame", "age_ms": (time.monotonic() - meta["received"]) * 1000.0}
+            await ws.send_str(json.dumps(meta))
+            await ws.send_bytes(jpeg)
+            await asyncio.sleep(FRAME_PERIOD / 2)   # frames that came meanwhile: only the latest is sent
+
+
+async def _send_quietly(ws: web.WebSocketResponse, text: str) -> None:
+    if not ws.closed:
+        try:
+            await ws.send_str(text)
+        except (ConnectionError, RuntimeError):
+            pass

@@ -1,0 +1,255 @@
+"""operator_station: the thin ROS wrapper around the station's server (:mod:`.server`) and link rules
+(:mod:`.link`). It publishes sensor_msgs/Joy stamped here on arrival, relays the nodes' status to the
+pages in words, and turns the pages' requests into the nodes' own services."""
+from __future__ import annotations
+
+import json
+import secrets
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+from ament_index_python.packages import get_package_share_directory
+from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rclpy.node import Node
+from sensor_msgs.msg import Image, Joy
+from std_srvs.srv import SetBool, Trigger
+from vla_common.ros.node_main import ConfigError, run_node
+from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
+
+from vla_interfaces.msg import ControllerStatus, DetectionArray, GripperStatus, RecorderStatus, SafetyStatus
+from vla_interfaces.srv import GripperCommand, SelectTarget, StartEpisode
+from vla_operator.link import LOOPBACK, LinkParams
+from vla_operator.server import Station
+from vla_operator.words import controller_words, safety_words
+
+NODE_NAME = "operator_station"
+
+PARAMETERS = ParameterTable([
+    Param("bind", "127.0.0.1", "address the page is served on; anything but loopback needs the token"),
+    Param("port", 8080, "TCP port; 0: any free port (the address is logged)", range=(0, 65535)),
+    Param("token_file", "", "file holding the token; empty: a token is generated when bind is not "
+          "loopback (printed at start)"),
+    Param("rate", 50.0, "Hz: Joy republished at this rate while a page drives (the controller's "
+          "joy_timeout is the second line)", range=(20.0, 200.0)),
+    Param("stale_after", 0.15, "s: input older than this is dropped, a held one expires",
+          range=(0.02, 1.0)),
+    Param("heartbeat_timeout", 0.5, "s without a message from the driving page: zero", range=(0.1, 5.0)),
+    Param("speed_scale", 1.0, "caregiver's speed scale: the page's axis times this", range=(0.05, 1.0),
+          dynamic=True),
+    Param("settings_file", "", "caregiver settings (JSON) kept on this PC; empty: "
+          "~/.config/vla_operator/settings.json"),
+    Param("jpeg_quality", 80, "JPEG quality of the live view", range=(30, 95)),
+    Param("tasks", ["bread/push_east", "soda_can/pick_place", "milk_carton/pour", "cereal_box/push_east",
+                    "glass_bottle/pick_place"], "tasks offered on the page (the recorder checks them)"),
+    Param("bridge", "panda_bridge", "the bridge's node name (its ~/estop, ~/gripper, ~/status)"),
+    Param("controller", "controller_node", "the controller's node name"),
+    Param("recorder", "recorder", "the recorder's node name"),
+])
+
+
+class StationNode(Node):
+    def __init__(self, **kwargs):
+        super().__init__(NODE_NAME, **kwargs)
+        self.p = p = PARAMETERS.declare(self, on_change=self._on_change)
+        token = ""
+        if p["token_file"]:
+            try:
+                token = Path(p["token_file"]).read_text().strip()
+            except OSError as e:
+                raise ConfigError(f"token_file {p['token_file']!r}: {e.strerror}") from None
+        elif p["bind"] not in LOOPBACK:
+            token = secrets.token_urlsafe(24)
+        self.settings_path = Path(p["settings_file"] or Path.home() / ".config/vla_operator/settings.json")
+        self.settings = self._load_settings()
+        self.joy_pub = self.create_publisher(Joy, "joy", 10)
+        self.status_pub = self.create_publisher(DiagnosticStatus, "~/status", 10)
+        b, c, r = p["bridge"], p["controller"], p["recorder"]
+        self.state: dict = {"tasks": list(p["tasks"]), "settings": self.settings}
+        self.create_subscription(Image, "camera/image_raw", self._on_image, IMAGE_QOS)
+        self.create_subscription(DetectionArray, "detections", self._on_dets, SENSOR_QOS)
+        self.create_subscription(ControllerStatus, f"{c}/status", self._on_ctrl, 10)
+        self.create_subscription(SafetyStatus, f"{b}/status", self._on_safety, 10)
+        self.create_subscription(GripperStatus, "gripper/status", self._on_gripper, 10)
+        self.create_subscription(RecorderStatus, f"{r}/status", self._on_recorder, 10)
+        self.clients_ = {
+            "estop": self.create_client(SetBool, f"{b}/estop"),
+            "teaching": self.create_client(SetBool, f"{b}/set_teaching"),
+            "gripper": self.create_client(GripperCommand, f"{b}/gripper"),
+            "select": self.create_client(SelectTarget, f"{c}/select_target"),
+            "redetect": self.create_client(Trigger, f"{c}/redetect"),
+            "start": self.create_client(StartEpisode, f"{r}/start_episode"),
+            "stop": self.create_client(Trigger, f"{r}/stop_episode"),
+            "discard": self.create_client(Trigger, f"{r}/discard_episode"),
+        }
+        self._dets: dict = {"boxes": [], "size": [0, 0]}
+        self.station = Station(
+            Path(get_package_share_directory("vla_operator")) / "web", p["bind"], p["port"], token,
+            self._publish_axis, self._request,
+            LinkParams(stale_after=p["stale_after"], heartbeat_timeout=p["heartbeat_timeout"]),
+        )
+        self.address = self.station.start()
+        self.create_timer(1.0 / p["rate"], self._tick)
+        self.create_timer(1.0, self._publish_status)
+        # printed, not only logged: the launch shows it to the person who starts the graph
+        print(f"[operator_station] the operator station is at {self.address}", flush=True)
+        self.get_logger().info(f"operator station at {self.address}")
+
+    # ------------------------------------------------------------------ input
+    def _publish_axis(self, axis: float) -> None:
+        """Stamped by this node on arrival (the browser's clock is not trusted)."""
+        msg = Joy()
+        msg.header.stamp = self.get_clock().now().to_msg()
+        msg.header.frame_id = "operator_station"
+        msg.axes = [float(axis) * float(self.settings.get("speed_scale", 1.0)), 0.0]
+        msg.buttons = [0, 0, 0, 0]
+        self.joy_pub.publish(msg)
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        with self.station.lock:
+            went_silent = self.station.link.tick(now)
+            driving = self.station.link.driver() is not None
+            axis = self.station.link.value(now)
+        if driving or went_silent:
+            self._publish_axis(axis)
+
+    # ------------------------------------------------------------------ requests from a page
+    def _request(self, msg: dict, reply) -> None:
+        kind = msg["type"]
+        if kind in ("estop", "release_estop"):
+            self._call("estop", SetBool.Request(data=kind == "estop"), kind, reply)
+        elif kind == "teaching":
+            self._call("teaching", SetBool.Request(data=msg["on"]), kind, reply)
+        elif kind == "gripper":
+            self._call("gripper", GripperCommand.Request(command=GripperCommand.Request.TOGGLE), kind, reply)
+        elif kind == "select":
+            req = SelectTarget.Request(by=msg["by"], class_id=str(msg.get("class_id", "")),
+                                       index=int(msg.get("index", -1)), x=float(msg.get("x", 0.0)),
+                                       y=float(msg.get("y", 0.0)))
+            self._call("select", req, kind, reply)
+        elif kind == "redetect":
+            self._call("redetect", Trigger.Request(), kind, reply)
+        elif kind == "episode":
+            action = msg["action"]
+            req = StartEpisode.Request(task=msg["task"]) if action == "start" else Trigger.Request()
+            self._call(action, req, f"episode {action}", reply)
+        elif kind == "settings":
+            reply({"what": "settings", **self._apply_settings(msg["values"])})
+
+    def _call(self, name: str, req, what: str, reply) -> None:
+        client = self.clients_[name]
+        if not client.service_is_ready():
+            reply({"what": what, "ok": False, "message": f"{client.srv_name} is not available"})
+            return
+        future = client.call_async(req)
+        future.add_done_callback(lambda f: reply(
+            {"what": what, "ok": bool(f.result().success), "message": f.result().message}
+            if f.exception() is None else {"what": what, "ok": False, "message": str(f.exception())}))
+
+    # ------------------------------------------------------------------ caregiver settings
+    def _load_settings(self) -> dict:
+        try:
+            data = json.loads(self.settings_path.read_text())
+            return data if isinstance(data, dict) else {}
+        except (OSError, ValueError):
+            return {"speed_scale": self.p["speed_scale"]}
+
+    def _apply_settings(self, values: dict) -> dict:
+        known = {"speed_scale", "action_mode", "input_device", "keys"}
+        unknown = sorted(set(values) - known)
+        if unknown:
+            return {"ok": False, "message": f"unknown settings {unknown}; known: {sorted(known)}"}
+        if "speed_scale" in values:
+            from rclpy.parameter import Parameter
+            v = values["speed_scale"]
+            if not isinstance(v, (int, float)) or isinstance(v, bool):
+                return {"ok": False, "message": "speed_scale must be a number"}
+            result = self.set_parameters([Parameter("speed_scale", value=float(v))])[0]
+            if not result.successful:
+                return {"ok": False, "message": result.reason}
+        if values.get("action_mode", "hold") not in ("hold", "step", "toggle"):
+            return {"ok": False, "message": "action_mode must be hold, step or toggle"}
+        self.settings.update(values)
+        try:
+            self.settings_path.parent.mkdir(parents=True, exist_ok=True)
+            self.settings_path.write_text(json.dumps(self.settings))
+        except OSError as e:
+            return {"ok": False, "message": f"applied but not saved: {e.strerror}"}
+        self._state(settings=self.settings)
+        return {"ok": True, "message": "saved on the robot PC"}
+
+    def _on_change(self, name, value):
+        if name == "speed_scale":
+            self.settings["speed_scale"] = float(value)
+        return None
+
+    # ------------------------------------------------------------------ what the pages see
+    def _state(self, **kw) -> None:
+        self.state.update(kw)
+        self.station.set_state(self.state)
+
+    def _on_image(self, msg: Image) -> None:
+        if not self.station.wants_frames() or msg.encoding not in ("rgb8", "bgr8"):
+            return
+        img = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.width, 3)
+        if msg.encoding == "rgb8":
+            img = img[:, :, ::-1]
+        ok, jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.p["jpeg_quality"]])
+        if ok:
+            self.station.set_frame(jpeg.tobytes(), {"width": msg.width, "height": msg.height,
+                                                    "received": time.monotonic(), **self._dets})
+
+    def _on_dets(self, msg: DetectionArray) -> None:
+        self._dets = {"size": [msg.image_width, msg.image_height], "boxes": [
+            {"class_id": d.class_id, "score": round(d.score, 3), "cx": d.center_x, "cy": d.center_y,
+             "w": d.size_x, "h": d.size_y} for d in msg.detections]}
+
+    def _on_ctrl(self, m: ControllerStatus) -> None:
+        code = int(m.code)
+        self._state(controller={"code": code, "words": controller_words(code), "reason": m.reason,
+                                "mode": m.mode, "latched_class": m.latched_class, "latched_by": m.latched_by,
+                                "latched_x": m.latched_x, "latched_y": m.latched_y})
+
+    def _on_safety(self, m: SafetyStatus) -> None:
+        self._state(safety={"code": int(m.code), "words": safety_words(int(m.code)), "text": m.text,
+                            "estop": bool(m.estop_active), "teaching": int(m.code) == SafetyStatus.TEACHING,
+                            "gripper": m.gripper})
+
+    def _on_gripper(self, m: GripperStatus) -> None:
+        self._state(gripper={"text": m.text, "holding": m.holding})
+
+    def _on_recorder(self, m: RecorderStatus) -> None:
+        self._state(recorder={"recording": bool(m.recording), "task": m.task, "episode": int(m.episode_index),
+                              "error": m.last_error})
+
+    def _publish_status(self) -> None:
+        with self.station.lock:
+            counters = self.station.link.counters.as_dict()
+            pages = len(self.station.link.clients)
+            driving = self.station.link.driver() is not None
+        s = DiagnosticStatus(name=NODE_NAME, hardware_id=self.address,
+                             message=f"{pages} page(s), {'one drives' if driving else 'nobody drives'}")
+        s.values = [KeyValue(key=k, value=str(v)) for k, v in counters.items()]
+        self.status_pub.publish(s)
+
+    def on_shutdown(self) -> None:
+        """Zero first, then close the pages."""
+        if self.context.ok():
+            self._publish_axis(0.0)
+        self.station.stop()
+
+    def destroy_node(self):
+        self.on_shutdown()
+        return super().destroy_node()
+
+
+def main(args: list[str] | None = None) -> int:
+    return run_node(StationNode, NODE_NAME, args)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

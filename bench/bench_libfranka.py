@@ -46,9 +46,11 @@ from rclpy.parameter import Parameter  # noqa: E402
 from sensor_msgs.msg import Joy  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from vla_launch.run import find_executable  # noqa: E402
-from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavailable  # noqa: E402
 
 REPO = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(REPO, "test"))     # franka_sim_server: test support, not a package
+from franka_sim_server import FrankaSimServer, Netns, unavailable  # noqa: E402
+
 IMAGE = os.path.join(REPO, "docs", "scene.png")        # a 640x480 view of the simulated scene
 
 
@@ -125,10 +127,10 @@ def run(seconds: float, graph: bool, priority: int) -> dict:
 
     cmd_pub = io.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
     joy_pub = io.create_publisher(Joy, "joy", 10)
-    t0 = [time.monotonic()]
+    t0 = [math.inf]                                 # zeros until connected: motion needs a neutral first
 
     def publish():
-        t = time.monotonic() - t0[0]
+        t = max(time.monotonic() - t0[0], 0.0)
         w = 2 * math.pi * 0.25
         cmd = [0.0] * 7
         cmd[0], cmd[3], cmd[6] = 0.3 * math.sin(w * t), 0.2 * math.sin(w * t), 0.4 * math.sin(2 * w * t)
@@ -146,6 +148,8 @@ def run(seconds: float, graph: bool, priority: int) -> dict:
         spin(0.05)
         if time.monotonic() > deadline:
             raise RuntimeError(f"the bridge did not connect: {bridge.backend.status}")
+    spin(0.2)                                       # zeros reach the node's filter and the loop's
+    t0[0] = time.monotonic()
     spin(3.0)                                       # graph warm-up, the arm in motion
     ring_start = process.slots.ring_count
     s0 = process.slots.read_state()

@@ -181,7 +181,7 @@ def test_mujoco_a_held_stick_waits_for_neutral_after(mujoco, stop):
 # -------------------------------------------------------------------------------------- franka-sim
 @pytest.fixture(scope="module")
 def franka_sim():
-    from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavailable
+    from franka_sim_server import FrankaSimServer, Netns, unavailable
 
     reason = unavailable()
     if reason is None:

@@ -10,11 +10,11 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from franka_sim_server import FrankaSimServer, Netns, unavailable
 from rclpy.parameter import Parameter
 from require import missing
 from sensor_msgs.msg import JointState, Joy
 from vla_common.ros.testing import RosHarness
-from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavailable
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
 

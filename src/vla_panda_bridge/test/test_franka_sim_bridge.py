@@ -20,6 +20,7 @@ import time
 import numpy as np
 import pytest
 import rclpy
+from franka_sim_server import FrankaSimServer, Netns, unavailable
 from rclpy.parameter import Parameter
 from require import missing
 from sensor_msgs.msg import JointState
@@ -29,7 +30,6 @@ from vla_common.kinematics import PandaKinematics
 from vla_common.ros.testing import RosHarness
 from vla_launch.run import find_executable
 from vla_panda_bridge.libfranka_loop import LOOP_DISCONNECTED, LOOP_OK, LOOP_REFLEX
-from vla_panda_bridge.libfranka_simserver import FrankaSimServer, Netns, unavailable
 
 from vla_interfaces.msg import SafetyStatus
 

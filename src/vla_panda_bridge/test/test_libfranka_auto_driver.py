@@ -11,8 +11,8 @@ import sys
 import time
 
 import pytest
+from franka_sim_server import Netns
 from require import missing
-from vla_panda_bridge.libfranka_simserver import Netns
 
 pytestmark = pytest.mark.slow
 

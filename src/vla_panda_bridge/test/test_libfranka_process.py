@@ -11,10 +11,10 @@ import sys
 import time
 
 import pytest
+from franka_sim_server import Netns
 from require import missing
 from vla_panda_bridge.libfranka_loop import LOOP_CONNECTING, LoopSettings
 from vla_panda_bridge.libfranka_process import LoopProcess
-from vla_panda_bridge.libfranka_simserver import Netns
 
 pytestmark = pytest.mark.slow
 

@@ -1,6 +1,7 @@
-"""franka-sim (the libfranka-protocol FR3 simulator) in a private network namespace, for tests and
-bench/bench_libfranka.py. Plain Python; starts processes, imports nothing of franka-sim (it lives in
-its own venv, .venv-franka-sim, made by scripts/setup_franka_sim.sh).
+"""franka-sim (the libfranka-protocol FR3 simulator) in a private network namespace: test support for
+the franka-sim tests and bench/bench_libfranka.py, not part of any package. Plain Python; starts
+processes, imports nothing of franka-sim (it lives in its own venv, .venv-franka-sim, made by
+scripts/setup_franka_sim.sh).
 
 franka-sim binds 0.0.0.0:1337 and pylibfranka only ever connects to port 1337, so each server gets a
 network namespace of its own with only `lo` in it: nothing outside can reach it, and concurrent test

@@ -29,7 +29,7 @@ from std_srvs.srv import SetBool, Trigger
 from vla_common.kinematics import PandaKinematics
 from vla_common.ros.testing import RosHarness
 from vla_launch.run import find_executable
-from vla_panda_bridge.libfranka_loop import LOOP_DISCONNECTED, LOOP_OK, LOOP_REFLEX
+from vla_panda_bridge.libfranka_loop import LoopStatus
 
 from vla_interfaces.msg import SafetyStatus
 
@@ -109,7 +109,8 @@ class Bridge(RosHarness):
         return traced
 
     def connected(self, timeout: float = 15.0) -> bool:
-        return self.spin_until(lambda: self.backend.status.code == LOOP_OK and bool(self.states), timeout)
+        return self.spin_until(lambda: self.backend.status.code == LoopStatus.OK and bool(self.states),
+                               timeout)
 
     def command(self, values, seconds: float, rate: float = 100.0) -> None:
         """Publish `values` at `rate` for `seconds` while spinning (as the controller would)."""
@@ -149,7 +150,7 @@ class Bridge(RosHarness):
 
     def recover_if_needed(self) -> None:
         held = bool(self.status) and self.status[-1].code == SafetyStatus.REFLEX
-        if self.backend.status.code != LOOP_OK or held:
+        if self.backend.status.code != LoopStatus.OK or held:
             assert self.recover().success
         assert self.connected()
         assert self.spin_until(self.at_rest, 5.0)
@@ -245,7 +246,7 @@ def test_malformed_commands_are_rejected_as_on_mujoco(bridge):
     assert {SafetyStatus.NON_FINITE_COMMAND, SafetyStatus.WRONG_LENGTH} <= codes
     assert bridge.status[-1].commands_rejected >= rejected + 3
     np.testing.assert_allclose(bridge.states[-1].position, q0, atol=1e-3)    # nothing moved
-    assert bridge.backend.status.code == LOOP_OK
+    assert bridge.backend.status.code == LoopStatus.OK
 
 
 def test_teaching_on_and_off_moves_the_hand_by_at_most_1_mm(bridge):
@@ -278,7 +279,8 @@ def test_a_stalled_loop_gives_a_reflex_and_recover_resumes(bridge):
     os.kill(pid, signal.SIGSTOP)                          # > 20 lost cycles: communication_constraints
     time.sleep(0.08)
     os.kill(pid, signal.SIGCONT)
-    assert bridge.spin_until(lambda: bridge.backend.status.code == LOOP_REFLEX, 5.0), bridge.backend.status
+    reflex = bridge.spin_until(lambda: bridge.backend.status.code == LoopStatus.REFLEX, 5.0)
+    assert reflex, bridge.backend.status
     st = bridge.backend.status
     assert "communication_constraints_violation" in st.text
     assert bridge.spin_until(lambda: bridge.status[-1].code == SafetyStatus.REFLEX, 2.0)
@@ -290,7 +292,7 @@ def test_a_stalled_loop_gives_a_reflex_and_recover_resumes(bridge):
     np.testing.assert_allclose(bridge.robot().position, q, atol=2e-3)
     res = bridge.recover()
     assert res.success and "recovery done" in res.message, res.message
-    assert bridge.backend.process.status().code == LOOP_OK
+    assert bridge.backend.process.status().code == LoopStatus.OK
     bridge.command([0.0] * 7, 0.05)                       # the filter re-arms on a zero command
     assert bridge.command_until(velocity(1, 0.1), bridge.moved_by(1, 0.02))
 
@@ -301,7 +303,7 @@ def test_a_killed_server_is_reported_and_the_bridge_reconnects_when_it_returns(b
     sim.kill()
     killed_at = time.time()
     connects = bridge.backend.status.connects
-    assert bridge.spin_until(lambda: bridge.backend.status.code == LOOP_DISCONNECTED, 5.0)
+    assert bridge.spin_until(lambda: bridge.backend.status.code == LoopStatus.DISCONNECTED, 5.0)
     st = bridge.backend.status
     assert "UDP receive: Timeout" in st.text or "closed connection" in st.text, st.text
     bridge.spin_for(0.5)                                  # silent: nothing new, the node alive
@@ -310,7 +312,7 @@ def test_a_killed_server_is_reported_and_the_bridge_reconnects_when_it_returns(b
     assert status.code == SafetyStatus.REFLEX and "UDP receive: Timeout" in status.text, status
     assert not bridge.recover().success                   # nothing to reconnect to yet
     sim.start()
-    assert bridge.spin_until(lambda: bridge.backend.status.code == LOOP_OK, 10.0), bridge.backend.status
+    assert bridge.spin_until(lambda: bridge.backend.status.code == LoopStatus.OK, 10.0), bridge.backend.status
     assert bridge.backend.status.connects == connects + 1
     assert bridge.spin_until(lambda: _stamp(bridge.states[-1]) > killed_at + 0.5, 5.0)
     np.testing.assert_allclose(bridge.states[-1].position, SIM_Q0, atol=2e-3)   # a fresh server

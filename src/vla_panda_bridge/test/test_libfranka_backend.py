@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from vla_common.robot import FR3
 from vla_panda_bridge.backend_libfranka import MAX_CATCH_UP, LibfrankaBackend
-from vla_panda_bridge.libfranka_loop import LOOP_DISCONNECTED, LOOP_OK, LOOP_REFLEX
+from vla_panda_bridge.libfranka_loop import LoopStatus
 from vla_panda_bridge.libfranka_slots import STATE
 
 
@@ -64,7 +64,7 @@ def rig():
     backend.process.slots.close()
 
 
-def loop_writes(backend, cycle: int, status: int = LOOP_OK, text: str = "connected", q=None):
+def loop_writes(backend, cycle: int, status: int = LoopStatus.OK, text: str = "connected", q=None):
     """What the loop process would write for robot state `cycle`."""
     slots = backend.process.slots
     q = [0.1] * 7 if q is None else q
@@ -107,17 +107,17 @@ def test_faults_reach_the_node_once_per_change_and_the_filter_brakes(rig):
     backend._t0 = time.monotonic() - 0.0105
     backend._tick()
     np.testing.assert_allclose(backend.filter_position(), 0.1)
-    loop_writes(backend, 2, LOOP_REFLEX, 'ControlException: ... reflex! ["joint_velocity_violation"]')
+    loop_writes(backend, 2, LoopStatus.REFLEX, 'ControlException: ... reflex! ["joint_velocity_violation"]')
     for _ in range(3):
         backend._t0 -= 0.0105
         backend._tick()
     assert len(host.faults) == 1 and "joint_velocity_violation" in host.faults[0]
     assert np.isnan(backend.filter_position()).all()        # held: the node's filter brakes
-    loop_writes(backend, 3, LOOP_DISCONNECTED, "NetworkException: libfranka: UDP receive: Timeout")
+    loop_writes(backend, 3, LoopStatus.DISCONNECTED, "NetworkException: libfranka: UDP receive: Timeout")
     backend._t0 -= 0.0105
     backend._tick()
     assert len(host.faults) == 2 and "UDP receive: Timeout" in host.faults[1]
-    loop_writes(backend, 4, LOOP_OK, "connected to 192.0.2.1 (pylibfranka)")
+    loop_writes(backend, 4, LoopStatus.OK, "connected to 192.0.2.1 (pylibfranka)")
     backend._t0 -= 0.0105
     backend._tick()
     assert len(host.faults) == 2 and not np.isnan(backend.filter_position()).any()

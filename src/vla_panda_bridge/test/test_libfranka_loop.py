@@ -242,7 +242,7 @@ def assert_continuous(loop: ControlLoop, commands: list[list[float]]) -> None:
 def test_connects_and_publishes_idle_states(rig):
     rig.run(5)
     s = rig.state()
-    assert s.status == lf.LOOP_OK and s.mode == lf.MODE_IDLE and s.connects == 1
+    assert s.status == lf.LoopStatus.OK and s.mode == lf.Mode.IDLE and s.connects == 1
     assert s.cycle == 5 and s.robot_time == pytest.approx(0.005)
     assert np.allclose(s.q, rig.robot.q)
     assert rig.slots.read_text("status") == "connected to 192.0.2.1 (fake)"
@@ -263,7 +263,7 @@ def test_a_command_starts_a_continuous_motion_that_ends_at_rest(rig):
     assert finished and last == [0.0] * 7
     assert not any(f for _, f in d.velocities[:-1])
     assert_continuous(rig.loop, [v for v, _ in d.velocities])
-    assert rig.state().mode == lf.MODE_IDLE
+    assert rig.state().mode == lf.Mode.IDLE
     # q integrates the commands (the fake robot follows them exactly)
     assert rig.robot.q[3] - Q0[3] == pytest.approx(sum(v[3] for v, _ in d.velocities[:-1]) * 0.001, abs=1e-9)
 
@@ -273,7 +273,7 @@ def test_the_loop_watchdog_brakes_when_commands_stop(rig):
     rig.run(300, command=velocity(0, 0.2))
     n = len(rig.driver.velocities)
     timeout = rig.loop.filter.config.command_timeout
-    rig.run_until(lambda: rig.state().mode == lf.MODE_IDLE)
+    rig.run_until(lambda: rig.state().mode == lf.Mode.IDLE)
     after = [v for v, _ in rig.driver.velocities[n:]]
     still = next(i for i, v in enumerate(after) if v[0] < 0.2 - 1e-9)   # first braking step
     assert still == pytest.approx(timeout / lf.PERIOD, abs=2)
@@ -289,7 +289,7 @@ def test_malformed_commands_are_treated_as_zero(rig, bad, code):
     rig.command(bad)
     rig.run(1)
     assert rig.state().filter_code == code
-    rig.run_until(lambda: rig.state().mode == lf.MODE_IDLE)
+    rig.run_until(lambda: rig.state().mode == lf.Mode.IDLE)
     assert_continuous(rig.loop, [v for v, _ in rig.driver.velocities])
     assert all(math.isfinite(x) for v, _ in rig.driver.velocities for x in v)
 
@@ -300,7 +300,7 @@ def test_a_reflex_stops_the_arm_and_recover_resumes(rig):
     rig.driver.fail_next = RobotError(REFLEX, REFLEX_TEXT)
     rig.run(1, command=velocity(3, 0.2))
     s = rig.state()
-    assert s.status == lf.LOOP_REFLEX and s.errors == 1
+    assert s.status == lf.LoopStatus.REFLEX and s.errors == 1
     assert REFLEX_TEXT in rig.slots.read_text("status")
     cycle = s.cycle
     rig.run(200, command=velocity(3, 0.2))                 # commands do not move it before ~/recover
@@ -310,7 +310,7 @@ def test_a_reflex_stops_the_arm_and_recover_resumes(rig):
     rig.run(1)
     s = rig.state()
     assert rig.driver.events[-1] == "recover"
-    assert s.status == lf.LOOP_OK and s.recover_ack == 1 and s.recover_ok == 1
+    assert s.status == lf.LoopStatus.OK and s.recover_ack == 1 and s.recover_ok == 1
     rig.run(50, command=velocity(3, 0.2))
     assert rig.driver.events[-1] == "recover"              # a held stick does not restart it ...
     rig.run(1, command=ZERO)
@@ -325,7 +325,7 @@ def test_a_lost_connection_is_retried_with_backoff_and_states_stop(rig):
     rig.robot.reachable = False
     rig.run(1, command=velocity(3, 0.2))
     s = rig.state()
-    assert s.status == lf.LOOP_DISCONNECTED and "UDP receive: Timeout" in rig.slots.read_text("status")
+    assert s.status == lf.LoopStatus.DISCONNECTED and "UDP receive: Timeout" in rig.slots.read_text("status")
     cycle, t0, attempts = s.cycle, rig.clock.t, rig.robot.attempts
     tried_at = []
     while rig.clock.t - t0 < 3.0:
@@ -339,7 +339,7 @@ def test_a_lost_connection_is_retried_with_backoff_and_states_stop(rig):
     assert gaps.max() <= rig.loop.settings.reconnect_max + 0.05                  # ... up to its cap
     assert rig.robot.attempts - attempts == len(tried_at)
     rig.robot.reachable = True
-    rig.run_until(lambda: rig.state().status == lf.LOOP_OK)
+    rig.run_until(lambda: rig.state().status == lf.LoopStatus.OK)
     s = rig.state()
     assert s.connects == 2 and s.cycle > cycle and len(rig.drivers) == 2
     rig.run(1, command=ZERO)
@@ -353,10 +353,10 @@ def test_a_fatal_error_waits_for_recover(rig):
     for _ in range(200):
         rig.loop.step()
     assert rig.robot.attempts == 1
-    assert rig.state().status == lf.LOOP_FATAL and "server version: 7" in rig.slots.read_text("status")
+    assert rig.state().status == lf.LoopStatus.FATAL and "server version: 7" in rig.slots.read_text("status")
     rig.robot.fatal = ""
     rig.request("recover")
-    rig.run_until(lambda: rig.state().status == lf.LOOP_OK, limit=50)
+    rig.run_until(lambda: rig.state().status == lf.LoopStatus.OK, limit=50)
     s = rig.state()
     assert rig.robot.attempts == 2 and s.recover_ack == 1 and s.recover_ok == 1
 
@@ -368,7 +368,7 @@ def test_teaching_brakes_switches_to_torque_and_back_holding_the_pose(rig):
         r.run(2, command=ZERO)
         r.run(200, command=velocity(0, 0.3))
         r.request("teaching", 1)
-        r.run_until(lambda: r.state().mode == lf.MODE_TORQUE, command=velocity(0, 0.3))
+        r.run_until(lambda: r.state().mode == lf.Mode.TORQUE, command=velocity(0, 0.3))
         d = r.driver
         assert d.events == ["start_velocity", "finish_velocity", "start_torque"]
         assert d.velocities[-1] == ([0.0] * 7, True)
@@ -383,7 +383,7 @@ def test_teaching_brakes_switches_to_torque_and_back_holding_the_pose(rig):
         r.run(1)
         assert d.torques[-1] == ([0.0] * 7, True)
         s = r.state()
-        assert s.mode == lf.MODE_IDLE and s.teaching_ack == 2
+        assert s.mode == lf.Mode.IDLE and s.teaching_ack == 2
         r.run(50, command=velocity(0, 0.3))                # still held from before: no motion
         assert d.events[-1] == "finish_torque"
         r.run(1, command=ZERO)
@@ -401,14 +401,14 @@ def test_teaching_is_refused_during_a_reflex(rig):
     rig.request("teaching", 1)
     rig.run(5)
     s = rig.state()
-    assert s.teaching_ack == 1 and s.mode == lf.MODE_IDLE and "start_torque" not in rig.driver.events
+    assert s.teaching_ack == 1 and s.mode == lf.Mode.IDLE and "start_torque" not in rig.driver.events
 
 
 def test_estop_brakes_and_holds_until_released(rig):
     rig.run(2, command=ZERO)
     rig.run(200, command=velocity(4, 0.4))
     rig.request("estop", 1)
-    rig.run_until(lambda: rig.state().mode == lf.MODE_IDLE, command=velocity(4, 0.4))
+    rig.run_until(lambda: rig.state().mode == lf.Mode.IDLE, command=velocity(4, 0.4))
     assert rig.state().estop_active == 1
     rig.run(100, command=velocity(4, 0.4))
     assert rig.driver.events == ["start_velocity", "finish_velocity"]
@@ -428,7 +428,7 @@ def test_shutdown_brakes_ends_the_motion_and_stops(rig):
     for _ in range(2000):
         if not rig.loop.step():
             break
-    assert rig.loop.stopped and rig.state().status == lf.LOOP_STOPPED
+    assert rig.loop.stopped and rig.state().status == lf.LoopStatus.STOPPED
     d = rig.driver
     assert d.velocities[-1] == ([0.0] * 7, True) and d.events[-2:] == ["finish_velocity", "close"]
     assert_continuous(rig.loop, [v for v, _ in d.velocities])
@@ -438,7 +438,7 @@ def test_the_loop_stops_when_its_parent_is_gone():
     r = Rig(parent_pid=os.getpid())                        # not our parent: as if it had died
     try:
         assert not r.loop.step()
-        assert r.state().status == lf.LOOP_STOPPED and r.loop.orphaned
+        assert r.state().status == lf.LoopStatus.STOPPED and r.loop.orphaned
     finally:
         r.close()
 
@@ -466,7 +466,7 @@ def test_a_command_slot_caught_mid_write_keeps_the_previous_command(rig):
     assert rig.driver.velocities[-1][0][3] == pytest.approx(0.2)
     rig.slots._cmd_seq[0] += 1.0
     rig.run(5, command=velocity(3, 0.2))
-    assert rig.state().mode == lf.MODE_VELOCITY
+    assert rig.state().mode == lf.Mode.VELOCITY
 
 
 @pytest.mark.parametrize("model", ["fr3", "panda"])

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pytest
 from vla_panda_bridge.libfranka_driver import REFLEX, DriverSettings, RobotError
-from vla_panda_bridge.libfranka_loop import MODE_IDLE, MODE_VELOCITY, ControlLoop, LoopSettings
+from vla_panda_bridge.libfranka_loop import ControlLoop, LoopSettings, Mode
 from vla_panda_bridge.libfranka_slots import Slots
 
 panda_py = pytest.importorskip("panda_py", reason="panda-python==1.1.1 is not installed")
@@ -191,10 +191,10 @@ def test_the_loop_drives_a_panda_through_panda_py(rig):
         for _ in range(300):
             slots.write_command([0.0, 0.0, 0.0, 0.2, 0.0, 0.0, 0.0], clock.t)
             loop.step()
-        assert slots.read_state().mode == MODE_VELOCITY and pandas[0].controller is not None
+        assert slots.read_state().mode == Mode.VELOCITY and pandas[0].controller is not None
         for _ in range(500):
             loop.step()                                       # no commands: the watchdog stops it
-        assert slots.read_state().mode == MODE_IDLE
+        assert slots.read_state().mode == Mode.IDLE
         names = [c[0] for c in pandas[0].calls]
         assert names.count("start_controller") == 1 and names[-1] == "stop_controller"
         assert np.isfinite(slots.read_state().q).all()

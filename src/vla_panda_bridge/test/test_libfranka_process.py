@@ -13,7 +13,7 @@ import time
 import pytest
 from franka_sim_server import Netns
 from require import missing
-from vla_panda_bridge.libfranka_loop import LOOP_CONNECTING, LoopSettings
+from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus
 from vla_panda_bridge.libfranka_process import LoopProcess
 
 pytestmark = pytest.mark.slow
@@ -51,7 +51,7 @@ def test_a_refused_connection_is_reported_and_a_dead_loop_restarted(netns):
     p.start()
     try:
         assert _wait(lambda: "Connection to FCI refused" in p.status().text), p.status()
-        assert p.status().code == LOOP_CONNECTING and p.read() is None
+        assert p.status().code == LoopStatus.CONNECTING and p.read() is None
         first = p.pid
         os.kill(first, signal.SIGKILL)
         assert _wait(lambda: "exited" in p.poll())

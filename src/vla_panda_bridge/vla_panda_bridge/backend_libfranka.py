@@ -24,13 +24,7 @@ import numpy as np
 
 from vla_panda_bridge.backend import TEACHING, BackendBase, BackendError, Host, JointSample
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
-from vla_panda_bridge.libfranka_loop import (
-    LOOP_CONNECTING,
-    LOOP_DISCONNECTED,
-    LOOP_NAMES,
-    LOOP_OK,
-    LoopSettings,
-)
+from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus
 from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
 
 MAX_CATCH_UP = 20       # control periods run at once by a late timer (the rest are skipped)
@@ -83,7 +77,7 @@ class LibfrankaBackend(BackendBase):
                                    "(fine for franka-sim and tests; on a real arm expect lost cycles)")
         self.process = LoopProcess(self.settings, loop_prefix=p["loop_prefix"])
         self._latest: JointSample | None = None
-        self._status = LibfrankaStatus(LOOP_CONNECTING, LOOP_NAMES[LOOP_CONNECTING], "", 0, "", -1, 0.0,
+        self._status = LibfrankaStatus(LoopStatus.CONNECTING, "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
         self._reported = -1                             # the loop status code last reported
         self._reported_text, self._reported_at = "", -math.inf
@@ -128,14 +122,14 @@ class LibfrankaBackend(BackendBase):
         text = f"libfranka {st.name}: {st.text}"
         now = time.monotonic()
         if st.code == self._reported:
-            if st.code in (LOOP_CONNECTING, LOOP_DISCONNECTED) and text != self._reported_text \
+            if st.code in (LoopStatus.CONNECTING, LoopStatus.DISCONNECTED) and text != self._reported_text \
                     and now - self._reported_at >= RETRY_LOG_PERIOD:
                 self._reported_text, self._reported_at = text, now
                 self._host.get_logger().warn(text)
             return
         # The first retry text after a change is logged at once, later ones every RETRY_LOG_PERIOD.
         self._reported, self._reported_text, self._reported_at = st.code, text, -math.inf
-        if st.code in (LOOP_OK, LOOP_CONNECTING):
+        if st.code in (LoopStatus.OK, LoopStatus.CONNECTING):
             self._host.get_logger().info(text)
         elif (on_fault := getattr(self._host, "on_fault", None)) is not None:
             on_fault(text)
@@ -155,7 +149,7 @@ class LibfrankaBackend(BackendBase):
     def filter_position(self) -> np.ndarray:
         """The robot's latest position while it talks and is fine; invalid (brake) otherwise."""
         st = self._status
-        if self._latest is None or st.code != LOOP_OK or st.silent_for > self._state_timeout:
+        if self._latest is None or st.code != LoopStatus.OK or st.silent_for > self._state_timeout:
             return self._no_state
         return self._latest.position
 

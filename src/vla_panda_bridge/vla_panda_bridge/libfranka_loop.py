@@ -29,6 +29,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
+from enum import IntEnum
 
 import numpy as np
 from vla_common.robot import robot_spec
@@ -56,21 +57,24 @@ from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
 PERIOD = 0.001  # the robot's control cycle (s)
 
-# Loop status codes (state slot "status").
-LOOP_OK = 0
-LOOP_CONNECTING = 1
-LOOP_DISCONNECTED = 2
-LOOP_REFLEX = 3
-LOOP_FATAL = 4
-LOOP_STOPPED = 5
-LOOP_NAMES = {LOOP_OK: "OK", LOOP_CONNECTING: "CONNECTING", LOOP_DISCONNECTED: "DISCONNECTED",
-              LOOP_REFLEX: "REFLEX", LOOP_FATAL: "FATAL", LOOP_STOPPED: "STOPPED"}
+class LoopStatus(IntEnum):
+    """The loop's status, its one form: the state slot holds the number, ~/status shows the name."""
 
-# Motion modes (state slot "mode").
-MODE_NONE = -1      # not connected
-MODE_IDLE = 0
-MODE_VELOCITY = 1
-MODE_TORQUE = 2     # teaching
+    OK = 0
+    CONNECTING = 1
+    DISCONNECTED = 2
+    REFLEX = 3
+    FATAL = 4
+    STOPPED = 5
+
+
+class Mode(IntEnum):
+    """What the loop is doing with the robot (state slot "mode")."""
+
+    NONE = -1       # not connected
+    IDLE = 0        # reading states between motions
+    VELOCITY = 1    # a joint-velocity motion
+    TORQUE = 2      # teaching
 
 MAX_SUBSTEPS = 50   # filter steps caught up after a gap in the robot's cycles
 # Zero commands that open every motion before the filter's first step: the robot (franka-sim's
@@ -131,8 +135,8 @@ class ControlLoop:
         self._timeout = self.filter.config.command_timeout
         self._damping = [float(d) for d in settings.driver_settings().teaching_damping]
         self.driver: Driver | None = None
-        self.status = LOOP_CONNECTING
-        self.mode = MODE_NONE
+        self.status = LoopStatus.CONNECTING
+        self.mode = Mode.NONE
         self.text = ""
         self._filter_text = ""
         self._next_attempt = clock()
@@ -179,9 +183,9 @@ class ControlLoop:
             self._disconnected_step()
             return True
         try:
-            if self.mode == MODE_VELOCITY:
+            if self.mode == Mode.VELOCITY:
                 self._velocity_step(shutdown)
-            elif self.mode == MODE_TORQUE:
+            elif self.mode == Mode.TORQUE:
                 self._torque_step(shutdown)
             elif shutdown:
                 return self._stop()
@@ -204,9 +208,9 @@ class ControlLoop:
         if self._recover_requested():
             self._next_attempt = self._clock()       # ~/recover: try now
             self._backoff = self.settings.reconnect_min
-            if self.status == LOOP_FATAL:
-                self.status = LOOP_CONNECTING
-        if self.status == LOOP_FATAL:
+            if self.status == LoopStatus.FATAL:
+                self.status = LoopStatus.CONNECTING
+        if self.status == LoopStatus.FATAL:
             self._teaching_request()                 # answered (refused) while nothing is connected
             self._publish_status()
             self._sleep(0.02)
@@ -225,10 +229,10 @@ class ControlLoop:
             return
         self.driver = driver
         self.connects += 1
-        self.mode = MODE_IDLE
+        self.mode = Mode.IDLE
         self._backoff = self.settings.reconnect_min
         name = getattr(driver, "name", self.settings.driver)
-        self._set_status(LOOP_OK, f"connected to {self.settings.driver_settings().robot_ip} ({name})")
+        self._set_status(LoopStatus.OK, f"connected to {self.settings.driver_settings().robot_ip} ({name})")
         self._answer_recover(True)
         self._on_state(state, None)
         self.filter.reset(state.q)
@@ -237,14 +241,14 @@ class ControlLoop:
 
     def _connect_failed(self, exc: RobotError) -> None:
         if exc.kind == FATAL:
-            self._set_status(LOOP_FATAL, f"{exc.text} (~/recover retries)")
+            self._set_status(LoopStatus.FATAL, f"{exc.text} (~/recover retries)")
             self._answer_recover(False)
             return
         wait = f"{self._backoff:.2g} s"
         if self.connects == 0:
-            self._set_status(LOOP_CONNECTING, f"{exc.text}; retrying in {wait}")
+            self._set_status(LoopStatus.CONNECTING, f"{exc.text}; retrying in {wait}")
         else:                                        # keep the cause first: it is what went wrong
-            self._set_status(LOOP_DISCONNECTED, f"{self._cause}; reconnecting (last try: {exc.text}; "
+            self._set_status(LoopStatus.DISCONNECTED, f"{self._cause}; reconnecting (last try: {exc.text}; "
                                                 f"next in {wait})")
         self._answer_recover(False)
         self._next_attempt = self._clock() + self._backoff
@@ -258,15 +262,15 @@ class ControlLoop:
         self._forget_commands(f"robot error: {exc.text}")
         self._rest_since = None
         if exc.kind == REFLEX:
-            self.mode = MODE_IDLE
-            self._set_status(LOOP_REFLEX, f"{exc.text} (arm stopped; ~/recover to resume)")
+            self.mode = Mode.IDLE
+            self._set_status(LoopStatus.REFLEX, f"{exc.text} (arm stopped; ~/recover to resume)")
         else:
             self._drop_driver()
             if exc.kind == FATAL:
-                self._set_status(LOOP_FATAL, f"{exc.text} (~/recover retries)")
+                self._set_status(LoopStatus.FATAL, f"{exc.text} (~/recover retries)")
             else:
                 self._cause = exc.text
-                self._set_status(LOOP_DISCONNECTED, f"{exc.text}; reconnecting")
+                self._set_status(LoopStatus.DISCONNECTED, f"{exc.text}; reconnecting")
                 self._next_attempt = self._clock() + self.settings.reconnect_min
                 self._backoff = self.settings.reconnect_min
         self._publish_status()
@@ -278,7 +282,7 @@ class ControlLoop:
             except Exception:  # a dead connection may fail to close: it is dropped either way
                 pass
         self.driver = None
-        self.mode = MODE_NONE
+        self.mode = Mode.NONE
 
     # ------------------------------------------------------------------------------------ requests
     def _recover_requested(self) -> bool:
@@ -303,7 +307,7 @@ class ControlLoop:
         self._on_state(state, None)
         self.filter.reset(state.q)
         self._forget_commands("error recovery")
-        self._set_status(LOOP_OK, "error recovery done: ready")
+        self._set_status(LoopStatus.OK, "error recovery done: ready")
         self._answer_recover(True)
         self._publish(state, math.nan)
 
@@ -315,8 +319,8 @@ class ControlLoop:
         if int(c[CONTROL["teaching_req"]]) == self.teaching_ack:
             return None
         want = bool(c[CONTROL["teaching"]])
-        teaching = self.mode == MODE_TORQUE
-        blocked = self.driver is None or self.status != LOOP_OK or (self._estop and want)
+        teaching = self.mode == Mode.TORQUE
+        blocked = self.driver is None or self.status != LoopStatus.OK or (self._estop and want)
         if want == teaching or blocked:
             self.teaching_ack = int(c[CONTROL["teaching_req"]])
             return None
@@ -371,7 +375,7 @@ class ControlLoop:
         state = self.driver.read_idle()
         self._on_state(state, None)
         self._sync_estop()
-        if self.status == LOOP_REFLEX:
+        if self.status == LoopStatus.REFLEX:
             self._take_command(apply=False)          # nothing moves until ~/recover
             if self._recover_requested():
                 self._recover()
@@ -385,16 +389,16 @@ class ControlLoop:
         if self._teaching_request():
             self._take_command(apply=False)
             self.driver.start_torque()
-            self.mode = MODE_TORQUE
+            self.mode = Mode.TORQUE
             self.motions += 1
             self._ack_teaching()
-            self._set_status(LOOP_OK, "teaching: torque control, the arm follows the hand")
+            self._set_status(LoopStatus.OK, "teaching: torque control, the arm follows the hand")
             self._publish(state, math.nan)
             return
         self._take_command(apply=True)
         if self._wants_motion():
             self.driver.start_velocity()
-            self.mode = MODE_VELOCITY
+            self.mode = Mode.VELOCITY
             self.motions += 1
             self._rest_since = None
             self._last_read = None
@@ -439,7 +443,7 @@ class ControlLoop:
             self._latency_pending = False
             latency = self.latency = self._clock() - self._cmd_arrived
         if finished:
-            self.mode = MODE_IDLE
+            self.mode = Mode.IDLE
             self._rest_since = None
         self._publish(state, latency, t0)
 
@@ -455,18 +459,18 @@ class ControlLoop:
         tau = [0.0] * NUM_JOINTS if finished else [-d[i] * dq[i] for i in range(NUM_JOINTS)]
         self.driver.write_torque(tau, finished)
         if finished:
-            self.mode = MODE_IDLE
+            self.mode = Mode.IDLE
             if teaching is not None:
                 self._ack_teaching()
             self.filter.reset(state.q)               # the hand moved it: start from where it is
             self._forget_commands("teaching mode")
-            self._set_status(LOOP_OK, "teaching ended: holding the pose")
+            self._set_status(LoopStatus.OK, "teaching ended: holding the pose")
         self._publish(state, math.nan, t0)
 
     def _stop(self) -> bool:
         self._drop_driver()
         self.stopped = True
-        self._set_status(LOOP_STOPPED, "loop stopped (shutdown)")
+        self._set_status(LoopStatus.STOPPED, "loop stopped (shutdown)")
         self._publish_status()
         return False
 

@@ -28,13 +28,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vla_panda_bridge.backend import JointSample
-from vla_panda_bridge.libfranka_loop import (
-    LOOP_CONNECTING,
-    LOOP_NAMES,
-    LOOP_OK,
-    MODE_TORQUE,
-    LoopSettings,
-)
+from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus, Mode
 from vla_panda_bridge.libfranka_slots import (
     CONTROL,
     H_DQ,
@@ -65,8 +59,7 @@ class LibfrankaSample(JointSample):
 class LibfrankaStatus:
     """What the loop reports, as read on this side."""
 
-    code: int                    # libfranka_loop LOOP_* (LOOP_OK also while teaching)
-    name: str
+    code: LoopStatus             # (OK also while teaching)
     text: str                    # the loop's status text (libfranka's error text on an error)
     filter_code: int             # the safety filter's code of the loop's last cycle
     filter_text: str
@@ -85,8 +78,12 @@ class LibfrankaStatus:
     extra: dict = field(default_factory=dict)
 
     @property
+    def name(self) -> str:
+        return self.code.name
+
+    @property
     def connected(self) -> bool:
-        return self.code == LOOP_OK and self.silent_for < 0.1
+        return self.code == LoopStatus.OK and self.silent_for < 0.1
 
 
 class LoopProcess:
@@ -209,7 +206,7 @@ class LoopProcess:
         s = self._read()
         if s is None or s.teaching_ack < token:
             return None
-        return int(s.mode) == MODE_TORQUE
+        return int(s.mode) == Mode.TORQUE
 
     # ----------------------------------------------------------------------------------- state
     def _read(self) -> StateView | None:
@@ -281,15 +278,15 @@ class LoopProcess:
         s = self._read()
         silent = time.monotonic() - self._cycle_seen_at
         if s is None:
-            return LibfrankaStatus(LOOP_CONNECTING, LOOP_NAMES[LOOP_CONNECTING], "loop process starting",
+            return LibfrankaStatus(LoopStatus.CONNECTING, "loop process starting",
                                    0, "", -1, 0.0, math.inf, False, False, 0, 0, 0, 0, 0, math.nan,
                                    self.process_note)
-        code = int(s.status)
+        code = LoopStatus(int(s.status))
         return LibfrankaStatus(
-            code=code, name=LOOP_NAMES.get(code, str(code)), text=self._text("status"),
+            code=code, text=self._text("status"),
             filter_code=int(s.filter_code), filter_text=self._text("filter"),
             robot_mode=int(s.robot_mode) if s.cycle > 0 else -1, success_rate=s.success_rate,
-            silent_for=silent, teaching=int(s.mode) == MODE_TORQUE, estop_active=bool(s.estop_active),
+            silent_for=silent, teaching=int(s.mode) == Mode.TORQUE, estop_active=bool(s.estop_active),
             interventions=int(s.interventions), last_intervention=int(s.last_intervention),
             connects=int(s.connects), errors=int(s.errors), missed=int(s.missed), latency=s.latency,
             process=self.process_note,

@@ -50,11 +50,11 @@ STATE_LAYOUT: tuple[tuple[str, int], ...] = (
     ("dq_cmd", NUM_JOINTS),  # the velocity last commanded (after the safety filter)
     ("robot_mode", 1),       # franka RobotMode as an int
     ("success_rate", 1),     # control_command_success_rate (0..1)
-    ("status", 1),           # libfranka_loop status code (LOOP_*)
+    ("status", 1),           # libfranka_loop.LoopStatus
     ("filter_code", 1),      # safety filter code of the last cycle
     ("interventions", 1),    # safety filter interventions in this loop process
     ("last_intervention", 1),
-    ("mode", 1),             # MODE_*: idle, velocity, torque (teaching)
+    ("mode", 1),             # libfranka_loop.Mode: idle, velocity, torque (teaching)
     ("estop_active", 1),
     ("cmd_seq", 1),          # command sequence last taken by the loop
     ("latency", 1),          # s from that command's arrival to the first robot command with it

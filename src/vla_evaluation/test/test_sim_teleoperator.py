@@ -440,3 +440,14 @@ def test_image_subscription_is_on_the_image_qos(ros, tmp_path):
     assert info.qos_profile.reliability == ReliabilityPolicy.RELIABLE
     (sub,) = [s for s in tele.subscriptions if s.topic_name == "/camera/image_raw"]
     assert sub.qos_profile.depth == IMAGE_DEPTH  # discovery does not carry the depth
+
+
+def test_hold_keeps_the_stick_at_one_value_until_the_time_limit():
+    """Issue 20 item 5: a person who just holds the stick, whatever the waypoints say."""
+    schedule = WaypointSchedule([Q0, Q0 + 0.5], 1.0, 3.0)
+    tele = SimTeleoperator(deadband_linear(np.ones(7)), schedule, hold=1.0)
+    assert [tele.act(t, Q0 + 0.5).axis for t in (0.0, 1.5, 2.9)] == [1.0, 1.0, 1.0]
+    assert tele.act(3.0, Q0).done and tele.act(3.0, Q0).axis == 0.0
+    assert tele.act(0.5, np.full(7, np.nan)).axis == 0.0        # bad joint state: hands off
+    with pytest.raises(ValueError):
+        SimTeleoperator(deadband_linear(np.ones(7)), schedule, hold=1.5)

@@ -56,6 +56,7 @@ class TeleopSettings:
     dq_max: tuple | None = tuple(float(v) for v in DQ_MAX)  # the controller node's per-joint limit
     path_every: int = 2  # keep every n-th TCP position for plots
     max_stick_rate: float = 0.0  # stick units per second; 0: unlimited (the paper)
+    hold: float = 0.0  # the graph's teleoperator holds the stick at this value (0: steers)
 
 
 @dataclass

@@ -59,7 +59,7 @@ def run_episode(model, layout: Layout, settings: TeleopSettings, sim, safety_con
         return result
     schedule = WaypointSchedule(layout.waypoints, settings.switch_time, settings.time_limit)
     tele = SimTeleoperator(command, schedule, settings.horizon, settings.n_candidates,
-                           settings.max_stick_rate)
+                           settings.max_stick_rate, settings.hold)
     cfg = safety_config or SafetyConfig(dt=sim.physics_dt)
     if abs(cfg.dt - sim.physics_dt) > 1e-12:
         raise ValueError(f"safety filter period {cfg.dt} s must be the physics step {sim.physics_dt} s")

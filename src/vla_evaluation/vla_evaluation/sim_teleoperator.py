@@ -148,7 +148,7 @@ class SimTeleoperator:
 
     def __init__(self, command_fn: AxisCommandFn, schedule: WaypointSchedule,
                  horizon: float = DEFAULT_HORIZON, n_candidates: int = DEFAULT_CANDIDATES,
-                 max_stick_rate: float = 0.0) -> None:
+                 max_stick_rate: float = 0.0, hold: float = 0.0) -> None:
         if not (horizon > 0 and np.isfinite(horizon)):
             raise ValueError(f"horizon must be a positive number of seconds, got {horizon!r}")
         if not (max_stick_rate >= 0 and np.isfinite(max_stick_rate)):
@@ -161,6 +161,10 @@ class SimTeleoperator:
         # unconstrained choice. With a limit, only values reachable since the last step compete.
         self.max_stick_rate = float(max_stick_rate)
         self._last: tuple[float, float] | None = None  # (t, axis) of the previous step
+        # A person who just holds the stick (issue 20 item 5): a fixed value instead of steering.
+        if not (-1.0 <= hold <= 1.0):
+            raise ValueError(f"hold must be a stick value in [-1, 1] (0: steer), got {hold!r}")
+        self.hold = float(hold)
 
     def act(self, t: float, q: np.ndarray) -> TeleopStep:
         """The stick value at time t (s since the episode started) for joint positions q.
@@ -173,6 +177,8 @@ class SimTeleoperator:
         q = np.asarray(q, dtype=float).reshape(-1)
         if q.shape != (7,) or not np.all(np.isfinite(q)):
             return TeleopStep(0.0, idx, float("nan"), False, "bad joint state")
+        if self.hold:
+            return TeleopStep(self.hold, idx, float("nan"), False, "holding the stick")
         axes = self._reachable(t)
         try:
             commands = np.asarray(self.command_fn(axes, q), dtype=float)

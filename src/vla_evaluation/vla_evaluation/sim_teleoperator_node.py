@@ -88,6 +88,8 @@ PARAMETERS = ParameterTable([
     Param("time_limit", DEFAULT_TIME_LIMIT, "episode length (s)", range=(0.1, 3600.0), dynamic=True),
     Param("max_stick_rate", 0.0, "how fast the simulated hand moves the stick (units/s); 0: unlimited "
           "(the paper's choice)", range=(0.0, 1000.0), dynamic=True),
+    Param("hold", 0.0, "hold the stick at this value for the whole episode instead of steering to the "
+          "waypoints (0: steer)", range=(-1.0, 1.0), dynamic=True),
     Param("plan_seed", 0, "seed of the planner's waypoint variation", range=(0, 2**31 - 1), dynamic=True),
     Param("start_timeout", 10.0, "give up starting when inputs are missing this long (s)",
           range=(0.1, 600.0), dynamic=True),
@@ -307,7 +309,7 @@ class SimTeleoperatorNode(Node):
                          np.random.default_rng(int(p["plan_seed"])), self.catalogue)
         schedule = WaypointSchedule(teleop_waypoints(plan), float(p["switch_time"]), float(p["time_limit"]))
         tele = SimTeleoperator(command, schedule, float(p["horizon"]), int(p["n_candidates"]),
-                               float(p["max_stick_rate"]))
+                               float(p["max_stick_rate"]), float(p["hold"]))
         return tele, cls
 
     def _finish(self, state: int, reason: str) -> None:

@@ -16,7 +16,7 @@ from sensor_msgs.msg import Joy
 from vla_common.ros.node_main import run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
-from vla_joystick.joystick import JoystickLoop, default_opener
+from vla_joystick.joystick import DEFAULT_AUTOREPEAT_RATE, JoystickLoop, default_opener
 
 NODE_NAME = "joy_node"
 
@@ -28,7 +28,8 @@ PARAMETERS = ParameterTable([
           "empty: the first device that looks like a joystick"),
     Param("deadzone", 0.05, "centre deadzone as a fraction of the half range; the rest is rescaled so "
           "+-1 is still reached", range=(0.0, 0.9)),
-    Param("autorepeat_rate", 20.0, "republish the unchanged state at this rate (Hz); 0 disables",
+    Param("autorepeat_rate", DEFAULT_AUTOREPEAT_RATE, "republish the unchanged state at this rate (Hz), "
+          "well above 1 / the controller's joy_timeout; 0 disables",
           range=(0.0, 1000.0)),
     Param("coalesce_interval", 0.001, "axis changes are published at most once per this interval (s); "
           "button changes at once", range=(0.0, 1.0)),

@@ -142,10 +142,17 @@ class JoystickMapping:
         return list(self.axes), list(self.buttons)
 
 
+# The unchanged state is repeated at 50 Hz: the controller zeroes the arm after `joy_timeout` (0.1 s)
+# without a message, and that stop is one the operator did not choose, so motion then waits for the
+# stick's neutral (vla_common.arming). At 20 Hz two lost repeats were enough to stop the arm; at 50 Hz
+# it takes five in a row, while a real loss of the joystick still stops it within 0.1 s.
+DEFAULT_AUTOREPEAT_RATE = 50.0
+
+
 class PublishScheduler:
     """When to publish: buttons at once, axes rate-limited by ``coalesce_interval``, autorepeat when idle."""
 
-    def __init__(self, autorepeat_rate: float = 20.0, coalesce_interval: float = 0.001):
+    def __init__(self, autorepeat_rate: float = DEFAULT_AUTOREPEAT_RATE, coalesce_interval: float = 0.001):
         if autorepeat_rate < 0 or coalesce_interval < 0:
             raise ValueError("autorepeat_rate and coalesce_interval must be >= 0")
         self.repeat_period = 1.0 / autorepeat_rate if autorepeat_rate > 0 else None
@@ -296,7 +303,7 @@ class JoystickLoop:
         *,
         opener: Callable[[], JoystickDevice],
         deadzone: float = 0.05,
-        autorepeat_rate: float = 20.0,
+        autorepeat_rate: float = DEFAULT_AUTOREPEAT_RATE,
         coalesce_interval: float = 0.001,
         retry_initial: float = 0.25,
         retry_max: float = 4.0,

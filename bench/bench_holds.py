@@ -1,0 +1,43 @@
+"""Holding the stick toward the task (issue 20 item 5, must-show): N holds of S s at full stick from
+the ready pose on fresh layouts for each base task, through the graph on MuJoCo (the shipped models).
+Prints per task: holds, reflexes, task done, worst measured |dq|/dq_max; then the totals.
+
+    python bench/bench_holds.py [--n 50] [--seconds 6] [--stick 1] [--tasks base] [--log-dir DIR]
+"""
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from vla_evaluation.evaluate_cli import task_list
+from vla_evaluation.holds import FRESH_SEED, hold_config, run_holds
+from vla_evaluation.resources import detector_model_path, latent_model_dir
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--n", type=int, default=50, help="holds per task")
+    p.add_argument("--seconds", type=float, default=6.0, help="length of each hold (sim s)")
+    p.add_argument("--stick", type=float, default=1.0, help="the held stick value")
+    p.add_argument("--tasks", default="base", help="base, unseen, all or comma-separated task names")
+    p.add_argument("--first-seed", type=int, default=FRESH_SEED)
+    p.add_argument("--model", default="default", help="shipped latent model name or a directory")
+    p.add_argument("--log-dir", default=None, help="where the graph's output goes")
+    a = p.parse_args(argv)
+    cfg = hold_config(str(latent_model_dir(a.model)), str(detector_model_path()), a.seconds, a.stick,
+                      log_dir=a.log_dir)
+    t0 = time.monotonic()
+    tallies = run_holds(cfg, task_list(a.tasks), a.n, a.first_seed)
+    wall = time.monotonic() - t0
+    print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task ({wall:.0f} s wall)")
+    for t in tallies.values():
+        print(t.line())
+    holds = sum(t.holds for t in tallies.values())
+    print(f"total: {holds} holds, {sum(t.reflexes for t in tallies.values())} reflexes, "
+          f"task done in {sum(t.successes for t in tallies.values())}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

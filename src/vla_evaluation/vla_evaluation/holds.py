@@ -1,0 +1,72 @@
+"""Holding the stick (issue 20 item 5): a person holds the stick at one value from the ready pose
+with the object latched, for a few seconds, on fresh layouts, through the whole graph on MuJoCo.
+
+A hold must finish the task or stop short of the object gently: no reflex. The episodes run on the
+one graph runner (`vla_evaluation.graph`) with the simulated teleoperator told to hold (its `hold`
+parameter) instead of steering to waypoints. `bench/bench_holds.py` prints the figures.
+"""
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+from vla_evaluation.graph import EpisodeRecord, GraphConfig, evaluate_graph
+from vla_evaluation.kinematic import TeleopSettings
+from vla_interfaces.msg import SafetyStatus
+
+FRESH_SEED = 300_000  # layouts from here on were never used for demonstrations or other evaluations
+
+
+@dataclass
+class HoldTally:
+    """One task's holds: how many ran, ended in a reflex, did the task, and the worst speed."""
+
+    task: str
+    holds: int = 0
+    reflexes: int = 0
+    successes: int = 0
+    max_speed_ratio: float = 0.0
+    stick_range: tuple[float, float] = (float("inf"), float("-inf"))  # the stick values the arm saw
+    reflex_seeds: list[int] = field(default_factory=list)
+
+    def add(self, rec: EpisodeRecord) -> None:
+        r = rec.result
+        self.holds += 1
+        if r.extra.get("interventions_by_code", {}).get(int(SafetyStatus.REFLEX), 0) > 0:
+            self.reflexes += 1
+            self.reflex_seeds.append(int(r.layout_seed))
+        self.successes += bool(r.success)
+        self.max_speed_ratio = max(self.max_speed_ratio, float(r.extra.get("max_speed_ratio", 0.0)))
+        if rec.trace is not None and len(rec.trace):
+            stick = rec.trace[:, 8]
+            self.stick_range = (min(self.stick_range[0], float(stick.min())),
+                                max(self.stick_range[1], float(stick.max())))
+
+    def line(self) -> str:
+        seeds = f"  reflex seeds {self.reflex_seeds}" if self.reflex_seeds else ""
+        return (f"{self.task:28s} holds {self.holds:3d}  reflexes {self.reflexes:3d}  "
+                f"task done {self.successes:3d}/{self.holds}  "
+                f"max |dq|/dq_max {self.max_speed_ratio:.2f}{seeds}")
+
+
+def hold_config(model_path: str, detector_model: str, seconds: float = 6.0, stick: float = 1.0,
+                **kw) -> GraphConfig:
+    """The graph's configuration for holds of `seconds` at `stick`."""
+    return GraphConfig(model_path=model_path, detector_model=detector_model,
+                       settings=TeleopSettings(rate=100.0, time_limit=float(seconds), switch_time=0.0,
+                                                     hold=float(stick)), **kw)
+
+
+def run_holds(config: GraphConfig, tasks: Sequence[str], n: int, first_seed: int = FRESH_SEED,
+              log: Callable[[str], None] = print) -> dict[str, HoldTally]:
+    """`n` holds per task on fresh layouts (seeds first_seed, first_seed + 1, ...); tallies by task."""
+    tallies = {t: HoldTally(t) for t in tasks}
+
+    def on_episode(rec: EpisodeRecord) -> None:
+        tally = tallies[rec.result.task]
+        tally.add(rec)
+        log(f"[holds] {tally.line()}")
+
+    evaluate_graph(config, list(tasks), range(first_seed, first_seed + int(n)), "holds", log,
+                   on_episode=on_episode)
+    return tallies

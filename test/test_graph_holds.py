@@ -1,0 +1,27 @@
+"""Holding the stick toward the task (issue 20 item 5), the small version of the must-show
+(`bench/bench_holds.py` runs 50 per base task): holds of 6 s at full stick from the ready pose on fresh
+layouts, through the shipped demo graph on MuJoCo, with the simulated teleoperator holding the stick
+instead of steering (its `hold` parameter)."""
+import pytest
+
+pytestmark = [pytest.mark.slow, pytest.mark.ros]
+
+
+@pytest.mark.timeout(420)
+def test_holds_at_full_stick_run_through_the_graph_and_are_tallied(tmp_path):
+    from vla_evaluation.holds import hold_config, run_holds
+    from vla_evaluation.resources import detector_model_path, latent_model_dir
+
+    cfg = hold_config(str(latent_model_dir("default")), str(detector_model_path()), seconds=6.0,
+                      stick=1.0, log_dir=tmp_path / "logs")
+    lines = []
+    tallies = run_holds(cfg, ["bread/push_east"], 2, log=lines.append)
+    t = tallies["bread/push_east"]
+    assert t.holds == 2 and sum(line.startswith("[holds]") for line in lines) == 2
+    # +1 held; 0 only where the bridge or the controller asked for neutral after a stop (arming rule)
+    assert t.stick_range[1] == 1.0 and t.stick_range[0] in (0.0, 1.0)
+    assert t.stick_range[0] == 1.0 or t.reflexes > 0
+    assert t.max_speed_ratio <= 1.0 + 1e-3
+    assert 0 <= t.reflexes <= 2 and 0 <= t.successes <= 2
+    if t.reflexes:  # today's decoder drives on past the end of the push (issue 20 item 5)
+        pytest.xfail(f"{t.reflexes} of 2 holds ended in a reflex: {t.line()}")

@@ -158,7 +158,9 @@ class SafetyFilter:
         self._estop = False
         self._fault = ""                                    # reflex text while one is latched
         self._teaching = False
-        self.arming = Arming()                              # disarmed: waiting for a zero command
+        # Armed at start (the arm rests): the controller starts disarmed, waiting for the operator's
+        # neutral, and the libfranka loop disarms on every connection.
+        self.arming = Arming()
         self._code = OK
         self.commands_received = 0
         self.commands_rejected = 0

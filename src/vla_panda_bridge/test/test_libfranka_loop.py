@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -495,3 +497,34 @@ def test_a_silent_robot_stops_the_arm_until_a_zero_command(rig, silence):
     rig.run(5, command=ZERO)                               # the operator back at neutral
     rig.run(400, command=velocity(3, 0.3))
     assert rig.driver.velocities[-1][0][3] == pytest.approx(0.3)
+
+
+# ------------------------------------------------------------------------------- the state table
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def test_the_readme_shows_the_loops_state_table():
+    text = README.read_text()
+    start = text.index("\n", text.index("<!-- loop-table")) + 1
+    assert text[start:text.index("<!-- /loop-table -->")] == lf.table_markdown()
+
+
+def test_every_event_of_the_table_is_raised_by_the_loop_and_no_other():
+    source = Path(lf.__file__).read_text()
+    raised = set(re.findall(r'_go\("([^"]+)"', source))
+    assert raised == {row.event for row in lf.TABLE}
+
+
+def test_the_stops_the_operator_did_not_choose_disarm_in_every_state():
+    """One row per stop; every state it can happen in disarms (issue 20 items 2, 3)."""
+    stops = {"connected", "fatal error", "connection lost", "reflex", "teaching ends", "e-stop change",
+             "robot silent"}
+    disarming = {row.event for row in lf.TABLE if row.disarm}
+    assert stops <= disarming and "recover request" in disarming
+
+
+def test_an_event_the_table_does_not_list_raises(rig):
+    rig.run(3, command=ZERO)
+    assert rig.loop.state is lf.State.IDLE
+    with pytest.raises(RuntimeError, match="no transition for 'at rest' in state IDLE"):
+        rig.loop._go("at rest")

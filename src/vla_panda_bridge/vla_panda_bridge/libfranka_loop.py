@@ -29,7 +29,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
-from enum import IntEnum
+from enum import Enum, IntEnum
 
 import numpy as np
 from vla_common.robot import robot_spec
@@ -75,6 +75,73 @@ class Mode(IntEnum):
     IDLE = 0        # reading states between motions
     VELOCITY = 1    # a joint-velocity motion
     TORQUE = 2      # teaching
+
+
+class State(Enum):
+    """The loop's states; each is one (status, mode) pair of the state slot."""
+
+    CONNECTING = (LoopStatus.CONNECTING, Mode.NONE)
+    DISCONNECTED = (LoopStatus.DISCONNECTED, Mode.NONE)
+    FATAL = (LoopStatus.FATAL, Mode.NONE)
+    IDLE = (LoopStatus.OK, Mode.IDLE)
+    VELOCITY = (LoopStatus.OK, Mode.VELOCITY)
+    TORQUE = (LoopStatus.OK, Mode.TORQUE)
+    REFLEX = (LoopStatus.REFLEX, Mode.IDLE)
+    STOPPED = (LoopStatus.STOPPED, Mode.NONE)
+
+
+@dataclass(frozen=True)
+class Row:
+    states: tuple[State, ...]   # the states the event is handled in
+    event: str
+    does: str                   # what the loop does (in words; the code beside `_go(event)` does it)
+    next: State | None          # None: the state stays
+    disarm: bool                # a stop the operator did not choose: motion needs a zero command first
+
+
+_S = State
+_CONNECTED = (_S.IDLE, _S.VELOCITY, _S.TORQUE, _S.REFLEX)
+_DOWN = (_S.CONNECTING, _S.DISCONNECTED)
+# The state machine, written once: every change of state or arming goes through `_go(event)`, which
+# takes the row of the current state and the event (README "The 1 kHz loop" renders this table).
+TABLE: tuple[Row, ...] = (
+    Row(_DOWN, "connected", "reset the filter at the measured pose, drop older commands", _S.IDLE, True),
+    Row(_DOWN, "connect failed", "retry after a back-off (doubled up to reconnect_max)", None, False),
+    Row((*_DOWN, *_CONNECTED), "fatal error", "drop the connection, wait for ~/recover",
+        _S.FATAL, True),
+    Row((_S.FATAL,), "recover request", "try to connect now", _S.CONNECTING, False),
+    Row(_CONNECTED, "connection lost", "drop the connection, reconnect with back-off", _S.DISCONNECTED,
+        True),
+    Row(_CONNECTED, "reflex", "the robot stopped the motion; ignore commands until ~/recover", _S.REFLEX,
+        True),
+    Row((_S.IDLE, _S.REFLEX), "recover request", "the robot's error recovery, filter reset at the pose",
+        _S.IDLE, True),
+    Row((_S.IDLE,), "teaching on", "torque control, tau = -teaching_damping * dq", _S.TORQUE, False),
+    Row((_S.TORQUE,), "teaching ends", "(off, ~/recover, e-stop, shutdown) end the torque motion, filter "
+        "reset at the pose", _S.IDLE, True),
+    Row((_S.IDLE,), "motion wanted", "(armed, fresh non-zero command) start a velocity motion, two "
+        "zero commands first", _S.VELOCITY, False),
+    Row((_S.VELOCITY,), "at rest", "(stopped, nothing wanted for finish_hold; or braked for shutdown, "
+        "~/recover, teaching) end the motion with motion_finished", _S.IDLE, False),
+    Row(_CONNECTED, "e-stop change", "the filter brakes (on) or holds zero (off); drop older commands",
+        None, True),
+    Row(_CONNECTED, "robot silent", "(no robot state for longer than command_timeout) the filter brakes",
+        None, True),
+    Row((*_DOWN, _S.FATAL, _S.IDLE, _S.REFLEX), "shutdown", "drop the connection, exit", _S.STOPPED,
+        False),
+)
+_ROWS = {(state, row.event): row for row in TABLE for state in row.states}
+
+
+def table_markdown() -> str:
+    """TABLE as a Markdown table (README "The 1 kHz loop")."""
+    lines = ["| in state | event | the loop | next state | disarms |", "|---|---|---|---|---|"]
+    for r in TABLE:
+        states = ", ".join(s.name for s in r.states)
+        nxt = "(same)" if r.next is None else r.next.name
+        lines.append(f"| {states} | {r.event} | {r.does} | {nxt} | {'yes' if r.disarm else ''} |")
+    return "\n".join(lines) + "\n"
+
 
 MAX_SUBSTEPS = 50   # filter steps caught up after a gap in the robot's cycles
 # Zero commands that open every motion before the filter's first step: the robot (franka-sim's
@@ -135,8 +202,7 @@ class ControlLoop:
         self._timeout = self.filter.config.command_timeout
         self._damping = [float(d) for d in settings.driver_settings().teaching_damping]
         self.driver: Driver | None = None
-        self.status = LoopStatus.CONNECTING
-        self.mode = Mode.NONE
+        self.state = State.CONNECTING
         self.text = ""
         self._filter_text = ""
         self._next_attempt = clock()
@@ -166,6 +232,27 @@ class ControlLoop:
         self._period = math.nan
         slots.claim_state_writer()
         self._publish_status()
+
+    @property
+    def status(self) -> LoopStatus:
+        return self.state.value[0]
+
+    @property
+    def mode(self) -> Mode:
+        return self.state.value[1]
+
+    def _go(self, event: str, text: str | None = None, why: str = "") -> None:
+        """Handle `event` by its row of TABLE: disarm if the row says so, enter its next state, and
+        set the status text. An event the table does not list for the state is a bug: it raises."""
+        row = _ROWS.get((self.state, event))
+        if row is None:
+            raise RuntimeError(f"libfranka loop: no transition for {event!r} in state {self.state.name}")
+        if row.disarm:
+            self.filter.disarm(why or event)
+        if row.next is not None:
+            self.state = row.next
+        if text is not None:
+            self._set_text(text)
 
     # ------------------------------------------------------------------------------------ the loop
     def run(self) -> None:
@@ -208,9 +295,9 @@ class ControlLoop:
         if self._recover_requested():
             self._next_attempt = self._clock()       # ~/recover: try now
             self._backoff = self.settings.reconnect_min
-            if self.status == LoopStatus.FATAL:
-                self.status = LoopStatus.CONNECTING
-        if self.status == LoopStatus.FATAL:
+            if self.state is State.FATAL:
+                self._go("recover request")
+        if self.state is State.FATAL:
             self._teaching_request()                 # answered (refused) while nothing is connected
             self._publish_status()
             self._sleep(0.02)
@@ -229,27 +316,26 @@ class ControlLoop:
             return
         self.driver = driver
         self.connects += 1
-        self.mode = Mode.IDLE
         self._backoff = self.settings.reconnect_min
         name = getattr(driver, "name", self.settings.driver)
-        self._set_status(LoopStatus.OK, f"connected to {self.settings.driver_settings().robot_ip} ({name})")
-        self._answer_recover(True)
+        self._last_read = None                       # no silence across a connection: it disarms anyway
         self._on_state(state, None)
         self.filter.reset(state.q)
-        self._forget_commands("connected")           # a command from before the connection is stale
+        self._forget_commands()                      # a command from before the connection is stale
+        self._go("connected", f"connected to {self.settings.driver_settings().robot_ip} ({name})")
+        self._answer_recover(True)
         self._publish(state, math.nan)
 
     def _connect_failed(self, exc: RobotError) -> None:
         if exc.kind == FATAL:
-            self._set_status(LoopStatus.FATAL, f"{exc.text} (~/recover retries)")
+            self._go("fatal error", f"{exc.text} (~/recover retries)")
             self._answer_recover(False)
             return
         wait = f"{self._backoff:.2g} s"
-        if self.connects == 0:
-            self._set_status(LoopStatus.CONNECTING, f"{exc.text}; retrying in {wait}")
+        if not self._cause:
+            self._go("connect failed", f"{exc.text}; retrying in {wait}")
         else:                                        # keep the cause first: it is what went wrong
-            self._set_status(LoopStatus.DISCONNECTED, f"{self._cause}; reconnecting (last try: {exc.text}; "
-                                                f"next in {wait})")
+            self._go("connect failed", f"{self._cause}; reconnecting (last try: {exc.text}; next in {wait})")
         self._answer_recover(False)
         self._next_attempt = self._clock() + self._backoff
         self._backoff = min(2.0 * self._backoff, self.settings.reconnect_max)
@@ -259,18 +345,18 @@ class ControlLoop:
         self.errors += 1
         self.filter.reset()
         self._dq = [0.0] * NUM_JOINTS
-        self._forget_commands(f"robot error: {exc.text}")
+        self._forget_commands()
         self._rest_since = None
+        why = f"robot error: {exc.text}"
         if exc.kind == REFLEX:
-            self.mode = Mode.IDLE
-            self._set_status(LoopStatus.REFLEX, f"{exc.text} (arm stopped; ~/recover to resume)")
+            self._go("reflex", f"{exc.text} (arm stopped; ~/recover to resume)", why)
         else:
             self._drop_driver()
             if exc.kind == FATAL:
-                self._set_status(LoopStatus.FATAL, f"{exc.text} (~/recover retries)")
+                self._go("fatal error", f"{exc.text} (~/recover retries)", why)
             else:
                 self._cause = exc.text
-                self._set_status(LoopStatus.DISCONNECTED, f"{exc.text}; reconnecting")
+                self._go("connection lost", f"{exc.text}; reconnecting", why)
                 self._next_attempt = self._clock() + self.settings.reconnect_min
                 self._backoff = self.settings.reconnect_min
         self._publish_status()
@@ -282,7 +368,6 @@ class ControlLoop:
             except Exception:  # a dead connection may fail to close: it is dropped either way
                 pass
         self.driver = None
-        self.mode = Mode.NONE
 
     # ------------------------------------------------------------------------------------ requests
     def _recover_requested(self) -> bool:
@@ -306,8 +391,8 @@ class ControlLoop:
             return
         self._on_state(state, None)
         self.filter.reset(state.q)
-        self._forget_commands("error recovery")
-        self._set_status(LoopStatus.OK, "error recovery done: ready")
+        self._forget_commands()
+        self._go("recover request", "error recovery done: ready", "error recovery")
         self._answer_recover(True)
         self._publish(state, math.nan)
 
@@ -334,16 +419,15 @@ class ControlLoop:
         if estop != self._estop:
             self._estop = estop
             self.filter.set_estop(estop)
-            self._forget_commands("e-stop")
+            self._forget_commands()
+            self._go("e-stop change", why="e-stop " + ("latched" if estop else "released"))
 
     # ------------------------------------------------------------------------------------ commands
-    def _forget_commands(self, why: str) -> None:
-        """After a connection, an error, a recovery, teaching or an e-stop change: the commands so far
-        are stale, and the stop disarms the filter: a new motion needs a zero command first (a stick
-        held through it does not start the arm; the rule's one owner is vla_common.arming)."""
+    def _forget_commands(self) -> None:
+        """After a connection, an error, a recovery, teaching or an e-stop change the commands so far
+        are stale (the same rows of TABLE disarm the filter: vla_common.arming owns that rule)."""
         self._cmd_seq = self._seq_in_slot()
         self._want = False
-        self.filter.disarm(why)
 
     def _seq_in_slot(self) -> float:
         c = self.slots.read_command()
@@ -375,7 +459,7 @@ class ControlLoop:
         state = self.driver.read_idle()
         self._on_state(state, None)
         self._sync_estop()
-        if self.status == LoopStatus.REFLEX:
+        if self.state is State.REFLEX:
             self._take_command(apply=False)          # nothing moves until ~/recover
             if self._recover_requested():
                 self._recover()
@@ -389,16 +473,15 @@ class ControlLoop:
         if self._teaching_request():
             self._take_command(apply=False)
             self.driver.start_torque()
-            self.mode = Mode.TORQUE
             self.motions += 1
             self._ack_teaching()
-            self._set_status(LoopStatus.OK, "teaching: torque control, the arm follows the hand")
+            self._go("teaching on", "teaching: torque control, the arm follows the hand")
             self._publish(state, math.nan)
             return
         self._take_command(apply=True)
         if self._wants_motion():
             self.driver.start_velocity()
-            self.mode = Mode.VELOCITY
+            self._go("motion wanted")
             self.motions += 1
             self._rest_since = None
             self._last_read = None
@@ -443,7 +526,7 @@ class ControlLoop:
             self._latency_pending = False
             latency = self.latency = self._clock() - self._cmd_arrived
         if finished:
-            self.mode = Mode.IDLE
+            self._go("at rest")
             self._rest_since = None
         self._publish(state, latency, t0)
 
@@ -459,18 +542,17 @@ class ControlLoop:
         tau = [0.0] * NUM_JOINTS if finished else [-d[i] * dq[i] for i in range(NUM_JOINTS)]
         self.driver.write_torque(tau, finished)
         if finished:
-            self.mode = Mode.IDLE
             if teaching is not None:
                 self._ack_teaching()
             self.filter.reset(state.q)               # the hand moved it: start from where it is
-            self._forget_commands("teaching mode")
-            self._set_status(LoopStatus.OK, "teaching ended: holding the pose")
+            self._forget_commands()
+            self._go("teaching ends", "teaching ended: holding the pose", "teaching mode")
         self._publish(state, math.nan, t0)
 
     def _stop(self) -> bool:
         self._drop_driver()
         self.stopped = True
-        self._set_status(LoopStatus.STOPPED, "loop stopped (shutdown)")
+        self._go("shutdown", "loop stopped (shutdown)")
         self._publish_status()
         return False
 
@@ -481,7 +563,7 @@ class ControlLoop:
         self._period = math.nan if self._last_read is None else now - self._last_read
         self._last_read = now
         if self._period > self._timeout:             # the robot was silent (or this loop stalled)
-            self.filter.disarm(f"robot silent for {self._period:.2f} s")
+            self._go("robot silent", why=f"robot silent for {self._period:.2f} s")
         self._t = state.time.to_sec()
         self.cycle += 1
         if dt is not None and dt > 1.5 * PERIOD:
@@ -494,8 +576,7 @@ class ControlLoop:
             self._filter_text = text
             self.slots.write_text("filter", text)
 
-    def _set_status(self, status: int, text: str) -> None:
-        self.status = status
+    def _set_text(self, text: str) -> None:
         if text != self.text:
             self.text = text
             self.slots.write_text("status", text)
@@ -571,7 +652,7 @@ def main(argv: list[str] | None = None) -> int:
     warning = _set_priority(settings.priority)
     loop = ControlLoop(slots, settings, parent_pid=args.parent_pid)
     if warning:
-        loop._set_status(loop.status, warning)
+        loop._set_text(warning)
         print(f"libfranka_loop: {warning}", file=sys.stderr)
     # Keep the collector off the 1 kHz path: everything allocated so far is permanent.
     gc.collect()

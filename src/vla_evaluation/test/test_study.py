@@ -1,0 +1,186 @@
+"""The user study (issue 24): the operator model sees only what a person sees, protocol errors come
+with file:line, a killed study resumes without losing or duplicating a trial, and a reduced study
+runs end to end (CI) with its figures labelled as simulated."""
+from __future__ import annotations
+
+import ast
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from vla_evaluation.study import participant as part
+from vla_evaluation.study.protocol import ProtocolError, latin_square, load_protocol
+from vla_evaluation.study.runner import task_goal, trial_plan
+from vla_evaluation.study.smoothness import sparc
+
+ALLOWED_OBS = {"t", "hand", "obj", "controller_code", "ee_axis"}
+
+
+def test_operator_model_imports_nothing_that_knows_the_decoder_or_the_plan():
+    tree = ast.parse(Path(part.__file__).read_text())
+    imported = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            imported |= {a.name.split(".")[0] for a in node.names}
+        elif isinstance(node, ast.ImportFrom):
+            imported.add((node.module or "").split(".")[0])
+    assert imported <= {"__future__", "math", "collections", "dataclasses", "numpy"}, imported
+    code = ("import sys; import vla_evaluation.study.participant; "
+            "bad = [m for m in sys.modules if m.startswith(('vla_latent_controller', 'vla_sim', "
+            "'vla_evaluation.sim_teleoperator', 'vla_evaluation.kinematic'))]; print(bad)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+class GuardedObservation:
+    """An observation that fails the test on any attribute but what a person sees."""
+
+    def __init__(self, **kw):
+        object.__setattr__(self, "_d", kw)
+
+    def __getattr__(self, name):
+        if name not in ALLOWED_OBS:
+            raise AssertionError(f"the operator read {name!r}")
+        return self._d[name]
+
+
+def test_operator_reads_only_the_hand_the_object_and_the_status():
+    from vla_common.catalogue import load_catalogue
+
+    goal = task_goal("cereal_box/push_south", load_catalogue(""))
+    assert set(vars(goal)) == {"kind", "direction", "distance", "object_height", "object_radius"}
+    for mode in ("latent", "end_effector"):
+        op = part.HumanOperator(part.HumanParams(), goal, mode, seed=1)
+        hand = np.array([0.3, 0.0, 0.5])
+        for i in range(200):
+            a = op.act(GuardedObservation(t=i * 0.05, hand=hand, obj=np.array([0.45, 0.0]),
+                                          controller_code=0, ee_axis="x"))
+            assert -1.0 <= a.axis <= 1.0
+            hand = hand + np.array([0.0, 0.0, -0.002]) * a.axis
+
+
+def test_operator_releases_the_stick_when_the_controller_awaits_neutral():
+    goal = part.TaskGoal("push", (1.0, 0.0), 0.15, 0.1, 0.05)
+    steady = part.HumanParams(lapse_p=0.0, motor_floor=0.0, motor_k=0.0)
+    op = part.HumanOperator(steady, goal, "latent", seed=0)
+    hand, obj = np.array([0.3, 0.0, 0.5]), np.array([0.5, 0.0])
+    axes = [op.act(part.Observation(i * 0.05, hand, obj)).axis for i in range(20)]
+    assert any(a != 0 for a in axes)
+    a = op.act(part.Observation(1.0, hand, obj, controller_code=part.AWAITING_NEUTRAL))
+    assert a.axis == 0.0
+
+
+def test_population_is_seeded_and_varied():
+    a, b = part.population(9, 5), part.population(9, 5)
+    assert a == b and len({p.reaction_s for p in a}) == 9
+    assert all(0.15 <= p.reaction_s <= 0.5 for p in a)
+
+
+def test_sparc_ranks_a_jerky_profile_below_a_smooth_one():
+    t = np.linspace(0, 2, 200)
+    smooth = np.sin(np.pi * t / 2) ** 2
+    jerky = smooth * (1 + 0.8 * (np.sin(2 * np.pi * 3 * t) > 0))
+    assert sparc(jerky, 100.0) < sparc(smooth, 100.0) < 0
+
+
+def test_latin_square_puts_each_strategy_once_in_each_position():
+    for n in (2, 3, 4):
+        rows = latin_square(n)
+        for r in rows:
+            assert sorted(r) == list(range(n))
+        for pos in range(n):
+            assert sorted(r[pos] for r in rows[:n]) == list(range(n))
+
+
+def test_protocol_errors_are_refused_with_file_and_line(tmp_path):
+    f = tmp_path / "bad.yaml"
+    f.write_text("participants: sim:3\n"
+                 "strategies: [latent-YOLO, teleport]\n"
+                 "settings:\n"
+                 "  Seen: cereal_box/push_sideways\n"
+                 "trials: 0\n"
+                 "colour: blue\n")
+    with pytest.raises(ProtocolError) as e:
+        load_protocol(f)
+    msgs = e.value.errors
+    assert any(m.startswith(f"{f}:2:") and "teleport" in m for m in msgs), msgs
+    assert any(m.startswith(f"{f}:4:") and "Seen" in m for m in msgs), msgs
+    assert any(m.startswith(f"{f}:5:") and "trials" in m for m in msgs), msgs
+    assert any(m.startswith(f"{f}:6:") and "colour" in m for m in msgs), msgs
+
+
+def test_the_paper_protocol_plans_the_papers_trials():
+    from vla_evaluation.study.protocol import PAPER
+
+    p = load_protocol(PAPER)
+    plan = trial_plan(p)
+    test = [t for t in plan if t.phase == "test"]
+    assert len(test) == 9 * 3 * (4 + 1 + 1 + 1) * 2
+    assert len({t.key for t in plan}) == len(plan)
+    firsts = {next(t.strategy for t in plan if t.participant == w) for w in p.participants}
+    assert firsts == set(p.strategies)  # counterbalanced
+    practice = [t for t in plan if t.phase == "practice"]
+    assert {t.layout_seed for t in practice} == {p.practice_seed}  # the fixed reset point
+
+
+REDUCED = """study: ci-reduced
+participants: sim:2
+strategies: [latent-YOLO, end-effector]
+settings:
+  Seen: cereal_box/push_south
+trials: 1
+practice: {trials: 0, reset_seed: 7}
+time_limit: 4
+rate: 20
+"""
+
+
+def _rows(out: Path) -> list[dict]:
+    p = out / "trials.jsonl"
+    return [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
+
+
+def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
+    """A reduced study (2 simulated participants x 2 strategies, 4 s trials) killed after its first
+    recorded trial, with half a line left behind, then resumed to the end; its figures are labelled."""
+    proto = tmp_path / "reduced.yaml"
+    proto.write_text(REDUCED)
+    out = tmp_path / "study"
+    cmd = [sys.executable, "-m", "vla_evaluation.cli", "study", "--protocol", str(proto), "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            start_new_session=True)
+    deadline = time.monotonic() + 600
+    try:
+        while not _rows(out) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.2)  # polling a file another process writes, not synchronising on time
+        os.killpg(proc.pid, signal.SIGKILL)
+    finally:
+        proc.wait()
+    first = _rows(out)
+    assert 1 <= len(first) < 4
+    with open(out / "trials.jsonl", "a") as f:
+        f.write('{"key": "half a li')  # a kill in the middle of a write
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stdout[-2000:] + res.stderr[-2000:]
+    rows = _rows(out)
+    keys = [r["key"] for r in rows]
+    assert len(keys) == len(set(keys)) == 4
+    assert [r["key"] for r in rows[: len(first)]] == [r["key"] for r in first]  # earlier rows kept
+    assert (out / "trials.jsonl.partial").read_text().startswith('{"key": "half')
+    for r in rows:
+        assert (out / "trials" / f"{r['file']}.npz").is_file()
+        assert r["simulated"] and r["n_inputs"] >= 0 and r["path_length_m"] >= 0
+    tables = (out / "study_tables.md").read_text()
+    assert "simulated participants" in tables
+    assert (out / "figure4_success.png").is_file() and (out / "figure3_paths.png").is_file()
+    # another protocol in the same folder is refused: earlier results are never overwritten
+    proto.write_text(REDUCED.replace("trials: 1", "trials: 2"))
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert res.returncode != 0 and "another protocol" in (res.stdout + res.stderr)
+    assert len(_rows(out)) == 4

@@ -418,3 +418,36 @@ def test_the_filter_enforces_the_robot_it_drives():
     toward[5] = -1.0
     vs, _, codes = run(safety.SafetyFilter(robot=FR3), [toward] * 100, q0=q0)
     assert np.all(vs == 0.0) and codes[-1] == safety.POSITION_MARGIN
+
+
+def test_motion_into_a_rising_external_torque_slows_and_stops_before_a_reflex():
+    """Issue 20 item 5: a held stick drove the hand into the loaf until a reflex (87-249 Nm). Where the
+    backend measures an external torque, a joint commanded further into it slows from 0.3 x tau_max
+    and stops at 0.7 x; a command that eases it is never slowed, so the operator can back out."""
+    tau_max = safety.PANDA.tau_max
+    cmd = np.zeros(7)
+    cmd[1] = 0.5
+    for ratio, want in ((0.1, 0.5), (0.5, 0.25), (0.8, 0.0)):
+        f = SafetyFilter()
+        tau = np.zeros(7)
+        tau[1] = -ratio * tau_max[1]                     # the contact pushes back against +dq
+        q, code = MID.copy(), safety.OK
+        for k in range(1500):
+            dq, code, text = f.filter(cmd if k == 0 or k % 50 == 0 else None, q, k * DT, tau)
+            q = q + DT * dq
+        assert dq[1] == pytest.approx(want, abs=1e-9), (ratio, dq[1])
+        assert code == (safety.CONTACT if ratio > 0.3 else safety.OK), (ratio, code, text)
+        if ratio > 0.3:
+            assert "panda_joint2" in text and "external torque" in text
+    back = SafetyFilter()                                 # backing out of the same contact: full speed
+    tau = np.zeros(7)
+    tau[1] = -0.8 * tau_max[1]
+    q = MID.copy()
+    for k in range(1500):
+        dq, code, _ = back.filter(-cmd if k % 50 == 0 else None, q, k * DT, tau)
+        q = q + DT * dq
+    assert dq[1] == pytest.approx(-0.5) and code == safety.OK
+    garbage = SafetyFilter()                              # an unusable measurement changes nothing
+    for bad in (None, [1.0, 2.0], "x", [np.nan] * 7):
+        dq, code, _ = garbage.filter(cmd, MID, 0.0, bad)
+        assert np.all(np.isfinite(dq)) and code != safety.CONTACT

@@ -104,6 +104,9 @@ class Backend(Protocol):
     def position(self) -> np.ndarray | None:
         """The current measured position (filter re-syncs after a reset, recovery, teaching)."""
 
+    def external_torque(self) -> np.ndarray | None:
+        """The measured external torque per joint (Nm) for the filter's contact slowing, or None."""
+
     def latest(self) -> JointSample | None:
         """The latest joint state to publish, or None if none is known yet."""
 
@@ -142,6 +145,9 @@ class BackendBase:
 
     def recover(self) -> str:
         return "the robot reported no reflex"
+
+    def external_torque(self) -> np.ndarray | None:
+        return None
 
     def set_teaching(self, active: bool) -> str:
         raise UnsupportedError(f"teaching mode is not available with the {self.kind} backend "

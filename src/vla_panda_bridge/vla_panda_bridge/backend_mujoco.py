@@ -166,6 +166,10 @@ class MujocoBackend(BackendBase):
             return self.position()
         return None
 
+    def external_torque(self) -> np.ndarray:
+        """What contact (and the joint limits) push on each arm joint: MuJoCo's constraint forces."""
+        return self.sim.external_torque
+
     def position(self) -> np.ndarray:
         """The servo targets; in teaching mode (servos off) the measured position."""
         return self.sim.q if self.sim.teaching else self.sim.q_target

@@ -202,7 +202,7 @@ class PandaBridge(Node):
     def control_step(self) -> None:
         """One control period, for every backend: filter(command, measured state, now) -> write."""
         b = self.backend
-        dq, code, text = self.filter.filter(None, b.filter_position(), b.now())
+        dq, code, text = self.filter.filter(None, b.filter_position(), b.now(), b.external_torque())
         b.write(dq)
         if code != self._published_code:
             self._publish_status(code, text)

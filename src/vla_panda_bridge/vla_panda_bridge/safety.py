@@ -19,6 +19,10 @@ Pipeline per control period:
      command first (`vla_common.arming`, the one owner of that rule);
   4. position margin, soft part: near a limit the target towards it is capped so the joint can still
      stop at `position_margin` from the limit; motion away is never capped;
+     contact, likewise: where the backend measures an external torque (a real arm's estimate, MuJoCo's
+     constraint forces), a joint commanded further into it is slowed from `contact_slow` x tau_max on
+     and stopped at `contact_stop` x tau_max, well before the robot's reflex at 1 x; motion that
+     eases the torque is never slowed (the operator can always back out);
   5. a per-joint jerk-limited tracker moves the output velocity towards the target;
   6. position margin, hard part: if the tracker's step would leave the joint unable to stop before
      the margin (by a braking-distance bound), that joint takes the braking step instead.
@@ -49,6 +53,8 @@ import numpy as np
 from vla_common.arming import Arming
 from vla_common.robot import NUM_JOINTS, PANDA, RobotSpec
 
+from vla_panda_bridge.contact import CONTACT_SLOW, CONTACT_STOP, contact_scales
+
 # Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
 # a test checks they agree).
 OK = 0
@@ -64,11 +70,12 @@ IMPLAUSIBLE_COMMAND = 9
 REFLEX = 10
 TEACHING = 11
 AWAITING_ZERO = 12
+CONTACT = 13
 CODE_NAMES = {OK: "OK", NON_FINITE_COMMAND: "NON_FINITE_COMMAND", WRONG_LENGTH: "WRONG_LENGTH",
               VELOCITY_SCALED: "VELOCITY_SCALED", ACCELERATION_LIMITED: "ACCELERATION_LIMITED",
               POSITION_MARGIN: "POSITION_MARGIN", COMMAND_TIMEOUT: "COMMAND_TIMEOUT", ESTOP: "ESTOP",
               INVALID_STATE: "INVALID_STATE", IMPLAUSIBLE_COMMAND: "IMPLAUSIBLE_COMMAND",
-              REFLEX: "REFLEX", TEACHING: "TEACHING", AWAITING_ZERO: "AWAITING_ZERO"}
+              REFLEX: "REFLEX", TEACHING: "TEACHING", AWAITING_ZERO: "AWAITING_ZERO", CONTACT: "CONTACT"}
 _REJECTIONS = (NON_FINITE_COMMAND, WRONG_LENGTH, IMPLAUSIBLE_COMMAND)
 
 # The soft position cap plans the approach with this fraction of the deceleration limit, so the
@@ -90,6 +97,8 @@ class SafetyConfig:
     command_timeout: float = 0.1         # s without a valid command before braking to zero
     position_sync_tolerance: float = 0.05  # rad of reference-vs-measured drift that forces a re-sync
     plausibility_factor: float = 2.0     # a command beyond this times dq_max is a fault: rejected
+    contact_slow: float = CONTACT_SLOW   # external torque / tau_max from which motion into it slows
+    contact_stop: float = CONTACT_STOP   # ... and at which it stops (the robot's reflex is at 1.0)
 
     def validate(self) -> None:
         """Raise ValueError naming the first bad value."""
@@ -107,6 +116,8 @@ class SafetyConfig:
         check("command_timeout", self.command_timeout, 0.0, 10.0)
         check("position_sync_tolerance", self.position_sync_tolerance, 0.0, 1.0)
         check("plausibility_factor", self.plausibility_factor, 1.0, 100.0, lo_open=False)
+        check("contact_slow", self.contact_slow, 0.0, 1.0)
+        check("contact_stop", self.contact_stop, self.contact_slow, 1.0)
 
 
 class SafetyFilter:
@@ -130,6 +141,7 @@ class SafetyFilter:
         self.a_max = robot.ddq_max * cfg.acceleration_scale
         self.j_max = robot.dddq_max * cfg.jerk_scale
         self._plausible = robot.dq_max * cfg.plausibility_factor
+        self._tau_max = [float(x) for x in robot.tau_max]
         A, J = self.a_max, self.j_max
         D = J * h                                           # largest acceleration change per step
         v_star = h * A + A * A / (2 * J)                    # below it braking is on the jerk-limited curve
@@ -289,8 +301,9 @@ class SafetyFilter:
         return float(np.max(np.abs(self._v) / self.a_max + 2 * self.a_max / self.j_max) + 50 * self._h)
 
     # ----------------------------------------------------------------------------------------- update
-    def filter(self, cmd, q, now: float) -> tuple[np.ndarray, int, str]:
-        """One control period. Returns the safe velocity (7,), the status code and a text."""
+    def filter(self, cmd, q, now: float, tau_ext=None) -> tuple[np.ndarray, int, str]:
+        """One control period. Returns the safe velocity (7,), the status code and a text. `tau_ext`:
+        the measured external torque per joint (Nm), where the backend has one."""
         if not (isinstance(now, float | int) and math.isfinite(now)):
             now = math.nan                                  # an unusable clock expires the watchdog
         event_code, event_text = OK, ""
@@ -323,6 +336,9 @@ class SafetyFilter:
         margin_joints: list[int] = []
         accel_limited = False
         target, vel, acc = self._target, self._v, self._a
+        contact = None if hold or tau_ext is None else self._contact_scales(target, tau_ext)
+        if contact:
+            target = [t * contact.get(i, 1.0) for i, t in enumerate(target)]
         for i, (_, A, J, D, lo, hi, tail, cap_n, cap_a, far) in enumerate(self._lim):
             t = 0.0 if hold else target[i]
             v, a = vel[i], acc[i]
@@ -371,6 +387,12 @@ class SafetyFilter:
             code, text = self._target_code, self._target_text
         elif not self.arming.armed:
             code, text = AWAITING_ZERO, f"stopped ({self.arming.reason}): send a zero command before moving"
+        elif contact:
+            worst = min(contact, key=contact.get)
+            code = CONTACT
+            text = (f"{', '.join(self._names[i] for i in sorted(contact))} slowed by an external torque "
+                    f"({self._names[worst]} at {contact[worst]:.0%} speed): moving further into the "
+                    "contact stops before a reflex")
         elif margin_joints:
             names = ", ".join(self._names[i] for i in margin_joints)
             code = POSITION_MARGIN
@@ -382,7 +404,7 @@ class SafetyFilter:
         else:
             code, text = OK, ""
         if code != self._code and code in (VELOCITY_SCALED, ACCELERATION_LIMITED, POSITION_MARGIN,
-                                           INVALID_STATE, AWAITING_ZERO):
+                                           INVALID_STATE, AWAITING_ZERO, CONTACT):
             self._count_intervention(code)                  # the others are counted where they happen
         self._code = code
         return np.array(v_out), code, text
@@ -438,6 +460,11 @@ class SafetyFilter:
             self._target = arr.tolist()
             self._target_code, self._target_text = OK, ""
         return OK, ""
+
+    def _contact_scales(self, target: list[float], tau_ext) -> dict[int, float]:
+        """`contact.contact_scales` with this filter's robot and thresholds."""
+        return contact_scales(target, tau_ext, self._tau_max, self.config.contact_slow,
+                              self.config.contact_stop)
 
     def _reject(self, code: int, text: str) -> tuple[int, str]:
         self.commands_rejected += 1

@@ -126,6 +126,12 @@ class PandaSim:
         return self.data.qvel[self._dadr].copy()
 
     @property
+    def external_torque(self) -> np.ndarray:
+        """The torque contacts and limits exert on each arm joint (Nm): what a real arm's tau_ext
+        estimate measures, and what the torque reflex judges."""
+        return self.data.qfrc_constraint[self._dofs].copy()
+
+    @property
     def effort(self) -> np.ndarray:
         """Joint torques of the servos (including gravity compensation), like a measured tau_J."""
         return self.data.qfrc_actuator[self._dadr].copy()

@@ -16,7 +16,10 @@ const link = new Link(onMessage, onFrame, (up) => {
 function onMessage(m) {
   if (m.type === 'hello' || m.type === 'role') setRole(m.driver);
   else if (m.type === 'state') showState(m);
-  else if (m.type === 'reply') say(`${m.what}: ${m.ok ? 'done' : 'refused'}${m.message ? ' – ' + m.message : ''}`);
+  else if (m.type === 'reply') {
+    if (m.what === 'estop' && m.ok) state.estopLatency = performance.now() - state.estopSent;
+    say(`${m.what}: ${m.ok ? 'done' : 'refused'}${m.message ? ' – ' + m.message : ''}`);
+  }
   else if (m.type === 'refused') say(`Refused: ${m.reason}`);
 }
 
@@ -135,11 +138,11 @@ addEventListener('keydown', (e) => {
   if (e.target.matches('select, input') || e.repeat) return;
   if (scanning() && e.key === ' ') { e.preventDefault(); const id = SCAN[state.scan];
     if (id === 'forward' || id === 'back') press(id === 'forward' ? 1 : -1); else if (id) $(id).click(); return; }
-  if (e.key in KEYS && !e.target.classList.contains('hold')) { e.preventDefault(); press(KEYS[e.key]); }
+  if (e.key in KEYS) { e.preventDefault(); press(KEYS[e.key]); }
 });
 addEventListener('keyup', (e) => {
   if (scanning() && e.key === ' ') { const id = SCAN[state.scan]; if (id === 'forward' || id === 'back') release(0); return; }
-  if (e.key in KEYS && !e.target.classList.contains('hold')) release(KEYS[e.key]);
+  if (e.key in KEYS) release(KEYS[e.key]);
 });
 setInterval(() => {        // single-switch scanning: the highlight steps every 1.5 s while nothing is held
   if (!scanning()) { if (state.scan >= 0) { document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan')); state.scan = -1; } return; }
@@ -158,7 +161,7 @@ function pollGamepad() {   // the Gamepad API: the first pad's left stick (up = 
 requestAnimationFrame(pollGamepad);
 
 // ------------------------------------------------------------------ stop
-function estop() { state.held = 0; state.toggled = 0; drive(0); link.send({ type: 'estop' }); say('STOP sent'); }
+function estop() { state.estopSent = performance.now(); state.estopLatency = null; state.held = 0; state.toggled = 0; drive(0); link.send({ type: 'estop' }); say('STOP sent'); }
 $('estop').onclick = estop;
 $('release').onclick = () => $('release-dialog').showModal();
 $('release-cancel').onclick = () => $('release-dialog').close();

@@ -24,7 +24,9 @@ from vla_common.camera_model import SIM_WEBCAM, look_at_rotation, project
 from vla_common.image_convert import to_rgb
 from vla_common.kinematics import PandaKinematics
 from vla_common.robot import JOINT_NAMES, ROBOTS
+from vla_common.ros import vision
 from vla_common.ros.convert import detections_from_array
+from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
@@ -35,9 +37,10 @@ from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
 from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
-from vla_latent_controller.teleop import MODES, Code, Status, TeleopCore, TeleopParams
+from vla_latent_controller.teleop import MODES, NEUTRAL_CODES, Code, Status, TeleopCore, TeleopParams
 
 NODE_NAME = "controller_node"
+BASE_FRAME = "panda_link0"
 
 
 def _xyz(value: Any) -> str | None:
@@ -145,6 +148,7 @@ class ControllerNode(Node):
         values = PARAMETERS.declare(self, self._on_parameter)
         self.params = TeleopParams(dq_max=joint_speed_limits(), **{n: values[n] for n in _CORE_PARAMS})
         self._intrinsics: tuple[float, float, float, float] | None = None
+        self._image_size: tuple[int, int] | None = None  # from camera_info, for vision_msgs detections
         self._kin = _panda_kinematics(self.get_logger())
         self.core = TeleopCore(
             self.params, kinematics=self._kin, joint_names=JOINT_NAMES, ee_pixel=self._ee_pixel,
@@ -169,10 +173,14 @@ class ControllerNode(Node):
     def _create_interfaces(self) -> None:
         self.cmd_pub = self.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
         self.status_pub = self.create_publisher(ControllerStatus, "~/status", 10)
+        self.diagnostics = Diagnostics(self)
         sensor = qos_profile_sensor_data
         self.create_subscription(Joy, "joy", self._on_joy, sensor)
         self.create_subscription(JointState, "joint_states", self._on_joint_states, sensor)
         self.create_subscription(DetectionArray, "detections", self._on_detections, sensor)
+        if vision.AVAILABLE:  # any vision_msgs detector (yolo_ros, ...) as an alternative input
+            self.create_subscription(vision.Detection2DArray, "detections" + vision.TOPIC_SUFFIX,
+                                     self._on_detections_2d, sensor)
         self.create_subscription(CameraInfo, "camera/camera_info", self._on_camera_info, sensor)
         self.create_service(SetMode, "~/set_mode", self._on_set_mode)
         self.create_service(Trigger, "~/redetect", self._on_redetect)
@@ -250,8 +258,16 @@ class ControllerNode(Node):
     def _now(self) -> float:
         return self.get_clock().now().nanoseconds * 1e-9
 
+    def _input_time(self) -> float | None:
+        """The receive time of an input, or None under sim time before the first /clock: an input
+        stamped 0 would read as decades old once the clock starts."""
+        now = self._now()
+        return now if now > 0.0 else None
+
     def _on_joy(self, msg: Joy) -> None:
-        self.core.on_joy(msg.axes, msg.buttons, self._now())
+        if (now := self._input_time()) is None:
+            return
+        self.core.on_joy(msg.axes, msg.buttons, now)
         if self.core.grasp_presses != self._grasp_presses:    # one toggle per press; the bridge
             self._grasp_presses = self.core.grasp_presses      # refuses presses too close together
             self._toggle_hand()
@@ -274,11 +290,23 @@ class ControllerNode(Node):
             self.get_logger().warn(f"grasp button refused: {res.message}", throttle_duration_sec=1.0)
 
     def _on_joint_states(self, msg: JointState) -> None:
-        self.core.on_joint_states(msg.name, msg.position, self._now())
+        if (now := self._input_time()) is not None:
+            self.core.on_joint_states(msg.name, msg.position, now)
 
     def _on_detections(self, msg: DetectionArray) -> None:
-        dets, size = detections_from_array(msg)
-        self.core.on_detections(dets, size, self._now())
+        if (now := self._input_time()) is not None:
+            dets, size = detections_from_array(msg)
+            self.core.on_detections(dets, size, now)
+
+    def _on_detections_2d(self, msg) -> None:
+        """vision_msgs/Detection2DArray: it carries no image size, so camera_info's is used."""
+        if self._image_size is None:
+            self.get_logger().warn("vision_msgs detections ignored until camera/camera_info gives the "
+                                   "image size", throttle_duration_sec=5.0)
+            return
+        if (now := self._input_time()) is not None:
+            classes = list(self.core.model.classes) if self.core.model is not None else []
+            self.core.on_detections(vision.from_detection2d_array(msg, classes), self._image_size, now)
 
     def _on_image(self, msg: Image) -> None:
         try:
@@ -286,10 +314,13 @@ class ControllerNode(Node):
         except ValueError as e:
             self.get_logger().warn(f"camera image ignored: {e}", throttle_duration_sec=5.0)
             return
-        self.core.on_image(rgb, self._now())
+        if (now := self._input_time()) is not None:
+            self.core.on_image(rgb, now)
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
         k = msg.k
+        if msg.width > 0 and msg.height > 0:
+            self._image_size = (int(msg.width), int(msg.height))
         if k[0] > 0 and k[4] > 0:
             self._intrinsics = (k[0], k[4], k[2], k[5])
 
@@ -336,11 +367,14 @@ class ControllerNode(Node):
             self._last_code = st.code
             self._last_status_t = now
             self.status_pub.publish(self._status_msg(st))
+            level = "ok" if st.code == Code.ACTIVE or st.code in NEUTRAL_CODES else "warn"
+            self.diagnostics.update(level, st.reason or st.code.name, mode=st.mode, code=st.code.name,
+                                    latched_class=st.latched_class)
 
     def _status_msg(self, st: Status) -> ControllerStatus:
         m = ControllerStatus()
         m.header.stamp = self.get_clock().now().to_msg()
-        m.header.frame_id = "world"
+        m.header.frame_id = BASE_FRAME  # the status holds no geometry; the robot's base frame
         m.mode, m.code, m.reason = st.mode, int(st.code), st.reason
         m.latched_class = st.latched_class
         m.latched_by = st.latched_by

@@ -18,7 +18,9 @@ from std_srvs.srv import SetBool
 from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
 from vla_common.detection import Detection
 from vla_common.image_convert import UnsupportedImageError, draw_detections, to_rgb
+from vla_common.ros import vision
 from vla_common.ros.convert import detection_array
+from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_DEPTH, IMAGE_QOS, RELIABILITIES, image_qos
@@ -64,6 +66,8 @@ class DetectorNode(Node):
         self.enabled = bool(p["enable"])
 
         self.pub = self.create_publisher(DetectionArray, "detections", QoSProfile(depth=10))
+        self.pub_2d = (self.create_publisher(vision.Detection2DArray, "detections" + vision.TOPIC_SUFFIX,
+                                             QoSProfile(depth=10)) if vision.AVAILABLE else None)
         self.overlay_pub = (
             self.create_publisher(Image, "detections/image", IMAGE_QOS) if p["publish_overlay"] else None
         )
@@ -72,6 +76,7 @@ class DetectorNode(Node):
                                             image_qos(p["image_reliability"], p["image_queue"]),
                                             event_callbacks=events)
         self.srv = self.create_service(SetBool, "~/enable", self._on_enable)
+        self.diagnostics = Diagnostics(self)
         self.frames = 0
         self.skipped = 0
         self.last_latency_ms = float("nan")
@@ -169,7 +174,11 @@ class DetectorNode(Node):
             return
         self.last_latency_ms = (time.perf_counter() - t0) * 1e3
         self.pub.publish(detection_array(dets, msg.header, (msg.width, msg.height)))
+        if self.pub_2d is not None:
+            self.pub_2d.publish(vision.to_detection2d_array(dets, msg.header))
         self.frames += 1
+        self.diagnostics.update("ok", f"{len(dets)} detections", frames=self.frames, skipped=self.skipped,
+                                latency_ms=self.last_latency_ms)
         if self.overlay_pub is not None:
             self.overlay_pub.publish(self._overlay(rgb, dets, msg.header))
 

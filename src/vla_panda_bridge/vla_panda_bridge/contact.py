@@ -1,0 +1,36 @@
+"""Contact slowing (issue 20 item 5): measured external torque -> speed factor per joint, no ROS.
+
+A held stick drove the hand into a loaf until the robot's reflex (87-249 Nm on joint 2). The real arm
+estimates the external torque on each joint (libfranka's tau_ext_hat_filtered); MuJoCo gives it as
+the constraint forces on the arm's joints (`PandaSim.external_torque`). From `slow` x tau_max on, a
+joint commanded further into the torque is slowed linearly, and it stops at `stop` x tau_max, well
+before the reflex at 1 x. A command that eases the torque is never slowed, so the operator can always
+back out. The safety filter (`safety.py`) applies the factors to its target; this module only judges.
+"""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+CONTACT_SLOW = 0.3  # external torque / tau_max from which motion into it slows
+CONTACT_STOP = 0.7  # ... and at which it stops (the robot's reflex is at 1.0)
+
+
+def contact_scales(target: Sequence[float], tau_ext, tau_max: Sequence[float],
+                   slow: float = CONTACT_SLOW, stop: float = CONTACT_STOP) -> dict[int, float]:
+    """{joint: speed factor in [0, 1)} for the joints whose `target` velocity pushes against an external
+    torque past `slow` x tau_max (0 from `stop` x tau_max on); {} when none does, or when `tau_ext` is
+    unusable (not a finite number per joint): a missing measurement changes nothing."""
+    try:
+        tau = [float(x) for x in tau_ext]
+    except (TypeError, ValueError):
+        return {}
+    if len(tau) != len(tau_max) or len(target) != len(tau_max):
+        return {}
+    out: dict[int, float] = {}
+    for i, (v, t, tm) in enumerate(zip(target, tau, tau_max)):
+        ratio = abs(t) / tm
+        if not ratio == ratio:                                # NaN: no measurement for this joint
+            continue
+        if ratio > slow and v * t < 0.0:                     # moving against what pushes back
+            out[i] = 0.0 if ratio >= stop else (stop - ratio) / (stop - slow)
+    return out

@@ -1,0 +1,122 @@
+"""The simulated operator's grasp button (tasks with the hand): when a person presses it.
+
+Training leaves the hand to the operator's button (see vla_latent_training's README), so the
+simulated user of an evaluation must press it as a person would, from what a person sees: where the
+hand is (the TCP) and whether the hand is open, closed or holds something (gripper/status). The plan
+is split at its hand events into phases; each phase has the hand state it wants (open while
+approaching, closed while carrying, open after the place) and, except the last, the TCP point where
+the person decides the phase is over (fingers around the object; object over its target, low).
+
+A press is a toggle (the controller's grasp_button: one TOGGLE per press). The core presses when the
+hand differs from what the phase wants and is not busy, at most once per `min_interval`; a grasp that
+fails sends the user back to the approach (open, then close again at the grasp point).
+No rclpy here: the node (sim_teleoperator_node) feeds it and publishes the button.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from vla_interfaces.msg import GripperStatus
+
+PRESS_TOLERANCE = 0.015   # m: TCP this close to the phase's end point: the person presses
+SETTLE_TOLERANCE = 0.04   # m: ... or this close and no longer getting closer (the latent's reach)
+SETTLE_TIME = 1.5         # s without 2 mm of progress that counts as "no longer getting closer"
+MIN_PROGRESS = 0.002      # m
+MIN_INTERVAL = 0.5        # s between presses (the bridge refuses presses < 0.2 s apart)
+
+# the hand as a person sees it, from GripperStatus.state
+OPEN, CLOSED, BUSY = "open", "closed", "busy"
+
+
+@dataclass(frozen=True)
+class HandPhase:
+    """Waypoints aimed at while the hand should be `want` ("open" | "closed"), until the TCP is at
+    `end_tcp` (None: the last phase)."""
+
+    waypoint_indices: tuple[int, ...]
+    want: str
+    end_tcp: np.ndarray | None
+
+
+def hand_phases(plan) -> list[HandPhase]:
+    """The plan's waypoints split at its hand events (a planner TaskPlan with hand_events: the
+    event at t = 0 opens the hand; each later one ends at the waypoint reached at its time)."""
+    times = np.asarray(plan.times, dtype=float)
+    tcp = [np.asarray(p, dtype=float)[:3] for p in plan.tcp_waypoints]
+    n = len(times)
+    phases, start = [], 0
+    want = OPEN
+    for when, what in plan.hand_events:
+        if when <= 0.0:
+            want = OPEN if what == "open" else CLOSED
+            continue
+        end = int(np.argmin(np.abs(times - when)))
+        if end < start:
+            continue
+        phases.append(HandPhase(tuple(range(start, end + 1)), want, tcp[end]))
+        start, want = end + 1, (OPEN if what == "open" else CLOSED)
+    if start >= n:   # the plan ends at an event: the last phase stays at its final waypoint
+        start = n - 1
+    phases.append(HandPhase(tuple(range(start, n)), want, None))
+    return phases
+
+
+def hand_seen(state: int, width: float, open_width: float = 0.07) -> str:
+    """What a person sees of the hand from GripperStatus (state, width): open, closed or busy."""
+    if state in (GripperStatus.MOVING, GripperStatus.GRASPING):
+        return BUSY
+    if state in (GripperStatus.HOLDING, GripperStatus.GRASP_FAILED):
+        return CLOSED
+    return OPEN if width >= open_width else CLOSED
+
+
+class GraspButton:
+    """Decides, step by step, the phase and whether to press the grasp button now."""
+
+    def __init__(self, phases: list[HandPhase], min_interval: float = MIN_INTERVAL) -> None:
+        if not phases:
+            raise ValueError("a grasp button needs at least one phase")
+        self.phases = phases
+        self.phase = 0
+        self.min_interval = float(min_interval)
+        self.presses = 0
+        self.last_press = -np.inf
+        self.phase_started = 0.0
+        self._best = np.inf
+        self._best_time = 0.0
+
+    @property
+    def current(self) -> HandPhase:
+        return self.phases[self.phase]
+
+    def step(self, t: float, tcp: np.ndarray, hand: str, failed: bool = False) -> bool:
+        """True: press the button now. `t` s since the episode began, `tcp` the hand's position (m),
+        `hand` from hand_seen, `failed` a grasp just reported failure (back to the approach)."""
+        tcp = np.asarray(tcp, dtype=float)
+        if not np.all(np.isfinite(tcp)):
+            return False
+        if failed and self.current.want == CLOSED and self.phase > 0:
+            self._enter(self.phase - 1, t)
+        phase = self.current
+        if phase.end_tcp is not None and hand == phase.want and self._arrived(t, tcp, phase.end_tcp):
+            self._enter(self.phase + 1, t)
+            phase = self.current
+        if hand == BUSY or hand == phase.want or t - self.last_press < self.min_interval:
+            return False
+        self.presses += 1
+        self.last_press = t
+        return True
+
+    def _enter(self, phase: int, t: float) -> None:
+        self.phase, self.phase_started = phase, t
+        self._best, self._best_time = np.inf, t
+
+    def _arrived(self, t: float, tcp: np.ndarray, goal: np.ndarray) -> bool:
+        d = float(np.linalg.norm(tcp - goal))
+        if d < self._best - MIN_PROGRESS:
+            self._best, self._best_time = d, t
+        if d <= PRESS_TOLERANCE:
+            return True
+        return d <= SETTLE_TOLERANCE and t - self._best_time >= SETTLE_TIME

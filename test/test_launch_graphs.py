@@ -31,9 +31,10 @@ TASK = "bread/push_east"
 LAYOUT_SEED = 100_000  # a fresh (validation) layout, never a demonstration's
 # What the safety layer may report while a sound command moves the arm: nothing, its own shaping, or
 # the watchdog braking when the command stream pauses for 0.1 s (on a loaded 2-core machine a
-# starved controller process does; braking is the safe answer, not a fault of the graph).
+# starved controller process does; braking is the safe answer, not a fault of the graph), and the
+# wait for a zero command that follows it (the arming rule: the operator lets go, then moves again).
 SHAPING = {SafetyStatus.OK, SafetyStatus.VELOCITY_SCALED, SafetyStatus.ACCELERATION_LIMITED,
-           SafetyStatus.COMMAND_TIMEOUT}
+           SafetyStatus.COMMAND_TIMEOUT, SafetyStatus.AWAITING_ZERO}
 
 
 @pytest.fixture

@@ -75,8 +75,10 @@ def rig(request):
     arm = FakeArm(ctx, prefix=model)
     bridge = PandaBridge(context=ctx, namespace="arm", parameter_overrides=[
         Parameter("backend", value="ros2_control"), Parameter("control_rate", value=RATE),
-        Parameter("state_rate", value=50.0), Parameter("command_timeout", value=0.2),
-        Parameter("state_timeout", value=0.2), Parameter("robot_model", value=model)])
+        # Timeouts with room for this process' own timers on a loaded machine: a late state or command
+        # is a stop that waits for a zero command (the arming rule), which would stall a test.
+        Parameter("state_rate", value=50.0), Parameter("command_timeout", value=0.5),
+        Parameter("state_timeout", value=0.5), Parameter("robot_model", value=model)])
     probe = rclpy.create_node("probe", context=ctx)
     for n in (arm, bridge, probe):
         ex.add_node(n)
@@ -156,7 +158,14 @@ def test_stale_joint_states_brake_and_estop_latches(rig):
     rig.arm.publishing = False
     assert rig.wait(lambda: np.all(rig.arm.commands[-1] == 0.0))
     assert any(s.code == SafetyStatus.INVALID_STATE for s in rig.status)
-    rig.arm.publishing = True
+    rig.arm.publishing = True                             # the state is back; the held command is not
+    n = len(rig.arm.commands)                             # enough: a lost state is a stop (arming rule)
+    assert rig.wait(lambda: len(rig.arm.commands) > n + 50)
+    assert all(np.all(c == 0.0) for c in rig.arm.commands[n:])
+    assert rig.wait(lambda: rig.status[-1].code == SafetyStatus.AWAITING_ZERO)
+    cmd, rig.cmd = rig.cmd, np.zeros(7)                   # the operator's neutral, then the stick again
+    assert rig.wait(lambda: rig.status[-1].code != SafetyStatus.AWAITING_ZERO)
+    rig.cmd = cmd
     assert rig.wait(lambda: np.array_equal(rig.arm.commands[-1], rig.cmd))
     client = rig.probe.create_client(SetBool, "/arm/panda_bridge/estop")
     assert client.wait_for_service(timeout_sec=5.0)
@@ -196,9 +205,12 @@ def test_an_fr3_gets_its_joint_names_and_its_own_limit_table(rig):
 
     assert rig.bridge.filter.robot is FR3
     np.testing.assert_array_equal(rig.bridge.filter.v_max, FR3.dq_max)
+    rig.arm.q[4] = -2.6                                   # room to reach 4 rad/s however late the timers
+    n = len(rig.states)
+    assert rig.wait(lambda: len(rig.states) > n + 2)
     cmd = np.array([0.0, 0.0, 0.0, 0.0, 4.0, 0.0, 0.0])
     rig.cmd = cmd
-    assert rig.wait(lambda: np.array_equal(rig.arm.commands[-1], cmd))    # not scaled to 2.61
+    assert rig.wait(lambda: np.array_equal(rig.arm.commands[-1], cmd)), [s.text for s in rig.status[-3:]]
     n = len(rig.states)
     assert rig.wait(lambda: len(rig.states) > n + 2)
     assert list(rig.states[-1].name) == [f"fr3_joint{i}" for i in range(1, 8)]

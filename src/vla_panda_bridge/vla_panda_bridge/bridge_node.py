@@ -26,6 +26,8 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from vla_common.robot import PANDA, ROBOTS, robot_spec
 from vla_common.ros.convert import quat_wxyz_from_matrix, stamp_from_ns
+from vla_common.ros.description import publish_robot_description
+from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
@@ -165,6 +167,9 @@ class PandaBridge(Node):
         self._pose = PoseStamped()
         self._pose.header.frame_id = self.base_frame
         self._status_pub = self.create_publisher(SafetyStatus, "~/status", 10)
+        self.diagnostics = Diagnostics(self, hardware_id=self.spec.name)
+        # The URDF is the Panda's (example-robot-data); an FR3's comes with franka_description.
+        self._description_pub = publish_robot_description(self) if self.spec is PANDA else None
         try:
             self.backend = BACKENDS[p["backend"]].make(self)
         except BackendError as exc:
@@ -268,6 +273,10 @@ class PandaBridge(Node):
             msg.gripper, msg.gripper_lost = self.gripper.summary()
         self._status_pub.publish(msg)
         self._published_code = code
+        level = "ok" if code in (safety.OK, safety.VELOCITY_SCALED, safety.ACCELERATION_LIMITED) else (
+            "error" if code in (safety.ESTOP, safety.REFLEX, safety.INVALID_STATE) else "warn")
+        self.diagnostics.update(level, msg.text, code=safety.CODE_NAMES.get(code, str(code)),
+                                commands_received=msg.commands_received, interventions=msg.interventions)
 
     # -------------------------------------------------------------------------------- services
     def _on_estop(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:
@@ -299,7 +308,7 @@ class PandaBridge(Node):
         if self.filter.clear_fault():
             self.filter.reset(self.backend.position())
         else:                                               # a recovery is a stop all the same
-            self.filter.stop("~/recover")
+            self.filter.disarm("~/recover")
         text = f"{text}; the arm brakes and waits: send a zero command, then move"
         response.success, response.message = True, text
         self.get_logger().info(response.message)

@@ -271,13 +271,9 @@ class SafetyFilter:
         self._zero_target()
 
     def disarm(self, why: str) -> None:
-        """A stop the filter did not see itself (a lost connection, a silent robot): motion needs a zero
-        command first."""
+        """A stop: brake to zero now, and motion needs a zero command first (the filter's own stops
+        call it, and so do the backends' and the node's: a silent robot, ~/recover)."""
         self.arming.disarm(why)
-
-    def stop(self, why: str) -> None:
-        """Brake to zero now and wait for a zero command (~/recover without a reflex, say)."""
-        self.disarm(why)
         self._zero_target()
 
     def _zero_target(self) -> None:
@@ -316,18 +312,16 @@ class SafetyFilter:
             if age < 0.0:                                   # clock went back (sim reset): restart
                 self._last_valid = now
             elif not age <= self.config.command_timeout:
-                self._last_valid = None
-                self._target = [0.0] * NUM_JOINTS
+                self.disarm("command watchdog (no valid command in time)")   # target zero too
                 self._target_code = COMMAND_TIMEOUT
                 self._target_text = (f"no valid command for {self.config.command_timeout:.3g} s: "
                                      "decelerating to zero")
                 self._count_intervention(COMMAND_TIMEOUT)
-                self.arming.disarm("command watchdog (no valid command in time)")
 
         had_state = self._q_ref is not None
         state_ok = self._sync_position(q)
         if not state_ok and had_state:                      # lost, not yet to come: a stop
-            self.arming.disarm("no valid measured joint position")
+            self.disarm("no valid measured joint position")
         q_ref = self._q_ref
         hold = self._estop or self._fault or self._teaching or not state_ok   # no valid position: brake
         h = self._h

@@ -28,8 +28,6 @@ from vla_common.robot import PANDA, ROBOTS, robot_spec
 from vla_common.ros.convert import quat_wxyz_from_matrix, stamp_from_ns
 from vla_common.ros.description import publish_robot_description
 from vla_common.ros.diagnostics import Diagnostics
-from vla_common.ros.description import publish_robot_description
-from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
@@ -172,9 +170,6 @@ class PandaBridge(Node):
         self.diagnostics = Diagnostics(self, hardware_id=self.spec.name)
         # The URDF is the Panda's (example-robot-data); an FR3's comes with franka_description.
         self._description_pub = publish_robot_description(self) if self.spec is PANDA else None
-        self.diagnostics = Diagnostics(self, hardware_id=self.spec.name)
-        # The URDF is the Panda's (example-robot-data); an FR3's comes with franka_description.
-        self._description_pub = publish_robot_description(self) if self.spec is PANDA else None
         try:
             self.backend = BACKENDS[p["backend"]].make(self)
         except BackendError as exc:
@@ -278,10 +273,6 @@ class PandaBridge(Node):
             msg.gripper, msg.gripper_lost = self.gripper.summary()
         self._status_pub.publish(msg)
         self._published_code = code
-        level = "ok" if code in (safety.OK, safety.VELOCITY_SCALED, safety.ACCELERATION_LIMITED) else (
-            "error" if code in (safety.ESTOP, safety.REFLEX, safety.INVALID_STATE) else "warn")
-        self.diagnostics.update(level, msg.text, code=safety.CODE_NAMES.get(code, str(code)),
-                                commands_received=msg.commands_received, interventions=msg.interventions)
         level = "ok" if code in (safety.OK, safety.VELOCITY_SCALED, safety.ACCELERATION_LIMITED) else (
             "error" if code in (safety.ESTOP, safety.REFLEX, safety.INVALID_STATE) else "warn")
         self.diagnostics.update(level, msg.text, code=safety.CODE_NAMES.get(code, str(code)),

@@ -30,7 +30,6 @@ from vla_common.kinematics import PandaKinematics
 from vla_common.ros.testing import RosHarness
 from vla_launch.run import find_executable
 from vla_panda_bridge.libfranka_loop import LoopStatus
-from vla_panda_bridge.safety import AWAITING_ZERO
 
 from vla_interfaces.msg import SafetyStatus
 
@@ -155,15 +154,7 @@ class Bridge(RosHarness):
             assert self.recover().success
         assert self.connected()
         assert self.spin_until(self.at_rest, 5.0)
-        self.rearm()
-
-    def rearm(self) -> None:
-        """Zero commands until both filters (the node's and the loop's) are armed: after every stop
-        the operator did not choose (here: the connection) motion needs a zero first."""
-        armed = lambda: (self.node.filter.arming.armed  # noqa: E731
-                         and self.backend.status.filter_code != AWAITING_ZERO)
-        assert self.command_until([0.0] * 7, armed, 10.0), (self.node.filter.arming.reason,
-                                                             self.backend.status)
+        self.command([0.0] * 7, 0.05)                     # re-arm: a zero command first
 
 
 @pytest.fixture(scope="module")

@@ -11,6 +11,7 @@ import pytest
 from vla_common.robot import FR3
 from vla_panda_bridge.backend_libfranka import MAX_CATCH_UP, LibfrankaBackend
 from vla_panda_bridge.libfranka_loop import LoopStatus
+from vla_panda_bridge.libfranka_slots import STATE
 
 
 class Logger:
@@ -69,8 +70,8 @@ def loop_writes(backend, cycle: int, status: int = LoopStatus.OK, text: str = "c
     q = [0.1] * 7 if q is None else q
     slots.push_history(cycle, time.time(), q, [0.0] * 7, [0.0] * 7)
     b = slots.begin_state()
-    b["cycle"], b["pid"], b["status"] = cycle, 1, status
-    b["q"] = q
+    b[STATE["cycle"]], b[STATE["pid"]], b[STATE["status"]] = cycle, 1, status
+    b[STATE["q"]] = q
     slots.end_state()
     slots.write_text("status", text)
 

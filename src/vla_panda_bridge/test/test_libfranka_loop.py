@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from vla_panda_bridge.libfranka_driver import CONNECTION, REFLEX, RobotError
 from vla_panda_bridge.libfranka_loop import ControlLoop, LoopSettings
-from vla_panda_bridge.libfranka_slots import Slots
+from vla_panda_bridge.libfranka_slots import CONTROL, Slots
 from vla_panda_bridge.safety import NON_FINITE_COMMAND, WRONG_LENGTH
 
 from vla_panda_bridge import libfranka_loop as lf
@@ -203,12 +203,12 @@ class Rig:
     def request(self, name: str, value: float | None = None) -> None:
         c = self.slots.control
         if name == "teaching":
-            c["teaching"] = float(value)
-            c["teaching_req"] += 1.0
+            c[CONTROL["teaching"]] = float(value)
+            c[CONTROL["teaching_req"]] += 1.0
         elif name == "recover":
-            c["recover_req"] += 1.0
+            c[CONTROL["recover_req"]] += 1.0
         else:
-            c[name] = float(value)
+            c[CONTROL[name]] = float(value)
 
     def close(self) -> None:
         self.slots.close()

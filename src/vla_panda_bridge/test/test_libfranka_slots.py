@@ -10,7 +10,18 @@ import time
 
 import numpy as np
 import pytest
-from vla_panda_bridge.libfranka_slots import HISTORY, RING, Slots
+from vla_panda_bridge.libfranka_slots import (
+    CMD_N,
+    CMD_SEQ,
+    CMD_VALUES,
+    H_CYCLE,
+    H_Q,
+    H_STAMP,
+    HISTORY,
+    RING,
+    STATE,
+    Slots,
+)
 
 
 @pytest.fixture
@@ -23,16 +34,16 @@ def slots():
 def test_commands_round_trip_with_their_count_and_sequence(slots):
     assert slots.write_command([0.1] * 7, 5.0) == 1
     c = slots.read_command()
-    assert c["n"] == 7 and c["seq"] == 1 and np.allclose(c["values"], 0.1)
+    assert c[CMD_N] == 7 and c[CMD_SEQ] == 1 and np.allclose(c[CMD_VALUES:], 0.1)
     assert slots.write_command([1.0] * 6, 6.0) == 2          # a wrong length keeps its count only
     c = slots.read_command()
-    assert c["n"] == 6 and c["seq"] == 2 and np.allclose(c["values"], 0.1)
+    assert c[CMD_N] == 6 and c[CMD_SEQ] == 2 and np.allclose(c[CMD_VALUES:], 0.1)
 
 
 def test_the_state_and_texts_round_trip(slots):
     b = slots.begin_state()
-    b["cycle"] = 3
-    b["q"] = np.arange(7)
+    b[STATE["cycle"]] = 3
+    b[STATE["q"]] = np.arange(7)
     slots.end_state()
     s = slots.read_state()
     assert s.cycle == 3.0 and np.array_equal(s.q, np.arange(7))
@@ -55,7 +66,7 @@ def test_a_command_write_in_progress_is_skipped_not_waited_for(slots):
     slots._cmd_seq[0] += 1.0                                  # the ROS side preempted mid-write
     assert slots.read_command() is None
     slots._cmd_seq[0] += 1.0
-    assert slots.read_command()["seq"] == 1
+    assert slots.read_command()[CMD_SEQ] == 1
 
 
 def test_rings_keep_the_newest_entries_oldest_first(slots):
@@ -77,16 +88,16 @@ def test_attach_refuses_another_layout_and_only_the_owner_unlinks(slots, tmp_pat
 
 _WRITER = """
 import sys, time
-from vla_panda_bridge.libfranka_slots import Slots
+from vla_panda_bridge.libfranka_slots import Slots, STATE
 s = Slots.attach(sys.argv[1])
 for k in range(1, 5001):
     t = time.perf_counter() + 50e-6                         # a write every 50 us (the loop: every 1 ms)
     while time.perf_counter() < t:
         pass
     b = s.begin_state()
-    b["cycle"] = k
-    b["q"] = k
-    b["dq"] = -k
+    b[STATE["cycle"]] = k
+    b[STATE["q"]] = k
+    b[STATE["dq"]] = -k
     s.end_state()
 s.close()
 """
@@ -114,8 +125,8 @@ def test_the_history_holds_every_recent_state_and_refuses_overwritten_ones(slots
     for k in range(1, HISTORY + 11):
         slots.push_history(k, 1000.0 + k, [k] * 7, [-k] * 7, [0.5] * 7)
     e = slots.read_history(HISTORY + 10)
-    assert e["cycle"] == HISTORY + 10 and e["stamp"] == 1000.0 + HISTORY + 10
-    assert np.all(e["q"] == HISTORY + 10)
+    assert e[H_CYCLE] == HISTORY + 10 and e[H_STAMP] == 1000.0 + HISTORY + 10
+    assert np.all(e[H_Q:H_Q + 7] == HISTORY + 10)
     assert slots.read_history(10) is None                    # overwritten by cycle HISTORY + 10
     assert slots.read_history(11) is not None
 
@@ -130,7 +141,7 @@ def test_new_samples_gives_every_robot_state_once_on_the_decimation_grid():
             for k in range(publish.last + 1, upto + 1):
                 p.slots.push_history(k, 2000.0 + k * 0.001, [k] * 7, [0.0] * 7, [0.0] * 7)
             b = p.slots.begin_state()
-            b["cycle"], b["pid"] = upto, 1
+            b[STATE["cycle"]], b[STATE["pid"]] = upto, 1
             p.slots.end_state()
             publish.last = upto
         publish.last = 0

@@ -42,7 +42,16 @@ from vla_panda_bridge.libfranka_driver import (
     RobotError,
 )
 from vla_panda_bridge.libfranka_open import open_driver
-from vla_panda_bridge.libfranka_slots import NUM_JOINTS, Slots
+from vla_panda_bridge.libfranka_slots import (
+    CMD_ARRIVED,
+    CMD_N,
+    CMD_SEQ,
+    CMD_VALUES,
+    CONTROL,
+    NUM_JOINTS,
+    STATE,
+    Slots,
+)
 from vla_panda_bridge.safety import OK as FILTER_OK
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
@@ -215,9 +224,9 @@ class ControlLoop:
         self.cycle = 0
         self.connects = self.errors = self.missed = self.motions = 0
         self.latency = math.nan
-        self.recover_ack = int(slots.control["recover_req"])
+        self.recover_ack = int(slots.control[CONTROL["recover_req"]])
         self.recover_ok = 0
-        self.teaching_ack = int(slots.control["teaching_req"])
+        self.teaching_ack = int(slots.control[CONTROL["teaching_req"]])
         self.stopped = False
         self.orphaned = False            # stopped because the bridge is gone (nobody else cleans up)
         self._period = math.nan
@@ -274,7 +283,7 @@ class ControlLoop:
         return True
 
     def _shutdown_requested(self) -> bool:
-        if self.slots.control["shutdown"]:
+        if self.slots.control[CONTROL["shutdown"]]:
             return True
         if self._parent is not None and (self.cycle % 200 == 0 or self.driver is None):
             self.orphaned = os.getppid() != self._parent   # the ROS node is gone: stop the arm, exit
@@ -362,13 +371,13 @@ class ControlLoop:
 
     # ------------------------------------------------------------------------------------ requests
     def _recover_requested(self) -> bool:
-        return int(self.slots.control["recover_req"]) != self.recover_ack
+        return int(self.slots.control[CONTROL["recover_req"]]) != self.recover_ack
 
     def _answer_recover(self, ok: bool) -> None:
         """Acknowledge an open recover request (if any); its outcome text is the status text."""
         if self._recover_requested():
             self.recover_ok = int(ok)
-            self.recover_ack = int(self.slots.control["recover_req"])
+            self.recover_ack = int(self.slots.control[CONTROL["recover_req"]])
             self._publish_status()
 
     def _recover(self) -> None:
@@ -392,21 +401,21 @@ class ControlLoop:
         that changes nothing, or that cannot be served (no connection, an error, e-stop), is
         acknowledged at once; the state slot's mode tells the ROS side what happened."""
         c = self.slots.control
-        if int(c["teaching_req"]) == self.teaching_ack:
+        if int(c[CONTROL["teaching_req"]]) == self.teaching_ack:
             return None
-        want = bool(c["teaching"])
+        want = bool(c[CONTROL["teaching"]])
         teaching = self.mode == Mode.TORQUE
         blocked = self.driver is None or self.status != LoopStatus.OK or (self._estop and want)
         if want == teaching or blocked:
-            self.teaching_ack = int(c["teaching_req"])
+            self.teaching_ack = int(c[CONTROL["teaching_req"]])
             return None
         return want
 
     def _ack_teaching(self) -> None:
-        self.teaching_ack = int(self.slots.control["teaching_req"])
+        self.teaching_ack = int(self.slots.control[CONTROL["teaching_req"]])
 
     def _sync_estop(self) -> None:
-        estop = bool(self.slots.control["estop"])
+        estop = bool(self.slots.control[CONTROL["estop"]])
         if estop != self._estop:
             self._estop = estop
             self.filter.set_estop(estop)
@@ -422,23 +431,22 @@ class ControlLoop:
 
     def _seq_in_slot(self) -> float:
         c = self.slots.read_command()
-        return self._cmd_seq if c is None else float(c["seq"])
+        return self._cmd_seq if c is None else float(c[CMD_SEQ])
 
     def _take_command(self, apply: bool) -> None:
         """The latest command, if new, into the filter (timed in robot time, like the watchdog)."""
         c = self.slots.read_command()
-        if c is None or float(c["seq"]) == self._cmd_seq:
+        if c is None or c[CMD_SEQ] == self._cmd_seq:
             return                                   # nothing new, or the writer is mid-write
-        self._cmd_seq = float(c["seq"])
+        self._cmd_seq = c[CMD_SEQ]
         if not apply:
             return
-        n = int(c["n"])
-        values = c["values"] if n == NUM_JOINTS else [0.0] * max(n, 0)
+        n = int(c[CMD_N])
+        values = c[CMD_VALUES:] if n == NUM_JOINTS else [0.0] * max(n, 0)
         code, _ = self.filter.submit(values, self._t)     # ignored while disarmed, unless zero
         self._cmd_t = self._t
-        arrived = float(c["arrived"])
-        if arrived != self._cmd_arrived:             # a new input (not the same one written again)
-            self._cmd_arrived = arrived
+        if c[CMD_ARRIVED] != self._cmd_arrived:      # a new input (not the same one written again)
+            self._cmd_arrived = c[CMD_ARRIVED]
             self._latency_pending = True
         self._want = (code == FILTER_OK and not self._estop and bool(np.any(values))
                       and self.filter.arming.armed)
@@ -575,37 +583,37 @@ class ControlLoop:
 
     def _fill_status(self, b: np.ndarray) -> None:
         f = self.filter
-        b["dq_cmd"] = self._dq
-        b["status"] = self.status
-        b["filter_code"] = self._code
-        b["interventions"] = f.interventions
-        b["last_intervention"] = f.last_intervention
-        b["mode"] = self.mode
-        b["estop_active"] = f.estop_active
-        b["cmd_seq"] = self._cmd_seq
-        b["latency"] = self.latency
-        b["recover_ack"] = self.recover_ack
-        b["recover_ok"] = self.recover_ok
-        b["teaching_ack"] = self.teaching_ack
-        b["connects"] = self.connects
-        b["errors"] = self.errors
-        b["missed"] = self.missed
-        b["motions"] = self.motions
-        b["pid"] = os.getpid()
+        b[STATE["dq_cmd"]] = self._dq
+        b[STATE["status"]] = self.status
+        b[STATE["filter_code"]] = self._code
+        b[STATE["interventions"]] = f.interventions
+        b[STATE["last_intervention"]] = f.last_intervention
+        b[STATE["mode"]] = self.mode
+        b[STATE["estop_active"]] = f.estop_active
+        b[STATE["cmd_seq"]] = self._cmd_seq
+        b[STATE["latency"]] = self.latency
+        b[STATE["recover_ack"]] = self.recover_ack
+        b[STATE["recover_ok"]] = self.recover_ok
+        b[STATE["teaching_ack"]] = self.teaching_ack
+        b[STATE["connects"]] = self.connects
+        b[STATE["errors"]] = self.errors
+        b[STATE["missed"]] = self.missed
+        b[STATE["motions"]] = self.motions
+        b[STATE["pid"]] = os.getpid()
 
     def _publish(self, state, latency: float, t0: float | None = None) -> None:
         stamp = self._wall()
         self.slots.push_history(self.cycle, stamp, state.q, state.dq, state.tau_J)
         b = self.slots.begin_state()
-        b["cycle"] = self.cycle
-        b["robot_time"] = self._t
-        b["stamp"] = stamp
-        b["q"] = state.q
-        b["dq"] = state.dq
-        b["tau_J"] = state.tau_J
-        b["O_T_EE"] = state.O_T_EE
-        b["robot_mode"] = int(state.robot_mode)
-        b["success_rate"] = state.control_command_success_rate
+        b[STATE["cycle"]] = self.cycle
+        b[STATE["robot_time"]] = self._t
+        b[STATE["stamp"]] = stamp
+        b[STATE["q"]] = state.q
+        b[STATE["dq"]] = state.dq
+        b[STATE["tau_J"]] = state.tau_J
+        b[STATE["O_T_EE"]] = state.O_T_EE
+        b[STATE["robot_mode"]] = int(state.robot_mode)
+        b[STATE["success_rate"]] = state.control_command_success_rate
         self._fill_status(b)
         self.slots.end_state()
         if t0 is not None:
@@ -639,7 +647,7 @@ def main(argv: list[str] | None = None) -> int:
     # shutdown flag (braking first), so SIGINT is ignored; SIGTERM asks for the same shutdown.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     slots = Slots.attach(args.slots)
-    signal.signal(signal.SIGTERM, lambda *_: slots.control.__setitem__("shutdown", 1.0))
+    signal.signal(signal.SIGTERM, lambda *_: slots.control.__setitem__(CONTROL["shutdown"], 1.0))
     settings = LoopSettings.from_json(args.settings)
     warning = _set_priority(settings.priority)
     loop = ControlLoop(slots, settings, parent_pid=args.parent_pid)

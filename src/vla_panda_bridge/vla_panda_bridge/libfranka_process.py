@@ -29,7 +29,18 @@ import numpy as np
 
 from vla_panda_bridge.backend import JointSample
 from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus, Mode
-from vla_panda_bridge.libfranka_slots import HISTORY, Slots
+from vla_panda_bridge.libfranka_slots import (
+    CONTROL,
+    H_DQ,
+    H_END,
+    H_Q,
+    H_STAMP,
+    H_TAU,
+    HISTORY,
+    STATE,
+    Slots,
+    StateView,
+)
 
 RESTART_MIN = 0.5   # s before restarting a loop process that exited, doubled up to RESTART_MAX
 RESTART_MAX = 10.0
@@ -85,7 +96,7 @@ class LoopProcess:
         self._python = python
         self.stuck_timeout = stuck_timeout
         self.slots = Slots.create()
-        self.slots.control["parent_pid"] = os.getpid()
+        self.slots.control[CONTROL["parent_pid"]] = os.getpid()
         self._proc: subprocess.Popen | None = None
         self._restart_at = 0.0
         self._restart_wait = RESTART_MIN
@@ -97,7 +108,7 @@ class LoopProcess:
         self._cycle_seen_at = -math.inf
         self._seq = -1.0
         self._seq_seen_at = time.monotonic()
-        self._state: np.record | None = None
+        self._state: StateView | None = None
         self._texts: dict[str, str] = {}
         self._closed = False
         self.commands_sent = 0
@@ -169,13 +180,13 @@ class LoopProcess:
         return self.slots.write_command(values, time.monotonic() if arrived is None else arrived)
 
     def set_estop(self, active: bool) -> None:
-        self.slots.control["estop"] = float(bool(active))
+        self.slots.control[CONTROL["estop"]] = float(bool(active))
 
     def request_recover(self) -> int:
         """Ask the loop for error recovery (or an immediate reconnection); `recover_result` answers."""
         c = self.slots.control
-        c["recover_req"] += 1.0
-        return int(c["recover_req"])
+        c[CONTROL["recover_req"]] += 1.0
+        return int(c[CONTROL["recover_req"]])
 
     def recover_result(self, token: int) -> tuple[bool, str] | None:
         """None while the request is pending, else (success, the loop's status text)."""
@@ -186,9 +197,9 @@ class LoopProcess:
 
     def request_teaching(self, active: bool) -> int:
         c = self.slots.control
-        c["teaching"] = float(bool(active))
-        c["teaching_req"] += 1.0
-        return int(c["teaching_req"])
+        c[CONTROL["teaching"]] = float(bool(active))
+        c[CONTROL["teaching_req"]] += 1.0
+        return int(c[CONTROL["teaching_req"]])
 
     def teaching_result(self, token: int) -> bool | None:
         """None while the request is pending, else whether the arm is in teaching mode now."""
@@ -198,7 +209,7 @@ class LoopProcess:
         return int(s.mode) == Mode.TORQUE
 
     # ----------------------------------------------------------------------------------- state
-    def _read(self) -> np.record | None:
+    def _read(self) -> StateView | None:
         s = self.slots.read_state()
         if s is None:
             return self._state                           # the loop is inside a write: the previous one
@@ -234,8 +245,8 @@ class LoopProcess:
         for cycle in range(start, now + 1, every):
             e = self.slots.read_history(cycle)
             if e is not None:
-                out.append(LibfrankaSample(e["q"], e["dq"], e["tau_J"], stamp_ns=int(e["stamp"] * 1e9),
-                                           cycle=cycle))
+                out.append(LibfrankaSample(e[H_Q:H_DQ], e[H_DQ:H_TAU], e[H_TAU:H_END],
+                                           stamp_ns=int(e[H_STAMP] * 1e9), cycle=cycle))
         self._history_cycle = now
         return out
 
@@ -248,11 +259,12 @@ class LoopProcess:
         return self._sample(s)
 
     @staticmethod
-    def _sample(r: np.record) -> LibfrankaSample:
+    def _sample(s: StateView) -> LibfrankaSample:
+        r = s.raw
         return LibfrankaSample(
-            position=r["q"].copy(), velocity=r["dq"].copy(), effort=r["tau_J"].copy(),
-            stamp_ns=int(r["stamp"] * 1e9), ee_matrix=r["O_T_EE"].reshape(4, 4).T.copy(),
-            cycle=int(r["cycle"]), robot_time=float(r["robot_time"]),
+            position=r[STATE["q"]].copy(), velocity=r[STATE["dq"]].copy(), effort=r[STATE["tau_J"]].copy(),
+            stamp_ns=int(r[STATE["stamp"]] * 1e9), ee_matrix=r[STATE["O_T_EE"]].reshape(4, 4).T.copy(),
+            cycle=int(r[STATE["cycle"]]), robot_time=float(r[STATE["robot_time"]]),
         )
 
     def _text(self, which: str) -> str:
@@ -287,7 +299,7 @@ class LoopProcess:
         if self._closed:
             return True
         self._closed = True
-        self.slots.control["shutdown"] = 1.0
+        self.slots.control[CONTROL["shutdown"]] = 1.0
         clean = True
         if self._proc is not None and self._proc.poll() is None:
             try:

@@ -9,15 +9,12 @@ loads whole. The file lives in /dev/shm; the creating side (the ROS node) unlink
 Blocks (all float64 unless noted):
 - command (ROS -> loop, seqlock): count of values, command sequence, arrival time, 7 values;
 - control (ROS -> loop, plain): e-stop, shutdown, teaching wanted, request counters;
-- state (loop -> ROS, seqlock): one robot sample and the loop's status, see `STATE_DTYPE`;
+- state (loop -> ROS, seqlock): one robot sample and the loop's status, see `STATE_LAYOUT`;
 - history (loop -> ROS): the last HISTORY robot samples (cycle, stamp, q, dq, tau_J), each entry
   marked by its cycle number before and after it is written, so the ROS side publishes every robot
   state even when its timer runs late (a loaded machine) without the loop ever waiting;
 - texts (loop -> ROS, seqlock each, UTF-8 bytes): the loop's status text and the filter's text;
 - rings (loop -> bench, plain): per-cycle period, busy time and command latency.
-
-The whole file is one NumPy structured record, `LAYOUT`, declared once below: every block is a named
-field of it, every reader and writer goes through its field names.
 """
 
 from __future__ import annotations
@@ -25,75 +22,102 @@ from __future__ import annotations
 import mmap
 import os
 import tempfile
+from dataclasses import dataclass
 
 import numpy as np
 
 NUM_JOINTS = 7
 MAX_TEXT = 1024
 RING = 1 << 16
-HISTORY = 512
-_F, _J = np.float64, (NUM_JOINTS,)
 
-# Command block (ROS -> loop): the count of values, the command sequence, its arrival (monotonic s), 7
-# values (only a 7-value command fits; the count tells the loop about a wrong length).
-CMD_DTYPE = np.dtype([("n", _F), ("seq", _F), ("arrived", _F), ("values", _F, _J)])
+# Command block payload: [n, cmd_seq, arrived (monotonic s), v0..v6]
+CMD_N, CMD_SEQ, CMD_ARRIVED, CMD_VALUES = 0, 1, 2, 3
+CMD_SIZE = CMD_VALUES + NUM_JOINTS
+
 # Control block: single values written by the ROS side only.
-CONTROL_DTYPE = np.dtype([(name, _F) for name in
-                          ("estop", "shutdown", "teaching", "teaching_req", "recover_req", "parent_pid")])
-# State block (loop -> ROS): one robot sample and the loop's status.
-STATE_DTYPE = np.dtype([
-    ("cycle", _F),            # robot states received by this loop process
-    ("robot_time", _F),       # the robot's own clock (s)
-    ("stamp", _F),            # wall time (time.time()) when the state arrived
-    ("q", _F, _J),
-    ("dq", _F, _J),
-    ("tau_J", _F, _J),
-    ("O_T_EE", _F, (16,)),    # column-major 4x4, the robot's end-effector pose in its base frame
-    ("dq_cmd", _F, _J),       # the velocity last commanded (after the safety filter)
-    ("robot_mode", _F),       # franka RobotMode as an int
-    ("success_rate", _F),     # control_command_success_rate (0..1)
-    ("status", _F),           # libfranka_loop.LoopStatus
-    ("filter_code", _F),      # safety filter code of the last cycle
-    ("interventions", _F),    # safety filter interventions in this loop process
-    ("last_intervention", _F),
-    ("mode", _F),             # libfranka_loop.Mode: idle, velocity, torque (teaching)
-    ("estop_active", _F),
-    ("cmd_seq", _F),          # command sequence last taken by the loop
-    ("latency", _F),          # s from that command's arrival to the first robot command with it
-    ("recover_ack", _F),      # recover_req value last handled
-    ("recover_ok", _F),
-    ("teaching_ack", _F),     # teaching_req value last handled
-    ("connects", _F),         # successful connections
-    ("errors", _F),           # robot errors seen (reflexes, lost connections)
-    ("missed", _F),           # robot cycles missed (sum of Durations minus cycles)
-    ("motions", _F),          # motions started
-    ("pid", _F),
-])
-# A history entry: marked by its cycle number before (`cycle`) and after (`end`) it is written.
-HISTORY_DTYPE = np.dtype([("cycle", _F), ("stamp", _F), ("q", _F, _J), ("dq", _F, _J), ("tau_J", _F, _J),
-                          ("end", _F)])
+CONTROL_FIELDS = ("estop", "shutdown", "teaching", "teaching_req", "recover_req", "parent_pid")
+CONTROL = {name: i for i, name in enumerate(CONTROL_FIELDS)}
+
+# State block payload layout: (name, length).
+STATE_LAYOUT: tuple[tuple[str, int], ...] = (
+    ("cycle", 1),            # robot states received by this loop process
+    ("robot_time", 1),       # the robot's own clock (s)
+    ("stamp", 1),            # wall time (time.time()) when the state arrived
+    ("q", NUM_JOINTS),
+    ("dq", NUM_JOINTS),
+    ("tau_J", NUM_JOINTS),
+    ("O_T_EE", 16),          # column-major 4x4, the robot's end-effector pose in its base frame
+    ("dq_cmd", NUM_JOINTS),  # the velocity last commanded (after the safety filter)
+    ("robot_mode", 1),       # franka RobotMode as an int
+    ("success_rate", 1),     # control_command_success_rate (0..1)
+    ("status", 1),           # libfranka_loop.LoopStatus
+    ("filter_code", 1),      # safety filter code of the last cycle
+    ("interventions", 1),    # safety filter interventions in this loop process
+    ("last_intervention", 1),
+    ("mode", 1),             # libfranka_loop.Mode: idle, velocity, torque (teaching)
+    ("estop_active", 1),
+    ("cmd_seq", 1),          # command sequence last taken by the loop
+    ("latency", 1),          # s from that command's arrival to the first robot command with it
+    ("recover_ack", 1),      # recover_req value last handled
+    ("recover_ok", 1),
+    ("teaching_ack", 1),     # teaching_req value last handled
+    ("connects", 1),         # successful connections
+    ("errors", 1),           # robot errors seen (reflexes, lost connections)
+    ("missed", 1),           # robot cycles missed (sum of Durations minus cycles)
+    ("motions", 1),          # motions started
+    ("pid", 1),
+)
+STATE = {}
+_offset = 0
+for _name, _len in STATE_LAYOUT:
+    STATE[_name] = slice(_offset, _offset + _len) if _len > 1 else _offset
+    _offset += _len
+STATE_SIZE = _offset
+
 RINGS = ("period", "busy", "latency")
+
+# History entries: [cycle, stamp, q(7), dq(7), tau_J(7), cycle again]
+HISTORY = 512
+H_CYCLE, H_STAMP, H_Q, H_DQ, H_TAU = 0, 1, 2, 2 + NUM_JOINTS, 2 + 2 * NUM_JOINTS
+H_END = 2 + 3 * NUM_JOINTS
+H_SIZE = H_END + 1
+
+# Float64 area: [cmd seq | cmd payload] [control] [state seq | state payload] [text seqs] [ring idx, rings]
+_CMD_AT = 0
+_CONTROL_AT = _CMD_AT + 1 + CMD_SIZE
+_STATE_AT = _CONTROL_AT + len(CONTROL_FIELDS)
+_TEXT_SEQ_AT = _STATE_AT + 1 + STATE_SIZE
+_TEXT_LEN_AT = _TEXT_SEQ_AT + 2
+_RING_IDX_AT = _TEXT_LEN_AT + 2
+_RING_AT = _RING_IDX_AT + 1
+_HIST_AT = _RING_AT + len(RINGS) * RING
+_N_DOUBLES = _HIST_AT + HISTORY * H_SIZE
+_TEXT_BYTES_AT = 8 * _N_DOUBLES
+SIZE = _TEXT_BYTES_AT + 2 * MAX_TEXT
 TEXTS = ("status", "filter")
-# The file: every block, in order.
-LAYOUT = np.dtype([
-    ("cmd_seq", _F), ("cmd", CMD_DTYPE),
-    ("control", CONTROL_DTYPE),
-    ("state_seq", _F), ("state", STATE_DTYPE),
-    ("text_seq", _F, (len(TEXTS),)), ("text_len", _F, (len(TEXTS),)),
-    ("ring_idx", _F), ("rings", _F, (len(RINGS), RING)),
-    ("history", HISTORY_DTYPE, (HISTORY,)),
-    ("text", np.uint8, (len(TEXTS), MAX_TEXT)),
-])
-SIZE = LAYOUT.itemsize
 
 
 def _shm_dir() -> str:
     return "/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir()
 
 
+@dataclass
+class StateView:
+    """A consistent copy of the state block (see `STATE_LAYOUT`); `raw` is the flat array."""
+
+    raw: np.ndarray
+
+    def __getattr__(self, name: str):
+        try:
+            index = STATE[name]
+        except KeyError:
+            raise AttributeError(name) from None
+        return self.raw[index].copy() if isinstance(index, slice) else float(self.raw[index])
+
+
 class Slots:
     """The shared blocks over one mmap'ed file. `Slots.create()` on the ROS side, `Slots.attach(path)`
-    in the loop process. Blocks are 0-d structured views (`slots.control["estop"]`)."""
+    in the loop process."""
 
     def __init__(self, path: str, owner: bool):
         self.path = path
@@ -103,20 +127,21 @@ class Slots:
             self._mm = mmap.mmap(fd, SIZE)
         finally:
             os.close(fd)
-        m = self._m = np.ndarray((), LAYOUT, buffer=self._mm)
-        self._cmd_seq = m["cmd_seq"].reshape(1)
-        self.cmd = m["cmd"]
-        self.control = m["control"]
-        self._state_seq = m["state_seq"].reshape(1)
-        self.state = m["state"]
-        self._text_seq = m["text_seq"]
-        self._text_len = m["text_len"]
-        self._ring_idx = m["ring_idx"].reshape(1)
-        self.rings = {name: m["rings"][i] for i, name in enumerate(RINGS)}
-        self.history = m["history"]
-        self._text = m["text"]
-        self._cmd_scratch = np.zeros((), CMD_DTYPE)
-        self._state_scratch = np.zeros((), STATE_DTYPE)
+        d = np.frombuffer(self._mm, dtype=np.float64, count=_N_DOUBLES)
+        self._d = d
+        self._cmd_seq = d[_CMD_AT:_CMD_AT + 1]
+        self.cmd = d[_CMD_AT + 1:_CMD_AT + 1 + CMD_SIZE]
+        self.control = d[_CONTROL_AT:_CONTROL_AT + len(CONTROL_FIELDS)]
+        self._state_seq = d[_STATE_AT:_STATE_AT + 1]
+        self.state = d[_STATE_AT + 1:_STATE_AT + 1 + STATE_SIZE]
+        self._text_seq = d[_TEXT_SEQ_AT:_TEXT_SEQ_AT + 2]
+        self._text_len = d[_TEXT_LEN_AT:_TEXT_LEN_AT + 2]
+        self._ring_idx = d[_RING_IDX_AT:_RING_IDX_AT + 1]
+        self.rings = {name: d[_RING_AT + i * RING:_RING_AT + (i + 1) * RING] for i, name in enumerate(RINGS)}
+        self.history = d[_HIST_AT:_HIST_AT + HISTORY * H_SIZE].reshape(HISTORY, H_SIZE)
+        self._text = np.frombuffer(self._mm, dtype=np.uint8, count=2 * MAX_TEXT, offset=_TEXT_BYTES_AT)
+        self._cmd_scratch = np.zeros(CMD_SIZE)
+        self._state_scratch = np.zeros(STATE_SIZE)
 
     @classmethod
     def create(cls) -> Slots:
@@ -135,14 +160,14 @@ class Slots:
 
     def close(self) -> None:
         # Views into the map must go before the map itself can close.
-        for name in ("_m", "_cmd_seq", "cmd", "control", "_state_seq", "state", "_text_seq", "_text_len",
+        for name in ("_d", "_cmd_seq", "cmd", "control", "_state_seq", "state", "_text_seq", "_text_len",
                      "_ring_idx", "_text", "history"):
             setattr(self, name, None)
         self.rings = {}
         try:
             self._mm.close()
         except BufferError:
-            pass  # a copy still refers to it; the OS frees it with the process
+            pass  # a StateView still refers to it; the OS frees it with the process
         if self.owner:
             try:
                 os.unlink(self.path)
@@ -157,13 +182,13 @@ class Slots:
         seq = self._cmd_seq
         seq[0] += 1.0
         c = self.cmd
-        c["n"] = n
-        c["seq"] += 1.0
-        c["arrived"] = arrived
+        c[CMD_N] = n
+        c[CMD_SEQ] += 1.0
+        c[CMD_ARRIVED] = arrived
         if n == NUM_JOINTS:
-            c["values"] = values
+            c[CMD_VALUES:] = values
         seq[0] += 1.0
-        return int(c["seq"])
+        return int(c[CMD_SEQ])
 
     def read_command(self) -> np.ndarray | None:
         """Loop side: a consistent copy (a scratch array reused on every call: copy before keeping), or
@@ -180,8 +205,7 @@ class Slots:
                     seq[i] += 1.0
 
     def begin_state(self) -> np.ndarray:
-        """Loop side: open the state block for writing; fill the returned record (`b["q"] = ...`), then
-        `end_state()`."""
+        """Loop side: open the state block for writing; fill the returned array, then `end_state()`."""
         self._state_seq[0] += 1.0
         return self.state
 
@@ -193,34 +217,32 @@ class Slots:
         """Changes with every write of the loop (also status-only ones): its liveness."""
         return float(self._state_seq[0])
 
-    def read_state(self) -> np.record | None:
-        """ROS side: a consistent copy of the latest state (fields of STATE_DTYPE, also as attributes:
-        `s.q`, `s.status`), or None while the loop is inside a write."""
+    def read_state(self) -> StateView | None:
+        """ROS side: a consistent copy of the latest state, or None while the loop is inside a write."""
         out = _read_seqlock(self._state_seq, self.state, self._state_scratch, tries=1000)
-        return None if out is None else out.copy().view(np.recarray)[()]
+        return None if out is None else StateView(out.copy())
 
     # ------------------------------------------------------------------------------------ history
     def push_history(self, cycle: int, stamp: float, q, dq, tau) -> None:
         """Loop side: one robot sample into its entry (the oldest is overwritten)."""
-        e = self.history[cycle % HISTORY]            # a view of the entry
-        e["cycle"] = -1.0                            # being written
-        e["end"] = -1.0
-        e["stamp"] = stamp
-        e["q"] = q
-        e["dq"] = dq
-        e["tau_J"] = tau
-        e["end"] = cycle
-        e["cycle"] = cycle
+        e = self.history[cycle % HISTORY]
+        e[H_CYCLE] = -1.0                            # being written
+        e[H_END] = -1.0
+        e[H_STAMP] = stamp
+        e[H_Q:H_DQ] = q
+        e[H_DQ:H_TAU] = dq
+        e[H_TAU:H_END] = tau
+        e[H_END] = cycle
+        e[H_CYCLE] = cycle
 
-    def read_history(self, cycle: int) -> np.void | None:
-        """ROS side: a copy of the sample of robot cycle `cycle` (fields of HISTORY_DTYPE), or None if
-        it has been overwritten (or is being written)."""
-        k = cycle % HISTORY
-        e = self.history[k]
-        if e["end"] != cycle:
+    def read_history(self, cycle: int) -> np.ndarray | None:
+        """ROS side: a copy of the sample of robot cycle `cycle`, or None if it has been overwritten
+        (or is being written)."""
+        e = self.history[cycle % HISTORY]
+        if e[H_END] != cycle:
             return None
-        out = self.history[k:k + 1].copy()[0]
-        return out if out["cycle"] == cycle and e["end"] == cycle else None
+        out = e.copy()
+        return out if out[H_CYCLE] == cycle and e[H_END] == cycle else None
 
     # -------------------------------------------------------------------------------------- texts
     def write_text(self, which: str, text: str) -> None:
@@ -228,7 +250,7 @@ class Slots:
         data = text.encode("utf-8", "replace")[:MAX_TEXT]
         seq = self._text_seq
         seq[i] += 1.0
-        self._text[i, :len(data)] = np.frombuffer(data, dtype=np.uint8)
+        self._text[i * MAX_TEXT:i * MAX_TEXT + len(data)] = np.frombuffer(data, dtype=np.uint8)
         self._text_len[i] = len(data)
         seq[i] += 1.0
 
@@ -240,7 +262,7 @@ class Slots:
             s1 = seq[i]
             if int(s1) % 2 == 0:
                 n = int(self._text_len[i])
-                data = self._text[i, :n].tobytes()
+                data = self._text[i * MAX_TEXT:i * MAX_TEXT + n].tobytes()
                 if seq[i] == s1:
                     return data.decode("utf-8", "replace")
         return None

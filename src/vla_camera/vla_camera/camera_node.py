@@ -12,6 +12,7 @@ import time
 from rclpy.node import Node
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
+from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
@@ -102,6 +103,7 @@ class CameraNode(Node):
         self._image_pub = self.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
         self._info_pub = self.create_publisher(CameraInfo, "camera/camera_info", IMAGE_QOS)
         self._status_pub = self.create_publisher(CameraStatus, "~/status", 10)
+        self.diagnostics = Diagnostics(self)
         self.create_service(SetBool, "~/set_capture", self._on_set_capture)
         self._timer = self.create_timer(1.0 / p["fps"], self._tick)
         self._wake_timer = None  # one-shot timer for the next reconnect attempt
@@ -221,6 +223,10 @@ class CameraNode(Node):
         msg.reconnect_attempts = self.source.backoff.attempts
         msg.message = self._message
         self._status_pub.publish(msg)
+        ok = msg.state in (CameraStatus.STREAMING, CameraStatus.PAUSED)
+        self.diagnostics.update("ok" if ok else "warn", msg.message or "",
+                                state=self.source.current_state, frames_published=msg.frames_published,
+                                reconnect_attempts=msg.reconnect_attempts)
 
     # -- services ----------------------------------------------------------------------------------
     def _on_set_capture(self, request: SetBool.Request, response: SetBool.Response) -> SetBool.Response:

@@ -25,6 +25,7 @@ from rclpy.qos import (
 from sensor_msgs.msg import Joy
 from std_srvs.srv import Trigger
 from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
@@ -122,6 +123,7 @@ class RecorderNode(Node):
         self.create_service(Trigger, "~/stop_episode", lambda req, res: self._on_stop(res, keep=True))
         self.create_service(Trigger, "~/discard_episode", lambda req, res: self._on_stop(res, keep=False))
         self.status_pub = self.create_publisher(RecorderStatus, "~/status", 10)
+        self.diagnostics = Diagnostics(self)
         self.create_subscription(Joy, self.joy_topic, self._on_joy, qos_profile_sensor_data)
         self._poll_timer = self.create_timer(poll, self._poll_topics)
         self._status_timer = self.create_timer(status_period, self._publish_status)
@@ -325,6 +327,9 @@ class RecorderNode(Node):
         msg.messages_written, msg.bytes_written = st.messages_written, st.bytes_written
         msg.messages_dropped, msg.last_error = st.messages_dropped, st.last_error
         self.status_pub.publish(msg)
+        self.diagnostics.update("error" if st.last_error else "ok", st.last_error or (
+            f"recording {st.task}" if st.recording else "idle"), episode_index=st.episode_index,
+            messages_written=st.messages_written, messages_dropped=st.messages_dropped)
 
     def on_shutdown(self) -> None:
         """Close a running episode (outcome `interrupted`) while the logger still works."""

@@ -6,9 +6,9 @@ The node has one control path. Once per control period `Host.control_step()` run
 
 - how time advances: `start(host)` creates whatever calls `host.control_step()` once per control
   period and `host.publish_state()` once per state period (MuJoCo: physics steps paced to the wall
-  clock, and /clock; ros2_control: timers on the node clock; libfranka: its own 1 kHz thread that
-  exchanges only the latest command and state, plus a node timer). `advance(dt)` moves time on by
-  one period while the node brakes at shutdown;
+  clock, and /clock; ros2_control: timers on the node clock; libfranka: a 1 kHz loop in a process
+  of its own that exchanges only the latest command and state through shared memory, plus a node
+  timer). `advance(dt)` moves time on by one period while the node brakes at shutdown;
 - the measured state, with its staleness (`filter_position`, `latest`), writing the filtered command
   (`write`), stamps (`now`, `now_ns`, `JointSample.stamp_ns`);
 - the publishers and services it adds (`capabilities` names the optional services it serves; the

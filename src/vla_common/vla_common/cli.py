@@ -1,4 +1,5 @@
-"""The one shape of the project's command-line tools: a program with subcommands, each a module.
+"""A program with subcommands, each a module: the shape of the CLIs whose subcommands are many and
+heavy (vla_evaluation, vla_latent_training); the small CLIs are a single argparse module.
 
 A subcommand module exposes `add_arguments(parser)` and `run(args) -> int`. Every module is imported
 when the parser is built (for its arguments); modules keep heavy optional dependencies (torch,

@@ -5,7 +5,7 @@ Run with the franka-sim venv's python (it needs that venv's mujoco < 3.3):
 
     .venv-franka-sim/bin/python scripts/build_fr3_mjcf.py .venv-franka-sim/fr3_mjcf/fr3.xml
 
-Recipe (docs/libfranka-notes.md, "Offline FR3 model"):
+Recipe (background: docs/history/libfranka-notes.md):
 1. take ``franka_sim/models/fr3.urdf`` from the installed franka-sim package;
 2. delete every ``<visual>`` and ``<collision>`` element (their meshes are
    ``package://`` URIs that do not resolve offline);

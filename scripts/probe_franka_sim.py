@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """Minimal pylibfranka joint-velocity probe against a running franka-sim (or FR3).
 
-Starts nothing itself: start the server first (see docs/libfranka-notes.md), e.g.
+Starts nothing itself: start the server first (see src/vla_panda_bridge/README.md, "franka-sim"), e.g.
 
     scripts/setup_franka_sim.sh
     FR3_MJCF=.venv-franka-sim/fr3_mjcf/fr3.xml .venv-franka-sim/bin/run-franka-sim-server --no-gripper &

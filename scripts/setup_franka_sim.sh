@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # The franka-sim environment: a separate, pinned venv for the libfranka-protocol simulator
 # (franka-sim 1.1.7 pins numpy 1.26.4 and mujoco < 3.3, which cannot share .venv), plus the
-# offline FR3 MJCF it loads through $FR3_MJCF. See docs/libfranka-notes.md.
+# offline FR3 MJCF it loads through $FR3_MJCF. Using it: src/vla_panda_bridge/README.md, "franka-sim".
 #
 #   scripts/setup_franka_sim.sh [VENV]        # default VENV: <repo>/.venv-franka-sim
 #   scripts/setup_franka_sim.sh --refreeze [VENV]

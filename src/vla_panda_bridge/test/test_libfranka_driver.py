@@ -17,7 +17,7 @@ def _exc(name: str, text: str) -> Exception:
     return type(name, (RuntimeError,), {})(text)
 
 
-# The texts franka-sim and pylibfranka 0.21.3 produced (docs/libfranka-notes.md, section 3.5).
+# The texts franka-sim and pylibfranka 0.21.3 produced (docs/history/libfranka-notes.md, section 3.5).
 @pytest.mark.parametrize("exc, kind", [
     (_exc("ControlException", 'libfranka: Move command aborted: motion aborted by reflex! '
           '["communication_constraints_violation"]'), REFLEX),

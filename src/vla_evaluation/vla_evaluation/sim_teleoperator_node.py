@@ -24,7 +24,7 @@ from rclpy.node import Node
 from rclpy.time import Time
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
-from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.catalogue import HAND_KINDS, CatalogueError, load_catalogue
 from vla_common.detection import Detection
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
@@ -38,6 +38,7 @@ from vla_latent_controller.model import LatentModel
 from vla_sim.planner import plan_task
 
 from vla_evaluation.resources import latent_model_dir
+from vla_evaluation.sim_grasp import GraspButton, hand_phases, hand_seen
 from vla_evaluation.sim_teleoperator import (
     DEFAULT_CANDIDATES,
     DEFAULT_HORIZON,
@@ -48,7 +49,7 @@ from vla_evaluation.sim_teleoperator import (
     WaypointSchedule,
     teleop_waypoints,
 )
-from vla_interfaces.msg import ControllerStatus, SafetyStatus, SceneObjectArray, TeleopStatus
+from vla_interfaces.msg import ControllerStatus, GripperStatus, SafetyStatus, SceneObjectArray, TeleopStatus
 from vla_interfaces.srv import StartEpisode
 
 NODE_NAME = "sim_teleoperator"
@@ -72,6 +73,8 @@ PARAMETERS = ParameterTable([
     Param("num_axes", 2, "length of Joy.axes", range=(1, 16), dynamic=True),
     Param("enable_button", -1, "deadman button held pressed during an episode (-1: none)", range=(-1, 31),
           dynamic=True),
+    Param("grasp_button", -1, "button pressed to toggle the hand in tasks with the hand (the controller's "
+          "grasp_button; -1: none, those tasks then fail)", range=(-1, 31), dynamic=True),
     Param("num_buttons", 4, "length of Joy.buttons", range=(0, 32), dynamic=True),
     Param("deadband", 0.1, "the controller's stick deadband", range=(0.0, 0.9), dynamic=True),
     Param("axis_scale", 1.0, "the controller's axis_scale", range=(-10.0, 10.0), dynamic=True),
@@ -148,6 +151,13 @@ class SimTeleoperatorNode(Node):
         self.create_subscription(ControllerStatus, self.p["controller_status_topic"], self._on_ctrl,
                                  SENSOR_QOS)
         self.create_subscription(SafetyStatus, self.p["safety_status_topic"], self._on_safety, 10)
+        self.hand: GripperStatus | None = None      # the bridge's gripper/status (what a person sees)
+        self._hand_failed = False                   # a grasp failure not yet shown to the button core
+        self.create_subscription(GripperStatus, "gripper/status", self._on_hand, 10)
+        self.grasp: GraspButton | None = None       # tasks with the hand: when to press grasp_button
+        self._plan = None
+        self._phase_t0 = 0.0
+        self._press = False
         self._update_image_subscription()
         self.create_service(StartEpisode, "~/start_episode", self._srv_start)
         self.create_service(Trigger, "~/stop", self._srv_stop)
@@ -216,6 +226,11 @@ class SimTeleoperatorNode(Node):
 
     def _on_safety(self, msg: SafetyStatus) -> None:
         self.bridge_code = msg.code
+
+    def _on_hand(self, msg: GripperStatus) -> None:
+        if msg.state == GripperStatus.GRASP_FAILED and (self.hand is None or self.hand.state != msg.state):
+            self._hand_failed = True
+        self.hand = msg
 
     def _on_image(self, msg: Image) -> None:
         if msg.encoding not in ("rgb8", "bgr8") or msg.height * msg.step > len(msg.data):
@@ -307,10 +322,40 @@ class SimTeleoperatorNode(Node):
                                  p["max_joint_speed"], DQ_MAX)
         plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
                          np.random.default_rng(int(p["plan_seed"])), self.catalogue)
+        self._command, self._plan, self.grasp = command, plan, None
+        if spec.kind in HAND_KINDS:
+            self.grasp = GraspButton(hand_phases(plan))
+            return self._phase_teleoperator(0.0), cls
         schedule = WaypointSchedule(teleop_waypoints(plan), float(p["switch_time"]), float(p["time_limit"]))
         tele = SimTeleoperator(command, schedule, float(p["horizon"]), int(p["n_candidates"]),
                                float(p["max_stick_rate"]), float(p["hold"]))
         return tele, cls
+
+    def _phase_teleoperator(self, t: float) -> SimTeleoperator:
+        """Tasks with the hand: the user aims at the current phase's waypoints, each for twice the
+        plan's time (the latent is slower than the script), the last until the button ends the phase."""
+        p, plan, idx = self.p, self._plan, self.grasp.current.waypoint_indices
+        self._phase_t0 = t
+        times = np.asarray(plan.times, dtype=float)
+        left = max(float(p["time_limit"]) - t, 1e-3)
+        base = times[idx[0] - 1] if idx[0] > 0 else 0.0
+        switch = [min(2.0 * (times[i] - base), left * (k + 1) / len(idx)) for k, i in enumerate(idx[:-1])]
+        switch = list(np.maximum.accumulate(switch)) if switch else None
+        schedule = WaypointSchedule([plan.waypoints[i] for i in idx], 0.0, left, switch_times=switch)
+        return SimTeleoperator(self._command, schedule, float(p["horizon"]), int(p["n_candidates"]),
+                               float(p["max_stick_rate"]), float(p["hold"]))
+
+    def _grasp_step(self, t: float) -> None:
+        """Tasks with the hand: press grasp_button where a person would; a new phase, new waypoints."""
+        if self.grasp is None or self.hand is None or self.q is None:
+            return
+        phase = self.grasp.phase
+        failed, self._hand_failed = self._hand_failed, False
+        self._press = self.grasp.step(t, self.kin.fk(self.q)[0], hand_seen(self.hand.state, self.hand.width),
+                                      failed)
+        if self.grasp.phase != phase:
+            self.tele = self._phase_teleoperator(t)
+            self.get_logger().info(f"{self.task}: hand phase {self.grasp.phase} ({self.grasp.current.want})")
 
     def _finish(self, state: int, reason: str) -> None:
         if self.state in ACTIVE:
@@ -329,7 +374,8 @@ class SimTeleoperatorNode(Node):
         if self.state == TeleopStatus.RUNNING:
             t = (self._now() - self.t0).nanoseconds * 1e-9
             q = self.q if self.q is not None else np.full(7, np.nan)
-            step = self.tele.act(t, q)
+            self._grasp_step(t)
+            step = self.tele.act(t - self._phase_t0 if self.grasp is not None else t, q)
             self.last_step = step
             if step.done:
                 self._finish(TeleopStatus.DONE, "time limit")
@@ -357,6 +403,10 @@ class SimTeleoperatorNode(Node):
         buttons = [0] * max(int(self.p["num_buttons"]), enable + 1)
         if enable >= 0:
             buttons[enable] = 1 if self.state in ACTIVE else 0
+        grasp = int(self.p["grasp_button"])
+        if 0 <= grasp < len(buttons):
+            buttons[grasp] = 1 if self._press and self.state == TeleopStatus.RUNNING else 0
+        self._press = False
         msg.axes, msg.buttons = axes, buttons
         self.joy_pub.publish(msg)
 

@@ -30,6 +30,7 @@ from vla_common.kinematics import PandaKinematics
 from vla_common.ros.testing import RosHarness
 from vla_launch.run import find_executable
 from vla_panda_bridge.libfranka_loop import LoopStatus
+from vla_panda_bridge.safety import AWAITING_ZERO
 
 from vla_interfaces.msg import SafetyStatus
 
@@ -154,7 +155,15 @@ class Bridge(RosHarness):
             assert self.recover().success
         assert self.connected()
         assert self.spin_until(self.at_rest, 5.0)
-        self.command([0.0] * 7, 0.05)                     # re-arm: a zero command first
+        self.rearm()
+
+    def rearm(self) -> None:
+        """Zero commands until both filters (the node's and the loop's) are armed: after every stop
+        the operator did not choose (here: the connection) motion needs a zero first."""
+        armed = lambda: (self.node.filter.arming.armed  # noqa: E731
+                         and self.backend.status.filter_code != AWAITING_ZERO)
+        assert self.command_until([0.0] * 7, armed, 10.0), (self.node.filter.arming.reason,
+                                                             self.backend.status)
 
 
 @pytest.fixture(scope="module")
@@ -208,7 +217,8 @@ def test_a_constant_velocity_moves_the_joint_as_integrated(bridge):
     b, steady = bridge.robot(), bridge.states[n:]
     bridge.command([0.0] * 7, 0.3)
     # The joint runs at the commanded velocity (franka-sim's servo tracks it within about 0.5 %) ...
-    assert np.median([m.velocity[3] for m in steady]) == pytest.approx(v, rel=0.02)
+    assert np.median([m.velocity[3] for m in steady]) == pytest.approx(v, rel=0.02), (
+        bridge.backend.status.filter_text)
     # ... and its position is that velocity integrated over the time it ran: never more than v times
     # the wall time (+3 %, 1 mrad). franka-sim paces its physics to the wall clock but drops time when
     # it falls behind (0.64x real time seen with a load average of 4.8 on these 2 cores), so the lower

@@ -401,3 +401,35 @@ def test_process_stops_on_a_signal_with_sim_time_and_no_clock(random_model_dir, 
         if proc.poll() is None:
             proc.kill()
         probe.shutdown()
+
+
+def test_under_sim_time_inputs_before_the_first_clock_are_not_aged_from_zero(random_model_dir):
+    """Joint states that arrive before /clock were stored at t = 0, and the first status said they were
+    1796169897 s old once the clock started at an epoch time: they are not stored until the clock runs."""
+    from rosgraph_msgs.msg import Clock
+
+    h = Harness.__new__(Harness)
+    RosHarness.__init__(h)
+    try:
+        node = h.add(ControllerNode(context=h.context, parameter_overrides=[
+            Parameter("model_path", value=str(random_model_dir)), Parameter("use_sim_time", value=True)]))
+        io = h.add(rclpy.create_node("sim_clock_io", context=h.context))
+        js = io.create_publisher(JointState, "joint_states", 10)
+        clock = io.create_publisher(Clock, "/clock", 10)
+        status = []
+        io.create_subscription(ControllerStatus, "controller_node/status", status.append, 10)
+        assert h.spin_until(lambda: js.get_subscription_count() and clock.get_subscription_count())
+        heard = []
+        io.create_subscription(JointState, "joint_states", heard.append, 10)
+        js.publish(JointState(name=NAMES, position=[float(v) for v in READY]))
+        assert h.spin_until(lambda: heard)  # delivered to io, and so to the node's subscription too
+        for _ in range(5):
+            h.executor.spin_once(timeout_sec=0.01)
+        assert node.core._js.t == -np.inf  # before /clock: not stored at t = 0
+        t = Clock()
+        t.clock.sec = 1_796_169_897
+        clock.publish(t)
+        assert h.spin_until(lambda: status)
+        assert "1796169897" not in status[0].reason and status[0].header.frame_id == "panda_link0"
+    finally:
+        h.shutdown()

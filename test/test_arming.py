@@ -22,11 +22,12 @@ import pytest
 import rclpy
 from rclpy.parameter import Parameter
 from require import missing
-from sensor_msgs.msg import JointState, Joy
+from sensor_msgs.msg import Joy
 from std_srvs.srv import SetBool, Trigger
 from vla_common.ros.testing import RosHarness
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray, SafetyStatus
+from vla_interfaces.srv import ResetScene
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 GAPS = (0.15, 0.3, 0.5)      # s without a joystick message while the stick is held
@@ -168,6 +169,7 @@ class Graph:
 
         self.h = h = RosHarness()
         self.arm = arm
+        self.simulated = bridge_params.get("backend", "mujoco") == "mujoco"
         self.sign = -1.0           # drives alternate toward and away from the task: the arm stays near
         self.bridge = h.add(PandaBridge(context=h.context, parameter_overrides=[
             Parameter(k, value=v) for k, v in bridge_params.items()]))
@@ -175,15 +177,14 @@ class Graph:
         self.controller = h.add(ControllerNode(context=h.context, parameter_overrides=[
             Parameter("joy_timeout", value=0.25)]))
         io = self.io = h.add(rclpy.create_node("arming_test_io", context=h.context))
-        self.states: list[JointState] = []
         self.ctrl: list[ControllerStatus] = []
         self.safety: list[SafetyStatus] = []
-        io.create_subscription(JointState, "joint_states", self.states.append, 2000)
         io.create_subscription(ControllerStatus, "controller_node/status", self.ctrl.append, 200)
         io.create_subscription(SafetyStatus, "panda_bridge/status", self.safety.append, 200)
         self.joy = io.create_publisher(Joy, "joy", 10)
         self.det = io.create_publisher(DetectionArray, "detections", 10)
-        assert h.spin_until(lambda: bool(self.states) and self.joy.get_subscription_count() > 0, 30.0)
+        assert h.spin_until(lambda: self.bridge.backend.latest() is not None
+                            and self.joy.get_subscription_count() > 0, 30.0)
 
     # ------------------------------------------------------------------------------ the operator
     def _inputs(self, axis: float | None) -> None:
@@ -194,7 +195,10 @@ class Graph:
             self.joy.publish(Joy(axes=[float(axis), 0.0], buttons=[0, 0, 0, 0]))
 
     def speed(self) -> float:
-        return float(np.abs(np.array(self.states[-1].velocity[:self.arm])).max())
+        """The arm's measured joint speed now, read from the bridge in this process: a subscriber to
+        joint_states lags the bridge by seconds on a loaded machine, and a late state is no judge."""
+        sample = self.bridge.backend.latest()
+        return float(np.abs(np.asarray(sample.velocity)[:self.arm]).max())
 
     def stick(self, axis: float | None, seconds: float) -> float:
         """Hold the stick at `axis` (None: no joystick messages) for `seconds`, messages at 50 Hz;
@@ -203,9 +207,7 @@ class Graph:
         while time.monotonic() < end:
             self._inputs(axis)
             self.h.spin_for(0.02)
-            if self.speed() > fastest:
-                fastest = self.speed()
-                self.fastest_when = (self.safety[-1:], self.ctrl[-1:])
+            fastest = max(fastest, self.speed())
         return fastest
 
     def held_with_gaps(self, rounds: int = 2) -> float:
@@ -217,7 +219,7 @@ class Graph:
                 fastest = max(fastest, self.stick(axis, 0.25), self.stick(None, gap))
         return fastest
 
-    def at_rest(self, timeout: float = 15.0) -> None:
+    def at_rest(self, timeout: float = 30.0) -> None:
         assert self.h.spin_until(lambda: self.speed() < 1e-3, timeout), self.speed()
 
     def _at_neutral(self):
@@ -300,12 +302,15 @@ MUJOCO_STOPS = {f.__name__: f for f in (estop, recover, reflex, teaching, joy_ti
 
 
 def check(g: Graph, stop) -> None:
+    if g.simulated:            # each case from the ready pose, away from contacts and reflexes
+        reply = g.call(ResetScene, "panda_bridge/reset", ResetScene.Request(seed=0, use_seed=True))
+        assert reply.success, reply.message
+        g.at_rest()
     assert g.drive() > MOVING, f"the graph does not move the arm at all: {g.safety[-1:]} {g.ctrl[-1:]}"
     stop(g)
     g.at_rest()
     fastest = g.held_with_gaps()
-    assert fastest < STILL, (f"{stop.__name__}: the held stick moved the arm at {fastest:.3f} rad/s, "
-                             f"status then {g.fastest_when}")
+    assert fastest < STILL, f"{stop.__name__}: the held stick moved the arm at {fastest:.3f} rad/s"
     waiting = {c.code for c in g.ctrl[-20:]} | {s.code for s in g.safety[-5:]}
     assert waiting & {ControllerStatus.AWAITING_NEUTRAL, SafetyStatus.AWAITING_ZERO}, waiting
     assert g.drive() > MOVING, f"{stop.__name__}: neutral, then the stick, did not move it: {g.safety[-1:]}"

@@ -37,7 +37,6 @@ from vla_panda_bridge.libfranka_slots import (
     H_STAMP,
     H_TAU,
     HISTORY,
-    STATE,
     Slots,
     StateView,
 )
@@ -260,11 +259,9 @@ class LoopProcess:
 
     @staticmethod
     def _sample(s: StateView) -> LibfrankaSample:
-        r = s.raw
         return LibfrankaSample(
-            position=r[STATE["q"]].copy(), velocity=r[STATE["dq"]].copy(), effort=r[STATE["tau_J"]].copy(),
-            stamp_ns=int(r[STATE["stamp"]] * 1e9), ee_matrix=r[STATE["O_T_EE"]].reshape(4, 4).T.copy(),
-            cycle=int(r[STATE["cycle"]]), robot_time=float(r[STATE["robot_time"]]),
+            position=s.q, velocity=s.dq, effort=s.tau_J, stamp_ns=int(s.stamp * 1e9),
+            ee_matrix=s.O_T_EE.reshape(4, 4).T.copy(), cycle=int(s.cycle), robot_time=s.robot_time,
         )
 
     def _text(self, which: str) -> str:

@@ -9,7 +9,7 @@ loads whole. The file lives in /dev/shm; the creating side (the ROS node) unlink
 Blocks (all float64 unless noted):
 - command (ROS -> loop, seqlock): count of values, command sequence, arrival time, 7 values;
 - control (ROS -> loop, plain): e-stop, shutdown, teaching wanted, request counters;
-- state (loop -> ROS, seqlock): one robot sample and the loop's status, see `STATE_LAYOUT`;
+- state (loop -> ROS, seqlock): one robot sample and the loop's status, see `STATE_DTYPE`;
 - history (loop -> ROS): the last HISTORY robot samples (cycle, stamp, q, dq, tau_J), each entry
   marked by its cycle number before and after it is written, so the ROS side publishes every robot
   state even when its timer runs late (a loaded machine) without the loop ever waiting;
@@ -30,71 +30,89 @@ NUM_JOINTS = 7
 MAX_TEXT = 1024
 RING = 1 << 16
 
-# Command block payload: [n, cmd_seq, arrived (monotonic s), v0..v6]
-CMD_N, CMD_SEQ, CMD_ARRIVED, CMD_VALUES = 0, 1, 2, 3
-CMD_SIZE = CMD_VALUES + NUM_JOINTS
-
-# Control block: single values written by the ROS side only.
-CONTROL_FIELDS = ("estop", "shutdown", "teaching", "teaching_req", "recover_req", "parent_pid")
-CONTROL = {name: i for i, name in enumerate(CONTROL_FIELDS)}
-
-# State block payload layout: (name, length).
-STATE_LAYOUT: tuple[tuple[str, int], ...] = (
-    ("cycle", 1),            # robot states received by this loop process
-    ("robot_time", 1),       # the robot's own clock (s)
-    ("stamp", 1),            # wall time (time.time()) when the state arrived
-    ("q", NUM_JOINTS),
-    ("dq", NUM_JOINTS),
-    ("tau_J", NUM_JOINTS),
-    ("O_T_EE", 16),          # column-major 4x4, the robot's end-effector pose in its base frame
-    ("dq_cmd", NUM_JOINTS),  # the velocity last commanded (after the safety filter)
-    ("robot_mode", 1),       # franka RobotMode as an int
-    ("success_rate", 1),     # control_command_success_rate (0..1)
-    ("status", 1),           # libfranka_loop.LoopStatus
-    ("filter_code", 1),      # safety filter code of the last cycle
-    ("interventions", 1),    # safety filter interventions in this loop process
-    ("last_intervention", 1),
-    ("mode", 1),             # libfranka_loop.Mode: idle, velocity, torque (teaching)
-    ("estop_active", 1),
-    ("cmd_seq", 1),          # command sequence last taken by the loop
-    ("latency", 1),          # s from that command's arrival to the first robot command with it
-    ("recover_ack", 1),      # recover_req value last handled
-    ("recover_ok", 1),
-    ("teaching_ack", 1),     # teaching_req value last handled
-    ("connects", 1),         # successful connections
-    ("errors", 1),           # robot errors seen (reflexes, lost connections)
-    ("missed", 1),           # robot cycles missed (sum of Durations minus cycles)
-    ("motions", 1),          # motions started
-    ("pid", 1),
-)
-STATE = {}
-_offset = 0
-for _name, _len in STATE_LAYOUT:
-    STATE[_name] = slice(_offset, _offset + _len) if _len > 1 else _offset
-    _offset += _len
-STATE_SIZE = _offset
-
-RINGS = ("period", "busy", "latency")
-
-# History entries: [cycle, stamp, q(7), dq(7), tau_J(7), cycle again]
+_F, _J = np.float64, (NUM_JOINTS,)
 HISTORY = 512
-H_CYCLE, H_STAMP, H_Q, H_DQ, H_TAU = 0, 1, 2, 2 + NUM_JOINTS, 2 + 2 * NUM_JOINTS
-H_END = 2 + 3 * NUM_JOINTS
-H_SIZE = H_END + 1
-
-# Float64 area: [cmd seq | cmd payload] [control] [state seq | state payload] [text seqs] [ring idx, rings]
-_CMD_AT = 0
-_CONTROL_AT = _CMD_AT + 1 + CMD_SIZE
-_STATE_AT = _CONTROL_AT + len(CONTROL_FIELDS)
-_TEXT_SEQ_AT = _STATE_AT + 1 + STATE_SIZE
-_TEXT_LEN_AT = _TEXT_SEQ_AT + 2
-_RING_IDX_AT = _TEXT_LEN_AT + 2
-_RING_AT = _RING_IDX_AT + 1
-_HIST_AT = _RING_AT + len(RINGS) * RING
-_N_DOUBLES = _HIST_AT + HISTORY * H_SIZE
-_TEXT_BYTES_AT = 8 * _N_DOUBLES
-SIZE = _TEXT_BYTES_AT + 2 * MAX_TEXT
+RINGS = ("period", "busy", "latency")
 TEXTS = ("status", "filter")
+
+# The layout, declared once: NumPy structured dtypes. Every index below is derived from them; the
+# loop and the ROS side read and write through flat float64 views with those indices (a structured
+# field access costs tens of microseconds per cycle, a flat index well under one).
+CMD_DTYPE = np.dtype([("n", _F), ("seq", _F), ("arrived", _F), ("values", _F, _J)])   # ROS -> loop
+CONTROL_DTYPE = np.dtype([(name, _F) for name in                                      # ROS -> loop
+                          ("estop", "shutdown", "teaching", "teaching_req", "recover_req", "parent_pid")])
+STATE_DTYPE = np.dtype([                                                               # loop -> ROS
+    ("cycle", _F),            # robot states received by this loop process
+    ("robot_time", _F),       # the robot's own clock (s)
+    ("stamp", _F),            # wall time (time.time()) when the state arrived
+    ("q", _F, _J),
+    ("dq", _F, _J),
+    ("tau_J", _F, _J),
+    ("O_T_EE", _F, (16,)),    # column-major 4x4, the robot's end-effector pose in its base frame
+    ("dq_cmd", _F, _J),       # the velocity last commanded (after the safety filter)
+    ("robot_mode", _F),       # franka RobotMode as an int
+    ("success_rate", _F),     # control_command_success_rate (0..1)
+    ("status", _F),           # libfranka_loop.LoopStatus
+    ("filter_code", _F),      # safety filter code of the last cycle
+    ("interventions", _F),    # safety filter interventions in this loop process
+    ("last_intervention", _F),
+    ("mode", _F),             # libfranka_loop.Mode: idle, velocity, torque (teaching)
+    ("estop_active", _F),
+    ("cmd_seq", _F),          # command sequence last taken by the loop
+    ("latency", _F),          # s from that command's arrival to the first robot command with it
+    ("recover_ack", _F),      # recover_req value last handled
+    ("recover_ok", _F),
+    ("teaching_ack", _F),     # teaching_req value last handled
+    ("connects", _F),         # successful connections
+    ("errors", _F),           # robot errors seen (reflexes, lost connections)
+    ("missed", _F),           # robot cycles missed (sum of Durations minus cycles)
+    ("motions", _F),          # motions started
+    ("pid", _F),
+])
+# A history entry, marked by its cycle number before (`cycle`) and after (`end`) it is written.
+HISTORY_DTYPE = np.dtype([("cycle", _F), ("stamp", _F), ("q", _F, _J), ("dq", _F, _J), ("tau_J", _F, _J),
+                          ("end", _F)])
+LAYOUT = np.dtype([                                        # the whole file, block after block
+    ("cmd_seq", _F), ("cmd", CMD_DTYPE),
+    ("control", CONTROL_DTYPE),
+    ("state_seq", _F), ("state", STATE_DTYPE),
+    ("text_seq", _F, (len(TEXTS),)), ("text_len", _F, (len(TEXTS),)),
+    ("ring_idx", _F), ("rings", _F, (len(RINGS), RING)),
+    ("history", HISTORY_DTYPE, (HISTORY,)),
+    ("text", np.uint8, (len(TEXTS), MAX_TEXT)),
+])
+SIZE = LAYOUT.itemsize
+
+
+def _index(dtype: np.dtype) -> dict[str, int | slice]:
+    """Each field of an all-float64 dtype as an index into a flat float64 view of it."""
+    out = {}
+    for name, (sub, offset) in dtype.fields.items():
+        i, n = offset // 8, sub.itemsize // 8
+        out[name] = slice(i, i + n) if sub.shape else i
+    return out
+
+
+def _at(block: str) -> int:
+    return LAYOUT.fields[block][1] // 8
+
+
+_CMD = _index(CMD_DTYPE)
+CMD_N, CMD_SEQ, CMD_ARRIVED, CMD_VALUES = _CMD["n"], _CMD["seq"], _CMD["arrived"], _CMD["values"].start
+CMD_SIZE = CMD_DTYPE.itemsize // 8
+CONTROL_FIELDS = CONTROL_DTYPE.names
+CONTROL = _index(CONTROL_DTYPE)
+STATE = _index(STATE_DTYPE)
+STATE_SIZE = STATE_DTYPE.itemsize // 8
+_H = _index(HISTORY_DTYPE)
+H_CYCLE, H_STAMP, H_Q, H_DQ, H_TAU, H_END = (_H["cycle"], _H["stamp"], _H["q"].start, _H["dq"].start,
+                                             _H["tau_J"].start, _H["end"])
+H_SIZE = HISTORY_DTYPE.itemsize // 8
+_CMD_AT, _CONTROL_AT, _STATE_AT = _at("cmd_seq"), _at("control"), _at("state_seq")
+_TEXT_SEQ_AT, _TEXT_LEN_AT, _RING_IDX_AT = _at("text_seq"), _at("text_len"), _at("ring_idx")
+_RING_AT, _HIST_AT = _at("rings"), _at("history")
+_N_DOUBLES = _at("text")
+_TEXT_BYTES_AT = LAYOUT.fields["text"][1]
 
 
 def _shm_dir() -> str:
@@ -103,7 +121,8 @@ def _shm_dir() -> str:
 
 @dataclass
 class StateView:
-    """A consistent copy of the state block (see `STATE_LAYOUT`); `raw` is the flat array."""
+    """A consistent copy of the state block: its fields (STATE_DTYPE) as attributes (`s.q`, `s.status`),
+    the one way the ROS side reads the loop's state."""
 
     raw: np.ndarray
 

@@ -4,7 +4,7 @@ import { Link } from './link.js';
 
 const $ = (id) => document.getElementById(id);
 const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {},
-                held: 0, toggled: 0, scan: -1, frames: 0, fpsT: performance.now(), fps: 0, age: null };
+                held: 0, toggled: 0, sent: {}, replies: {}, scan: -1, frames: 0, fpsT: performance.now(), fps: 0, age: null };
 window.station = state;  // read by the browser tests and the benchmark
 
 function say(text) { $('message').textContent = text; }
@@ -17,6 +17,7 @@ function onMessage(m) {
   if (m.type === 'hello' || m.type === 'role') setRole(m.driver);
   else if (m.type === 'state') showState(m);
   else if (m.type === 'reply') {
+    state.replies[m.what] = performance.now() - (state.sent[m.what] ?? NaN);
     if (m.what === 'estop' && m.ok) state.estopLatency = performance.now() - state.estopSent;
     say(`${m.what}: ${m.ok ? 'done' : 'refused'}${m.message ? ' – ' + m.message : ''}`);
   }
@@ -171,6 +172,7 @@ $('release-confirm').onclick = () => { link.send({ type: 'release_estop', confir
 $('ep-start').onclick = () => link.send({ type: 'episode', action: 'start', task: $('task').value });
 $('ep-stop').onclick = () => link.send({ type: 'episode', action: 'stop' });
 $('ep-discard').onclick = () => link.send({ type: 'episode', action: 'discard' });
+window.stationRequest = (msg, what) => { state.sent[what] = performance.now(); link.send(msg); };  // tests
 $('teaching').onclick = () => link.send({ type: 'teaching', on: $('teaching').getAttribute('aria-pressed') !== 'true' });
 $('view-toggle').onclick = () => {
   const show = $('settings').hidden; $('settings').hidden = !show; $('operate').hidden = show;

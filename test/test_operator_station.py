@@ -160,8 +160,15 @@ def ready(h, obs, b, url: str | None = None) -> None:
 def moves_while(h, obs, start, stop, timeout=20.0) -> float:
     """Start an input, wait until the arm moves, stop it; seconds from the stop to a zero command."""
     q0 = obs.q.copy()
-    start()
-    moved = h.spin_until(lambda: obs.moving() and np.linalg.norm(obs.q - q0) > 1e-3, timeout)
+    moved = False
+    for _ in range(int(timeout / 4)):
+        start()
+        moved = h.spin_until(lambda: obs.moving() and np.linalg.norm(obs.q - q0) > 1e-3, 4.0)
+        if moved:
+            break
+        # a page starved for > heartbeat_timeout by the loaded machine is disarmed by the station:
+        # as a person would, let go and press again
+        stop()
     assert moved, f"the arm did not move: {obs.ctrl}"
     t0 = time.monotonic()
     stop()

@@ -32,9 +32,9 @@ from std_msgs.msg import Float64MultiArray  # noqa: E402
 from test_operator_station import Browser  # noqa: E402
 from vla_common.ros.testing import RosHarness  # noqa: E402
 
-PRESS = ("window.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp'}));"
+PRESS = ("document.body.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp', bubbles: true}));"
          "return performance.timeOrigin + performance.now();")
-RELEASE = "window.dispatchEvent(new KeyboardEvent('keyup', {key: 'ArrowUp'}));"
+RELEASE = "document.body.dispatchEvent(new KeyboardEvent('keyup', {key: 'ArrowUp', bubbles: true}));"
 
 
 class Cmds(Observer):

@@ -113,11 +113,21 @@ class Bridge(RosHarness):
         return self.spin_until(lambda: self.backend.status.code == LoopStatus.OK and bool(self.states),
                                timeout)
 
+    def armed(self) -> bool:
+        """Both filters (the node's and the loop's) let commands through."""
+        return self.node.filter.arming.armed and self.backend.status.filter_code != AWAITING_ZERO
+
+    def _send(self, values) -> None:
+        """Publish `values` as the controller would for an operator: zero while a filter waits for one
+        (on a loaded machine this test's own stream can arrive late, which the watchdog stops)."""
+        values = values if self.armed() else [0.0] * 7
+        self.pub.publish(Float64MultiArray(data=[float(v) for v in values]))
+
     def command(self, values, seconds: float, rate: float = 100.0) -> None:
         """Publish `values` at `rate` for `seconds` while spinning (as the controller would)."""
         end = time.monotonic() + seconds
         while time.monotonic() < end:
-            self.pub.publish(Float64MultiArray(data=[float(v) for v in values]))
+            self._send(values)
             self.spin_for(1.0 / rate)
 
     def command_until(self, values, cond, timeout: float = 5.0) -> bool:
@@ -127,7 +137,7 @@ class Bridge(RosHarness):
         while time.monotonic() < end:
             if cond():
                 return True
-            self.pub.publish(Float64MultiArray(data=[float(v) for v in values]))
+            self._send(values)
             self.spin_for(0.01)
         return cond()
 
@@ -160,10 +170,8 @@ class Bridge(RosHarness):
     def rearm(self) -> None:
         """Zero commands until both filters (the node's and the loop's) are armed: after every stop
         the operator did not choose (here: the connection) motion needs a zero first."""
-        armed = lambda: (self.node.filter.arming.armed  # noqa: E731
-                         and self.backend.status.filter_code != AWAITING_ZERO)
-        assert self.command_until([0.0] * 7, armed, 10.0), (self.node.filter.arming.reason,
-                                                             self.backend.status)
+        assert self.command_until([0.0] * 7, self.armed, 10.0), (self.node.filter.arming.reason,
+                                                                  self.backend.status)
 
 
 @pytest.fixture(scope="module")

@@ -160,11 +160,11 @@ def test_contact_that_forces_a_joint_past_its_limits_is_a_reflex_and_the_arm_sto
     assert sim.reflex() is None
 
 
-@pytest.mark.parametrize("seed", [17, 34])
+@pytest.mark.parametrize("seed", [17, 24])
 def test_measured_motion_past_the_table_is_a_reflex_at_the_next_step(sim, seed):
     """Issue 20 item 6: strokes into the cereal box drove measured accelerations past ddq_max without
-    a reflex (these two scripted pushes: 1.16 x and 1.13 x, then nothing for 270 or 1400 steps).
-    Now a state whose measured acceleration leaves the table (10 % tolerance) latches a reflex at the
+    a reflex (these two scripted pushes: 1.16 x and 1.06 x, then nothing for 270 steps or at all).
+    Now a state whose measured acceleration leaves the table (1 % tolerance) latches a reflex at the
     next physics step (the one that reads it), so the arm is held from there."""
     task = TASKS["cereal_box/push_south"]
     rng = np.random.default_rng(seed)
@@ -183,7 +183,7 @@ def test_measured_motion_past_the_table_is_a_reflex_at_the_next_step(sim, seed):
         if past is not None:                             # the step after it left the table
             assert text, past
             break
-        if np.max(np.abs((v - v_prev) / DT) / DDQ_MAX) > 1.12:
+        if np.max(np.abs((v - v_prev) / DT) / DDQ_MAX) > 1.02:
             past = k
         if text:
             break

@@ -25,10 +25,9 @@ COLLISION_TOLERANCE = 1e-3   # m of penetration that counts as a collision (touc
 VELOCITY_TOLERANCE = 1e-6    # relative: the servo follows the filter's output to ~1e-12 in free motion
 OUTWARD_SPEED = 1e-3         # rad/s: past a position limit, a reflex needs motion further out
 # Relative: measured accelerations in free motion and in the scripted pushes of the base tasks peak at
-# 0.42 x ddq_max (the servo follows the filter's jerk-limited output); a light touch while driving at
-# the limit reached 1.013 x (a real arm does not stop for that); blows into the cereal box 1.13-3.6 x.
-# Beyond the table by more than this is a collision reflex.
-ACCELERATION_TOLERANCE = 0.1
+# 0.42 x ddq_max (the servo follows the filter's jerk-limited output); a blow into an object or the
+# table reaches 1.7-3.6 x. Beyond the table by more than this is a collision reflex.
+ACCELERATION_TOLERANCE = 0.01
 
 POSITION_REFLEX = "joint_position_limits_violation"
 VELOCITY_REFLEX = "joint_velocity_violation"

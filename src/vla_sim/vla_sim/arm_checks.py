@@ -10,8 +10,7 @@ of their own beyond what they precompute):
 - `ReflexMonitor`: has the measured state gone past the robot's limits (what libfranka reports as a
   reflex)? Names as libfranka's `franka::Errors`: `joint_position_limits_violation`,
   `joint_velocity_violation`, `joint_reflex` (an external torque beyond the joint's torque limit:
-  a collision the drive cannot hold; or a measured acceleration beyond the joint's ddq_max: a blow
-  the filtered command cannot cause, since it keeps the commanded acceleration inside the table).
+  a collision the drive cannot hold).
 """
 from __future__ import annotations
 
@@ -24,10 +23,6 @@ import numpy as np
 COLLISION_TOLERANCE = 1e-3   # m of penetration that counts as a collision (touching does not)
 VELOCITY_TOLERANCE = 1e-6    # relative: the servo follows the filter's output to ~1e-12 in free motion
 OUTWARD_SPEED = 1e-3         # rad/s: past a position limit, a reflex needs motion further out
-# Relative: measured accelerations in free motion and in the scripted pushes of the base tasks peak at
-# 0.42 x ddq_max (the servo follows the filter's jerk-limited output); a blow into an object or the
-# table reaches 1.7-3.6 x. Beyond the table by more than this is a collision reflex.
-ACCELERATION_TOLERANCE = 0.01
 
 POSITION_REFLEX = "joint_position_limits_violation"
 VELOCITY_REFLEX = "joint_velocity_violation"
@@ -86,11 +81,11 @@ class CollisionChecker:
 
 class ReflexMonitor:
     """The limit checks of the robot's reflexes on one state, joint by joint on Python floats (it runs
-    every physics step). `check(q, dq, tau_ext, ddq)` returns the libfranka-like error text of the
-    first violation, or None. Past a position limit only motion further out counts, so an arm
-    recovered there can move back in. `ddq` is the measured acceleration (None: not checked)."""
+    every physics step). `check(q, dq, tau_ext)` returns the libfranka-like error text of the first
+    violation, or None. Past a position limit only motion further out counts, so an arm recovered
+    there can move back in."""
 
-    def __init__(self, names: tuple[str, ...], q_min, q_max, dq_max, tau_max, ddq_max=None):
+    def __init__(self, names: tuple[str, ...], q_min, q_max, dq_max, tau_max):
         self._names = names
         self._limits = [tuple(float(x[i]) for x in (q_min, q_max, dq_max, tau_max))
                         for i in range(len(names))]
@@ -98,15 +93,10 @@ class ReflexMonitor:
         self._q_max = [float(x) for x in q_max]
         self._v_lim = [float(x) * (1 + VELOCITY_TOLERANCE) for x in dq_max]
         self._tau_max = [float(x) for x in tau_max]
-        self._a_lim = (None if ddq_max is None
-                       else [float(x) * (1 + ACCELERATION_TOLERANCE) for x in ddq_max])
 
-    def check(self, q: list[float], dq: list[float], tau_ext: list[float],
-              ddq: list[float] | None = None) -> str | None:
-        a_lim = self._a_lim if ddq is not None else None
+    def check(self, q: list[float], dq: list[float], tau_ext: list[float]) -> str | None:
         if not (any(map(gt, map(abs, dq), self._v_lim)) or any(map(gt, q, self._q_max))
-                or any(map(lt, q, self._q_min)) or any(map(gt, map(abs, tau_ext), self._tau_max))
-                or (a_lim is not None and any(map(gt, map(abs, ddq), a_lim)))):
+                or any(map(lt, q, self._q_min)) or any(map(gt, map(abs, tau_ext), self._tau_max))):
             return None                                     # the common case, checked in C
         for i, (lo, hi, vmax, tmax) in enumerate(self._limits):
             v = dq[i]
@@ -117,8 +107,4 @@ class ReflexMonitor:
             if abs(tau_ext[i]) > tmax:
                 return (f"{TORQUE_REFLEX}: external torque {tau_ext[i]:.4g} Nm on {self._names[i]} "
                         f"(beyond its {tmax:g} Nm)")
-            if a_lim is not None and abs(ddq[i]) > a_lim[i]:
-                limit = a_lim[i] / (1 + ACCELERATION_TOLERANCE)
-                return (f"{TORQUE_REFLEX}: measured acceleration {ddq[i]:.4g} rad/s^2 on {self._names[i]} "
-                        f"(beyond its {limit:g} rad/s^2: a collision)")
         return None

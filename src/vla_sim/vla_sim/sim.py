@@ -92,7 +92,7 @@ class PandaSim:
         self._q_t = list(READY_POSE)               # servo position targets (integral of the commands)
         self._servo_on = True
         self.torque_limited_steps = 0              # steps whose acceleration the torque limits scaled
-        self._reflex = ReflexMonitor(JOINT_NAMES, Q_MIN, Q_MAX, DQ_MAX, TAU_MAX, DDQ_MAX)
+        self._reflex = ReflexMonitor(JOINT_NAMES, Q_MIN, Q_MAX, DQ_MAX, TAU_MAX)
         self._violation: str | None = None
         self._collisions: CollisionChecker | None = None
         self._cam_id = m.camera(CAMERA_NAME).id
@@ -182,8 +182,7 @@ class PandaSim:
             q = d.qpos[self._qpos].tolist()
             v = d.qvel[self._dofs].tolist()
             if self._violation is None:        # the reflexes look at every state (contact forces of
-                self._violation = self._reflex.check(q, v, d.qfrc_constraint[self._dofs].tolist(),
-                                                     d.qacc[self._dofs].tolist() if self._servo_on else None)
+                self._violation = self._reflex.check(q, v, d.qfrc_constraint[self._dofs].tolist())
             if self._servo_on:                 # the step that led to it: mj_step2 computes them)
                 self._servo(h, q, v)
             else:

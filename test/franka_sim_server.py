@@ -36,7 +36,11 @@ def sim_venv() -> Path:
 
 
 def unavailable() -> str | None:
-    """Why a franka-sim server cannot run here, or None if it can."""
+    """Why a franka-sim server and a pylibfranka client cannot run here, or None if they can."""
+    try:
+        import pylibfranka  # noqa: F401
+    except ImportError:
+        return "pylibfranka==0.21.3 is not installed in this venv"
     venv = sim_venv()
     if not (venv / "bin" / "run-franka-sim-server").exists():
         return f"franka-sim is not installed in {venv} (run scripts/setup_franka_sim.sh)"

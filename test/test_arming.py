@@ -337,11 +337,6 @@ def franka_sim():
     from franka_sim_server import FrankaSimServer, Netns, unavailable
 
     reason = unavailable()
-    if reason is None:
-        try:
-            import pylibfranka  # noqa: F401
-        except ImportError:
-            reason = "pylibfranka==0.21.3 is not installed in this venv"
     if reason:
         missing("FRANKA_SIM", reason)
     ns = Netns()

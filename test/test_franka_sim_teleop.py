@@ -25,11 +25,6 @@ RT_PRIORITY = 50   # franka-sim and the loop under SCHED_FIFO, as on a real-time
 @pytest.fixture
 def sim():
     reason = unavailable()
-    if reason is None:
-        try:
-            import pylibfranka  # noqa: F401
-        except ImportError:
-            reason = "pylibfranka==0.21.3 is not installed in this venv"
     if reason:
         missing("FRANKA_SIM", reason)
     ns = Netns()

@@ -51,20 +51,9 @@ LIGHT = {"control_rate": 250, "state_rate": 250.0}
 FR3_JOINTS = [f"fr3_joint{i}" for i in range(1, 8)]
 
 
-def _skip_reason() -> str | None:
-    reason = unavailable()
-    if reason:
-        return reason
-    try:
-        import pylibfranka  # noqa: F401
-    except ImportError:
-        return "pylibfranka==0.21.3 is not installed in this venv"
-    return None
-
-
 @pytest.fixture(scope="module")
 def sim():
-    reason = _skip_reason()
+    reason = unavailable()
     if reason:
         missing("FRANKA_SIM", reason)
     ns = Netns()

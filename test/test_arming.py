@@ -113,7 +113,7 @@ def _reflex(c: Composed) -> None:
 
 
 def _recover(c: Composed) -> None:
-    c.f.stop("~/recover")                                # ~/recover while moving, no reflex
+    c.f.disarm("~/recover")                              # ~/recover while moving, no reflex
 
 
 def _teaching(c: Composed) -> None:

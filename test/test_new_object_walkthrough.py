@@ -125,8 +125,15 @@ def test_the_walkthrough_runs_as_written(tmp_path):
                           capture_output=True, text=True, timeout=1500)
     output = proc.stdout + proc.stderr
     (tmp_path / "walkthrough.log").write_text(output)
-    assert proc.returncode == 0, f"walkthrough failed:\n{small}\n--- output (tail)\n{output[-6000:]}"
+    assert proc.returncode == 0, (f"walkthrough failed:\n{small}\n--- stdout (tail)\n{_tail(proc.stdout)}"
+                                  f"\n--- stderr (tail, progress bars left out)\n{_tail(proc.stderr)}")
     check_outputs(tmp_path, proc.stdout)
+
+
+def _tail(text: str, chars: int = 3000) -> str:
+    """The end of a command's output without tqdm's progress lines (they hid the error once)."""
+    lines = [line for line in text.splitlines() if "it/s" not in line and "s/it" not in line]
+    return "\n".join(lines)[-chars:]
 
 
 def check_outputs(work: Path, stdout: str) -> None:

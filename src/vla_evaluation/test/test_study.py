@@ -158,7 +158,7 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
     deadline = time.monotonic() + 600
     try:
         while not _rows(out) and proc.poll() is None and time.monotonic() < deadline:
-            time.sleep(0.2)  # polling a file another process writes, not synchronising on time
+            time.sleep(0.05)  # waiting on a condition (a row in the file), bounded by the deadline
         os.killpg(proc.pid, signal.SIGKILL)
     finally:
         proc.wait()

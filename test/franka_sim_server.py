@@ -18,6 +18,8 @@ import signal
 import subprocess
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 READY_LINE = "ready for new client"
@@ -134,3 +136,23 @@ class FrankaSimServer:
             self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
             self.kill()
+
+
+@contextmanager
+def running(enforce_comm_constraints: bool = True, priority: int = 50) -> Iterator[FrankaSimServer]:
+    """A started server in a private network namespace (motion limits enforced), stopped and the
+    namespace removed after; skips, or fails where VLA_REQUIRE_FRANKA_SIM=1, when it cannot run."""
+    from require import missing
+
+    reason = unavailable()
+    if reason:
+        missing("FRANKA_SIM", reason)
+    ns = Netns()
+    server = FrankaSimServer(ns, enforce_motion_limits=True,
+                             enforce_comm_constraints=enforce_comm_constraints, priority=priority)
+    try:
+        server.start()
+        yield server
+    finally:
+        server.stop()
+        ns.close()

@@ -21,7 +21,6 @@ import numpy as np
 import pytest
 import rclpy
 from rclpy.parameter import Parameter
-from require import missing
 from sensor_msgs.msg import Joy
 from std_srvs.srv import SetBool, Trigger
 from vla_common.ros.testing import RosHarness
@@ -334,30 +333,21 @@ def test_mujoco_a_held_stick_waits_for_neutral_after(mujoco, stop):
 # -------------------------------------------------------------------------------------- franka-sim
 @pytest.fixture(scope="module")
 def franka_sim():
-    from franka_sim_server import FrankaSimServer, Netns, unavailable
+    from franka_sim_server import running
 
-    reason = unavailable()
-    if reason:
-        missing("FRANKA_SIM", reason)
-    ns = Netns()
-    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=False,
-                             priority=RT_PRIORITY)
-    g = None
-    try:
-        server.start()
+    with running(enforce_comm_constraints=False, priority=RT_PRIORITY) as server:
         g = Graph({"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
-                   "realtime_config": "ignore", "loop_prefix": " ".join(ns.prefix()), "robot_model": "fr3",
+                   "realtime_config": "ignore", "loop_prefix": " ".join(server.netns.prefix()),
+                   "robot_model": "fr3",
                    "loop_priority": RT_PRIORITY, "control_rate": 250,
                    "acceleration_scale": 0.4999, "jerk_scale": 0.4999})
         g.controller.set_parameters([Parameter("joint_map", value=[f"fr3_joint{i}:panda_joint{i}"
                                                                   for i in range(1, 8)])])
         g.server = server
-        yield g
-    finally:
-        if g is not None:
+        try:
+            yield g
+        finally:
             g.close()
-        server.stop()
-        ns.close()
 
 
 def silence(seconds: float):

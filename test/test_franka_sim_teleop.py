@@ -10,9 +10,8 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from franka_sim_server import FrankaSimServer, Netns, unavailable
+from franka_sim_server import running
 from rclpy.parameter import Parameter
-from require import missing
 from sensor_msgs.msg import JointState, Joy
 from vla_common.ros.testing import RosHarness
 
@@ -24,18 +23,8 @@ RT_PRIORITY = 50   # franka-sim and the loop under SCHED_FIFO, as on a real-time
 
 @pytest.fixture
 def sim():
-    reason = unavailable()
-    if reason:
-        missing("FRANKA_SIM", reason)
-    ns = Netns()
-    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True,
-                             priority=RT_PRIORITY)
-    try:
-        server.start()
+    with running(priority=RT_PRIORITY) as server:
         yield server
-    finally:
-        server.stop()
-        ns.close()
 
 
 def test_the_stick_moves_the_simulated_fr3_through_the_latent_controller(sim):

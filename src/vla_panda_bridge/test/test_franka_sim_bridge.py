@@ -20,9 +20,8 @@ import time
 import numpy as np
 import pytest
 import rclpy
-from franka_sim_server import FrankaSimServer, Netns, unavailable
+from franka_sim_server import FrankaSimServer, running
 from rclpy.parameter import Parameter
-from require import missing
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
@@ -53,18 +52,8 @@ FR3_JOINTS = [f"fr3_joint{i}" for i in range(1, 8)]
 
 @pytest.fixture(scope="module")
 def sim():
-    reason = unavailable()
-    if reason:
-        missing("FRANKA_SIM", reason)
-    ns = Netns()
-    server = FrankaSimServer(ns, enforce_motion_limits=True, enforce_comm_constraints=True,
-                             priority=RT_PRIORITY)
-    try:
-        server.start()
+    with running(priority=RT_PRIORITY) as server:
         yield server
-    finally:
-        server.stop()
-        ns.close()
 
 
 class Bridge(RosHarness):

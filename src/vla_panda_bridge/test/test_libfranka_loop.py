@@ -94,6 +94,7 @@ class FakeDriver:
         self.events: list[str] = []
         self.fail_next: RobotError | None = None
         self.in_motion: str | None = None
+        self.extrapolated: tuple[list, list] | None = None
 
     def connect(self) -> None:
         r = self.robot
@@ -133,6 +134,13 @@ class FakeDriver:
         last = self.velocities[-1][0] if self.in_motion == "velocity" and self.velocities else None
         self.robot.tick(last)
         return self.robot.state(), 0.001
+
+    def reference(self, state):
+        """The fake robot holds the last velocity (as panda-py does); `extrapolated` overrides it."""
+        if self.extrapolated is not None:
+            return self.extrapolated
+        last = self.velocities[-1][0] if self.velocities else [0.0] * 7
+        return list(last), [0.0] * 7
 
     def write_velocity(self, dq, finished: bool) -> None:
         assert self.in_motion == "velocity"
@@ -445,18 +453,31 @@ def test_the_loop_stops_when_its_parent_is_gone():
         r.close()
 
 
-def test_a_gap_in_the_robot_cycles_steps_the_filter_for_each(rig):
+def test_after_lost_cycles_the_next_command_continues_from_the_robots_reference(rig):
+    """The FCI extrapolates a velocity stream it did not hear from at frozen acceleration, and judges
+    the next command's jerk against that (franka-sim aborted with an acceleration discontinuity when
+    the loop stepped its own filter through the gap instead). The next command is one jerk-limited
+    step from the robot's reference, whatever the loop itself last sent."""
     rig.run(2, command=ZERO)
-    rig.run(5, command=velocity(3, 0.5))
+    rig.run(4, command=velocity(3, 0.05))                  # ramping up: jerk-limited, not constant
     d = rig.driver
+    h = 0.001
+    sent, a_ref = d.velocities[-1][0][3], (d.velocities[-1][0][3] - d.velocities[-2][0][3]) / h
+    v_ref = sent + 3 * h * a_ref                           # what the robot extrapolated over the gap
     orig = d.read_cycle
+    f = rig.loop.filter
+    a_lim, d_max = f.a_max[3], f.j_max[3] * h
+    d.extrapolated = ([0, 0, 0, v_ref, 0, 0, 0], [0, 0, 0, a_ref, 0, 0, 0])
 
     def late():
         state, _ = orig()
         return state, 0.004                                # three robot cycles were missed
     d.read_cycle = late
-    rig.run(1, command=velocity(3, 0.5))
+    rig.run(1, command=velocity(3, 0.05))
     assert rig.state().missed == 3
+    out = d.velocities[-1][0][3]
+    a_next = (out - v_ref) / h
+    assert abs(a_next - a_ref) <= d_max + 1e-9 and abs(a_next) <= a_lim + 1e-9, (out, v_ref)
 
 
 def test_a_command_slot_caught_mid_write_keeps_the_previous_command(rig):

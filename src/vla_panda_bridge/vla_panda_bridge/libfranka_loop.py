@@ -143,7 +143,6 @@ def table_markdown() -> str:
     return "\n".join(lines) + "\n"
 
 
-MAX_SUBSTEPS = 50   # filter steps caught up after a gap in the robot's cycles
 # Zero commands that open every motion before the filter's first step: the robot (franka-sim's
 # checker too) judges the jerk of a velocity stream from its own history, which a motion starts
 # without; two zeros give it an acceleration of zero to difference against.
@@ -506,10 +505,9 @@ class ControlLoop:
             self.driver.write_velocity(_ZEROS, False)
             self._publish(state, math.nan, t0)
             return
-        n = 1 if dt <= 1.5 * PERIOD else min(MAX_SUBSTEPS, round(dt / PERIOD))
+        if dt > 1.5 * PERIOD:                        # lost cycles: the robot went on without us
+            f.follow(*self.driver.reference(state), state.q)
         out, code, text = f.filter(None, state.q, self._t)
-        for _ in range(n - 1):
-            out, code, text = f.filter(None, None, self._t)
         self._filter_status(code, text)
         finished = False
         if f.is_stopped and not self._wants_motion():

@@ -120,6 +120,11 @@ class PandaPyDriver:
             self._stop_quietly()
             raise classify(exc, during_motion=True) from exc
 
+    def reference(self, state):
+        """panda-py's controller thread holds the last velocity it was given (its torque control
+        leaves libfranka's dq_d unused)."""
+        return list(self._dq), [0.0] * len(self._dq)
+
     def write_torque(self, tau: Sequence[float], finished: bool) -> None:
         """panda-py's teaching mode applies zero torque plus its damping itself; `tau` is not sent."""
         if not finished:

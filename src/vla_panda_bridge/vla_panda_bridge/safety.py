@@ -234,6 +234,21 @@ class SafetyFilter:
         self._last_valid = None
         self._q_ref = _valid_q(q)
 
+    def follow(self, v, a, q) -> bool:
+        """Continue from the robot's own reference: after lost cycles the FCI extrapolated the velocity
+        at frozen acceleration and judges the next command against that, not against this filter's last
+        output (libfranka: intermittent drops "could trigger discontinuity errors"). `v`, `a`: the
+        reference velocity and acceleration (libfranka's dq_d, ddq_d); `q` the measured position.
+        Ignored (False) unless all are 7 finite values; the acceleration is clipped to the limit."""
+        ref = [_valid_q(x) for x in (v, a, q)]
+        if any(x is None for x in ref):
+            return False
+        v, a, q = ref
+        self._v = list(v)
+        self._a = [min(max(x, -lim[1]), lim[1]) for x, lim in zip(a, self._lim)]
+        self._q_ref = q
+        return True
+
     def set_estop(self, active: bool) -> None:
         """Latch (True) or release (False). After a release motion needs a zero command first."""
         active = bool(active)

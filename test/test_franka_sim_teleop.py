@@ -14,6 +14,7 @@ from franka_sim_server import running
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Joy
 from vla_common.ros.testing import RosHarness
+from vla_panda_bridge.safety import AWAITING_ZERO
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
 
@@ -57,22 +58,29 @@ def test_the_stick_moves_the_simulated_fr3_through_the_latent_controller(sim):
         assert h.spin_until(lambda: bridge.backend.status.code == 0 and bool(states), 20.0)
         assert states[-1].name[0] == ("fr3_joint1" if fr3 else "panda_joint1")
 
-        def drive(axis: float, seconds: float) -> None:
+        def stopped() -> bool:
+            """A stop the graph reports (a watchdog on a loaded machine, say): it waits for neutral."""
+            return (bridge.backend.status.filter_code == AWAITING_ZERO
+                    or bool(status) and status[-1].code == ControllerStatus.AWAITING_NEUTRAL)
+
+        def drive(axis: float, seconds: float, until=lambda: False) -> None:
+            """Hold the stick at `axis` as an operator does: back to neutral after a stop, then on."""
             end = time.monotonic() + seconds
-            while time.monotonic() < end:
+            while time.monotonic() < end and not until():
                 msg = DetectionArray(image_width=640, image_height=480)
                 msg.detections = [Detection(class_id="bread", score=0.9, center_x=320.0, center_y=300.0)]
                 det.publish(msg)
-                joy.publish(Joy(axes=[axis, 0.0], buttons=[0, 0, 0, 0]))
+                joy.publish(Joy(axes=[0.0 if stopped() else axis, 0.0], buttons=[0, 0, 0, 0]))
                 h.spin_for(0.02)
 
-        drive(0.0, 1.0)                                   # inputs in, stick centred: zero command
+        centred = lambda: bool(status) and status[-1].code == ControllerStatus.ZERO_DEADBAND   # noqa: E731
+        drive(0.0, 20.0, until=centred)                   # inputs in, stick centred: zero command
         assert status and status[-1].code == ControllerStatus.ZERO_DEADBAND, status[-1:] or "no status"
         q0, n = np.array(states[-1].position), len(status)
-        drive(0.8, 2.0)
+        moved = lambda: np.linalg.norm(np.array(states[-1].position) - q0) > 0.05   # noqa: E731
+        drive(0.8, 20.0, until=moved)
         assert any(s.code == ControllerStatus.ACTIVE for s in status[n:]), status[-1]
-        moved = np.array(states[-1].position) - q0
-        assert np.linalg.norm(moved) > 0.05, moved
+        assert moved(), (np.array(states[-1].position) - q0, bridge.backend.status, status[-1])
         end = time.monotonic() + 5.0                      # stick centred: the arm comes to rest
         while time.monotonic() < end and max(abs(v) for v in states[-1].velocity) >= 0.05:
             drive(0.0, 0.1)

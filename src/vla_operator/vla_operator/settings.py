@@ -1,0 +1,198 @@
+"""The caregiver's settings (no rclpy): one table, the validation of untrusted values (a page's, or the
+settings file's), and the file on the robot PC, written atomically and read with a size bound.
+
+Every value is checked here before anything applies it: the page is a network peer and the file may
+be damaged. An error names the setting and what is allowed, and never quotes a file's content (a
+page's unknown setting name is quoted back to that page, with the closest known one). The deadband is
+the controller's own parameter: only its type is checked here, its range is the controller's to
+enforce (its refusal is shown with its reason).
+"""
+from __future__ import annotations
+
+import difflib
+import json
+import math
+import os
+import string
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+MAX_FILE_BYTES = 16384          # the settings file is a few hundred bytes; anything larger is not ours
+MAX_KEYS_PER_ACTION = 3
+KEY_ACTIONS = ("forward", "back", "stop")
+# Keys a mapping may use. Space, Enter and Tab are not among them: they operate and reach the page's
+# controls (Space is also the single switch), and function keys belong to the browser (F5 reloads).
+NAMED_KEYS = ("ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight", "PageUp", "PageDown", "Home", "End",
+              "Escape")
+ALLOWED_KEYS = frozenset(NAMED_KEYS) | frozenset(string.ascii_lowercase) | frozenset(string.digits)
+ALLOWED_KEYS_WORDS = ", ".join(NAMED_KEYS) + ", a letter a-z or a digit 0-9"
+
+
+class SettingError(ValueError):
+    """A refused value; the message is safe to show and to log (it never quotes the value)."""
+
+
+def _number(name: str, lo: float, hi: float, hi_open: bool = False) -> Callable[[Any], float]:
+    def check(v: Any) -> float:
+        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
+            raise SettingError(f"{name} must be a number")
+        if not lo <= v <= hi or (hi_open and v == hi):
+            raise SettingError(f"{name} must be from {lo} to {hi}{' (excluded)' if hi_open else ''}")
+        return float(v)
+    return check
+
+
+def _choice(name: str, choices: tuple[str, ...]) -> Callable[[Any], str]:
+    def check(v: Any) -> str:
+        if v not in choices:
+            raise SettingError(f"{name} must be one of: {', '.join(choices)}")
+        return v
+    return check
+
+
+def _one_key(action: str, k: Any) -> str:
+    if not isinstance(k, str):
+        raise SettingError(f"keys.{action}: each key must be a key name")
+    if len(k) == 1:
+        k = k.lower()     # J and j are the same key
+    if k not in ALLOWED_KEYS:
+        close = difflib.get_close_matches(k, NAMED_KEYS, n=1, cutoff=0.6) if len(k) <= 20 else []
+        hint = f" (did you mean {close[0]}?)" if close else ""
+        raise SettingError(f"keys.{action}: a key is not allowed{hint}; allowed: {ALLOWED_KEYS_WORDS}")
+    return k
+
+
+def _keys(v: Any) -> dict[str, list[str]]:
+    """{forward, back, stop}: each 1 to 3 allowed keys, no key twice; Escape only stops."""
+    if not isinstance(v, dict):
+        raise SettingError("keys must be an object with forward, back and stop")
+    unknown = [a for a in v if a not in KEY_ACTIONS]
+    if unknown:
+        raise SettingError(f"keys: unknown action{_closest(unknown[0], KEY_ACTIONS)}; "
+                           f"the actions are {', '.join(KEY_ACTIONS)}")
+    out: dict[str, list[str]] = {}
+    seen: dict[str, str] = {}
+    for action in KEY_ACTIONS:
+        keys = v.get(action)
+        if not isinstance(keys, list) or not 1 <= len(keys) <= MAX_KEYS_PER_ACTION:
+            raise SettingError(f"keys.{action} must be a list of 1 to {MAX_KEYS_PER_ACTION} keys")
+        out[action] = []
+        for k in keys:
+            k = _one_key(action, k)
+            if k in seen:
+                # k is one of ALLOWED_KEYS here: our own name, not the input's text
+                raise SettingError(f"keys: {k} is given twice ({seen[k]} and {action})")
+            if k == "Escape" and action != "stop":
+                raise SettingError("keys: Escape may only stop the arm")
+            seen[k] = action
+            out[action].append(k)
+    return out
+
+
+@dataclass(frozen=True)
+class Setting:
+    name: str
+    default: Any
+    check: Callable[[Any], Any]   # the clean value, or SettingError
+    words: str
+
+
+SETTINGS: dict[str, Setting] = {s.name: s for s in (
+    Setting("speed_scale", 1.0, _number("speed_scale", 0.05, 1.0),
+            "the page's axis times this (0.05 to 1); the station's speed_scale parameter"),
+    Setting("deadband", None, _number("deadband", 0.0, 1.0, hi_open=True),
+            "the controller's deadband parameter (its range applies); none: the controller's own"),
+    Setting("action_mode", "hold", _choice("action_mode", ("hold", "step", "toggle")),
+            "hold: moves while held; step: a short move per press; toggle: press to start, press to stop"),
+    Setting("input_device", "buttons", _choice("input_device", ("buttons", "switch1", "switch2", "gamepad")),
+            "buttons (on-screen and keys), switch1 (single switch, scanning with Space), switch2 (dual "
+            "switch: its keys are the mapping's), gamepad (the first pad's left stick)"),
+    Setting("keys", {"forward": ["ArrowUp", "ArrowRight", "j"], "back": ["ArrowDown", "ArrowLeft", "k"],
+                     "stop": ["Escape"]}, _keys,
+            f"keys for forward, back and stop: 1 to {MAX_KEYS_PER_ACTION} each, no key twice, Escape only "
+            "stops"),
+)}
+
+
+def defaults() -> dict[str, Any]:
+    return json.loads(json.dumps({n: s.default for n, s in SETTINGS.items()}))   # a deep copy
+
+
+def _closest(name: str, known) -> str:
+    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
+    return f" (did you mean {close[0]!r}?)" if close else ""
+
+
+def validate(values: Any, quote_names: bool = True) -> dict[str, Any]:
+    """The clean values of a (partial) settings object, or SettingError for the first refused one. An
+    unknown name is refused with the closest known one; it is quoted only when ``quote_names`` (to
+    the page that sent it, never from a file)."""
+    if not isinstance(values, dict):
+        raise SettingError("settings must be an object {name: value}")
+    clean: dict[str, Any] = {}
+    for name, v in values.items():
+        if name not in SETTINGS:
+            shown = f" {name[:40]!r}" if quote_names and isinstance(name, str) else ""
+            raise SettingError(f"unknown setting{shown}{_closest(str(name)[:40], SETTINGS)}; "
+                               f"the settings are {', '.join(SETTINGS)}")
+        if name == "deadband" and v is None:
+            clean[name] = None
+            continue
+        clean[name] = SETTINGS[name].check(v)
+    return clean
+
+
+def load(path: Path, base: dict[str, Any] | None = None) -> tuple[dict[str, Any], str]:
+    """(settings, problem): the file's settings over ``base`` (the defaults), or ``base`` and why the
+    file was not used ("" when it was, or when there is none yet). The problem never quotes the file."""
+    s = dict(base) if base is not None else defaults()
+    try:
+        size = path.stat().st_size
+        if size > MAX_FILE_BYTES:
+            return s, f"settings file {path} is larger than {MAX_FILE_BYTES} bytes: using the defaults"
+        with path.open("rb") as f:
+            raw = f.read(MAX_FILE_BYTES + 1)
+    except FileNotFoundError:
+        return s, ""
+    except OSError as e:
+        return s, f"settings file {path} cannot be read ({e.strerror}): using the defaults"
+    try:
+        data = json.loads(raw)
+    except (ValueError, UnicodeDecodeError):
+        return s, f"settings file {path} is not valid JSON: using the defaults"
+    try:
+        s.update(validate(data, quote_names=False))
+    except SettingError as e:
+        return s, f"settings file {path} was refused ({e}): using the defaults"
+    return s, ""
+
+
+def save(path: Path, settings: dict[str, Any]) -> None:
+    """Write atomically (a temporary file in the same folder, flushed, then renamed over the old one):
+    a crash or a full disk leaves the previous file whole. OSError when it cannot be written."""
+    validate(settings)      # never write what would be refused when read back
+    data = json.dumps(settings, indent=1, sort_keys=True).encode()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def keep_aside(path: Path) -> Path | None:
+    """Move a refused settings file aside (``<name>.refused``) before it is replaced: no data is lost.
+    The path it went to, or None when there was none."""
+    if not path.exists():
+        return None
+    aside = path.with_name(path.name + ".refused")
+    os.replace(path, aside)
+    return aside

@@ -3,9 +3,9 @@
 pages in words, and turns the pages' requests into the nodes' own services."""
 from __future__ import annotations
 
-import json
 import secrets
 import sys
+import threading
 import time
 from pathlib import Path
 
@@ -13,7 +13,9 @@ import cv2
 import numpy as np
 from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
+from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
+from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, Joy
 from std_srvs.srv import SetBool, Trigger
 from vla_common.ros.node_main import ConfigError, run_node
@@ -22,6 +24,7 @@ from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray, GripperStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import GripperCommand, SelectTarget, StartEpisode
+from vla_operator import settings as cfg
 from vla_operator.link import LOOPBACK, LinkParams
 from vla_operator.server import Station
 from vla_operator.words import controller_words, safety_words
@@ -64,11 +67,18 @@ class StationNode(Node):
         elif p["bind"] not in LOOPBACK:
             token = secrets.token_urlsafe(24)
         self.settings_path = Path(p["settings_file"] or Path.home() / ".config/vla_operator/settings.json")
-        self.settings = self._load_settings()
+        self._settings_lock = threading.Lock()   # pages' requests and service answers come from 2 threads
+        self.settings, self.settings_problem = cfg.load(
+            self.settings_path, {**cfg.defaults(), "speed_scale": p["speed_scale"]})
+        if self.settings_problem:
+            self.get_logger().error(self.settings_problem)
+        if self.settings["speed_scale"] != p["speed_scale"]:   # the caregiver's file wins
+            self.set_parameters([Parameter("speed_scale", value=self.settings["speed_scale"])])
         self.joy_pub = self.create_publisher(Joy, "joy", 10)
         self.status_pub = self.create_publisher(DiagnosticStatus, "~/status", 10)
         b, c, r = p["bridge"], p["controller"], p["recorder"]
-        self.state: dict = {"tasks": list(p["tasks"]), "settings": self.settings}
+        self.state: dict = {"tasks": list(p["tasks"]), "settings": self.settings,
+                            "settings_problem": self.settings_problem}
         self.create_subscription(Image, "camera/image_raw", self._on_image, IMAGE_QOS)
         self.create_subscription(DetectionArray, "detections", self._on_dets, SENSOR_QOS)
         self.create_subscription(ControllerStatus, f"{c}/status", self._on_ctrl, 10)
@@ -85,6 +95,9 @@ class StationNode(Node):
             "stop": self.create_client(Trigger, f"{r}/stop_episode"),
             "discard": self.create_client(Trigger, f"{r}/discard_episode"),
         }
+        self.ctrl_set = self.create_client(SetParameters, f"{c}/set_parameters")
+        self.ctrl_get = self.create_client(GetParameters, f"{c}/get_parameters")
+        self._deadband_timer = self.create_timer(1.0, self._sync_deadband)
         self._dets: dict = {"boxes": [], "size": [0, 0]}
         self.station = Station(
             Path(get_package_share_directory("vla_operator")) / "web", p["bind"], p["port"], token,
@@ -138,7 +151,7 @@ class StationNode(Node):
             req = StartEpisode.Request(task=msg["task"]) if action == "start" else Trigger.Request()
             self._call(action, req, f"episode {action}", reply)
         elif kind == "settings":
-            reply({"what": "settings", **self._apply_settings(msg["values"])})
+            self._apply_settings(msg["values"], reply)
 
     def _call(self, name: str, req, what: str, reply) -> None:
         client = self.clients_[name]
@@ -151,40 +164,92 @@ class StationNode(Node):
             if f.exception() is None else {"what": what, "ok": False, "message": str(f.exception())}))
 
     # ------------------------------------------------------------------ caregiver settings
-    def _load_settings(self) -> dict:
-        try:
-            data = json.loads(self.settings_path.read_text())
-            return data if isinstance(data, dict) else {}
-        except (OSError, ValueError):
-            return {"speed_scale": self.p["speed_scale"]}
+    def _sync_deadband(self) -> None:
+        """Once the controller is up: give it the saved deadband, or show the one it has."""
+        if not (self.ctrl_set.service_is_ready() and self.ctrl_get.service_is_ready()):
+            return
+        self._deadband_timer.cancel()
+        if self.settings["deadband"] is not None:
+            self._set_deadband(self.settings["deadband"], lambda ok, why: None if ok else self._problem(
+                f"the saved deadband was refused by {self.p['controller']}: {why}"))
+            return
+        future = self.ctrl_get.call_async(GetParameters.Request(names=["deadband"]))
 
-    def _apply_settings(self, values: dict) -> dict:
-        known = {"speed_scale", "action_mode", "input_device", "keys"}
-        unknown = sorted(set(values) - known)
-        if unknown:
-            return {"ok": False, "message": f"unknown settings {unknown}; known: {sorted(known)}"}
-        if "speed_scale" in values:
-            from rclpy.parameter import Parameter
-            v = values["speed_scale"]
-            if not isinstance(v, (int, float)) or isinstance(v, bool):
-                return {"ok": False, "message": "speed_scale must be a number"}
-            result = self.set_parameters([Parameter("speed_scale", value=float(v))])[0]
-            if not result.successful:
-                return {"ok": False, "message": result.reason}
-        if values.get("action_mode", "hold") not in ("hold", "step", "toggle"):
-            return {"ok": False, "message": "action_mode must be hold, step or toggle"}
-        self.settings.update(values)
+        def got(f) -> None:
+            values = f.result().values if f.exception() is None else []
+            if values and values[0].type == Parameter.Type.DOUBLE.value:
+                with self._settings_lock:
+                    self.settings = {**self.settings, "deadband": values[0].double_value}
+                self._state(settings=self.settings)
+        future.add_done_callback(got)
+
+    def _problem(self, text: str) -> None:
+        self.get_logger().error(text)
+        self._state(settings_problem=text)
+
+    def _set_deadband(self, value: float, done) -> None:
+        """The controller's own parameter, through its parameter service: done(ok, its reason)."""
+        if not self.ctrl_set.service_is_ready():
+            done(False, f"{self.ctrl_set.srv_name} is not available (is {self.p['controller']} running?)")
+            return
+        req = SetParameters.Request(parameters=[Parameter("deadband", value=float(value)).to_parameter_msg()])
+
+        def answered(f) -> None:
+            if f.exception() is not None:
+                done(False, str(f.exception()))
+            else:
+                r = f.result().results[0]
+                done(bool(r.successful), r.reason)
+        self.ctrl_set.call_async(req).add_done_callback(answered)
+
+    def _apply_settings(self, values: dict, reply) -> None:
+        """Validate everything first (the page is untrusted), then the controller's deadband (refused
+        with its reason: nothing else changes), then this node's values, then the file."""
+        def refuse(why: str) -> None:
+            reply({"what": "settings", "ok": False, "message": why})
         try:
-            self.settings_path.parent.mkdir(parents=True, exist_ok=True)
-            self.settings_path.write_text(json.dumps(self.settings))
-        except OSError as e:
-            return {"ok": False, "message": f"applied but not saved: {e.strerror}"}
-        self._state(settings=self.settings)
-        return {"ok": True, "message": "saved on the robot PC"}
+            clean = cfg.validate(values)
+        except cfg.SettingError as e:
+            refuse(str(e))
+            return
+        if clean.get("deadband") is None:
+            clean.pop("deadband", None)   # none: leave the controller's as it is
+        if "deadband" in clean and clean["deadband"] != self.settings["deadband"]:
+            def answered(ok: bool, why: str) -> None:
+                if ok:
+                    self._commit(clean, reply)
+                else:
+                    refuse(f"{self.p['controller']} refused the deadband: {why}")
+            self._set_deadband(clean["deadband"], answered)
+        else:
+            self._commit(clean, reply)
+
+    def _commit(self, clean: dict, reply) -> None:
+        with self._settings_lock:
+            new = {**self.settings, **clean}
+            if new["speed_scale"] != self.p["speed_scale"]:
+                result = self.set_parameters([Parameter("speed_scale", value=new["speed_scale"])])[0]
+                if not result.successful:
+                    reply({"what": "settings", "ok": False, "message": result.reason})
+                    return
+            self.settings = new
+            message = "saved on the robot PC"
+            try:
+                if self.settings_problem:   # the refused file is kept, not overwritten
+                    aside = cfg.keep_aside(self.settings_path)
+                    if aside is not None:
+                        message += f" (the file that was refused is kept as {aside.name})"
+                cfg.save(self.settings_path, new)
+                self.settings_problem = ""
+            except OSError as e:
+                message = f"applied but not saved: {e.strerror}"
+        self._state(settings=self.settings, settings_problem=self.settings_problem)
+        reply({"what": "settings", "ok": not message.startswith("applied but"), "message": message})
 
     def _on_change(self, name, value):
         if name == "speed_scale":
-            self.settings["speed_scale"] = float(value)
+            self.p["speed_scale"] = float(value)
+            self.settings = {**self.settings, "speed_scale": float(value)}
         return None
 
     # ------------------------------------------------------------------ what the pages see

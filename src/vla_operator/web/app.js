@@ -3,8 +3,10 @@
 import { Link } from './link.js';
 
 const $ = (id) => document.getElementById(id);
-const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {},
-                held: 0, toggled: 0, sent: {}, replies: {}, scan: -1, frames: 0, fpsT: performance.now(), fps: 0, age: null };
+const STEP_MS = 300;     // step mode: one press drives this long, then stops by itself
+const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {}, settingsJson: '',
+                held: 0, toggled: 0, stepTimer: 0, padAxis: 0, sent: {}, replies: {}, scan: -1, frames: 0,
+                fpsT: performance.now(), fps: 0, age: null };
 window.station = state;  // read by the browser tests and the benchmark
 
 function say(text) { $('message').textContent = text; }
@@ -16,6 +18,9 @@ const link = new Link(onMessage, onFrame, (up) => {
 function onMessage(m) {
   if (m.type === 'hello' || m.type === 'role') setRole(m.driver);
   else if (m.type === 'state') showState(m);
+  else if (m.type === 'reply' && m.what === 'settings') {
+    $('set-message').textContent = m.ok ? `Settings ${m.message}` : `Not saved: ${m.message}`;
+  }
   else if (m.type === 'reply') {
     state.replies[m.what] = performance.now() - (state.sent[m.what] ?? NaN);
     if (m.what === 'estop' && m.ok) state.estopLatency = performance.now() - state.estopSent;
@@ -48,8 +53,24 @@ function showState(s) {
   if (s.tasks && $('task').options.length === 0) {
     for (const t of s.tasks) $('task').add(new Option(t, t));
   }
-  if (s.settings) { state.settings = s.settings; $('set-speed').value = s.settings.speed_scale ?? 1;
-    $('set-mode').value = s.settings.action_mode ?? 'hold'; $('set-device').value = s.settings.input_device ?? 'buttons'; }
+  if (s.settings && JSON.stringify(s.settings) !== state.settingsJson) showSettings(s.settings);
+  if (s.settings_problem !== undefined) $('set-problem').textContent = s.settings_problem;
+}
+
+// The station's settings (the robot PC's file): the fields are filled only when they change there, so
+// a caregiver's typing is not overwritten by the next status; a new mode or device stops the arm.
+function showSettings(st) {
+  const old = state.settings;
+  state.settings = st; state.settingsJson = JSON.stringify(st);
+  if (old.action_mode !== st.action_mode || old.input_device !== st.input_device) stopDriving();
+  $('set-speed').value = st.speed_scale;
+  $('set-deadband').value = st.deadband ?? '';
+  $('set-mode').value = st.action_mode; $('set-device').value = st.input_device;
+  for (const a of ['forward', 'back', 'stop']) $(`key-${a}`).value = st.keys[a].join(' ');
+  $('estop').setAttribute('aria-keyshortcuts', st.keys.stop.join(' '));
+  $('estop').querySelector('.hint').textContent = `(${st.keys.stop.join(', ')})`;
+  $('forward').setAttribute('aria-keyshortcuts', st.keys.forward.join(' '));
+  $('back').setAttribute('aria-keyshortcuts', st.keys.back.join(' '));
 }
 
 // ------------------------------------------------------------------ live view
@@ -106,9 +127,10 @@ function mode() { return state.settings.action_mode || 'hold'; }
 function press(dir) {             // dir: +1, -1
   const m = mode();
   if (m === 'toggle') { state.toggled = state.toggled === dir ? 0 : dir; drive(state.toggled); }
-  else if (m === 'step') { drive(dir); setTimeout(() => release(dir, true), 300); }
+  else if (m === 'step') { clearTimeout(state.stepTimer); drive(dir); state.stepTimer = setTimeout(() => release(dir, true), STEP_MS); }
   else { state.held = dir; drive(dir); }
 }
+function stopDriving() { clearTimeout(state.stepTimer); state.held = 0; state.toggled = 0; drive(0); }
 function release(dir, stepEnd = false) {
   if (mode() === 'toggle') return;
   if (mode() === 'step' && !stepEnd) return;
@@ -129,21 +151,27 @@ for (const [id, dir] of [['forward', 1], ['back', -1]]) {
 }
 $('gripper').onclick = () => link.send({ type: 'gripper' });
 
-// keys: arrows drive anywhere on the page (not in a form field), Esc stops, J/K are a dual switch,
-// Space is a single switch when scanning is chosen
-const KEYS = { ArrowUp: 1, ArrowRight: 1, ArrowDown: -1, ArrowLeft: -1, j: 1, k: -1 };
+// keys: the caregiver's mapping (settings.keys: forward, back, stop; a dual switch types two of them).
+// Forward and back work anywhere on the page but in a form field; a stop key works everywhere, except a
+// letter or digit typed into a field. Space is the single switch when scanning is chosen.
 const SCAN = ['forward', 'back', 'next', 'gripper'];
-function scanning() { return (state.settings.input_device || 'buttons') === 'switch1'; }
+function scanning() { return state.settings.input_device === 'switch1'; }
+function keyAction(e) {
+  const key = e.key.length === 1 ? e.key.toLowerCase() : e.key, keys = state.settings.keys || {};
+  return ['stop', 'forward', 'back'].find((a) => (keys[a] || []).includes(key));
+}
 addEventListener('keydown', (e) => {
-  if (e.key === 'Escape') { e.preventDefault(); estop(); return; }
-  if (e.target.matches('select, input') || e.repeat) return;
+  const act = keyAction(e), inField = e.target.matches('select, input, textarea');
+  if (act === 'stop' && !(inField && e.key.length === 1)) { e.preventDefault(); estop(); return; }
+  if (inField || e.repeat) return;
   if (scanning() && e.key === ' ') { e.preventDefault(); const id = SCAN[state.scan];
     if (id === 'forward' || id === 'back') press(id === 'forward' ? 1 : -1); else if (id) $(id).click(); return; }
-  if (e.key in KEYS) { e.preventDefault(); press(KEYS[e.key]); }
+  if (act) { e.preventDefault(); press(act === 'forward' ? 1 : -1); }
 });
 addEventListener('keyup', (e) => {
   if (scanning() && e.key === ' ') { const id = SCAN[state.scan]; if (id === 'forward' || id === 'back') release(0); return; }
-  if (e.key in KEYS) release(KEYS[e.key]);
+  const act = keyAction(e);
+  if (act === 'forward' || act === 'back') release(act === 'forward' ? 1 : -1);
 });
 setInterval(() => {        // single-switch scanning: the highlight steps every 1.5 s while nothing is held
   if (!scanning()) { if (state.scan >= 0) { document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan')); state.scan = -1; } return; }
@@ -151,18 +179,23 @@ setInterval(() => {        // single-switch scanning: the highlight steps every 
   document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan'));
   state.scan = (state.scan + 1) % SCAN.length; $(SCAN[state.scan]).classList.add('scan');
 }, 1500);
-function pollGamepad() {   // the Gamepad API: the first pad's left stick (up = toward the task)
-  const pad = (navigator.getGamepads ? navigator.getGamepads() : [])[0];
-  if (pad && (state.settings.input_device === 'gamepad')) {
-    const v = -pad.axes[1]; const a = Math.abs(v) < 0.15 ? 0 : Math.max(-1, Math.min(1, v));
-    link.setAxis(+(a * state.speed).toFixed(2));
+function pollGamepad() {   // the Gamepad API: the first connected pad's left stick (up = toward the task)
+  // Only a change of the stick drives (the buttons and keys keep working); a pad that goes away, or a
+  // device that is no longer the gamepad, stops what the stick was doing.
+  let a = 0;
+  if (state.settings.input_device === 'gamepad') {
+    const pad = [...(navigator.getGamepads ? navigator.getGamepads() : [])].find((p) => p && p.connected);
+    const v = pad && pad.axes.length > 1 ? -pad.axes[1] : 0;
+    a = Number.isFinite(v) && Math.abs(v) >= 0.15 ? +(Math.max(-1, Math.min(1, v)) * state.speed).toFixed(2) : 0;
   }
+  if (a !== state.padAxis) { state.padAxis = a; link.setAxis(a);
+    $('forward').setAttribute('aria-pressed', String(a > 0)); $('back').setAttribute('aria-pressed', String(a < 0)); }
   requestAnimationFrame(pollGamepad);
 }
 requestAnimationFrame(pollGamepad);
 
 // ------------------------------------------------------------------ stop
-function estop() { state.estopSent = performance.now(); state.estopLatency = null; state.held = 0; state.toggled = 0; drive(0); link.send({ type: 'estop' }); say('STOP sent'); }
+function estop() { state.estopSent = performance.now(); state.estopLatency = null; stopDriving(); link.send({ type: 'estop' }); say('STOP sent'); }
 $('estop').onclick = estop;
 $('release').onclick = () => $('release-dialog').showModal();
 $('release-cancel').onclick = () => $('release-dialog').close();
@@ -179,5 +212,12 @@ $('view-toggle').onclick = () => {
   $('view-toggle').setAttribute('aria-expanded', String(show));
   $('view-toggle').textContent = show ? 'Back to driving' : 'Caregiver settings';
 };
-$('set-save').onclick = () => link.send({ type: 'settings', values: {
-  speed_scale: +$('set-speed').value, action_mode: $('set-mode').value, input_device: $('set-device').value } });
+const num = (id) => ($(id).value.trim() === '' ? null : Number($(id).value));   // the station checks them
+const keyList = (id) => $(id).value.split(/[\s,]+/).filter(Boolean);
+$('set-save').onclick = () => {
+  $('set-message').textContent = 'Saving…';
+  link.send({ type: 'settings', values: {
+    speed_scale: num('set-speed'), deadband: num('set-deadband'), action_mode: $('set-mode').value,
+    input_device: $('set-device').value,
+    keys: { forward: keyList('key-forward'), back: keyList('key-back'), stop: keyList('key-stop') } } });
+};

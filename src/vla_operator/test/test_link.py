@@ -2,7 +2,7 @@
 import json
 
 import pytest
-from vla_operator.link import Link, LinkParams, handshake_refusal
+from vla_operator.link import Link, LinkParams, handshake_refusal, token_refusal
 
 
 def msg(**kw) -> str:
@@ -115,3 +115,11 @@ def test_handshake():
 
 def test_params_bound():
     assert LinkParams().stale_after == 0.15
+
+
+def test_a_token_once_set_is_needed_on_loopback_too():
+    assert token_refusal("", "") is None
+    assert token_refusal("s3cret", "s3cret") is None
+    assert "wrong or missing token" in token_refusal("s3cret", "")
+    assert "wrong or missing token" in token_refusal("s3cret", "s3cre")
+    assert "wrong or missing token" in handshake_refusal("127.0.0.1", "s3cret", "", "http://h:1", "h:1")

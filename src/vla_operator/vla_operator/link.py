@@ -264,6 +264,12 @@ def handshake_refusal(
         return f"Origin {origin!r} is not this station"
     if bind not in LOOPBACK and not token:
         return "a station reachable from other machines needs a token"
+    return token_refusal(token, given_token)
+
+
+def token_refusal(token: str, given_token: str) -> str | None:
+    """Why a request with ``given_token`` is refused (the page and the WebSocket), or None; compared in
+    constant time. No token configured: nothing to check (a loopback station)."""
     if token and not hmac.compare_digest(token.encode(), given_token.encode()):
-        return "wrong or missing token"
+        return "wrong or missing token: open the address the station printed at its start"
     return None

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
-from vla_operator.link import Link, LinkParams, handshake_refusal
+from vla_operator.link import Link, LinkParams, handshake_refusal, token_refusal
 
 FRAME_PERIOD = 1 / 30  # s: the station sends at most this often per page (the camera's rate)
 
@@ -115,6 +115,9 @@ class Station:
 
     # ------------------------------------------------------------------ HTTP
     async def _index(self, request: web.Request) -> web.StreamResponse:
+        refusal = token_refusal(self.token, request.query.get("token", ""))
+        if refusal:
+            return web.Response(status=403, text=refusal)
         return web.FileResponse(self.web_dir / "index.html", headers={
             "Cache-Control": "no-store",
             "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'",

@@ -10,17 +10,23 @@ none, so the bounds are the issue's).
 """
 from __future__ import annotations
 
+import json
 import os
 import re
+import secrets
 import shutil
 import signal
 import tempfile
 import time
 from pathlib import Path
+from urllib.error import HTTPError
+from urllib.parse import parse_qs, urlsplit
+from urllib.request import urlopen
 
 import numpy as np
 import pytest
 from launch_process import LaunchProcess, Observer
+from rcl_interfaces.srv import GetParameters
 from require import missing
 from std_msgs.msg import Float64MultiArray
 from vla_common.ros.testing import RosHarness
@@ -45,6 +51,7 @@ try:
     from selenium.webdriver.common.action_chains import ActionChains
     from selenium.webdriver.common.by import By
     from selenium.webdriver.common.keys import Keys
+    from selenium.webdriver.support.select import Select
 except ImportError:  # pragma: no cover - make setup installs it
     webdriver = None
 
@@ -57,6 +64,7 @@ class Commands(Observer):
         self.cmd = np.zeros(7)
         self.cmd_log: list[tuple[float, np.ndarray]] = []
         self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._cmd, 10)
+        self.ctrl_params = self.create_client(GetParameters, "controller_node/get_parameters")
 
     def _cmd(self, msg):
         self.cmd = np.array(msg.data)
@@ -116,12 +124,25 @@ class Browser:
 
 
 @pytest.fixture(scope="module")
-def graph(tmp_path_factory):
+def station_files(tmp_path_factory) -> tuple[Path, Path]:
+    """The station's token file and caregiver settings file (the launch's arguments), this run's own."""
+    d = tmp_path_factory.mktemp("operator_files")
+    token = d / "token"
+    token.write_text(secrets.token_urlsafe(24) + "\n")
+    return token, d / "settings.json"
+
+
+@pytest.fixture(scope="module")
+def graph(tmp_path_factory, station_files):
+    """The graph with the station on 127.0.0.1 and a token: the printed address carries it, so every
+    test's page uses it, and a page or socket without it is refused."""
     browser_needed()
     log = tmp_path_factory.mktemp("operator") / "launch.log"
+    token_file, settings_file = station_files
     h = RosHarness()
     with LaunchProcess("vla_bringup", "teleop.launch.yaml", "use_operator_station:=true",
-                       "operator_port:=0", log_path=log) as run:
+                       "operator_port:=0", "operator_bind:=127.0.0.1", f"operator_token_file:={token_file}",
+                       f"operator_settings_file:={settings_file}", log_path=log) as run:
         obs = h.add(Commands(h.context))
         address = lambda: re.search(r"operator station is at (http://\S+)", run.text())  # noqa: E731
         assert h.spin_until(lambda: obs.graph_up() and address() is not None, 120.0), run.text()[-3000:]
@@ -202,6 +223,219 @@ def test_hold_button_key_and_switch_move_the_arm_and_release_stops(graph, page):
     for key in (Keys.ARROW_UP, "j"):     # the keyboard, and a dual switch (a USB switch types J)
         moves_while(h, obs, lambda k=key: ActionChains(d).move_to_element(body).key_down(k).perform(),
                     lambda k=key: ActionChains(d).key_up(k).perform())
+
+
+# ---------------------------------------------------------------------- action modes and devices
+DEFAULTS = {"action_mode": "hold", "input_device": "buttons",
+            "keys": {"forward": ["ArrowUp", "ArrowRight", "j"], "back": ["ArrowDown", "ArrowLeft", "k"],
+                     "stop": ["Escape"]}}
+
+
+def apply_settings(h, b, **values) -> None:
+    """Through the page's link, as its Save button does; waits until the station says they apply."""
+    b.driver.execute_script("window.stationRequest({type: 'settings', values: arguments[0]}, 'settings')",
+                            values)
+    assert h.spin_until(lambda: all(js(b, "window.station.settings")[k] == v for k, v in values.items()),
+                        20.0), (values, js(b, "document.getElementById('set-message').textContent"))
+
+
+@pytest.fixture
+def settings_restored(graph, page):
+    yield
+    h, obs, url, _ = graph
+    if not page.driver.current_url.startswith(url):
+        page.driver.get(url)
+        assert wait_page(h, page, "window.station && window.station.settings.keys")
+    apply_settings(h, page, **DEFAULTS)
+
+
+def nonzero_since(obs, n: int) -> bool:
+    return any(np.any(c != 0) for _, c in obs.cmd_log[n:])
+
+
+def moved_since(obs, q0: np.ndarray, n: int | None = None):
+    """A condition: the arm moved from q0 and is moving (n: or was commanded to since cmd_log[n])."""
+    if n is None:
+        return lambda: obs.moving() and np.linalg.norm(obs.q - q0) > 1e-3
+    return lambda: nonzero_since(obs, n) and np.linalg.norm(obs.q - q0) > 1e-4
+
+
+def key(d, k, down: bool) -> None:
+    d.execute_script("document.activeElement.blur()")
+    chain = ActionChains(d).move_to_element(d.find_element(By.TAG_NAME, "body"))
+    (chain.key_down(k) if down else chain.key_up(k)).perform()
+
+
+def test_step_mode_a_press_moves_a_bit_then_stops_by_itself(graph, page, settings_restored):
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    apply_settings(h, page, action_mode="step")
+    d = page.driver
+    for _ in range(3):   # a loaded machine may starve the page past the heartbeat: press again
+        n, q0 = len(obs.cmd_log), obs.q.copy()
+        key(d, Keys.ARROW_UP, True)            # pressed and kept down: the step ends by itself
+        moved = h.spin_until(moved_since(obs, q0, n), 10.0)
+        if moved:
+            break
+        key(d, Keys.ARROW_UP, False)
+    assert moved, obs.ctrl
+    assert h.spin_until(lambda: not obs.moving(), 10.0), obs.cmd
+    assert js(page, "document.getElementById('forward').getAttribute('aria-pressed')") == "false"
+    key(d, Keys.ARROW_UP, False)
+
+
+def test_toggle_mode_a_press_starts_and_a_second_press_stops(graph, page, settings_restored):
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    apply_settings(h, page, action_mode="toggle")
+    d = page.driver
+
+    def tap():
+        key(d, Keys.ARROW_UP, True)
+        key(d, Keys.ARROW_UP, False)
+    for _ in range(3):
+        q0 = obs.q.copy()
+        tap()                                  # pressed and released: still moving
+        moving = h.spin_until(moved_since(obs, q0), 10.0)
+        if moving and h.spin_until(moved_since(obs, obs.q.copy()), 10.0):
+            break
+        if js(page, "window.station.toggled") != 0:
+            tap()                              # disarmed by a starved heartbeat: stop, and start again
+    else:
+        pytest.fail(f"toggle did not keep the arm moving after the key was released: {obs.ctrl}")
+    tap()
+    assert h.spin_until(lambda: not obs.moving(), 5.0), obs.cmd
+    n = len(obs.cmd_log)
+    assert h.spin_until(lambda: len(obs.cmd_log) > n + 20, 10.0)   # and it stays stopped
+    assert not nonzero_since(obs, n + 5)
+
+
+def test_gamepad_stick_moves_and_neutral_or_a_lost_pad_stops(graph, page, settings_restored):
+    """The Gamepad API faked in the page (navigator.getGamepads) as the test's own pad."""
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    d = page.driver
+    d.execute_script("window.fakePad = {connected: true, axes: [0, 0], buttons: []};"
+                     "navigator.getGamepads = () => [window.fakePad];")
+    apply_settings(h, page, input_device="gamepad")
+    push = lambda: d.execute_script("window.fakePad.axes[1] = -1;")  # noqa: E731  (stick up)
+    moves_while(h, obs, push, lambda: d.execute_script("window.fakePad.axes[1] = 0;"))
+    moves_while(h, obs, push, lambda: d.execute_script("navigator.getGamepads = () => [null];"))
+    d.execute_script("navigator.getGamepads = () => [window.fakePad]; window.fakePad.axes[1] = 0;")
+
+
+def test_single_switch_scanning_drives_while_held_on_forward(graph, page, settings_restored):
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    apply_settings(h, page, input_device="switch1")
+    d = page.driver
+    on_forward = "document.getElementById('forward').classList.contains('scan')"
+    pressed = "document.getElementById('forward').getAttribute('aria-pressed') === 'true'"
+    q0 = obs.q.copy()
+    for _ in range(10):
+        assert wait_page(h, page, on_forward, 20.0)
+        key(d, Keys.SPACE, True)
+        if js(page, pressed):   # the highlight may have moved on before the switch closed: retry
+            if h.spin_until(lambda: obs.moving() and np.linalg.norm(obs.q - q0) > 1e-3, 4.0):
+                break
+        key(d, Keys.SPACE, False)
+        assert h.spin_until(lambda: not obs.moving(), 5.0)
+    else:
+        pytest.fail(f"the switch on the highlighted forward control did not move the arm: {obs.ctrl}")
+    assert js(page, on_forward)   # scanning waits while the switch is held
+    key(d, Keys.SPACE, False)
+    assert h.spin_until(lambda: not obs.moving(), 5.0), obs.cmd
+
+
+# ---------------------------------------------------------------------- caregiver settings
+def controller_deadband(h, obs) -> float:
+    assert obs.ctrl_params.wait_for_service(10.0)
+    f = obs.ctrl_params.call_async(GetParameters.Request(names=["deadband"]))
+    assert h.spin_until(f.done, 10.0)
+    return f.result().values[0].double_value
+
+
+def open_settings(h, b) -> None:
+    if js(b, "document.getElementById('settings').hidden"):
+        b.driver.find_element(By.ID, "view-toggle").click()
+    assert wait_page(h, b, "!document.getElementById('settings').hidden")
+
+
+def fill(d, field: str, text: str) -> None:
+    el = d.find_element(By.ID, field)
+    el.clear()
+    el.send_keys(text)
+
+
+def save(h, b) -> str:
+    b.driver.execute_script("document.getElementById('set-message').textContent = ''")
+    b.driver.find_element(By.ID, "set-save").click()
+    done = "/^(Settings|Not saved)/.test(document.getElementById('set-message').textContent)"
+    assert wait_page(h, b, done, 20.0)
+    return js(b, "document.getElementById('set-message').textContent")
+
+
+def test_saved_settings_survive_a_reload_and_reach_the_controller(graph, page, station_files,
+                                                                   settings_restored):
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    d = page.driver
+    before = controller_deadband(h, obs)
+    open_settings(h, page)
+    fill(d, "set-deadband", "0.25")
+    fill(d, "set-speed", "0.8")
+    Select(d.find_element(By.ID, "set-mode")).select_by_value("toggle")
+    fill(d, "key-forward", "w ArrowUp")
+    fill(d, "key-stop", "Escape x")
+    try:
+        assert save(h, page).startswith("Settings saved on the robot PC")
+        assert controller_deadband(h, obs) == pytest.approx(0.25)
+        on_disk = json.loads(station_files[1].read_text())
+        assert on_disk["deadband"] == 0.25 and on_disk["speed_scale"] == 0.8
+        assert on_disk["action_mode"] == "toggle" and on_disk["keys"]["stop"] == ["Escape", "x"]
+        d.refresh()
+        assert wait_page(h, page, "window.station && window.station.settings.keys")
+        open_settings(h, page)
+        assert [d.find_element(By.ID, f).get_attribute("value")
+                for f in ("set-deadband", "set-speed", "set-mode", "key-forward", "key-stop")] == \
+            ["0.25", "0.8", "toggle", "w ArrowUp", "Escape x"]
+        assert js(page, "document.getElementById('estop').getAttribute('aria-keyshortcuts')") == "Escape x"
+    finally:
+        fill(d, "set-deadband", str(before))
+        fill(d, "set-speed", "1")
+        fill(d, "key-forward", " ".join(DEFAULTS["keys"]["forward"]))
+        fill(d, "key-stop", "Escape")
+        Select(d.find_element(By.ID, "set-mode")).select_by_value("hold")
+        assert save(h, page).startswith("Settings saved"), js(page, "document.body.innerText")
+        assert controller_deadband(h, obs) == pytest.approx(before)
+        d.find_element(By.ID, "view-toggle").click()
+
+
+def test_an_invalid_setting_is_refused_with_the_reason_shown(graph, page, station_files, settings_restored):
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    d = page.driver
+    open_settings(h, page)
+    before = station_files[1].read_bytes() if station_files[1].exists() else None
+    deadband = controller_deadband(h, obs)
+    try:
+        fill(d, "set-speed", "5")
+        assert save(h, page) == "Not saved: speed_scale must be from 0.05 to 1.0"
+        fill(d, "set-speed", "1")
+        fill(d, "key-back", "k j")
+        assert save(h, page) == "Not saved: keys: j is given twice (forward and back)"
+        fill(d, "key-back", "ArrowDown Tab")
+        assert save(h, page).startswith("Not saved: keys.back: a key is not allowed")
+        fill(d, "key-back", "ArrowDown")
+        fill(d, "set-deadband", "0.97")      # the controller's range is 0 to 0.95: its reason is shown
+        msg = save(h, page)
+        assert msg.startswith("Not saved: controller_node refused the deadband:") and "0.95" in msg, msg
+        assert controller_deadband(h, obs) == deadband
+        after = station_files[1].read_bytes() if station_files[1].exists() else None
+        assert after == before   # nothing of a refused save reaches the file
+    finally:
+        d.refresh()
+        assert wait_page(h, page, "window.station && window.station.settings.keys")
 
 
 def test_clicking_another_box_relatches_the_controller(graph, page):
@@ -336,34 +570,73 @@ def test_a_second_client_cannot_drive_but_may_stop(graph, page):
     assert h.spin_until(lambda: not obs.estop(), 5.0)
 
 
+def ws_url(url: str, token: str | None) -> str:
+    u = urlsplit(url)
+    return f"ws://{u.netloc}/ws" + (f"?token={token}" if token is not None else "")
+
+
+def token_of(url: str) -> str:
+    return parse_qs(urlsplit(url).query)["token"][0]
+
+
 def test_a_wrong_origin_is_refused(graph):
     import websocket  # websocket-client, a selenium dependency
     _, _, url, _ = graph
-    ws_url = url.replace("http://", "ws://").rstrip("/") + "/ws"
     with pytest.raises(websocket.WebSocketBadStatusException) as e:
-        websocket.create_connection(ws_url, origin="http://evil.example", timeout=5)
+        websocket.create_connection(ws_url(url, token_of(url)), origin="http://evil.example", timeout=5)
     assert e.value.status_code == 403
+
+
+def test_a_wrong_or_missing_token_is_refused_and_the_right_one_works(graph, station_files):
+    """The station's token (the launch's operator_token_file) is needed by the page and the socket."""
+    import websocket
+    _, _, url, _ = graph
+    token = token_of(url)
+    assert token == station_files[0].read_text().strip()
+    u = urlsplit(url)
+    origin = f"http://{u.netloc}"
+    for given in ("wrong-" + token, token[:-1], "", None):
+        page_url = f"{origin}/" + (f"?token={given}" if given is not None else "")
+        with pytest.raises(HTTPError) as e:
+            urlopen(page_url, timeout=10)
+        assert e.value.code == 403 and b"wrong or missing token" in e.value.read()
+        with pytest.raises(websocket.WebSocketBadStatusException) as e:
+            websocket.create_connection(ws_url(url, given), origin=origin, timeout=10)
+        assert e.value.status_code == 403
+    with urlopen(url, timeout=10) as r:
+        assert r.status == 200 and b"Operator station" in r.read()
+    ws = websocket.create_connection(ws_url(url, token), origin=origin, timeout=10)
+    try:
+        assert json.loads(ws.recv())["type"] == "hello"
+    finally:
+        ws.close()
 
 
 # ---------------------------------------------------------------------- accessibility
 def test_axe_wcag22_aa_and_44px_targets(graph, page):
+    """Both views: driving, and the caregiver's settings."""
     import axe_playwright_python
     h, obs, url, _ = graph
     ready(h, obs, page, url)
     d = page.driver
     d.execute_script((Path(axe_playwright_python.__file__).parent / "axe.min.js").read_text())
-    result = d.execute_async_script(
-        "const done = arguments[arguments.length - 1];"
-        "axe.run(document, {runOnly: {type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa',"
-        " 'wcag22aa']}}).then(r => done(r.violations.map(v => [v.id, v.nodes.map(n => n.target)])));")
-    assert result == [], result
-    small = js(page, """[...document.querySelectorAll('button, select, input, a')]
-        .filter(e => e.offsetParent !== null)
-        .map(e => { const t = e.type === 'radio' ? e.closest('label') : e;
-                    const r = t.getBoundingClientRect();
-                    return [e.id || e.textContent.trim(), r.width, r.height]; })
-        .filter(([, w, h]) => w < 44 || h < 44)""")
-    assert small == [], small
+    for view in ("operate", "settings"):
+        if view == "settings":
+            open_settings(h, page)
+        result = d.execute_async_script(
+            "const done = arguments[arguments.length - 1];"
+            "axe.run(document, {runOnly: {type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa',"
+            " 'wcag22aa']}}).then(r => done(r.violations.map(v => [v.id, v.nodes.map(n => n.target)])));")
+        assert result == [], (view, result)
+        small = js(page, """[...document.querySelectorAll('button, select, input, a')]
+            .filter(e => e.offsetParent !== null)
+            .map(e => { const t = e.type === 'radio' ? e.closest('label') : e;
+                        const r = t.getBoundingClientRect();
+                        return [e.id || e.textContent.trim(), r.width, r.height]; })
+            .filter(([, w, h]) => w < 44 || h < 44)""")
+        assert small == [], (view, small)
+    d.find_element(By.ID, "view-toggle").click()
+    assert wait_page(h, page, "document.getElementById('settings').hidden")
 
 
 def test_keyboard_only_reaches_every_control_in_order(graph, page):

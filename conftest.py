@@ -4,7 +4,6 @@ Set before any rclpy context exists, and inherited by every node process a test 
 concurrent runs on one machine never see each other's topics.
 """
 import os
-import random
 import sys
 from pathlib import Path
 
@@ -15,12 +14,9 @@ os.environ.setdefault("MUJOCO_GL", "egl")
 
 
 def pytest_configure(config):
-    if "VLA_TEST_DOMAIN_ID" in os.environ:
-        domain = int(os.environ["VLA_TEST_DOMAIN_ID"])
-    else:
-        # Fast DDS allows 0..232; keep clear of 0 (the default) and of the well-known low ids.
-        domain = random.SystemRandom().randint(30, 200)
-    os.environ["ROS_DOMAIN_ID"] = str(domain)
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    os.environ.pop("ROS_STATIC_PEERS", None)
+    from vla_common.ros.domain import isolate
+
+    os.environ.pop("ROS_DOMAIN_ID", None)  # a run of its own, not the shell's graph
+    fixed = os.environ.get("VLA_TEST_DOMAIN_ID")
+    isolate(domain=int(fixed) if fixed else None)
     os.environ["RCUTILS_COLORIZED_OUTPUT"] = "0"

@@ -29,6 +29,7 @@ from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from vla_common.detection import Detection
 from vla_common.robot import JOINT_NAMES, READY_POSE
+from vla_common.ros.domain import isolate
 from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
 from vla_latent_controller.context import context_dim
 from vla_latent_controller.controller_node import joint_speed_limits
@@ -150,10 +151,8 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
     except RunError as err:
         print(f"end-to-end: skipped (controller_node: {err}; make setup)")
         return
+    isolate()  # this process's context and the node's
     env = os.environ.copy()
-    env.setdefault("ROS_DOMAIN_ID", str(150 + os.getpid() % 50))
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    os.environ.update({k: env[k] for k in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")})
     args = [
         str(exe),
         "--ros-args",

@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -34,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from sensor_msgs.msg import Image
+from vla_common.ros.domain import isolate
 from vla_common.ros.qos import IMAGE_DEPTH, image_qos, use_large_image_transport
 from vla_detector.decode import letterbox, to_input_tensor
 from vla_detector.inference import Detector, default_model_path
@@ -46,7 +46,7 @@ TRANSPORT_VARIABLES = ("FASTRTPS_DEFAULT_PROFILES_FILE", "FASTDDS_DEFAULT_PROFIL
 WARMUP_FRAME = "warmup"  # frame_id of frames that are not counted (discovery, ONNX Runtime's first runs)
 WARMUP_S = 1.5
 LOST_AFTER_S = 0.3  # closed loop: a frame without detections by then counts as lost
-DOMAIN_ID = str(random.SystemRandom().randint(201, 232))
+isolate()  # this run's ROS domain (kept from ROS_DOMAIN_ID if set), inherited by its children
 LAYOUT = [("bread", 0.45, 0.2, 0.3), ("soda_can", 0.6, 0.0, 0.0), ("cereal_box", 0.5, -0.25, 1.0)]
 
 
@@ -240,12 +240,9 @@ def role_loop(a: argparse.Namespace) -> None:
 
 # ---------------------------------------------------------------------------------------- parent
 def _child_env() -> dict[str, str]:
-    """This run's children: the transport each setting chooses, and a ROS domain of their own (kept
-    from ROS_DOMAIN_ID if set) so that other graphs on the machine neither add frames nor load."""
-    env = {k: v for k, v in os.environ.items() if k not in TRANSPORT_VARIABLES}
-    env["ROS_DOMAIN_ID"] = os.environ.get("ROS_DOMAIN_ID") or DOMAIN_ID
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    return env
+    """This run's children: the transport each setting chooses, and this run's ROS domain (`isolate`
+    above) so that other graphs on the machine neither add frames nor load."""
+    return {k: v for k, v in os.environ.items() if k not in TRANSPORT_VARIABLES}
 
 
 def _script(*args: str) -> list[str]:

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
 import signal
 import statistics
 import subprocess
@@ -19,7 +18,9 @@ import tempfile
 import time
 from pathlib import Path
 
-os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(201, 230)))
+from vla_common.ros.domain import isolate
+
+isolate()  # before any rclpy context exists
 
 from rclpy.node import Node  # noqa: E402 - after the domain is chosen
 from rclpy.qos import qos_profile_sensor_data  # noqa: E402

@@ -30,14 +30,14 @@ import argparse
 import json
 import math
 import os
-import random
 import re
 import subprocess
 import sys
 import time
 
-os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(201, 230)))
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+from vla_common.ros.domain import isolate
+
+isolate()  # before any rclpy context exists
 
 import numpy as np  # noqa: E402
 import rclpy  # noqa: E402

@@ -16,14 +16,14 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
 import re
 import sys
 import time
 from pathlib import Path
 
-os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(201, 230)))
-os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
+from vla_common.ros.domain import isolate
+
+isolate()  # before any rclpy context exists
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 
 import numpy as np  # noqa: E402

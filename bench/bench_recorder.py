@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import random
 import shutil
 import signal
 import subprocess
@@ -27,6 +26,7 @@ from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, JointState
 from std_srvs.srv import Trigger
+from vla_common.ros.domain import isolate
 from vla_demo_recorder.bag_writer import read_metadata_yaml
 from vla_launch.run import RunError, find_executable
 
@@ -48,8 +48,7 @@ def main() -> int:
     ap.add_argument("--keep", action="store_true", help="keep the bag")
     args = ap.parse_args()
 
-    os.environ.setdefault("ROS_DOMAIN_ID", str(random.SystemRandom().randint(30, 200)))
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"  # read by rclpy.init and the child
+    isolate()  # read by rclpy.init and the child
     try:
         exe = find_executable("vla_demo_recorder", "recorder_node")
     except RunError as err:

@@ -20,8 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
-import random
 import shutil
 import signal
 import threading
@@ -31,15 +29,11 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
-import rclpy
 from rcl_interfaces.srv import SetParameters
-from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos import qos_profile_sensor_data as sensor
-from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
@@ -47,11 +41,12 @@ from vla_common.catalogue import Catalogue, TaskSpec, load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES
+from vla_common.ros.domain import graph_on_domain
 from vla_common.tasks import task_layout, task_success
 from vla_demo_recorder.dataset import DemoError, load_demo
-from vla_launch.session import LaunchError, LaunchSession
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
+from vla_evaluation.graph_runner import GraphRunner
 from vla_interfaces.msg import DetectionArray, RecorderStatus, SafetyStatus, SceneObject, SceneObjectArray
 from vla_interfaces.srv import GripperCommand, ResetScene, StartEpisode
 
@@ -272,80 +267,33 @@ class Demonstrator:
         self.cmd_pub.publish(Float64MultiArray(data=[0.0] * 7))
 
 
-def _domain_busy(domain: int, listen_s: float = 1.5) -> bool:
-    """True when nodes of another graph (a bridge, a recorder, joint_states) live on `domain`."""
-    ctx = Context()
-    rclpy.init(context=ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
-    try:
-        node = Node("vla_domain_probe", context=ctx)
-        deadline = time.monotonic() + listen_s
-        while time.monotonic() < deadline:
-            if {BRIDGE, RECORDER, "demonstrator"} & set(node.get_node_names()) or \
-                    node.count_publishers("/joint_states"):
-                return True
-            time.sleep(0.1)
-        node.destroy_node()
-        return False
-    finally:
-        rclpy.shutdown(context=ctx)
-
-
-def pick_domain(preferred: int | None, tries: int = 8) -> int:
-    """A ROS domain with no other graph on it: `preferred` (error if busy) or a random free one.
-    Other jobs on a shared machine pick random domains too; two graphs on one domain would mix
-    their joint states."""
-    if preferred is not None:
-        if _domain_busy(preferred):
-            raise GenerateError(f"ROS domain {preferred} already has a bridge/recorder/joint_states; "
-                                "choose a free ROS_DOMAIN_ID")
-        return preferred
-    for domain in random.SystemRandom().sample(range(30, 200), tries):
-        if not _domain_busy(domain):
-            return domain
-    raise GenerateError(f"no free ROS domain found in {tries} tries")
+def _domain_busy(domain: int) -> bool:
+    """Another graph (a bridge, a recorder, a demonstrator, joint_states) on `domain`: two graphs on
+    one domain would mix their joint states."""
+    return graph_on_domain(domain, {BRIDGE, RECORDER, "demonstrator"}, "/joint_states")
 
 
 class _Graph:
     """record.launch.yaml plus this process's demonstrator node, on one ROS domain."""
 
     def __init__(self, cfg: GenerateConfig, progress: Callable[[str], None]) -> None:
-        env_domain = os.environ.get("ROS_DOMAIN_ID")
-        self.domain = pick_domain(cfg.domain_id if cfg.domain_id is not None else
-                                  (int(env_domain) if env_domain else None))
-        os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-        env = {"ROS_DOMAIN_ID": str(self.domain),
-               "ROS_AUTOMATIC_DISCOVERY_RANGE": os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"]}
         log_path = Path(cfg.log_dir) / "record.log" if cfg.log_dir is not None else None
-        self.session = LaunchSession(*LAUNCH_FILE, cfg.launch_arguments(), env=env, log_path=log_path)
-        self.ctx = Context()
-        self.executor = None
+        self.runner: GraphRunner[Demonstrator] = GraphRunner(
+            LAUNCH_FILE, cfg.launch_arguments(), domain=cfg.domain_id, busy=_domain_busy,
+            log_path=log_path, error=GenerateError)
+        self.domain = self.runner.domain
         self.demo: Demonstrator | None = None
-        self._stop = threading.Event()
-        self._spinner: threading.Thread | None = None
         self.progress = progress
         self.timeout = cfg.startup_timeout
 
     def start(self) -> Demonstrator:
         self.progress(f"ROS domain {self.domain}; vla launch {' '.join(LAUNCH_FILE)}")
-        self.session.start()
-        rclpy.init(context=self.ctx, domain_id=self.domain, signal_handler_options=SignalHandlerOptions.NO)
-        self.demo = Demonstrator(self.ctx)
-        self.executor = SingleThreadedExecutor(context=self.ctx)
-        self.executor.add_node(self.demo.node)
-        self._spinner = threading.Thread(target=self._spin, daemon=True)
-        self._spinner.start()
+        self.demo = self.runner.start(Demonstrator)
         self._wait_ready()
         return self.demo
 
-    def _spin(self) -> None:
-        while self.ctx.ok() and not self._stop.is_set():
-            self.executor.spin_once(timeout_sec=0.1)
-
     def alive(self) -> None:
-        try:
-            self.session.check()
-        except LaunchError as err:
-            raise GenerateError(str(err)) from None
+        self.runner.alive()
 
     def _wait_ready(self) -> None:
         demo, deadline = self.demo, time.monotonic() + self.timeout
@@ -355,7 +303,7 @@ class _Graph:
             if time.monotonic() > deadline:
                 raise GenerateError(f"the graph was not ready within {self.timeout:.0f} s (joint_states, "
                                     f"scene/objects, the recorder's status and subscriptions); last "
-                                    f"output:\n{self.session.tail()}")
+                                    f"output:\n{self.runner.tail()}")
             time.sleep(0.1)
         if (n := demo.node.count_publishers("/joint_states")) != 1:
             raise GenerateError(f"{n} publishers of /joint_states on ROS domain {self.domain}: another graph "
@@ -370,19 +318,7 @@ class _Graph:
     def close(self) -> None:
         if self.demo is not None:
             self.demo.zero()
-        self._stop.set()
-        if self._spinner is not None:
-            self._spinner.join(10)  # no callback may run on a node being destroyed
-        if self.executor is not None:
-            self.executor.shutdown(timeout_sec=10)
-        if self.demo is not None:
-            self.demo.node.destroy_node()
-        if self.ctx.ok():
-            rclpy.shutdown(context=self.ctx)
-        try:
-            self.session.stop()
-        except LaunchError as err:
-            self.progress(str(err))
+        self.runner.close(self.progress)
 
 
 def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
@@ -584,7 +520,7 @@ def run(args: argparse.Namespace) -> int:
                          detector_model=args.detector_model, log_dir=args.log_dir, catalogue=args.catalogue)
     try:
         records = run_generation(cfg)
-    except (GenerateError, LaunchError) as err:
+    except GenerateError as err:
         print(f"error: {err}")
         return 1
     except KeyboardInterrupt:

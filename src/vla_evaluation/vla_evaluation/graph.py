@@ -19,8 +19,6 @@ from the ground-truth `scene/objects`, time to success, the bridge's safety inte
 from __future__ import annotations
 
 import math
-import os
-import random
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -28,9 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-import rclpy
 from rcl_interfaces.srv import SetParameters
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, JointState
@@ -41,8 +37,8 @@ from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES, READY_POSE
 from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.tasks import parse_task
-from vla_launch.session import LaunchError, LaunchSession
 
+from vla_evaluation.graph_runner import GraphRunner
 from vla_evaluation.kinematic import TeleopSettings, plan_waypoints, plannable_layout
 from vla_evaluation.metrics import (
     EpisodeResult,
@@ -117,21 +113,6 @@ class GraphConfig:
         for node, extra in self.extra_params.items():
             params.setdefault(node, {}).update(extra)
         return params
-
-
-def isolated_env(domain_id: int | None) -> dict[str, str]:
-    """The graph's environment: ROS bootstrap variables kept, a ROS domain of our own unless one is
-    set, localhost-only discovery."""
-    env = dict(os.environ)
-    if domain_id is not None:
-        env["ROS_DOMAIN_ID"] = str(domain_id)
-    elif "ROS_DOMAIN_ID" not in env:
-        env["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(201, 232))
-    env.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
-    env.setdefault("MUJOCO_GL", "egl")
-    env["PYTHONUNBUFFERED"] = "1"
-    env["RCUTILS_COLORIZED_OUTPUT"] = "0"
-    return env
 
 
 def _stamp(msg) -> float:
@@ -331,13 +312,9 @@ class GraphEvaluator:
         self.catalogue = load_catalogue(config.catalogue)
         self.config = config
         self.log = log
-        self.session: LaunchSession | None = None
-        self.ctx = None
-        self.executor = None
+        self.runner: GraphRunner[_Observer] | None = None
         self.obs: _Observer | None = None
-        self._spin_thread: threading.Thread | None = None
         self.kin = PandaKinematics()
-        self._saved_env: dict[str, str | None] = {}
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> GraphEvaluator:
@@ -350,42 +327,22 @@ class GraphEvaluator:
     def start(self) -> None:
         """Launch demo.launch.yaml, join its ROS domain, wait until every node answers, configure."""
         cfg = self.config
-        env = isolated_env(cfg.domain_id)
-        for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE"):  # before our context exists
-            self._saved_env[key] = os.environ.get(key)
-            os.environ[key] = env[key]
         log_path = Path(cfg.log_dir) / "graph.log" if cfg.log_dir else None
-        self.session = LaunchSession(*LAUNCH_FILE, cfg.launch_arguments(), env=env, log_path=log_path)
+        self.runner = GraphRunner(LAUNCH_FILE, cfg.launch_arguments(), domain=cfg.domain_id,
+                                  log_path=log_path, error=GraphError)
         try:
-            self.session.start()
-            self.log(f"[graph] vla launch {' '.join(LAUNCH_FILE)} (ROS_DOMAIN_ID {env['ROS_DOMAIN_ID']}, "
-                     f"output in {self.session.log_path})")
-            self.ctx = rclpy.context.Context()
-            rclpy.init(context=self.ctx)
-            self.obs = _Observer(self.ctx, cfg.keep_frames)
-            self.executor = SingleThreadedExecutor(context=self.ctx)
-            self.executor.add_node(self.obs.node)
-            self._spin_thread = threading.Thread(target=self._spin, daemon=True)
-            self._spin_thread.start()
+            self.obs = self.runner.start(lambda ctx: _Observer(ctx, cfg.keep_frames))
+            self.log(f"[graph] vla launch {' '.join(LAUNCH_FILE)} (ROS_DOMAIN_ID {self.runner.domain}, "
+                     f"output in {self.runner.session.log_path})")
             self._wait_ready()
             self.configure()
         except BaseException:
             self.close()
             raise
 
-    def _spin(self) -> None:
-        try:
-            while self.ctx is not None and self.ctx.ok():
-                self.executor.spin_once(timeout_sec=0.1)
-        except (ExternalShutdownException, RuntimeError):
-            pass
-
     def alive(self) -> None:
         """GraphError when a process of the launch has ended, with its last output lines."""
-        try:
-            self.session.check()
-        except LaunchError as e:
-            raise GraphError(str(e)) from None
+        self.runner.alive()
 
     def _wait_ready(self) -> None:
         obs, t = self.obs, self.config.startup_timeout
@@ -408,31 +365,9 @@ class GraphEvaluator:
             self.obs.set_parameters(node, values)
 
     def close(self) -> None:
-        if self.session is not None:
-            session, self.session = self.session, None
-            try:
-                rc = session.stop()
-                if rc != 0:
-                    self.log(f"[graph] the launch ended with exit code {rc}; see {session.log_path}")
-            except LaunchError as e:
-                self.log(f"[graph] {e}")
-        if self.ctx is not None:
-            ctx, self.ctx = self.ctx, None
-            try:
-                if self.executor is not None:
-                    self.executor.shutdown(timeout_sec=1.0)
-                if self.obs is not None:
-                    self.obs.node.destroy_node()
-                rclpy.shutdown(context=ctx)
-            except Exception:  # noqa: BLE001 - best-effort teardown
-                pass
-        if self._spin_thread is not None:
-            self._spin_thread.join(timeout=2.0)
-        for key, val in self._saved_env.items():
-            if val is None:
-                os.environ.pop(key, None)
-            else:
-                os.environ[key] = val
+        if self.runner is not None:
+            runner, self.runner = self.runner, None
+            runner.close(self.log)
 
     def set_model(self, model_path: str) -> None:
         """Use another latent model: the controller and the teleoperator load it (their model_path)."""

@@ -1,5 +1,6 @@
 """The controller node in-process: topics, services, parameters, zero on every problem."""
 
+import dataclasses
 import os
 import signal
 import subprocess
@@ -19,6 +20,7 @@ from std_srvs.srv import Trigger
 from vla_common.ros.node_main import ConfigError, StartupError
 from vla_common.ros.testing import RosHarness
 from vla_latent_controller.controller_node import PARAMETERS, ControllerNode
+from vla_latent_controller.teleop import TeleopParams
 from vla_latent_controller.testing import CLASSES, READY, make_demos, make_pairs, write_random_model
 from vla_launch.run import RunError, find_executable
 
@@ -228,6 +230,15 @@ def test_every_parameter_has_a_readme_row():
     readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
     missing = [p.name for p in PARAMETERS if f"| `{p.name}` |" not in readme]
     assert not missing, f"README lacks parameter rows for {missing}"
+
+
+def test_the_core_parameters_are_declared_with_the_cores_defaults():
+    """One declaration of each default: TeleopParams's; the table reads it (issue 21 item 10)."""
+    core = TeleopParams()
+    fields = [f for f in dataclasses.fields(TeleopParams) if f.name != "dq_max"]  # from the robot
+    assert {f.name for f in fields} <= set(PARAMETERS.params)
+    for f in fields:
+        assert PARAMETERS.params[f.name].default == getattr(core, f.name), f.name
 
 
 def test_a_model_that_does_not_load_stops_the_node_at_startup(tmp_path):

@@ -55,37 +55,45 @@ def _joint_map_refusal(value: Any) -> str | None:
     return None
 
 
+_CORE_DEFAULTS = TeleopParams()
+
+
+def _core(name: str, description: str, **options: Any) -> Param:
+    """A parameter the core reads: its default is TeleopParams's, declared there once."""
+    return Param(name, getattr(_CORE_DEFAULTS, name), description, **options)
+
+
 PARAMETERS = ParameterTable([
     Param("model_path", "", "trained model directory (config.json + model.safetensors); empty: the "
           "shipped default; setting it reloads the model", dynamic=True),
-    Param("mode", "latent", "latent or end_effector (also ~/set_mode)", choices=MODES, dynamic=True),
+    _core("mode", "latent or end_effector (also ~/set_mode)", choices=MODES, dynamic=True),
     Param("rate", 100.0, "command publish rate (Hz)", range=(1.0, 1000.0)),
     Param("status_rate", 10.0, "~/status publish rate (Hz); also published on every change of code",
           range=(0.1, 1000.0), dynamic=True),
-    Param("axis", 0, "joystick axis that drives the latent action (or the end-effector axis)",
+    _core("axis", "joystick axis that drives the latent action (or the end-effector axis)",
           range=(0, 63), dynamic=True),
-    Param("axis_scale", 1.0, "stick multiplier (negative inverts); the result is clamped to [-1, 1]",
+    _core("axis_scale", "stick multiplier (negative inverts); the result is clamped to [-1, 1]",
           range=(-10.0, 10.0), dynamic=True),
-    Param("deadband", 0.1, "|stick| at or below this gives exactly zero; rescaled beyond it",
+    _core("deadband", "|stick| at or below this gives exactly zero; rescaled beyond it",
           range=(0.0, 0.95), dynamic=True),
-    Param("enable_button", -1, "deadman button that must be held; -1: none", range=(-1, 63), dynamic=True),
-    Param("joy_timeout", 0.1, "no joy message for this long (s) -> zero command", range=(0.01, 10.0),
+    _core("enable_button", "deadman button that must be held; -1: none", range=(-1, 63), dynamic=True),
+    _core("joy_timeout", "no joy message for this long (s) -> zero command", range=(0.01, 10.0),
           dynamic=True),
-    Param("action_scale", 1.0, "decoder output -> rad/s multiplier", range=(0.0, 10.0), dynamic=True),
-    Param("max_joint_speed", 1.5, "joint-velocity norm clamp (rad/s), direction kept; paper: 1.5",
+    _core("action_scale", "decoder output -> rad/s multiplier", range=(0.0, 10.0), dynamic=True),
+    _core("max_joint_speed", "joint-velocity norm clamp (rad/s), direction kept; paper: 1.5",
           range=(0.0, 5.0), dynamic=True),
-    Param("joint_states_timeout", 0.5, "no joint_states for this long (s) -> zero command",
+    _core("joint_states_timeout", "no joint_states for this long (s) -> zero command",
           range=(0.01, 10.0), dynamic=True),
     Param("joint_map", [], "robot joints that stand for the model's: 'robot_joint:model_joint' entries, "
           "e.g. fr3_joint1:panda_joint1 for a Panda model on an FR3; unmapped joints keep their names",
           dynamic=True, check=_joint_map_refusal, array="string_array"),
-    Param("goal_selection", "highest_score", "which detection is the goal: highest_score, nearest_to_ee "
+    _core("goal_selection", "which detection is the goal: highest_score, nearest_to_ee "
           "or a class of the model", dynamic=True),
-    Param("detection_max_age", 0.0, "re-latch when the latched detection is older (s); 0: latch once "
+    _core("detection_max_age", "re-latch when the latched detection is older (s); 0: latch once "
           "(paper)", range=(0.0, 86400.0), dynamic=True),
-    Param("redetect_button", -1, "button that re-latches the context from the next detection; -1: none",
+    _core("redetect_button", "button that re-latches the context from the next detection; -1: none",
           range=(-1, 63), dynamic=True),
-    Param("grasp_button", -1, "button whose press toggles the hand (grasp / open) through the bridge's "
+    _core("grasp_button", "button whose press toggles the hand (grasp / open) through the bridge's "
           "gripper service; -1: none", range=(-1, 63), dynamic=True),
     Param("gripper_service", "panda_bridge/gripper", "the bridge's vla_interfaces/GripperCommand "
           "service the grasp button calls"),
@@ -94,14 +102,14 @@ PARAMETERS = ParameterTable([
           array="double_array"),
     Param("camera_look_at", [float(v) for v in SIM_WEBCAM.look_at], "point the camera looks at (m), for "
           "nearest_to_ee; default: the simulated webcam's", dynamic=True, check=_xyz, array="double_array"),
-    Param("ee_mode_button", 0, "button that cycles the end-effector axis x, y, z, roll, pitch, yaw; "
+    _core("ee_mode_button", "button that cycles the end-effector axis x, y, z, roll, pitch, yaw; "
           "-1: none", range=(-1, 63), dynamic=True),
-    Param("ee_debounce", 0.25, "end-effector axis button debounce (s)", range=(0.0, 5.0), dynamic=True),
-    Param("ee_linear_speed", 0.2, "end-effector mode: TCP speed at full stick (m/s); paper: 0.5",
+    _core("ee_debounce", "end-effector axis button debounce (s)", range=(0.0, 5.0), dynamic=True),
+    _core("ee_linear_speed", "end-effector mode: TCP speed at full stick (m/s); paper: 0.5",
           range=(0.0, 1.7), dynamic=True),
-    Param("ee_angular_speed", 0.5, "end-effector mode: rotation speed at full stick (rad/s)",
+    _core("ee_angular_speed", "end-effector mode: rotation speed at full stick (rad/s)",
           range=(0.0, 2.5), dynamic=True),
-    Param("ee_damping", 0.05, "damping of the Jacobian pseudo-inverse", range=(0.0, 1.0), dynamic=True),
+    _core("ee_damping", "damping of the Jacobian pseudo-inverse", range=(0.0, 1.0), dynamic=True),
 ])
 
 # Parameters copied as they are into the core's TeleopParams.

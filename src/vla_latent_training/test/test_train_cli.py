@@ -241,3 +241,17 @@ def test_recovered_episodes_are_left_out_unless_asked_and_training_says_which(tm
     assert main(args + ["--out", str(tmp_path / "all"), "--include-incomplete"]) == 0
     out = capsys.readouterr()
     assert "loaded 3 demos" in out.out and "training on 1 incomplete demos" in out.err
+
+
+def test_the_cli_defaults_are_train_configs():
+    """TrainConfig declares the recipe's defaults once; the CLI passes them through unchanged."""
+    import argparse
+
+    from vla_latent_training.config import TrainConfig
+    from vla_latent_training.train_cli import add_arguments, train_config
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    assert train_config(p.parse_args(["--bags", "b", "--out", "o"])) == TrainConfig()
+    assert train_config(p.parse_args(["--bags", "b", "--out", "o", "--paper-exact"])) == TrainConfig.paper()
+    assert train_config(p.parse_args(["--bags", "b", "--out", "o", "--hidden", "64"])).hidden == 64

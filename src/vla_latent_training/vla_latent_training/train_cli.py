@@ -17,10 +17,12 @@ from pathlib import Path
 from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
 from vla_demo_recorder.dataset import INCOMPLETE_OUTCOMES, load_demos
 from vla_detector.inference import Detector, default_model_path
+from vla_latent_controller.context import ENCODERS
 
 from vla_latent_training.config import TrainConfig, check_position_scale
 
-ENCODER_CHOICES = ("detector", "localization", "end_to_end")
+# The recipe's defaults, declared once in TrainConfig; the options below only show them.
+_DEFAULT, _PAPER = TrainConfig(), TrainConfig.paper()
 
 
 def position_scale_arg(text: str) -> float | None:
@@ -37,7 +39,7 @@ def position_scale_arg(text: str) -> float | None:
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bags", nargs="+", required=True, help="bag folders, .mcap files, or folders of bags")
-    p.add_argument("--encoder", choices=ENCODER_CHOICES, default="detector", help="context encoder")
+    p.add_argument("--encoder", choices=ENCODERS, default=_DEFAULT.encoder, help="context encoder")
     p.add_argument(
         "--detector-model",
         default=None,
@@ -45,14 +47,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "(default: the shipped model, if installed)",
     )
     p.add_argument("--out", required=True, type=Path, help="output model directory")
-    p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--epochs", type=int, default=1000, help="the paper: 1000")
-    p.add_argument("--batch-size", type=int, default=6000, help="the paper: 6000 (near full batch)")
-    p.add_argument("--lr", type=float, default=0.01, help="Adam learning rate; the paper: 0.01")
+    p.add_argument("--seed", type=int, default=_DEFAULT.seed, help=f"default: {_DEFAULT.seed}")
+    p.add_argument("--epochs", type=int, default=_DEFAULT.epochs,
+                   help=f"default: {_DEFAULT.epochs}; the paper: {_PAPER.epochs}")
+    p.add_argument("--batch-size", type=int, default=_DEFAULT.batch_size,
+                   help=f"default: {_DEFAULT.batch_size}; the paper: {_PAPER.batch_size} (near full batch)")
+    p.add_argument("--lr", type=float, default=_DEFAULT.lr,
+                   help=f"Adam learning rate; default: {_DEFAULT.lr}; the paper: {_PAPER.lr}")
     p.add_argument("--hidden", type=int, default=None,
-                   help="units per hidden layer (default: 128; the paper and --paper-exact: 30)")
-    p.add_argument("--position-scale", type=position_scale_arg, default="demos",
-                   help="what the detector context's (x, y) are divided by: 'demos' (default: their "
+                   help=f"units per hidden layer (default: {_DEFAULT.hidden}; the paper and --paper-exact: "
+                        f"{_PAPER.hidden})")
+    default_scale = "demos" if _DEFAULT.position_scale is None else str(_DEFAULT.position_scale)
+    p.add_argument("--position-scale", type=position_scale_arg, default=default_scale,
+                   help=f"what the detector context's (x, y) are divided by (default: {default_scale}): "
+                        "'demos' (their "
                         "spread over the demos) or a number (0.2887 = sqrt(1/12), a coordinate's spread "
                         "over the image; quieter position, for 1-2 demos per object)")
     p.add_argument(

@@ -7,6 +7,11 @@ ee_pose and ~/status; serves ~/estop, ~/recover, ~/set_teaching and ~/reset (the
 backend offers them). The robot model (`robot_model`: Panda or FR3) gives the joint names and the
 limit table the filter enforces. A thin wrapper: the algorithms live in safety.py, the backends and
 kinematics.py.
+
+A managed (lifecycle) node, as ros2_control and franka_ros2 drivers are: configure connects (makes
+the backend), activate starts the loop (first time) and takes commands, deactivate brakes and holds
+(the loop goes on, commands are refused, and motion after it needs a zero command), cleanup brakes
+and disconnects. `autostart` (default) runs configure and activate at start, so `ros2 run` just works.
 """
 
 from __future__ import annotations
@@ -19,8 +24,12 @@ import time
 import numpy as np
 from geometry_msgs.msg import PoseStamped
 from rclpy.clock import Clock, ClockType
-from rclpy.node import Node
+from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
+from rclpy.publisher import Publisher
 from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rclpy.service import Service
+from rclpy.subscription import Subscription
+from rclpy.timer import Timer
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
@@ -59,6 +68,8 @@ def _seven_finite(value) -> str | None:
 
 
 PARAMETERS = ParameterTable([
+    Param("autostart", True, "Configure and activate at start; false: wait in 'unconfigured' for a "
+          "lifecycle manager's transitions (configure connects, activate moves)"),
     Param("backend", "mujoco", "Robot behind the safety layer: " + "; ".join(
           f"'{row.name}' ({row.summary})" for row in BACKENDS.values()), choices=tuple(BACKENDS)),
     Param("robot_model", "panda", "The arm: 'panda' (Franka Emika FER) or 'fr3' (Franka Research 3): joint "
@@ -126,10 +137,18 @@ PARAMETERS = ParameterTable([
 ])
 
 
-class PandaBridge(Node):
+class PandaBridge(LifecycleNode):
     """See the module docstring and README.md (topics, parameters, services, safety behaviour)."""
 
     def __init__(self, **kwargs):
+        self._owned: list | None = None    # entities the backend and the hand make: gone at cleanup
+        self.backend = None
+        self.gripper = None
+        self._active = False
+        self._started = False
+        self._backend_entities: list = []
+        self._config_error = ""
+        self._configured_before = False
         super().__init__("panda_bridge", **kwargs)
         self.params = p = PARAMETERS.declare(self)
         self._validate(p)
@@ -170,25 +189,122 @@ class PandaBridge(Node):
         self.diagnostics = Diagnostics(self, hardware_id=self.spec.name)
         # The URDF is the Panda's (example-robot-data); an FR3's comes with franka_description.
         self._description_pub = publish_robot_description(self) if self.spec is PANDA else None
-        try:
-            self.backend = BACKENDS[p["backend"]].make(self)
-        except BackendError as exc:
-            raise ConfigError(str(exc)) from exc
-        self.gripper = GripperInterface(self, self.backend.hand, self.backend.now,
-                                        lambda: stamp_from_ns(self.backend.now_ns()))
-        self._js.name = list(self.spec.joint_names) + list(self.gripper.finger_joints)
         self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._on_command, 10)
         self.create_service(SetBool, "~/estop", self._on_estop)
         self.create_service(Trigger, "~/recover", self._on_recover)
         self.create_service(SetBool, "~/set_teaching", self._on_set_teaching)
         self.create_service(ResetScene, "~/reset", self._on_reset)
-        q = self.backend.position()
-        self.filter.reset(q)
-        self.backend.start(self)
         self.create_timer(1.0 / p["status_rate"], self._publish_status)
-        self.create_timer(1.0 / p["status_rate"], self.gripper.publish)
+        self.create_timer(1.0 / p["status_rate"], self._publish_gripper)
+        if p["autostart"]:
+            if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
+                raise ConfigError(self._config_error or "configure failed")
+            if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
+                raise ConfigError("activate failed")
+        else:
+            self._publish_status(safety.AWAITING_ZERO, self._inactive_text())
+
+    # ------------------------------------------------------------------------------ lifecycle
+    def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Connect: make the backend (and its hand); the filter starts from the measured pose."""
+        self._owned = []
+        try:
+            self.backend = BACKENDS[self.params["backend"]].make(self)
+            self.gripper = GripperInterface(self, self.backend.hand, self.backend.now,
+                                            lambda: stamp_from_ns(self.backend.now_ns()))
+        except BackendError as exc:
+            self._config_error = str(exc)
+            self.get_logger().error(f"configure failed: {exc}")
+            self._backend_entities = self._owned
+            self._release()
+            return TransitionCallbackReturn.FAILURE
+        finally:
+            owned, self._owned = self._owned, None
+        self._backend_entities = owned
+        self._js.name = list(self.spec.joint_names) + list(self.gripper.finger_joints)
+        self.filter.reset(self.backend.position())
+        if self._configured_before:                   # a reconnection is a stop like any other
+            self.filter.disarm("configured again")
+        self._configured_before = True
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Start the loop (the first time) and take commands: motion after a zero command."""
+        if not self._started:
+            self._owned = self._backend_entities
+            try:
+                self.backend.start(self)
+            finally:
+                self._owned = None
+            self._started = True
+            self.get_logger().info(self.backend.describe())
+        self._active = True
         self._publish_status()
-        self.get_logger().info(self.backend.describe())
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_deactivate(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Brake and hold: the loop goes on at zero, commands are refused until activated again."""
+        self._hold("deactivated")
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
+        """Brake, then disconnect: the backend and the hand are gone until configured again."""
+        self._hold("cleaned up")
+        self._brake()
+        self._release()
+        self._publish_status(safety.AWAITING_ZERO, self._inactive_text())
+        return TransitionCallbackReturn.SUCCESS
+
+    def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
+        self._hold("lifecycle error")
+        self._brake()
+        self._release()
+        return TransitionCallbackReturn.SUCCESS
+
+    def _hold(self, why: str) -> None:
+        self._active = False
+        self.filter.disarm(why)
+        self._publish_status(self.filter.hold_code(), self._inactive_text(why))
+
+    @staticmethod
+    def _inactive_text(why: str = "not configured") -> str:
+        return f"{why} (lifecycle): commands are refused until activated, then motion needs a zero command"
+
+    def _release(self) -> None:
+        """Close the backend and destroy what it and the hand made (timers, publishers, services)."""
+        if self.backend is not None:
+            try:
+                self.backend.close()
+            except Exception as exc:  # closing a broken connection: nothing more can be sent
+                self.get_logger().warn(f"closing the backend: {exc}")
+        kinds = ((Timer, self.destroy_timer), (Publisher, self.destroy_publisher),
+                 (Subscription, self.destroy_subscription), (Service, self.destroy_service))
+        for entity in self._backend_entities:
+            next(destroy for kind, destroy in kinds if isinstance(entity, kind))(entity)
+        self._backend_entities = []
+        self.backend, self.gripper, self._started = None, None, False
+
+    # Entities made while configuring or activating belong to the backend or the hand (see _release).
+    def _own(self, entity):
+        if self._owned is not None:
+            self._owned.append(entity)
+        return entity
+
+    def create_timer(self, *args, **kwargs):
+        return self._own(super().create_timer(*args, **kwargs))
+
+    def create_publisher(self, *args, **kwargs):
+        return self._own(super().create_publisher(*args, **kwargs))
+
+    def create_subscription(self, *args, **kwargs):
+        return self._own(super().create_subscription(*args, **kwargs))
+
+    def create_service(self, *args, **kwargs):
+        return self._own(super().create_service(*args, **kwargs))
+
+    def _publish_gripper(self) -> None:
+        if self.gripper is not None:
+            self.gripper.publish()
 
     @staticmethod
     def _validate(p: dict) -> None:
@@ -207,6 +323,8 @@ class PandaBridge(Node):
     def control_step(self) -> None:
         """One control period, for every backend: filter(command, measured state, now) -> write."""
         b = self.backend
+        if b is None:
+            return
         dq, code, text = self.filter.filter(None, b.filter_position(), b.now(), b.external_torque())
         b.write(dq)
         if code != self._published_code:
@@ -225,6 +343,9 @@ class PandaBridge(Node):
         self._publish_status(safety.REFLEX, f"robot reflex ({text}): holding until ~/recover")
 
     def _on_command(self, msg: Float64MultiArray) -> None:
+        if not self._active:
+            self.get_logger().warn(self._status_text or self._inactive_text(), throttle_duration_sec=1.0)
+            return
         code, text = self.filter.submit(msg.data, self.backend.now())
         if code != safety.OK:
             self.get_logger().warn(text, throttle_duration_sec=1.0)
@@ -261,7 +382,8 @@ class PandaBridge(Node):
         else:
             self._status_text = text or ""
         msg = SafetyStatus()
-        msg.header.stamp = stamp_from_ns(self.backend.now_ns())
+        msg.header.stamp = (stamp_from_ns(self.backend.now_ns()) if self.backend is not None
+                            else self.get_clock().now().to_msg())
         msg.code = int(code)
         msg.text = text or safety.CODE_NAMES.get(code, "")
         msg.last_intervention = int(f.last_intervention)
@@ -269,7 +391,7 @@ class PandaBridge(Node):
         msg.commands_rejected = f.commands_rejected
         msg.interventions = f.interventions
         msg.estop_active = f.estop_active
-        if hasattr(self, "gripper"):
+        if self.gripper is not None:
             msg.gripper, msg.gripper_lost = self.gripper.summary()
         self._status_pub.publish(msg)
         self._published_code = code
@@ -286,7 +408,8 @@ class PandaBridge(Node):
             except (UnsupportedError, RuntimeError) as exc:
                 self.get_logger().error(f"e-stop: could not leave teaching mode: {exc}")
         self.filter.set_estop(request.data)
-        self.gripper.set_estop(request.data)              # stops a moving hand; never opens a closed one
+        if self.gripper is not None:
+            self.gripper.set_estop(request.data)          # stops a moving hand; never opens a closed one
         response.success = True
         response.message = ("e-stop latched: braking to zero, commands ignored until released"
                             if request.data else "e-stop released: send a zero command, then move")
@@ -299,6 +422,9 @@ class PandaBridge(Node):
 
     def _on_recover(self, request: Trigger.Request, response: Trigger.Response) -> Trigger.Response:
         """After a reflex: the backend re-arms the robot, the filter waits for a zero command."""
+        if self.backend is None:
+            response.success, response.message = False, "recovery refused: " + self._inactive_text()
+            return response
         try:
             text = self.backend.recover()
         except (UnsupportedError, RuntimeError) as exc:
@@ -340,6 +466,8 @@ class PandaBridge(Node):
 
     def _teaching_refusal(self, on: bool) -> str | None:
         f = self.filter
+        if self.backend is None:
+            return "teaching mode refused: " + self._inactive_text()
         if TEACHING not in self.backend.capabilities:
             return f"teaching mode is not available with the {self.backend.kind} backend"
         if on and not f.teaching and (f.estop_active or f.fault):
@@ -356,6 +484,9 @@ class PandaBridge(Node):
         return f"{text}; send a zero command, then move"
 
     def _on_reset(self, request: ResetScene.Request, response: ResetScene.Response) -> ResetScene.Response:
+        if self.backend is None:
+            response.success, response.message = False, "reset refused: " + self._inactive_text()
+            return response
         try:
             self.backend.reset(request, response)
         except UnsupportedError as exc:
@@ -372,26 +503,34 @@ class PandaBridge(Node):
         return response
 
     # -------------------------------------------------------------------------------- shutdown
-    def on_shutdown(self) -> None:
-        """Brake through the filter (time advancing the backend's way; bounded by the filter's
-        stopping time and SHUTDOWN_BRAKE_S of wall time), then zero, acknowledged."""
-        if self._closed:
+    def on_shutdown(self, state: LifecycleState | None = None) -> TransitionCallbackReturn:
+        """From any state (the lifecycle's shutdown, run_node's, destroy_node): brake through the
+        filter with the e-stop latched, stop the hand, disconnect."""
+        if not self._closed:
+            self._closed = True
+            self._active = False
+            self.filter.set_estop(True)
+            try:
+                self._brake()
+                if self.gripper is not None and self.gripper.core is not None:
+                    self.gripper.core.set_estop(True)      # a moving hand stops; a holding one holds
+                self._release()
+            except Exception as exc:  # context already gone: nothing more can be sent
+                print(f"panda_bridge: could not send the final zero command: {exc}", file=sys.stderr)
+        return TransitionCallbackReturn.SUCCESS
+
+    def _brake(self) -> None:
+        """Run the filter to rest (time advancing the backend's way), bounded by its stopping time and
+        SHUTDOWN_BRAKE_S of wall time; its last output is zero, acknowledged by the backend's close."""
+        if self.backend is None or not self._started:
             return
-        self._closed = True
-        self.filter.set_estop(True)
         steps = math.ceil(self.filter.stopping_time_bound() / self._dt) + 1
         deadline = time.monotonic() + SHUTDOWN_BRAKE_S
-        try:
-            for _ in range(steps):
-                if self.filter.is_stopped or time.monotonic() > deadline:
-                    break
-                self.control_step()
-                self.backend.advance(self._dt)
-            if self.gripper.core is not None:
-                self.gripper.core.set_estop(True)          # a moving hand stops; a holding one holds
-            self.backend.close()
-        except Exception as exc:  # context already gone: nothing more can be sent
-            print(f"panda_bridge: could not send the final zero command: {exc}", file=sys.stderr)
+        for _ in range(steps):
+            if self.filter.is_stopped or time.monotonic() > deadline:
+                break
+            self.control_step()
+            self.backend.advance(self._dt)
 
     def destroy_node(self) -> None:
         self.on_shutdown()

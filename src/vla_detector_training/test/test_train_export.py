@@ -53,9 +53,14 @@ def test_tiny_training_exports_matching_onnx(tmp_path, capsys):
     assert len(det.detect(np.zeros((H, W, 3), np.uint8))) > 0
 
     # evaluate and export through the CLI
-    assert cli_main(["evaluate", "--model", str(out / "detector.onnx"), "--data", str(data), "--quiet"]) == 0
+    figures = tmp_path / "evaluation.json"
+    assert cli_main(["evaluate", "--model", str(out / "detector.onnx"), "--data", str(data), "--quiet",
+                     "--json", str(figures)]) == 0
     text = capsys.readouterr().out
     assert "mAP@0.5: " in text and "mAP@0.5:0.95: " in text and "mean centre error px: " in text
+    fig = json.loads(figures.read_text())  # the printed figures, for programs
+    assert f"mAP@0.5: {fig['map50']:.4f}" in text and set(fig["per_class_ap50"]) == set(NAMES)
+    assert fig["images"] > 0 and fig["split"] in ("test", "val")
     assert (
         cli_main(["export", "--checkpoint", str(out / "best.safetensors"), "--out", str(tmp_path / "x.onnx")])
         == 0

@@ -7,8 +7,12 @@ Heavy optional imports (torch, MuJoCo) happen inside the subcommands that need t
 from __future__ import annotations
 
 import argparse
+import json
+import math
 import sys
 import time
+from dataclasses import asdict
+from pathlib import Path
 
 from rclpy.parameter import Parameter
 from vla_common.catalogue import CatalogueError, load_catalogue
@@ -103,7 +107,17 @@ def _cmd_evaluate(a: argparse.Namespace) -> int:
     for name, ap in m.per_class_ap50.items():
         print(f"  AP@0.5 {name}: {ap:.4f}")
     print(f"time: {time.perf_counter() - t:.1f} s")
+    if a.json is not None:  # for programs (vla_evaluation new-object): the same figures, typed
+        figures = {"model": str(model), "data": str(a.data), "split": split, "images": n, **asdict(m)}
+        Path(a.json).write_text(json.dumps(_no_nan(figures), indent=2) + "\n")
     return 0
+
+
+def _no_nan(value):
+    """NaN (a centre error with nothing matched) as null: standard JSON."""
+    if isinstance(value, dict):
+        return {k: _no_nan(v) for k, v in value.items()}
+    return None if isinstance(value, float) and math.isnan(value) else value
 
 
 def _cmd_check(a: argparse.Namespace) -> int:
@@ -199,6 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
     e.add_argument("--split", default=None, help="default: test, else val")
     e.add_argument("--score-threshold", type=float, default=0.3, help="for centre error, precision, recall")
     e.add_argument("--iou-threshold", type=float, default=0.25, help="NMS IoU")
+    e.add_argument("--json", type=Path, default=None,
+                   help="also write the figures to this JSON file (model, data, split, images, map50, "
+                        "map50_95, centre_error_px, precision, recall, per_class_ap50)")
     e.add_argument("--quiet", action="store_true")
     e.set_defaults(func=_cmd_evaluate)
 

@@ -31,13 +31,19 @@ class FakeProject:
         cmd = [str(c) for c in cmd]
         self.calls.append(cmd)
         prog, sub = cmd[0], cmd[1]
-        out = Path(_opt(cmd, "--out"))
+        out = Path(_opt(cmd, "--out")) if "--out" in cmd else None
         if (prog, sub) == ("vla_detector_training", "synth"):
             out.mkdir(parents=True)
             (out / "data.yaml").write_text(f"names: {CLASSES}\n")
         elif (prog, sub) == ("vla_detector_training", "train"):
             out.mkdir(parents=True)
             (out / "detector.onnx").write_bytes(b"onnx")
+        elif (prog, sub) == ("vla_detector_training", "evaluate"):
+            ap = {c: 0.93 if c == "spam" else 0.99 for c in CLASSES}
+            Path(_opt(cmd, "--json")).write_text(json.dumps(
+                {"model": _opt(cmd, "--model"), "data": _opt(cmd, "--data"), "split": "test", "images": 100,
+                 "map50": 0.98, "map50_95": 0.7, "centre_error_px": 0.9, "precision": 0.95, "recall": 0.96,
+                 "per_class_ap50": ap}))
         elif (prog, sub) == ("vla_evaluation", "generate"):
             n = int(_opt(cmd, "--episodes"))
             ok = n - self.failed
@@ -65,16 +71,6 @@ class FakeProject:
             raise AssertionError(f"unexpected command {cmd}")
         return 0
 
-    def run_captured(self, cmd, log=print):
-        cmd = [str(c) for c in cmd]
-        self.calls.append(cmd)
-        assert cmd[:2] == ["vla_detector_training", "evaluate"]
-        lines = [f"model: {_opt(cmd, '--model')}", f"data: {_opt(cmd, '--data')} (split test, 100 images)",
-                 "mAP@0.5: 0.9800", "mAP@0.5:0.95: 0.7000", "mean centre error px: 0.900",
-                 "precision: 0.9500", "recall: 0.9600"]
-        lines += [f"  AP@0.5 {c}: {0.93 if c == 'spam' else 0.99:.4f}" for c in CLASSES]
-        return "\n".join(lines) + "\n"
-
     def ensure_demos(self, task, episodes, data_dir, seed, log=print):
         self.calls.append(["ensure_demos", task, str(episodes)])
         folder = Path(data_dir) / "demos" / task.replace("/", "_")
@@ -90,7 +86,6 @@ def fake(tmp_path, monkeypatch):
     def make(success, failed_first_generate=0):
         f = FakeProject(tmp_path, success, failed_first_generate)
         monkeypatch.setattr(no, "run_command", f.run_command)
-        monkeypatch.setattr(no, "run_captured", f.run_captured)
         monkeypatch.setattr(no, "ensure_demos", f.ensure_demos)
         return f
     return make
@@ -119,11 +114,14 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
         return [w for w in c if w != _opt(c, "--out")]
     assert without_out(train[4]) == without_out(train[0]) and without_out(train[5]) == without_out(train[2])
     assert all(_opt(c, "--data") == str(run / "renders") for c in train)
-    assert set(res["detector"]) == {"fine_tuned", "fine_tuned_mix", "scratch", "scratch_4x_epochs"}
+    assert set(res.detector) == {"fine_tuned", "fine_tuned_mix", "scratch", "scratch_4x_epochs"}
     assert [_opt(c, "--epochs") for c in train[:4]] == ["10", "10", "10", "40"]
-    assert [len(t["runs_s"]) for t in res["detector_timing"].values()] == [3, 3]
-    assert all(len(t["cpu_runs_s"]) == 3 and t["median_cpu_s"] is not None
-               for t in res["detector_timing"].values())
+    evaluate = [c for c in f.calls if c[:2] == ["vla_detector_training", "evaluate"]]
+    assert [Path(_opt(c, "--json")).parent.relative_to(run).as_posix() for c in evaluate] == [
+        "detector", "detector_mix", "detector_scratch", "detector_scratch_4x"]  # its figures, as JSON
+    assert all(_opt(c, "--data") == str(run / "renders_test") for c in evaluate)
+    assert [len(t.runs_s) for t in res.detector_timing.values()] == [3, 3]
+    assert all(len(t.cpu_runs_s) == 3 and t.median_cpu_s is not None for t in res.detector_timing.values())
     fine = str(run / "detector" / "detector.onnx")
     gen = next(c for c in f.calls if c[:2] == ["vla_evaluation", "generate"])
     assert _opt(gen, "--task") == TASK and _opt(gen, "--detector-model") == fine
@@ -139,54 +137,56 @@ def test_each_step_takes_what_the_previous_one_wrote(tmp_path, fake):
     assert _opt(ev, "--mode") == "graph" and _opt(ev, "--tasks") == TASK and _opt(ev, "--layouts") == "10"
     assert _opt(ev, "--model") == str(run / "models" / "k3") and _opt(ev, "--detector-model") == fine
     assert int(_opt(ev, "--seed")) >= 100_000  # fresh layouts, never a demonstration's
-    assert list(res["transfer"]) == ["3"] and res["smallest_sufficient_demos"] == 3
-    ft = res["detector"]["fine_tuned"]
-    assert ft["new_class_ap50"] == pytest.approx(0.93) and ft["old_classes_map50"] == pytest.approx(0.99)
-    assert set(ft["ap50"]) == set(CLASSES) and ft["images"] == 100
-    assert res["verdicts"]["new_class_ap50>=0.9"] and res["verdicts"]["success_with_3_demos>=80%"]
+    assert list(res.transfer) == ["3"] and res.smallest_sufficient_demos == 3
+    ft = res.detector["fine_tuned"]
+    assert isinstance(ft, no.DetectorFigures) and ft.precision == 0.95
+    assert ft.new_class_ap50 == pytest.approx(0.93) and ft.old_classes_map50 == pytest.approx(0.99)
+    assert set(ft.ap50) == set(CLASSES) and ft.images == 100
+    assert res.verdicts["new_class_ap50>=0.9"] and res.verdicts["success_with_3_demos>=80%"]
     saved = json.loads((run / "results.json").read_text())
     assert saved["transfer"]["3"]["success_rate"] == 0.9
+    assert saved["detector"]["fine_tuned"]["ap50"]["spam"] == pytest.approx(0.93)
     readme = (run / "README.md").read_text()
     assert "| 3 | 10 | 90 % |" in readme and "spam 0.930" in readme and "| fine_tuned | " in readme
-    row = res["transfer"]["3"]
-    assert row["detected_task_object"] == 9 and "| 9/10 |" in readme
-    assert row["interventions_by_code"] == {"ACCELERATION_LIMITED": 20, "VELOCITY_SCALED": 10}
+    row = res.transfer["3"]
+    assert row.detected_task_object == 9 and "| 9/10 |" in readme and row.model == str(run / "models" / "k3")
+    assert row.interventions_by_code == {"ACCELERATION_LIMITED": 20, "VELOCITY_SCALED": 10}
 
 
 def test_a_rerun_resumes_without_redoing_finished_steps(tmp_path, fake):
     fake({3: 0.9})
     first = no.run_pipeline(_cfg(tmp_path), log=lambda m: None)
     saved = tmp_path / "run" / "results.json"
-    earlier = {name: 100.0 + i for i, name in enumerate(first["steps_s"])}  # as if they had taken long
+    earlier = {name: 100.0 + i for i, name in enumerate(first.steps_s)}  # as if they had taken long
     saved.write_text(json.dumps(dict(json.loads(saved.read_text()), steps_s=earlier)))
     f = fake({3: 0.9})
     res = no.run_pipeline(_cfg(tmp_path), log=lambda m: None)
     heavy = {("vla_detector_training", "synth"), ("vla_detector_training", "train"),
              ("vla_evaluation", "generate"), ("vla_latent_training", "train"), ("vla_evaluation", "evaluate")}
-    assert not heavy & set(f.programs())
-    assert res["transfer"]["3"]["success_rate"] == 0.9
+    assert not heavy & set(f.programs()) and ("vla_detector_training", "evaluate") not in f.programs()
+    assert res.transfer["3"].success_rate == 0.9
     # each reused step keeps the time of the run that did it
-    assert res["steps_s"] == earlier and set(res["steps_reused"]) == set(earlier)
+    assert res.steps_s == earlier and set(res.steps_reused) == set(earlier)
     assert "(an earlier run)" in (tmp_path / "run" / "README.md").read_text()
 
 
 def test_three_demonstrations_short_of_the_goal_measure_one_to_five(tmp_path, fake):
     fake({1: 0.1, 2: 0.5, 3: 0.6, 4: 0.8, 5: 1.0})
     res = no.run_pipeline(_cfg(tmp_path), log=lambda m: None)
-    assert sorted(res["transfer"], key=int) == ["1", "2", "3", "4", "5"]
-    assert res["smallest_sufficient_demos"] == 4
-    assert res["verdicts"]["success_with_3_demos>=80%"] is False
+    assert sorted(res.transfer, key=int) == ["1", "2", "3", "4", "5"]
+    assert res.smallest_sufficient_demos == 4
+    assert res.verdicts["success_with_3_demos>=80%"] is False
     assert [(tmp_path / "run" / "models" / f"k{k}").is_dir() for k in range(1, 6)] == [True] * 5
 
 
 def test_sweep_never_and_always(tmp_path, fake):
     fake({1: 0.1, 2: 0.5, 3: 0.6, 4: 0.8, 5: 1.0})
     res = no.run_pipeline(_cfg(tmp_path, sweep="never"), log=lambda m: None)
-    assert list(res["transfer"]) == ["3"] and res["smallest_sufficient_demos"] is None
+    assert list(res.transfer) == ["3"] and res.smallest_sufficient_demos is None
     cfg = _cfg(tmp_path, sweep="always", demos=2, max_demos=3)
     cfg.out = tmp_path / "run2"
     res = no.run_pipeline(cfg, log=lambda m: None)
-    assert sorted(res["transfer"], key=int) == ["1", "2", "3"] and res["smallest_sufficient_demos"] is None
+    assert sorted(res.transfer, key=int) == ["1", "2", "3"] and res.smallest_sufficient_demos is None
 
 
 def test_failed_generated_episodes_are_topped_up_with_new_seeds(tmp_path, fake):
@@ -195,8 +195,8 @@ def test_failed_generated_episodes_are_topped_up_with_new_seeds(tmp_path, fake):
     gens = [c for c in f.calls if c[:2] == ["vla_evaluation", "generate"]]
     assert [_opt(c, "--episodes") for c in gens] == ["5", "2"]
     assert _opt(gens[0], "--seed") != _opt(gens[1], "--seed")
-    assert len(res["new_demos"]) == 5 and "scratch" not in res["detector"]
-    assert "detector_time_ratio" not in res and list(res["detector_timing"]) == ["fine_tuned"]
+    assert len(res.new_demos) == 5 and "scratch" not in res.detector
+    assert res.detector_time_ratio is None and list(res.detector_timing) == ["fine_tuned"]
     assert not any("detector_scratch" in " ".join(c) for c in f.calls)
 
 
@@ -230,16 +230,20 @@ def test_publish_copies_the_figures(tmp_path, fake):
     assert (tmp_path / "docs" / "README.md").read_text() == (tmp_path / "run" / "README.md").read_text()
 
 
-def test_parse_evaluation_reads_the_printed_figures_and_refuses_none():
-    text = ("model: m.onnx\ndata: renders_test (split test, 100 images)\nmAP@0.5: 0.9712\n"
-            "mAP@0.5:0.95: 0.7010\nmean centre error px: 0.812\nprecision: 0.9\nrecall: 0.9\n"
-            "  AP@0.5 bread: 0.9900\n  AP@0.5 spam: 0.9200\ntime: 3.1 s\n")
-    fig = no.parse_evaluation(text)
-    assert fig["map50"] == 0.9712 and fig["map50_95"] == 0.701
+def test_read_evaluation_takes_the_json_figures_and_refuses_none(tmp_path):
+    path = tmp_path / "held_out.json"
+    path.write_text(json.dumps({"split": "test", "images": 100, "map50": 0.9712, "map50_95": 0.701,
+                                "centre_error_px": None, "precision": 0.9, "recall": 0.9,
+                                "per_class_ap50": {"bread": 0.99, "spam": 0.92}}))
+    fig = no.read_evaluation(path)
+    assert fig["map50"] == 0.9712 and fig["map50_95"] == 0.701 and fig["centre_error_px"] is None
     assert fig["ap50"] == {"bread": 0.99, "spam": 0.92}
     assert fig["images"] == 100 and fig["split"] == "test"
-    with pytest.raises(RuntimeError, match="no AP figures"):
-        no.parse_evaluation("error: something else\n")
+    path.write_text('{"map50": 0.5}')
+    with pytest.raises(RuntimeError, match="wrote no figures"):
+        no.read_evaluation(path)
+    with pytest.raises(RuntimeError, match="wrote no figures"):
+        no.read_evaluation(tmp_path / "missing.json")
 
 
 def test_smallest_sufficient_and_the_counts_to_measure():
@@ -253,15 +257,24 @@ def test_smallest_sufficient_and_the_counts_to_measure():
 
 
 def test_the_time_goal_is_judged_on_the_median_of_the_runs(tmp_path):
-    res = {"detector": {"fine_tuned": {"train_wall_s": 400.0, "new_class_ap50": 0.95,
-                                       "old_classes_map50": 0.94}},
-           "detector_timing": {"fine_tuned": {"runs_s": [400.0, 120.0, 130.0], "median_s": 130.0}},
-           "transfer": {"3": {"success_rate": 0.7}}}
+    fine = no.DetectorFigures(model="m", train_wall_s=400.0, train_cpu_s=None, split="test", images=1,
+                              map50=0.9, map50_95=0.5, centre_error_px=None, precision=1.0, recall=1.0,
+                              ap50={}, new_class_ap50=0.95, old_classes_map50=0.94)
+    transfer = no.TransferFigures(task=TASK, episodes=10, success_rate=0.7, final_state_error=None,
+                                  final_state_error_sem=None, time_to_success_median=None,
+                                  safety_interventions=None, limit_violations=None, detected_task_object=0,
+                                  interventions_by_code={})
+    res = no.NewObjectResults(command="", date="", machine=no.machine(), config={}, catalogue="",
+                              shipped_detector="", detector={"fine_tuned": fine},
+                              detector_timing={"fine_tuned": no.TimingRuns([400.0, 120.0, 130.0], 130.0, [],
+                                                                           None)},
+                              transfer={"3": transfer})
     v = no.verdicts(res, no.NewObjectConfig(catalogue=CATALOGUE, task=TASK, out=tmp_path))
     assert v == {"new_class_ap50>=0.9": True, "old_classes_map50>=0.95": False,
                  "fine_tune_median<=300s": True, "success_with_3_demos>=80%": False}
 
 
 def test_timed_measures_the_commands_cpu_time():
-    t = no.timed([sys.executable, "-c", "sum(i * i for i in range(2_000_000))"], log=lambda m: None)
-    assert t["cpu_s"] > 0 and t["wall_s"] > 0
+    cmds = no.Commands(log=lambda m: None)
+    t = cmds.timed([sys.executable, "-c", "sum(i * i for i in range(2_000_000))"])
+    assert t.cpu_s > 0 and t.wall_s > 0 and cmds.count == 1

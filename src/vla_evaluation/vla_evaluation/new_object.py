@@ -19,7 +19,9 @@ The walkthrough of docs/new-object.md as one command. Every step runs the comman
    all measured and the smallest k that reaches it is reported.
 
 A step whose output is already there is reused (an interrupted run resumes where it stopped); nothing
-given to it is modified. The figures go to --out as results.json and README.md.
+given to it is modified. Figures are read from the files the commands write (`vla_detector_training
+evaluate --json`, the evaluation's results.json), never from their printed output, into typed results
+(`NewObjectResults`); they go to --out as results.json and README.md.
 """
 
 from __future__ import annotations
@@ -28,11 +30,9 @@ import argparse
 import json
 import os
 import platform
-import re
 import resource
 import shutil
 import statistics
-import subprocess
 import sys
 import time
 from collections import Counter
@@ -86,48 +86,132 @@ class NewObjectConfig:
         return Path(self.out).joinpath(*parts)
 
 
+# ---------------------------------------------------------------------------------------------- results
+@dataclass
+class Timing:
+    """A project command's wall time and CPU time (user + system, the command and what it waited
+    for), in seconds. On a shared machine the CPU time is the steadier figure."""
+
+    wall_s: float
+    cpu_s: float | None = None
+
+
+@dataclass
+class DetectorFigures:
+    """A detector on the held-out renders (`vla_detector_training evaluate --json`), with its training
+    time, the new class's AP@0.5 and the mean AP@0.5 over the classes the shipped detector knew."""
+
+    model: str
+    train_wall_s: float
+    train_cpu_s: float | None
+    split: str
+    images: int
+    map50: float
+    map50_95: float
+    centre_error_px: float | None  # None: nothing matched
+    precision: float
+    recall: float
+    ap50: dict[str, float]
+    new_class_ap50: float | None
+    old_classes_map50: float | None
+
+
+@dataclass
+class TimingRuns:
+    """Repeated trainings of one detector: wall and CPU seconds of each run and their medians."""
+
+    runs_s: list[float]
+    median_s: float
+    cpu_runs_s: list[float]
+    median_cpu_s: float | None
+
+
+@dataclass
+class TransferFigures:
+    """One transfer model's graph evaluation of the new task: the evaluation's summary row, how often
+    the detector latched the task's object, and the safety layer's interventions by kind."""
+
+    task: str
+    episodes: int
+    success_rate: float | None
+    final_state_error: float | None
+    final_state_error_sem: float | None
+    time_to_success_median: float | None
+    safety_interventions: int | None
+    limit_violations: int | None
+    detected_task_object: int
+    interventions_by_code: dict[str, int]
+    model: str = ""
+
+
+@dataclass
+class Machine:
+    cpu: str
+    cores: int | None
+    load_average_at_start: list[float]
+    python: str
+
+
+@dataclass
+class NewObjectResults:
+    """Everything a run measured; results.json is its JSON form."""
+
+    command: str
+    date: str
+    machine: Machine
+    config: dict[str, object]  # NewObjectConfig, paths as text
+    catalogue: str
+    shipped_detector: str
+    steps_s: dict[str, float] = field(default_factory=dict)
+    steps_reused: list[str] = field(default_factory=list)
+    detector: dict[str, DetectorFigures] = field(default_factory=dict)
+    detector_timing: dict[str, TimingRuns] = field(default_factory=dict)
+    detector_time_ratio: float | None = None  # median, from scratch / fine-tuned
+    detector_cpu_time_ratio: float | None = None
+    new_demos: list[str] = field(default_factory=list)
+    base_demos: dict[str, int] = field(default_factory=dict)
+    transfer: dict[str, TransferFigures] = field(default_factory=dict)  # by the count of new demos
+    smallest_sufficient_demos: int | None = None
+    wall_s: float = 0.0
+    verdicts: dict[str, bool | None] = field(default_factory=dict)
+
+    def save(self, folder: Path) -> None:
+        (Path(folder) / "results.json").write_text(json.dumps(asdict(self), indent=2) + "\n")
+
+
 # ---------------------------------------------------------------------------------------------- steps
-_RAN = {"commands": 0}  # project commands run by this process (a step that ran none was reused)
+class Commands:
+    """Runs the project's commands as a user types them (`training_data.run_command`) and counts
+    them: a step that ran none was reused."""
+
+    def __init__(self, log: Callable[[str], None]) -> None:
+        self.log = log
+        self.count = 0
+
+    def run(self, cmd: Sequence[str], accept: Sequence[int] = (0,)) -> int:
+        self.count += 1
+        return run_command(cmd, self.log, accept)
+
+    def timed(self, cmd: Sequence[str], accept: Sequence[int] = (0,)) -> Timing:
+        """Run a command: its wall time and CPU time."""
+        t0, r0 = time.monotonic(), resource.getrusage(resource.RUSAGE_CHILDREN)
+        self.run(cmd, accept)
+        r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return Timing(time.monotonic() - t0, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime))
 
 
-def run_counted(cmd: Sequence[str], log: Callable[[str], None], accept: Sequence[int] = (0,)) -> int:
-    """`training_data.run_command`, counted."""
-    _RAN["commands"] += 1
-    return run_command(cmd, log, accept)
-
-
-def timed(cmd: Sequence[str], log: Callable[[str], None], accept: Sequence[int] = (0,)) -> dict[str, float]:
-    """Run a project command (streamed): its wall time and its CPU time (user + system, the command and
-    what it waited for), in seconds. On a shared machine the CPU time is the steadier figure."""
-    t0, r0 = time.monotonic(), resource.getrusage(resource.RUSAGE_CHILDREN)
-    run_counted(cmd, log, accept)
-    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
-    return {"wall_s": time.monotonic() - t0, "cpu_s": cpu}
-
-
-def run_captured(cmd: Sequence[str], log: Callable[[str], None]) -> str:
-    """Run a project command, show and return its standard output; RuntimeError on a failure."""
-    log("[run] " + " ".join(str(c) for c in cmd))
-    proc = subprocess.run([str(c) for c in cmd], stdout=subprocess.PIPE, stderr=sys.stderr, text=True)
-    log(proc.stdout.rstrip())
-    if proc.returncode != 0:
-        raise RuntimeError(f"{cmd[0]} {cmd[1]} failed with exit code {proc.returncode}")
-    return proc.stdout
-
-
-def render(cfg: NewObjectConfig, log: Callable[[str], None]) -> tuple[Path, Path]:
+def render(cfg: NewObjectConfig, cmds: Commands) -> tuple[Path, Path]:
     """Training renders (train + val) and held-out renders (test), each scene with the new object."""
     obj = cfg.task.split("/", 1)[0]
     sets = ((cfg.path("renders"), cfg.renders, RENDER_SEED, "auto"),
             (cfg.path("renders_test"), cfg.test_renders, TEST_RENDER_SEED, "test"))
     for folder, count, seed, split in sets:
         if (folder / "data.yaml").is_file():
-            log(f"[new-object] reusing {folder}")
+            cmds.log(f"[new-object] reusing {folder}")
             continue
-        run_counted(["vla_detector_training", "synth", "--catalogue", str(cfg.catalogue), "--include", obj,
-                     "--count", str(count), "--seed", str(seed), "--split", split, "--out", str(folder),
-                     "--quiet"], log)
+        cmds.run(["vla_detector_training", "synth", "--catalogue", str(cfg.catalogue), "--include", obj,
+                  "--count", str(count), "--seed", str(seed), "--split", split, "--out", str(folder),
+                  "--quiet"])
     return sets[0][0], sets[1][0]
 
 
@@ -137,24 +221,24 @@ def onnx_in(folder: Path) -> Path | None:
 
 
 def train_detector(cfg: NewObjectConfig, renders: Path, name: str, extra: Sequence[str],
-                   log: Callable[[str], None]) -> tuple[Path, dict[str, float]]:
-    """(ONNX, wall and CPU seconds of the training) of a detector trained on the renders (whose data.yaml
-    names the catalogue's classes) into out/<name>, with the train command's `extra` options
-    (`--init shipped`: fine-tuning; none: from scratch)."""
+                   cmds: Commands) -> tuple[Path, Timing]:
+    """(ONNX, training time) of a detector trained on the renders (whose data.yaml names the
+    catalogue's classes) into out/<name>, with the train command's `extra` options (`--init shipped`:
+    fine-tuning; none: from scratch)."""
     out = cfg.path(name)
     timing = out / "train_time.json"
     if onnx_in(out) is not None and timing.is_file():
-        log(f"[new-object] reusing {out}")
+        cmds.log(f"[new-object] reusing {out}")
         saved = json.loads(timing.read_text())
-        return onnx_in(out), {"wall_s": saved["wall_s"], "cpu_s": saved.get("cpu_s")}
+        return onnx_in(out), Timing(float(saved["wall_s"]), saved.get("cpu_s"))
     cmd = ["vla_detector_training", "train", "--data", str(renders), "--out", str(out), *extra, "--quiet"]
     if cfg.detector_epochs is not None and "--epochs" not in extra:
         cmd += ["--epochs", str(cfg.detector_epochs)]
-    times = timed(cmd, log)
+    times = cmds.timed(cmd)
     model = onnx_in(out)
     if model is None:
         raise RuntimeError(f"detector training wrote no .onnx into {out}")
-    timing.write_text(json.dumps({**times, "command": cmd}) + "\n")
+    timing.write_text(json.dumps({**asdict(times), "command": cmd}) + "\n")
     return model, times
 
 
@@ -171,8 +255,8 @@ def detector_variants(cfg: NewObjectConfig) -> dict[str, tuple[str, list[str]]]:
     return out
 
 
-def median_timing(cfg: NewObjectConfig, renders: Path, first: dict[str, dict[str, float]],
-                  log: Callable[[str], None]) -> dict[str, dict]:
+def median_timing(cfg: NewObjectConfig, renders: Path, first: dict[str, Timing],
+                  cmds: Commands) -> dict[str, TimingRuns]:
     """Training time of the fine-tuned and the from-scratch detector over 1 + timing_repeats runs
     each (alternating, so that a change in the shared machine's load falls on both): runs and median."""
     keys = [k for k in ("fine_tuned", "scratch") if k in first]
@@ -180,53 +264,48 @@ def median_timing(cfg: NewObjectConfig, renders: Path, first: dict[str, dict[str
     variants = detector_variants(cfg)
     for r in range(1, cfg.timing_repeats + 1):
         for k in keys:
-            runs[k].append(train_detector(cfg, renders, f"timing/{k}_{r}", variants[k][1], log)[1])
+            runs[k].append(train_detector(cfg, renders, f"timing/{k}_{r}", variants[k][1], cmds)[1])
     out = {}
     for k, vs in runs.items():
-        wall, cpu = [v["wall_s"] for v in vs], [v["cpu_s"] for v in vs if v.get("cpu_s") is not None]
-        out[k] = {"runs_s": [round(v, 1) for v in wall], "median_s": statistics.median(wall),
-                  "cpu_runs_s": [round(v, 1) for v in cpu],
-                  "median_cpu_s": statistics.median(cpu) if cpu else None}
+        wall, cpu = [v.wall_s for v in vs], [v.cpu_s for v in vs if v.cpu_s is not None]
+        out[k] = TimingRuns(runs_s=[round(v, 1) for v in wall], median_s=statistics.median(wall),
+                            cpu_runs_s=[round(v, 1) for v in cpu],
+                            median_cpu_s=statistics.median(cpu) if cpu else None)
     return out
 
 
-def parse_evaluation(text: str) -> dict:
-    """The figures `vla_detector_training evaluate` prints: mAP@0.5, mAP@0.5:0.95, centre error and
-    AP@0.5 per class."""
-    out: dict = {"ap50": {}}
-    keys = {"mAP@0.5": "map50", "mAP@0.5:0.95": "map50_95", "mean centre error px": "centre_error_px"}
-    for line in text.splitlines():
-        m = re.fullmatch(r"\s*AP@0\.5 (\S+): (\S+)\s*", line)
-        if m:
-            out["ap50"][m.group(1)] = float(m.group(2))
-            continue
-        m = re.fullmatch(r"(mAP@0\.5|mAP@0\.5:0\.95|mean centre error px): (\S+)\s*", line)
-        if m:
-            out[keys[m.group(1)]] = float(m.group(2))
-        m = re.fullmatch(r"data: .* \(split (\S+), (\d+) images\)\s*", line)
-        if m:
-            out["split"], out["images"] = m.group(1), int(m.group(2))
-    if "map50" not in out or not out["ap50"]:
-        raise RuntimeError(f"vla_detector_training evaluate printed no AP figures:\n{text}")
-    return out
+def read_evaluation(path: Path) -> dict:
+    """The figures `vla_detector_training evaluate --json` wrote; RuntimeError when there are none."""
+    try:
+        fig = json.loads(Path(path).read_text())
+        return {"split": str(fig["split"]), "images": int(fig["images"]), "map50": float(fig["map50"]),
+                "map50_95": float(fig["map50_95"]),
+                "centre_error_px": None if fig["centre_error_px"] is None else float(fig["centre_error_px"]),
+                "precision": float(fig["precision"]), "recall": float(fig["recall"]),
+                "ap50": {str(c): float(v) for c, v in fig["per_class_ap50"].items()}}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError) as e:
+        raise RuntimeError(f"vla_detector_training evaluate wrote no figures to {path} "
+                           f"({type(e).__name__})") from None
 
 
 def detector_figures(model: Path, test_renders: Path, new_class: str, old_classes: Sequence[str],
-                     times: dict[str, float], log: Callable[[str], None]) -> dict:
-    """AP@0.5 per class on the held-out renders (`vla_detector_training evaluate`), the new class's,
-    and the mean over the old classes."""
-    text = run_captured(["vla_detector_training", "evaluate", "--model", str(model), "--data",
-                         str(test_renders), "--split", "test", "--quiet"], log)
-    fig = parse_evaluation(text)
+                     times: Timing, cmds: Commands) -> DetectorFigures:
+    """AP@0.5 per class on the held-out renders (`vla_detector_training evaluate`, its figures in
+    held_out.json beside the model, reused by a rerun), the new class's, and the mean over the old
+    classes."""
+    figures = model.parent / "held_out.json"
+    if not figures.is_file():
+        cmds.run(["vla_detector_training", "evaluate", "--model", str(model), "--data", str(test_renders),
+                  "--split", "test", "--json", str(figures), "--quiet"])
+    fig = read_evaluation(figures)
     ap = fig["ap50"]
     old = [ap[c] for c in old_classes if c in ap]
-    return {"model": str(model), "train_wall_s": times["wall_s"], "train_cpu_s": times.get("cpu_s"),
-            **fig, "new_class_ap50": ap.get(new_class),
-            "old_classes_map50": statistics.fmean(old) if old else None}
+    return DetectorFigures(model=str(model), train_wall_s=times.wall_s, train_cpu_s=times.cpu_s, **fig,
+                           new_class_ap50=ap.get(new_class),
+                           old_classes_map50=statistics.fmean(old) if old else None)
 
 
-def new_task_demos(cfg: NewObjectConfig, detector: Path, log: Callable[[str], None],
-                   attempts: int = 3) -> list[Path]:
+def new_task_demos(cfg: NewObjectConfig, detector: Path, cmds: Commands, attempts: int = 3) -> list[Path]:
     """`max_demos` successful demonstration bags of the new task (generated through the graph with the
     fine-tuned detector; failed episodes deleted, topped up on the next attempt), in bag order."""
     folder = cfg.path("demos", cfg.task.replace("/", "_"))
@@ -234,11 +313,11 @@ def new_task_demos(cfg: NewObjectConfig, detector: Path, log: Callable[[str], No
         have = count_bags(folder)
         if have >= cfg.max_demos:
             break
-        run_counted(["vla_evaluation", "generate", "--catalogue", str(cfg.catalogue), "--task", cfg.task,
-                     "--episodes", str(cfg.max_demos - have),
-                     "--seed", str(NEW_DEMO_SEED + 1000 * attempt + have),
-                     "--detector-model", str(detector), "--out", str(folder), "--real-time-factor", "0",
-                     "--delete-failed"], log, accept=(0, 3))  # 3: some episodes failed (deleted)
+        cmds.run(["vla_evaluation", "generate", "--catalogue", str(cfg.catalogue), "--task", cfg.task,
+                  "--episodes", str(cfg.max_demos - have),
+                  "--seed", str(NEW_DEMO_SEED + 1000 * attempt + have),
+                  "--detector-model", str(detector), "--out", str(folder), "--real-time-factor", "0",
+                  "--delete-failed"], accept=(0, 3))  # 3: some episodes failed (deleted)
     bags = sorted(p.parent for p in folder.glob("*/metadata.yaml"))
     if len(bags) < cfg.max_demos:
         raise RuntimeError(f"generation left {len(bags)} of {cfg.max_demos} bags of {cfg.task} in {folder}")
@@ -251,51 +330,57 @@ def base_demo_folders(cfg: NewObjectConfig, log: Callable[[str], None]) -> list[
 
 
 def train_transfer(cfg: NewObjectConfig, k: int, base: Sequence[Path], new_bags: Sequence[Path],
-                   detector: Path, log: Callable[[str], None]) -> Path:
+                   detector: Path, cmds: Commands) -> Path:
     """The transfer model of k new demonstrations: base + the first k new bags in one model."""
     out = cfg.path("models", f"k{k}")
     if (out / "config.json").is_file():
-        log(f"[new-object] reusing {out}")
+        cmds.log(f"[new-object] reusing {out}")
         return out
-    run_counted(["vla_latent_training", "train", "--catalogue", str(cfg.catalogue),
-                 "--bags", *map(str, base), *map(str, new_bags[:k]), "--max-per-task", str(BASE_EPISODES),
-                 "--detector-model", str(detector), "--epochs", str(cfg.latent_epochs),
-                 "--seed", str(cfg.latent_seed), "--out", str(out), "--quiet"], log)
+    cmds.run(["vla_latent_training", "train", "--catalogue", str(cfg.catalogue),
+              "--bags", *map(str, base), *map(str, new_bags[:k]), "--max-per-task", str(BASE_EPISODES),
+              "--detector-model", str(detector), "--epochs", str(cfg.latent_epochs),
+              "--seed", str(cfg.latent_seed), "--out", str(out), "--quiet"])
     return out
 
 
 def evaluate_transfer(cfg: NewObjectConfig, k: int, model: Path, detector: Path,
-                      log: Callable[[str], None]) -> dict:
-    """The graph evaluation of one transfer model on the fresh layouts: its summary row."""
+                      cmds: Commands) -> TransferFigures:
+    """The graph evaluation of one transfer model on the fresh layouts (its results.json)."""
     out = cfg.path("eval", f"k{k}")
     if not (out / "results.json").is_file():
-        run_counted(["vla_evaluation", "evaluate", "--mode", "graph", "--catalogue", str(cfg.catalogue),
-                     "--tasks", cfg.task, "--layouts", str(cfg.layouts), "--seed", str(cfg.layout_seed),
-                     "--model", str(model), "--detector-model", str(detector),
-                     "--real-time-factor", str(cfg.real_time_factor), "--out", str(out),
-                     *cfg.extra_eval_args], log)
+        cmds.run(["vla_evaluation", "evaluate", "--mode", "graph", "--catalogue", str(cfg.catalogue),
+                  "--tasks", cfg.task, "--layouts", str(cfg.layouts), "--seed", str(cfg.layout_seed),
+                  "--model", str(model), "--detector-model", str(detector),
+                  "--real-time-factor", str(cfg.real_time_factor), "--out", str(out), *cfg.extra_eval_args])
     else:
-        log(f"[new-object] reusing {out}")
-    return summary_row(json.loads((out / "results.json").read_text()), cfg.task)
+        cmds.log(f"[new-object] reusing {out}")
+    figures = summary_row(json.loads((out / "results.json").read_text()), cfg.task)
+    figures.model = str(model)
+    return figures
 
 
-def summary_row(results: dict, task: str) -> dict:
+def summary_row(results: dict, task: str) -> TransferFigures:
     """The evaluation's summary of `task` (success rate, final state error, time to success, ...),
     with what its episodes say beyond it: how often the detector latched the task's object, and the
     safety layer's interventions by kind."""
     rows = [r for r in results.get("summary", []) if r.get("task") == task]
     if not rows:
         raise RuntimeError(f"the evaluation has no summary of {task}")
-    row = dict(rows[0])
+    row = rows[0]
     episodes = [e for e in results.get("episodes", []) if e.get("task") == task]
     obj = task.split("/", 1)[0]
-    row["detected_task_object"] = sum(e.get("detected_class") == obj for e in episodes)
     by_code: Counter = Counter()
     for e in episodes:
         for code, n in (e.get("x_interventions_by_code") or {}).items():
             by_code[CODE_NAMES.get(int(code), str(code))] += int(n)
-    row["interventions_by_code"] = dict(by_code)
-    return row
+    return TransferFigures(
+        task=task, episodes=int(row["episodes"]), success_rate=row.get("success_rate"),
+        final_state_error=row.get("final_state_error"),
+        final_state_error_sem=row.get("final_state_error_sem"),
+        time_to_success_median=row.get("time_to_success_median"),
+        safety_interventions=row.get("safety_interventions"), limit_violations=row.get("limit_violations"),
+        detected_task_object=sum(e.get("detected_class") == obj for e in episodes),
+        interventions_by_code=dict(by_code))
 
 
 def demo_counts(cfg: NewObjectConfig, success: dict[int, float | None]) -> list[int]:
@@ -314,7 +399,7 @@ def smallest_sufficient(success: dict[int, float | None], goal: float) -> int | 
 
 
 # --------------------------------------------------------------------------------------------- report
-def machine() -> dict:
+def machine() -> Machine:
     cpu = platform.processor() or ""
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -323,23 +408,24 @@ def machine() -> dict:
                 break
     except OSError:
         pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "load_average_at_start": list(os.getloadavg()),
-            "python": platform.python_version()}
+    return Machine(cpu=cpu, cores=os.cpu_count(), load_average_at_start=list(os.getloadavg()),
+                   python=platform.python_version())
 
 
-def verdicts(res: dict, cfg: NewObjectConfig) -> dict:
+def verdicts(res: NewObjectResults, cfg: NewObjectConfig) -> dict[str, bool | None]:
     """Each goal of the issue, met or not (None: not measured)."""
-    ft = res.get("detector", {}).get("fine_tuned") or {}
-    fine_s = (res.get("detector_timing", {}).get("fine_tuned") or {}).get("median_s", ft.get("train_wall_s"))
-    transfer = res.get("transfer", {})
-    rate = (transfer.get(str(cfg.demos)) or {}).get("success_rate")
+    ft = res.detector.get("fine_tuned")
+    timing = res.detector_timing.get("fine_tuned")
+    fine_s = timing.median_s if timing is not None else (ft.train_wall_s if ft is not None else None)
+    transfer = res.transfer.get(str(cfg.demos))
+    rate = transfer.success_rate if transfer is not None else None
 
     def at_least(v, goal):
         return None if v is None else bool(v >= goal)
 
     return {
-        "new_class_ap50>=0.9": at_least(ft.get("new_class_ap50"), DETECTOR_AP_GOAL),
-        "old_classes_map50>=0.95": at_least(ft.get("old_classes_map50"), DETECTOR_OLD_MAP_GOAL),
+        "new_class_ap50>=0.9": at_least(ft and ft.new_class_ap50, DETECTOR_AP_GOAL),
+        "old_classes_map50>=0.95": at_least(ft and ft.old_classes_map50, DETECTOR_OLD_MAP_GOAL),
         "fine_tune_median<=300s": None if fine_s is None else bool(fine_s <= FINE_TUNE_TIME_GOAL_S),
         f"success_with_{cfg.demos}_demos>=80%": at_least(rate, cfg.goal),
     }
@@ -353,37 +439,32 @@ def _num(v, fmt: str = ".3f") -> str:
     return "-" if v is None else format(v, fmt)
 
 
-def report_markdown(res: dict) -> str:
+def report_markdown(res: NewObjectResults) -> str:
     """README.md of a run: the figures as tables."""
-    cfg, m = res["config"], res["machine"]
+    cfg, m = res.config, res.machine
     lines = [f"# New object: {cfg['task']}", "",
-             f"`{res['command']}`", "",
-             f"{res['date']}, {m['cpu']}, {m['cores']} cores "
-             f"(load {m['load_average_at_start'][0]:.1f} at start); "
-             f"{sum(res['steps_s'].values()) / 60:.1f} min in all (the steps' sum; this run "
-             f"{res['wall_s'] / 60:.1f} min).", "", "## Detector (held-out renders)", "",
+             f"`{res.command}`", "",
+             f"{res.date}, {m.cpu}, {m.cores} cores "
+             f"(load {m.load_average_at_start[0]:.1f} at start); "
+             f"{sum(res.steps_s.values()) / 60:.1f} min in all (the steps' sum; this run "
+             f"{res.wall_s / 60:.1f} min).", "", "## Detector (held-out renders)", "",
              "| detector | train time | AP@0.5 new class | mAP@0.5 old classes | mAP@0.5 all "
              "| AP@0.5 per class |",
              "|---|---|---|---|---|---|"]
-    for name, d in res["detector"].items():
-        if not d:
-            continue
-        per = ", ".join(f"{c} {v:.3f}" for c, v in d["ap50"].items())
-        cpu = d.get("train_cpu_s")
-        t = f"{d['train_wall_s']:.0f} s" + ("" if cpu is None else f" ({cpu:.0f} s CPU)")
-        lines.append(f"| {name} | {t} | {_num(d['new_class_ap50'])} | {_num(d['old_classes_map50'])} | "
-                     f"{_num(d['map50'])} | {per} |")
-    timing = res.get("detector_timing") or {}
-    if timing:
+    for name, d in res.detector.items():
+        per = ", ".join(f"{c} {v:.3f}" for c, v in d.ap50.items())
+        t = f"{d.train_wall_s:.0f} s" + ("" if d.train_cpu_s is None else f" ({d.train_cpu_s:.0f} s CPU)")
+        lines.append(f"| {name} | {t} | {_num(d.new_class_ap50)} | {_num(d.old_classes_map50)} | "
+                     f"{_num(d.map50)} | {per} |")
+    if res.detector_timing:
         lines += ["", "Training time of the same renders and epochs (runs alternate; CPU = user + system of "
                       "the command, steadier than wall time on the shared machine):", "",
                   "| detector | wall, runs (s) | wall, median (s) | CPU, runs (s) | CPU, median (s) |",
                   "|---|---|---|---|---|"]
-        lines += [f"| {k} | {', '.join(f'{v:.0f}' for v in t['runs_s'])} | {t['median_s']:.0f} | "
-                  f"{', '.join(f'{v:.0f}' for v in t.get('cpu_runs_s', []))} | "
-                  f"{_num(t.get('median_cpu_s'), '.0f')} |"
-                  for k, t in timing.items()]
-    ratios = [("wall", res.get("detector_time_ratio")), ("CPU", res.get("detector_cpu_time_ratio"))]
+        lines += [f"| {k} | {', '.join(f'{v:.0f}' for v in t.runs_s)} | {t.median_s:.0f} | "
+                  f"{', '.join(f'{v:.0f}' for v in t.cpu_runs_s)} | {_num(t.median_cpu_s, '.0f')} |"
+                  for k, t in res.detector_timing.items()]
+    ratios = [("wall", res.detector_time_ratio), ("CPU", res.detector_cpu_time_ratio)]
     shown = [f"{w} {r:.2f}" for w, r in ratios if r]
     if shown:
         lines += ["", f"Median time ratio, from scratch / fine-tuned: {', '.join(shown)}."]
@@ -391,99 +472,94 @@ def report_markdown(res: dict) -> str:
               "| new demos | episodes | success | final state error (rad) | median time to success | "
               "detected as the object | safety interventions (by kind) | limit violations |",
               "|---|---|---|---|---|---|---|---|"]
-    for k, r in sorted(res["transfer"].items(), key=lambda kv: int(kv[0])):
-        tts = "-" if r.get("time_to_success_median") is None else f"{r['time_to_success_median']:.1f} s"
-        kinds = ", ".join(f"{n} {c}" for c, n in (r.get("interventions_by_code") or {}).items())
-        lines.append(f"| {k} | {r['episodes']} | {_pct(r['success_rate'])} | "
-                     f"{_num(r['final_state_error'])} +- {_num(r.get('final_state_error_sem'))} | {tts} | "
-                     f"{r.get('detected_task_object', '-')}/{r['episodes']} | "
-                     f"{r.get('safety_interventions', '-')}{f' ({kinds})' if kinds else ''} | "
-                     f"{r.get('limit_violations', '-')} |")
-    k = res.get("smallest_sufficient_demos")
+    for k, r in sorted(res.transfer.items(), key=lambda kv: int(kv[0])):
+        tts = "-" if r.time_to_success_median is None else f"{r.time_to_success_median:.1f} s"
+        kinds = ", ".join(f"{n} {c}" for c, n in r.interventions_by_code.items())
+        safety = "-" if r.safety_interventions is None else r.safety_interventions
+        lines.append(f"| {k} | {r.episodes} | {_pct(r.success_rate)} | "
+                     f"{_num(r.final_state_error)} +- {_num(r.final_state_error_sem)} | {tts} | "
+                     f"{r.detected_task_object}/{r.episodes} | {safety}{f' ({kinds})' if kinds else ''} | "
+                     f"{'-' if r.limit_violations is None else r.limit_violations} |")
+    k = res.smallest_sufficient_demos
     lines += ["", f"Smallest number of new demonstrations reaching {_pct(cfg['goal'])}: "
                   f"{'none of the counts measured' if k is None else k}.", "", "## Goals", ""]
-    lines += [f"- {g}: {'-' if v is None else ('met' if v else 'NOT met')}"
-              for g, v in res["verdicts"].items()]
+    lines += [f"- {g}: {'-' if v is None else ('met' if v else 'NOT met')}" for g, v in res.verdicts.items()]
     lines += ["", "## Steps (wall time)", ""]
-    reused = set(res.get("steps_reused", []))
-    lines += [f"- {s}: {w:.0f} s{' (an earlier run)' if s in reused else ''}"
-              for s, w in res["steps_s"].items()]
+    reused = set(res.steps_reused)
+    lines += [f"- {s}: {w:.0f} s{' (an earlier run)' if s in reused else ''}" for s, w in res.steps_s.items()]
     return "\n".join(lines) + "\n"
 
 
 # ----------------------------------------------------------------------------------------------- run
-def run_pipeline(cfg: NewObjectConfig, log: Callable[[str], None] = print, command: str = "") -> dict:
+def run_pipeline(cfg: NewObjectConfig, log: Callable[[str], None] = print,
+                 command: str = "") -> NewObjectResults:
     """All the steps; returns (and writes to cfg.out) the figures."""
     t_all = time.monotonic()
     catalogue = load_catalogue(cfg.catalogue)
     spec = catalogue.task(cfg.task)  # CatalogueError: names the known tasks and files
     cfg.task = spec.name
-    shipped = detector_model_path()
-    old_classes = [c for c in catalogue.classes if c != spec.object_class]
     Path(cfg.out).mkdir(parents=True, exist_ok=True)
-    res: dict = {"command": command, "date": time.strftime("%Y-%m-%d %H:%M %Z"), "machine": machine(),
-                 "config": {k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
-                 "catalogue": catalogue.where, "shipped_detector": str(shipped), "steps_s": {},
-                 "detector": {}, "transfer": {}}
-    steps = res["steps_s"]
+    res = NewObjectResults(command=command, date=time.strftime("%Y-%m-%d %H:%M %Z"), machine=machine(),
+                           config={k: str(v) if isinstance(v, Path) else v for k, v in asdict(cfg).items()},
+                           catalogue=catalogue.where, shipped_detector=str(detector_model_path()))
+    cmds = Commands(log)
+    step = _StepClock(res, _previous_steps(cfg), cmds, cfg.out)
 
-    before = _previous_steps(cfg)
-    ran = {"at": _RAN["commands"]}
-
-    def step(name: str, t0: float) -> None:
-        """Record a step's wall time; a step that ran no command keeps the time of the run that did it."""
-        if _RAN["commands"] == ran["at"] and name in before:
-            steps[name] = before[name]
-            res.setdefault("steps_reused", []).append(name)
-        else:
-            steps[name] = round(time.monotonic() - t0, 1)
-        ran["at"] = _RAN["commands"]
-        _save(cfg, res)
-
-    t = time.monotonic()
-    renders, test_renders = render(cfg, log)
-    step("renders", t)
-    first: dict[str, dict[str, float]] = {}
+    renders, test_renders = render(cfg, cmds)
+    step("renders")
+    old_classes = [c for c in catalogue.classes if c != spec.object_class]
+    first: dict[str, Timing] = {}
     models: dict[str, Path] = {}
     for key, (folder, extra) in detector_variants(cfg).items():
-        t = time.monotonic()
-        models[key], first[key] = train_detector(cfg, renders, folder, extra, log)
-        res["detector"][key] = detector_figures(models[key], test_renders, spec.object_class, old_classes,
-                                                first[key], log)
-        step(f"detector {key} + evaluation", t)
-    t = time.monotonic()
-    res["detector_timing"] = timing = median_timing(cfg, renders, first, log)
+        models[key], first[key] = train_detector(cfg, renders, folder, extra, cmds)
+        res.detector[key] = detector_figures(models[key], test_renders, spec.object_class, old_classes,
+                                             first[key], cmds)
+        step(f"detector {key} + evaluation")
+    res.detector_timing = timing = median_timing(cfg, renders, first, cmds)
     if "scratch" in timing:
-        res["detector_time_ratio"] = timing["scratch"]["median_s"] / timing["fine_tuned"]["median_s"]
-        if timing["scratch"]["median_cpu_s"] and timing["fine_tuned"]["median_cpu_s"]:
-            res["detector_cpu_time_ratio"] = (timing["scratch"]["median_cpu_s"]
-                                              / timing["fine_tuned"]["median_cpu_s"])
-    step("detector timing repeats", t)
+        scratch, fine_tuned = timing["scratch"], timing["fine_tuned"]
+        res.detector_time_ratio = scratch.median_s / fine_tuned.median_s
+        if scratch.median_cpu_s and fine_tuned.median_cpu_s:
+            res.detector_cpu_time_ratio = scratch.median_cpu_s / fine_tuned.median_cpu_s
+    step("detector timing repeats")
     fine = models["fine_tuned"]
-    t = time.monotonic()
-    new_bags = new_task_demos(cfg, fine, log)
-    res["new_demos"] = [str(b) for b in new_bags]
-    step("new-task demonstrations", t)
-    t = time.monotonic()
+    new_bags = new_task_demos(cfg, fine, cmds)
+    res.new_demos = [str(b) for b in new_bags]
+    step("new-task demonstrations")
     base = base_demo_folders(cfg, log)
-    res["base_demos"] = {str(f): count_bags(f) for f in base}
-    step("base demonstrations", t)
+    res.base_demos = {str(f): count_bags(f) for f in base}
+    step("base demonstrations")
     success: dict[int, float | None] = {}
     while todo := demo_counts(cfg, success):
         k = todo[0]
-        t = time.monotonic()
-        model = train_transfer(cfg, k, base, new_bags, fine, log)
-        row = evaluate_transfer(cfg, k, model, fine, log)
-        row["model"] = str(model)
-        res["transfer"][str(k)] = row
-        success[k] = row.get("success_rate")
-        step(f"transfer model k={k}: training + graph evaluation", t)
-    res["smallest_sufficient_demos"] = smallest_sufficient(success, cfg.goal)
-    res["wall_s"] = round(time.monotonic() - t_all, 1)
-    res["verdicts"] = verdicts(res, cfg)
-    _save(cfg, res)
+        model = train_transfer(cfg, k, base, new_bags, fine, cmds)
+        res.transfer[str(k)] = row = evaluate_transfer(cfg, k, model, fine, cmds)
+        success[k] = row.success_rate
+        step(f"transfer model k={k}: training + graph evaluation")
+    res.smallest_sufficient_demos = smallest_sufficient(success, cfg.goal)
+    res.wall_s = round(time.monotonic() - t_all, 1)
+    res.verdicts = verdicts(res, cfg)
+    res.save(cfg.out)
     (Path(cfg.out) / "README.md").write_text(report_markdown(res))
     return res
+
+
+class _StepClock:
+    """Records each step's wall time, saving the results after each; a step that ran no command keeps
+    the time of the earlier run that did it."""
+
+    def __init__(self, res: NewObjectResults, before: dict[str, float], cmds: Commands, out: Path) -> None:
+        self.res, self.before, self.cmds, self.out = res, before, cmds, out
+        self.t0, self.count = time.monotonic(), cmds.count
+
+    def __call__(self, name: str) -> None:
+        if self.cmds.count == self.count and name in self.before:
+            self.res.steps_s[name] = self.before[name]
+            self.res.steps_reused.append(name)
+        else:
+            self.res.steps_s[name] = round(time.monotonic() - self.t0, 1)
+        self.t0, self.count = time.monotonic(), self.cmds.count
+        self.res.save(self.out)
 
 
 def _previous_steps(cfg: NewObjectConfig) -> dict[str, float]:
@@ -492,13 +568,6 @@ def _previous_steps(cfg: NewObjectConfig) -> dict[str, float]:
         return dict(json.loads((Path(cfg.out) / "results.json").read_text()).get("steps_s", {}))
     except (OSError, ValueError):
         return {}
-
-
-def _save(cfg: NewObjectConfig, res: dict) -> None:
-    res.setdefault("wall_s", 0.0)
-    res.setdefault("verdicts", {})
-    res.setdefault("smallest_sufficient_demos", None)
-    (Path(cfg.out) / "results.json").write_text(json.dumps(res, indent=2) + "\n")
 
 
 def publish(out: Path, target: Path) -> list[Path]:

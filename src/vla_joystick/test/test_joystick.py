@@ -461,12 +461,14 @@ def test_uinput_device_end_to_end():
     ui, caps = _uinput_or_skip()
     from evdev import UInput, ecodes
 
-    published, stop = [], threading.Event()
-    loop = JoystickLoop(
-        lambda a, b: published.append((list(a), list(b))),
-        opener=lambda: open_joystick("", "vla-test-pad"),
-        autorepeat_rate=20.0,
-    )
+    published, stop, opens = [], threading.Event(), []
+
+    def opener():
+        opens.append(time.monotonic())
+        return open_joystick("", "vla-test-pad")
+
+    loop = JoystickLoop(lambda a, b: published.append((list(a), list(b))), opener=opener,
+                        autorepeat_rate=20.0)
     thread = threading.Thread(target=loop.run, args=(stop,), daemon=True)
     thread.start()
     try:
@@ -484,10 +486,15 @@ def test_uinput_device_end_to_end():
         axes, buttons = published[-1]
         assert axes[0] == pytest.approx(-1.0) and buttons == [0, 1]
         ui.close()  # unplug
-        time.sleep(0.3)
-        count = len(published)
-        time.sleep(0.3)
-        assert len(published) == count and not loop.connected
+        deadline = time.monotonic() + 5.0
+        while loop.connected and time.monotonic() < deadline:
+            time.sleep(0.01)  # polling a condition, bounded by the deadline
+        count, tried = len(published), len(opens)
+        deadline = time.monotonic() + 5.0
+        while len(opens) < tried + 2 and time.monotonic() < deadline:
+            time.sleep(0.01)  # until the loop retried twice on its own schedule: 0.25 s + more, where
+            #                   a connected loop would have sent several 20 Hz autorepeats
+        assert len(opens) >= tried + 2 and len(published) == count and not loop.connected
         ui = UInput(caps, name="vla-test-pad")  # replug
         deadline = time.monotonic() + 5.0
         while len(published) == count and time.monotonic() < deadline:

@@ -85,9 +85,7 @@ def test_config_files_are_ros_parameter_files():
 
     import yaml
 
-    # camera_pose.yaml is frame data (vla_common.frames reads it), not a node's parameters
-    files = [f for f in glob.glob(os.path.join(PKG_DIR, "config", "*.yaml"))
-             if os.path.basename(f) != "camera_pose.yaml"]
+    files = glob.glob(os.path.join(PKG_DIR, "config", "*.yaml"))
     assert files
     for path in files:
         with open(path) as f:

@@ -1,16 +1,15 @@
 """The TF tree every header of ours is stamped in: the Panda URDF's links (robot_state_publisher
-publishes them from joint_states) plus the camera, a static transform from the camera's pose given as
-data (vla_bringup/config/camera_pose.yaml). No rclpy: the launch option `use_tf:=true` and tests read it."""
+publishes them from joint_states) plus the camera, a static transform whose pose is data: the
+`camera_tf` argument of vla_bringup's tf.launch.yaml (static_transform_publisher's arguments), which
+`use_tf:=true` starts. No rclpy: tests read it."""
 
 from __future__ import annotations
 
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
-import yaml
 
 from vla_common.camera_model import CAMERA_FRAME_ID, SIM_WEBCAM, look_at_rotation
 
@@ -41,14 +40,26 @@ def _quat_xyzw(rot: np.ndarray) -> tuple[float, float, float, float]:
     return x / n, y / n, z / n, w / n
 
 
-def camera_transform(path: str | Path | None = None) -> StaticTransform:
-    """The camera's static transform from a camera_pose.yaml; without one, the simulated webcam."""
-    data = yaml.safe_load(Path(path).read_text()) if path else {
-        "parent": BASE_FRAME, "child": CAMERA_FRAME_ID,
-        "position": list(SIM_WEBCAM.position), "look_at": list(SIM_WEBCAM.look_at)}
-    pos = [float(v) for v in data["position"]]
-    rot = look_at_rotation(pos, [float(v) for v in data["look_at"]])
-    return StaticTransform(str(data["parent"]), str(data["child"]), tuple(pos), _quat_xyzw(rot))
+def camera_transform(args: list[str] | None = None) -> StaticTransform:
+    """The camera's static transform from static_transform_publisher's named arguments (`--x .. --qw
+    --frame-id --child-frame-id`); without them, the simulated webcam. ValueError on anything else."""
+    if args is None:
+        rot = look_at_rotation(list(SIM_WEBCAM.position), list(SIM_WEBCAM.look_at))
+        return StaticTransform(BASE_FRAME, CAMERA_FRAME_ID, tuple(float(v) for v in SIM_WEBCAM.position),
+                               _quat_xyzw(rot))
+    names = ("--x", "--y", "--z", "--qx", "--qy", "--qz", "--qw", "--frame-id", "--child-frame-id")
+    if len(args) % 2 or any(a not in names for a in args[::2]) or set(args[::2]) != set(names):
+        raise ValueError(f"expected each of {' '.join(names)} once with a value")
+    got = dict(zip(args[::2], args[1::2]))
+    try:
+        xyz = tuple(float(got[k]) for k in names[:3])
+        q = tuple(float(got[k]) for k in names[3:7])
+    except ValueError as e:
+        raise ValueError(f"a pose value is not a number: {e}") from e
+    n = math.sqrt(sum(v * v for v in q))
+    if not all(map(math.isfinite, xyz + q)) or abs(n - 1.0) > 1e-6:
+        raise ValueError("the pose must be finite with a unit quaternion")
+    return StaticTransform(got["--frame-id"], got["--child-frame-id"], xyz, q)
 
 
 def urdf_links(urdf_text: str) -> set[str]:

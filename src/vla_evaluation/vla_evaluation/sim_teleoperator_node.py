@@ -397,7 +397,7 @@ class SimTeleoperatorNode(Node):
         enable = int(self.p["enable_button"])
         msg = Joy()
         msg.header.stamp = self._now().to_msg()
-        msg.header.frame_id = NODE_NAME
+        msg.header.frame_id = ""  # a Joy has no geometry: no TF frame (test_frames)
         axes = [0.0] * max(int(self.p["num_axes"]), axis + 1)
         axes[axis] = float(value)
         buttons = [0] * max(int(self.p["num_buttons"]), enable + 1)

@@ -33,7 +33,7 @@ PARAMETERS = ParameterTable([
           range=(0.0, 1000.0)),
     Param("coalesce_interval", 0.001, "axis changes are published at most once per this interval (s); "
           "button changes at once", range=(0.0, 1.0)),
-    Param("frame_id", "joy", "header.frame_id of the Joy messages"),
+    Param("frame_id", "", "header.frame_id of the Joy messages (empty: a Joy has no geometry, no frame)"),
 ])
 
 

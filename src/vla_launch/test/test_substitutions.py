@@ -230,3 +230,19 @@ def test_a_seeded_fuzzer_of_eval_never_escapes_a_clean_refusal():
         except SafeEvalError:
             continue
         assert _size(value) <= _MAX_LEN, e
+
+
+def test_file_content_reads_a_regular_file_and_refuses_the_rest(tmp_path):
+    """launch's $(file-content) (Jazzy): the URDF for robot_state_publisher; bounded, regular files."""
+    f = tmp_path / "robot.urdf"
+    f.write_text('<robot name="r">\n  <link name="a"/>\n</robot>\n')
+    assert substitute(f"$(file-content {f})", ctx()) == f.read_text()
+    for path, why in ((tmp_path / "none", "No such file"), (tmp_path, "not a regular file"),
+                      ("/dev/zero", "not a regular file")):
+        with pytest.raises(SubstitutionError, match=why):
+            substitute(f"$(file-content {path})", ctx())
+    big = tmp_path / "big"
+    with open(big, "wb") as out:
+        out.truncate(5 * 1024 * 1024)
+    with pytest.raises(SubstitutionError, match="more than"):
+        substitute(f"$(file-content {big})", ctx())

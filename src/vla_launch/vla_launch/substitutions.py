@@ -1,4 +1,4 @@
-"""Launch substitutions (`$(var x)`, `$(find-pkg-share p)`, `$(env X d)`, `$(eval ...)`, ...).
+"""Launch substitutions (`$(var x)`, `$(find-pkg-share p)`, `$(env X d)`, `$(eval e)`, `$(file-content f)`…).
 
 The grammar of ROS 2 launch's frontend (launch/frontend/grammar.lark), written for lark: outside a
 substitution, text is literal and a backslash escapes the next character; inside one, arguments are
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import secrets
+import stat
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 
@@ -195,6 +196,27 @@ def _file(ctx: SubstitutionContext) -> str:
     return os.path.abspath(ctx.current_file)
 
 
+FILE_CONTENT_MAX = 4 * 1024 * 1024   # bytes: a URDF is tens of kB; /dev/zero must not fill memory
+
+
+def _file_content(ctx: SubstitutionContext, path: str) -> str:
+    """launch's $(file-content PATH) (Jazzy): a regular file's text, read when the file is launched."""
+    try:
+        st = os.stat(path)
+    except OSError as e:
+        raise SubstitutionError(f"$(file-content {path}): {e.strerror}") from e
+    if not stat.S_ISREG(st.st_mode):
+        raise SubstitutionError(f"$(file-content {path}): not a regular file")
+    if st.st_size > FILE_CONTENT_MAX:
+        raise SubstitutionError(f"$(file-content {path}): {st.st_size} bytes, more than {FILE_CONTENT_MAX}")
+    try:
+        with open(path, encoding="utf-8") as f:
+            return f.read(FILE_CONTENT_MAX + 1)[:FILE_CONTENT_MAX]
+    except (OSError, UnicodeDecodeError) as e:
+        why = type(e).__name__
+        raise SubstitutionError(f"$(file-content {path}): cannot be read as UTF-8 text ({why})") from e
+
+
 def _bools(name: str, combine: Callable[..., bool]) -> Callable[..., str]:
     return lambda ctx, *a: str(combine(*(_as_bool(v, f"$({name})") for v in a))).lower()
 
@@ -207,6 +229,7 @@ _SUBSTITUTIONS: dict[str, tuple[int, int, Callable[..., str]]] = {
     "find-pkg-share": (1, 1, lambda ctx, p: (ctx.find_share or _find("share_directory"))(p)),
     "find-pkg-prefix": (1, 1, lambda ctx, p: (ctx.find_prefix or _find("prefix"))(p)),
     "eval": (1, 1, _eval),
+    "file-content": (1, 1, _file_content),
     "dirname": (0, 0, lambda ctx: os.path.dirname(_file(ctx))),
     "filename": (0, 0, _file),
     "anon": (1, 1, lambda ctx, n: ctx.anon_names.setdefault(n, f"{n}_{secrets.randbelow(10**9)}")),

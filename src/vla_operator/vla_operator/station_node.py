@@ -116,7 +116,7 @@ class StationNode(Node):
         """Stamped by this node on arrival (the browser's clock is not trusted)."""
         msg = Joy()
         msg.header.stamp = self.get_clock().now().to_msg()
-        msg.header.frame_id = "operator_station"
+        msg.header.frame_id = ""  # a Joy has no geometry: no TF frame (test_frames)
         msg.axes = [float(axis) * float(self.settings.get("speed_scale", 1.0)), 0.0]
         msg.buttons = [0, 0, 0, 0]
         self.joy_pub.publish(msg)

@@ -159,3 +159,16 @@ def test_the_bridge_parameters_make_the_loop_settings():
 def test_bad_libfranka_parameters_are_refused(name, value, match):
     with pytest.raises(BackendError, match=match):
         loop_settings({**PARAMS, name: value}, "fr3")
+
+
+def test_after_lost_cycles_each_driver_says_where_its_robot_went_on():
+    """The FCI extrapolates a velocity stream at frozen acceleration; panda-py's thread holds it."""
+    from vla_panda_bridge.libfranka_driver import PERIOD, DriverSettings, PylibfrankaDriver
+    from vla_panda_bridge.libfranka_panda_py import PandaPyDriver
+
+    v, a = [0.1] * 7, [2.0] + [0.0] * 6
+    fci = PylibfrankaDriver(DriverSettings(robot_ip="x"), module=_module())
+    v3, a3 = fci.gap_reference(v, a, 3)
+    assert v3[0] == pytest.approx(0.1 + 3 * PERIOD * 2.0) and v3[1:] == v[1:] and list(a3) == a
+    held = PandaPyDriver.gap_reference(None, v, a, 3)
+    assert held == (v, [0.0] * 7)

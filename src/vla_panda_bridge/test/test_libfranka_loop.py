@@ -135,12 +135,11 @@ class FakeDriver:
         self.robot.tick(last)
         return self.robot.state(), 0.001
 
-    def reference(self, state):
+    def gap_reference(self, v, a, cycles: int):
         """The fake robot holds the last velocity (as panda-py does); `extrapolated` overrides it."""
         if self.extrapolated is not None:
             return self.extrapolated
-        last = self.velocities[-1][0] if self.velocities else [0.0] * 7
-        return list(last), [0.0] * 7
+        return list(v), [0.0] * 7
 
     def write_velocity(self, dq, finished: bool) -> None:
         assert self.in_motion == "velocity"

@@ -24,6 +24,7 @@ FATAL = "fatal"
 
 DRIVERS = ("auto", "pylibfranka", "panda_py")
 REALTIME = ("enforce", "ignore")
+PERIOD = 0.001              # the robot's control cycle (s)
 PYLIBFRANKA_PROTOCOL = 10   # pylibfranka 0.21.3 (libfranka 0.21): FR3 with system >= 5.9
 PANDA_PY_PROTOCOL = 5       # panda-py 1.1.1 (libfranka 0.9.2): Panda (FER)
 
@@ -101,9 +102,10 @@ class Driver(Protocol):
     def start_velocity(self) -> None: ...
     def read_cycle(self) -> tuple[Any, float]: ...
     def write_velocity(self, dq: Sequence[float], finished: bool) -> None: ...
-    def reference(self, state: Any) -> tuple[Sequence[float], Sequence[float]]:
-        """The joint velocity and acceleration the robot is executing now: what the next command must
-        continue from after lost cycles."""
+    def gap_reference(self, v: Sequence[float], a: Sequence[float],
+                      cycles: int) -> tuple[Sequence[float], Sequence[float]]:
+        """The joint velocity and acceleration the robot is at after `cycles` commands it did not get
+        from us (the last we sent: v, a): what the next command must continue from."""
         ...
     def start_torque(self) -> None: ...
     def write_torque(self, tau: Sequence[float], finished: bool) -> None: ...
@@ -175,9 +177,10 @@ class PylibfrankaDriver:
         cmd.motion_finished = finished
         self._write(cmd, finished)
 
-    def reference(self, state):
-        """libfranka's commanded echo: over lost cycles the FCI extrapolated dq_d at frozen ddq_d."""
-        return state.dq_d, state.ddq_d
+    def gap_reference(self, v, a, cycles: int):
+        """The FCI extrapolates a lost cycle's command "keeping the acceleration constant" (libfranka's
+        docs; franka-sim does the same): the velocity went on at the frozen acceleration."""
+        return [x + cycles * PERIOD * y for x, y in zip(v, a)], list(a)
 
     def write_torque(self, tau: Sequence[float], finished: bool) -> None:
         cmd = self._tau

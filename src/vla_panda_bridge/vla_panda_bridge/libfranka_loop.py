@@ -36,6 +36,7 @@ from vla_common.robot import robot_spec
 
 from vla_panda_bridge.libfranka_driver import (
     FATAL,
+    PERIOD,
     REFLEX,
     Driver,
     DriverSettings,
@@ -55,7 +56,6 @@ from vla_panda_bridge.libfranka_slots import (
 from vla_panda_bridge.safety import OK as FILTER_OK
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
-PERIOD = 0.001  # the robot's control cycle (s)
 
 class LoopStatus(IntEnum):
     """The loop's status, its one form: the state slot holds the number, ~/status shows the name."""
@@ -506,7 +506,7 @@ class ControlLoop:
             self._publish(state, math.nan, t0)
             return
         if dt > 1.5 * PERIOD:                        # lost cycles: the robot went on without us
-            f.follow(*self.driver.reference(state), state.q)
+            f.follow(*self.driver.gap_reference(f.velocity, f.acceleration, round(dt / PERIOD) - 1), state.q)
         out, code, text = f.filter(None, state.q, self._t)
         self._filter_status(code, text)
         finished = False

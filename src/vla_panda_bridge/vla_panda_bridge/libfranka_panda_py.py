@@ -19,9 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from vla_panda_bridge.libfranka_driver import DriverSettings, classify
-
-PERIOD = 0.001
+from vla_panda_bridge.libfranka_driver import PERIOD, DriverSettings, classify
 
 
 class PandaPyDriver:
@@ -120,10 +118,9 @@ class PandaPyDriver:
             self._stop_quietly()
             raise classify(exc, during_motion=True) from exc
 
-    def reference(self, state):
-        """panda-py's controller thread holds the last velocity it was given (its torque control
-        leaves libfranka's dq_d unused)."""
-        return list(self._dq), [0.0] * len(self._dq)
+    def gap_reference(self, v, a, cycles: int):
+        """panda-py's controller thread holds the last velocity it was given."""
+        return list(v), [0.0] * len(v)
 
     def write_torque(self, tau: Sequence[float], finished: bool) -> None:
         """panda-py's teaching mode applies zero torque plus its damping itself; `tau` is not sent."""

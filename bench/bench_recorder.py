@@ -1,6 +1,6 @@
 """Recorder throughput: joint_states at 1 kHz + 640x480 rgb8 images at 30 Hz into one episode.
 
-Starts the installed recorder_node in its own process, publishes from this process (reliable QoS,
+Starts the installed recorder in its own process, publishes from this process (reliable QoS,
 as the bridge and camera do), then compares published with written counts (metadata.yaml) and
 prints MB/s, the publish-rate actually achieved and the recorder's CPU use.
 
@@ -50,9 +50,9 @@ def main() -> int:
 
     isolate()  # read by rclpy.init and the child
     try:
-        exe = find_executable("vla_demo_recorder", "recorder_node")
+        exe = find_executable("vla_demo_recorder", "recorder")
     except RunError as err:
-        print(f"recorder_node: {err}: run `make setup`", file=sys.stderr)
+        print(f"recorder: {err}: run `make setup`", file=sys.stderr)
         return 1
     out = Path(tempfile.mkdtemp(prefix="bench_recorder_"))
     proc = subprocess.Popen([str(exe), "--ros-args", "-r", "__node:=bench_recorder",

@@ -13,7 +13,7 @@ import sys
 import pytest
 
 SECRET = "sk-live-7f3c9a1b2d4e"
-NODES = [("vla_demo_recorder", "recorder_node"), ("vla_detector", "detector_node"),
+NODES = [("vla_demo_recorder", "recorder"), ("vla_detector", "detector_node"),
          ("vla_panda_bridge", "panda_bridge"), ("vla_evaluation", "sim_teleoperator")]
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from vla_common.kinematics import panda_urdf_path
 from vla_common.ros.parameters import ParameterTable
 from vla_launch.launch_file import ParamDict, ParamFile, load_launch_file
 from vla_launch.substitutions import SubstitutionContext
@@ -46,13 +47,13 @@ def file_names(path: Path) -> set[str]:
 
 
 def test_the_nodes_are_found():
-    assert {"panda_bridge", "detector_node", "controller_node", "recorder_node", "camera_node",
+    assert {"panda_bridge", "detector_node", "controller_node", "recorder", "camera_node",
             "joy_node", "sim_teleoperator"} <= set(NODES)
 
 
 @pytest.mark.parametrize("config, executable", [
     ("panda_bridge", "panda_bridge"), ("detector", "detector_node"), ("controller", "controller_node"),
-    ("recorder", "recorder_node"), ("camera", "camera_node"), ("sim_teleoperator", "sim_teleoperator"),
+    ("recorder", "recorder"), ("camera", "camera_node"), ("sim_teleoperator", "sim_teleoperator"),
 ])
 def test_shipped_parameter_files_name_declared_parameters(config, executable):
     assert file_names(CONFIG / f"{config}.yaml") - NODES[executable] == set()
@@ -63,9 +64,11 @@ def test_shipped_parameter_files_name_declared_parameters(config, executable):
                          ids=lambda p: p.name)
 def test_launch_files_pass_declared_parameters(launch):
     ctx = SubstitutionContext(find_share=lambda pkg: str(ROOT / "src" / pkg))
-    everything = {"use_joy": "true", "use_camera": "true"}
+    everything = {"use_joy": "true", "use_camera": "true", "robot_description_file": panda_urdf_path()}
     args = {k: v for k, v in everything.items() if f"name: {k}" in launch.read_text()}
     for process in load_launch_file(str(launch), args, ctx).processes:
+        if not process.pkg.startswith("vla_"):
+            continue                      # robot_state_publisher, tf2_ros: their parameters, not ours
         names = set()
         for p in process.params:
             names |= set(p.values) if isinstance(p, ParamDict) else file_names(Path(p.path)) \

@@ -105,14 +105,14 @@ NODES = {
     "camera_node": ("vla_camera", "camera_node", "camera.yaml", ["loop:=true", "fps:=5.0"]),
     "detector_node": ("vla_detector", "detector_node", "detector.yaml", []),
     "controller_node": ("vla_latent_controller", "controller_node", "controller.yaml", []),
-    "recorder_node": ("vla_demo_recorder", "recorder_node", "recorder.yaml", []),
+    "recorder": ("vla_demo_recorder", "recorder", "recorder.yaml", []),
     "joy_node": ("vla_joystick", "joy_node", None, []),  # no device here: it keeps looking for one
     "panda_bridge": ("vla_panda_bridge", "panda_bridge", "panda_bridge.yaml", ["backend:=ros2_control"]),
 }
 # What shows each node is up and working: camera frames published, detections of them (ONNX Runtime
 # ran), each node's ~/status, and for joy_node (silent without a device) its name in the graph.
 EVIDENCE = {"camera_node": "frames published on ~/status", "detector_node": "detections of its frames",
-            "controller_node": "~/status", "recorder_node": "~/status", "panda_bridge": "~/status",
+            "controller_node": "~/status", "recorder": "~/status", "panda_bridge": "~/status",
             "joy_node": "node in the ROS graph"}
 
 
@@ -122,7 +122,7 @@ def _node_command(label: str, images: Path, bags: Path) -> list[str]:
 
     pkg, exe, config, overrides = NODES[label]
     overrides = overrides + {"camera_node": [f"source:={images}"],
-                             "recorder_node": [f"output_dir:={bags}"]}.get(label, [])
+                             "recorder": [f"output_dir:={bags}"]}.get(label, [])
     argv = [find_executable(pkg, exe), "--ros-args"]
     if config:
         argv += ["--params-file", f"{get_package_share_directory('vla_bringup')}/config/{config}"]
@@ -166,8 +166,8 @@ def _observe(procs: LaunchSession, timeout: float) -> dict[str, bool]:
         n.create_subscription(CameraStatus, "camera_node/status", frames, 10)
         n.create_subscription(DetectionArray, "detections", mark("detector_node"), sensor)
         n.create_subscription(ControllerStatus, "controller_node/status", mark("controller_node"), 10)
-        # recorder_node's node is named "recorder"
-        n.create_subscription(RecorderStatus, "recorder/status", mark("recorder_node"), 10)
+        # the recorder executable runs the node "recorder"
+        n.create_subscription(RecorderStatus, "recorder/status", mark("recorder"), 10)
         n.create_subscription(SafetyStatus, "panda_bridge/status", mark("panda_bridge"), 10)
         joy = mark("joy_node", lambda _: "joy_node" in n.get_node_names())
         n.create_timer(0.5, lambda: joy(None))

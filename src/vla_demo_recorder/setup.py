@@ -19,7 +19,7 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "recorder_node = vla_demo_recorder.recorder_node:main",
+            "recorder = vla_demo_recorder.recorder_node:main",
             "vla_demo_recorder = vla_demo_recorder.cli:main",
         ],
     },

@@ -13,7 +13,7 @@ CONFIG_FILES = {
     "panda_bridge": "panda_bridge",
     "detector_node": "detector",
     "controller_node": "controller",
-    "recorder_node": "recorder",
+    "recorder": "recorder",
     "sim_teleoperator": "sim_teleoperator",  # read by vla_evaluation's demo.launch.yaml
 }
 
@@ -32,7 +32,7 @@ def _stub_ctx(tmp_path):
     [
         ("sim", ["panda_bridge"]),
         ("teleop", ["panda_bridge", "detector_node", "controller_node"]),
-        ("record", ["panda_bridge", "detector_node", "recorder_node"]),
+        ("record", ["panda_bridge", "detector_node", "recorder"]),
     ],
 )
 def test_shipped_launch_files(tmp_path, name, execs):

@@ -192,7 +192,7 @@ def _installed(exe: str) -> str:
 def test_sigkill_mid_episode_then_recover(ros, tmp_path):
     """A recorder killed with SIGKILL leaves a bag that `recover` makes readable: everything that was
     published before the last flush is there."""
-    exe = _installed("recorder_node")
+    exe = _installed("recorder")
     proc = subprocess.Popen(
         [exe, "--ros-args", "-r", "__node:=killme", "-p", f"output_dir:={tmp_path}",
          "-p", "flush_period_s:=0.2", "-p", "topic_poll_period_s:=0.1"],
@@ -231,7 +231,7 @@ def test_sigkill_mid_episode_then_recover(ros, tmp_path):
 def test_sigint_mid_episode_closes_the_bag_and_exits_0(ros, tmp_path, sim_time):
     """run_node's main: SIGINT closes the open episode as `interrupted` and exits 0, also with
     use_sim_time and no /clock (no timer of the node ever fires then)."""
-    exe = _installed("recorder_node")
+    exe = _installed("recorder")
     proc = subprocess.Popen(
         [exe, "--ros-args", "-r", "__node:=sigint", "-p", f"output_dir:={tmp_path}",
          "-p", "topic_poll_period_s:=0.1", "-p", f"use_sim_time:={sim_time}"],
@@ -272,7 +272,7 @@ def test_an_unexpected_error_in_a_service_is_replied_not_fatal(ros, tmp_path, mo
 def test_recorder_processes_racing_on_one_folder_all_start(ros, tmp_path):
     """Several recorder processes on one output_dir, episodes started at the same moment: none dies,
     each gets its own folder and index."""
-    exe = _installed("recorder_node")
+    exe = _installed("recorder")
     n = 4
     procs = [subprocess.Popen([exe, "--ros-args", "-r", f"__node:=race{i}", "-p", f"output_dir:={tmp_path}"],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(n)]

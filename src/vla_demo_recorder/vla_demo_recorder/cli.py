@@ -1,5 +1,5 @@
 """`vla_demo_recorder` command line: recover and inspect bags; start/stop/discard/status of a running
-recorder_node."""
+recorder node."""
 from __future__ import annotations
 
 import argparse
@@ -115,7 +115,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("bags", nargs="+")
     p.set_defaults(func=_cmd_info)
 
-    for name, text in (("start", "start an episode on a running recorder_node"),
+    for name, text in (("start", "start an episode on a running recorder"),
                        ("stop", "stop (keep) the running episode"),
                        ("discard", "stop and discard the running episode"),
                        ("status", "print the recorder's status")):

@@ -343,7 +343,7 @@ class RecorderNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
-    return run_node(RecorderNode, "recorder_node", args)
+    return run_node(RecorderNode, "recorder", args)
 
 
 if __name__ == "__main__":

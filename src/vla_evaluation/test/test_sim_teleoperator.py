@@ -261,7 +261,9 @@ def test_node_drives_joy_through_an_episode(ros, tmp_path):
     assert call("bread/push_east").success
     assert _spin_until(ex, lambda: any(s.state == TeleopStatus.FAILED for s in statuses), 10.0)
     failed = next(s for s in statuses if s.state == TeleopStatus.FAILED)
-    assert "controller_status" in failed.reason and joys[-1].axes[0] == 0.0
+    # it names the topic it listens on and what to set (a renamed controller is heard nowhere else)
+    assert "/controller_node/status" in failed.reason and "controller_status_topic" in failed.reason
+    assert joys[-1].axes[0] == 0.0
 
 
 def test_stick_rate_limit_moves_the_stick_gradually():

@@ -148,8 +148,8 @@ class SimTeleoperatorNode(Node):
         self.status_pub = self.create_publisher(TeleopStatus, "~/status", 10)
         self.create_subscription(JointState, "joint_states", self._on_joints, SENSOR_QOS)
         self.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, SENSOR_QOS)
-        self.create_subscription(ControllerStatus, self.p["controller_status_topic"], self._on_ctrl,
-                                 SENSOR_QOS)
+        self._ctrl_sub = self.create_subscription(ControllerStatus, self.p["controller_status_topic"],
+                                                  self._on_ctrl, SENSOR_QOS)
         self.create_subscription(SafetyStatus, self.p["safety_status_topic"], self._on_safety, 10)
         self.hand: GripperStatus | None = None      # the bridge's gripper/status (what a person sees)
         self._hand_failed = False                   # a grasp failure not yet shown to the button core
@@ -276,7 +276,10 @@ class SimTeleoperatorNode(Node):
         if spec.object_class not in self.objects:
             missing.append(f"{spec.object_class} in scene/objects")
         if self.p["use_controller_context"] and self.model.needs_class and self._latched() is None:
-            missing.append("a latched detection on controller_status")
+            topic = self._ctrl_sub.topic_name
+            missing.append(f"a latched detection on {topic}" if self._fresh(self.ctrl_time) else
+                           f"any controller status on {topic} (a controller with another name or "
+                           "namespace: set controller_status_topic)")
         if self.model.needs_image and not self._fresh(self.image_time):
             missing.append("a camera image")
         return missing

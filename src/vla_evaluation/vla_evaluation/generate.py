@@ -41,13 +41,14 @@ from vla_common.catalogue import Catalogue, TaskSpec, load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES
+from vla_common.ros.convert import reset_request
 from vla_common.ros.domain import graph_on_domain
 from vla_common.tasks import task_layout, task_success
 from vla_demo_recorder.dataset import DemoError, load_demo
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
 from vla_evaluation.graph_runner import GraphRunner
-from vla_interfaces.msg import DetectionArray, RecorderStatus, SafetyStatus, SceneObject, SceneObjectArray
+from vla_interfaces.msg import DetectionArray, RecorderStatus, SafetyStatus, SceneObjectArray
 from vla_interfaces.srv import GripperCommand, ResetScene, StartEpisode
 
 BRIDGE = "panda_bridge"
@@ -363,11 +364,7 @@ def _write_report(cfg: GenerateConfig, records: list[EpisodeRecord]) -> None:
 
 def _reset_scene(demo: Demonstrator, spec, layout, q0, alive) -> ObjectPose:
     """Reset through the bridge's ~/reset and wait for the settled, detected scene; the object's pose."""
-    req = ResetScene.Request()
-    req.objects = [SceneObject(class_id=o.class_id, x=float(o.x), y=float(o.y), yaw=float(o.yaw))
-                   for o in layout]
-    req.initial_positions = [float(v) for v in q0]
-    res = demo.call(demo.reset_cli, req, 30, "reset")
+    res = demo.call(demo.reset_cli, reset_request(layout, q0), 30, "reset")
     if not res.success:
         raise GenerateError(f"reset refused: {res.message}")
     t_reset = demo.now()

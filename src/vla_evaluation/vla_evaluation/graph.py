@@ -35,6 +35,7 @@ from vla_common.catalogue import TaskSpec, load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES, READY_POSE
+from vla_common.ros.convert import reset_request
 from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.tasks import parse_task
 
@@ -52,7 +53,6 @@ from vla_interfaces.msg import (
     ControllerStatus,
     DetectionArray,
     SafetyStatus,
-    SceneObject,
     SceneObjectArray,
     TeleopStatus,
 )
@@ -412,12 +412,7 @@ class GraphEvaluator:
         objects, _goal, _wps, used_seed = plannable_layout(self.kin, spec, spec.object_class, seed,
                                                             np.asarray(READY_POSE), n_objects,
                                                             catalogue=self.catalogue)
-        req = ResetScene.Request()
-        req.use_seed = False
-        req.objects = [SceneObject(class_id=o.class_id, x=float(o.x), y=float(o.y), yaw=float(o.yaw))
-                       for o in objects]
-        req.initial_positions = [float(v) for v in READY_POSE]
-        res = obs.call(obs.reset_cli, req, 30.0, "reset")
+        res = obs.call(obs.reset_cli, reset_request(objects, READY_POSE), 30.0, "reset")
         if not res.success:
             raise GraphError(f"reset refused: {res.message}")
         settled = obs.now() + cfg.settle_time

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import numpy as np
 from builtin_interfaces.msg import Time
@@ -11,7 +11,8 @@ from geometry_msgs.msg import Pose
 
 from vla_common.detection import Detection
 from vla_interfaces.msg import Detection as DetectionMsg
-from vla_interfaces.msg import DetectionArray
+from vla_interfaces.msg import DetectionArray, SceneObject
+from vla_interfaces.srv import ResetScene
 
 
 def stamp_from_ns(ns: int) -> Time:
@@ -72,3 +73,13 @@ def detection_array(detections: Iterable[Detection], header, image_size: tuple[i
 
 def detections_from_array(msg: DetectionArray) -> tuple[list[Detection], tuple[int, int]]:
     return [detection_from_msg(d) for d in msg.detections], (int(msg.image_width), int(msg.image_height))
+
+
+def reset_request(objects: Iterable, positions: Sequence[float]) -> ResetScene.Request:
+    """A ~/reset request for this layout (objects with class_id, x, y, yaw, such as ObjectPose) and
+    these initial joint positions, not a seeded random one."""
+    req = ResetScene.Request(use_seed=False)
+    req.objects = [SceneObject(class_id=o.class_id, x=float(o.x), y=float(o.y), yaw=float(o.yaw))
+                   for o in objects]
+    req.initial_positions = [float(v) for v in positions]
+    return req

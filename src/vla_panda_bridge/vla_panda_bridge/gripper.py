@@ -60,8 +60,8 @@ class HandOp:
 class HandReading:
     """What a driver measured: the finger gap (m), whether its motion still runs (True from the
     moment `start` returns), whether the hand holds something now (None: it cannot tell; a real
-    hand's is_grasped, the simulation's finger contacts), what it holds ("" unknown), and an error
-    text when the hand is gone."""
+    hand's is_grasped, the simulation's finger contacts), what it holds ("" unknown), an error
+    text when the hand is gone, and why the motion that ended failed (a hand that refused it)."""
 
     width: float
     moving: bool
@@ -69,6 +69,7 @@ class HandReading:
     holding: str = ""
     error: str = ""
     finger_velocity: float = 0.0
+    failed: str = ""
 
 
 class HandDriver(Protocol):
@@ -271,6 +272,10 @@ class GripperCore:
         return changed
 
     def _finish(self, op: HandOp, r: HandReading) -> None:
+        if r.failed:
+            state = GRASP_FAILED if op.kind == GRASP else STOPPED
+            self._set(state, f"{r.failed} at {r.width:.3f} m; not retried")
+            return
         if op.kind != GRASP:
             self._set(IDLE, f"{'homed' if op.kind == HOMING else 'moved'} to {r.width:.3f} m")
             return

@@ -1,0 +1,266 @@
+"""The Franka Hand through libfranka's Gripper behind gripper.HandDriver (plain Python, no rclpy).
+
+libfranka's Gripper calls block (a move, a grasp, homing until the fingers stop; read_once until the
+hand's next state datagram), so none of them runs on the ROS executor. Three threads of this driver's
+own do: a reader (connects, then read_once in a loop: the latest width and is_grasped), a commander
+(runs one motion at a time) and a stopper (Gripper.stop while a motion runs: libfranka answers each
+command by its id, so a stop from another thread on the same connection interrupts a running move or
+grasp, as franka_gripper does). `start`, `stop` and `read` only hand over or copy under a lock.
+
+A connection that fails (the network, the hand switched off) makes `read` report an error, which
+GripperCore turns into LOST; the reader reconnects every RECONNECT_PERIOD and the hand answers again.
+A motion the hand refuses (libfranka's CommandException) is reported as that motion's failure.
+`stop` with no motion running sends nothing: a finished grasp keeps holding (Gripper.stop would
+release its force).
+
+Bindings: pylibfranka's Gripper (FR3) or panda-py's `panda_py.libfranka.Gripper` (Panda), the same
+five calls. `netns` makes the connection inside a network namespace (tests run franka-sim in one):
+the reader thread joins it with setns(2), which moves only that thread, before it connects.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import os
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+from vla_panda_bridge import gripper
+from vla_panda_bridge.libfranka_driver import _LOST
+
+RECONNECT_PERIOD = 1.0     # s between connection attempts while the hand does not answer
+STOP_WAIT = 5.0            # s a new motion waits for a stop sent to the previous one to be answered
+CLONE_NEWNET = 0x40000000  # <sched.h>
+BINDINGS = ("pylibfranka", "panda_py")
+
+
+def gripper_class(binding: str) -> Callable[[str], Any]:
+    """libfranka's Gripper class of a binding ('auto' is pylibfranka: see open_gripper)."""
+    if binding == "panda_py":
+        from panda_py import libfranka  # optional dependency: only a real Panda needs it
+        return libfranka.Gripper
+    import pylibfranka  # optional dependency: only a real arm / franka-sim needs it
+    return pylibfranka.Gripper
+
+
+def open_gripper(binding: str) -> Callable[[str], Any]:
+    """A connect function for `binding` (a DRIVERS name): 'auto' tries pylibfranka's Gripper, then,
+    where the hand speaks another protocol version, panda-py's."""
+    if binding != "auto":
+        return lambda ip: gripper_class(binding)(ip)
+
+    def connect(ip: str):
+        try:
+            return gripper_class("pylibfranka")(ip)
+        except ImportError:
+            return gripper_class("panda_py")(ip)
+        except Exception as exc:
+            if "incompatible" not in str(exc).lower():
+                raise
+            try:
+                return gripper_class("panda_py")(ip)
+            except ImportError:
+                raise exc from None
+    return connect
+
+
+def join_netns(name: str) -> None:
+    """Move the calling thread into the network namespace /var/run/netns/<name> (setns(2))."""
+    fd = os.open(f"/var/run/netns/{name}", os.O_RDONLY)
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        if libc.setns(fd, CLONE_NEWNET) != 0:
+            err = ctypes.get_errno()
+            raise OSError(err, f"setns to network namespace {name!r}: {os.strerror(err)}")
+    finally:
+        os.close(fd)
+
+
+def _lost(exc: BaseException) -> bool:
+    """A connection that is gone (not a command the hand refused)."""
+    if "Network" in type(exc).__name__:
+        return True
+    if "Command" in type(exc).__name__:
+        return False
+    return any(w in str(exc).lower() for w in _LOST)
+
+
+def _text(exc: BaseException) -> str:
+    return f"{type(exc).__name__}: {exc}"
+
+
+class LibfrankaHand:
+    """gripper.HandDriver over libfranka's Gripper at `ip` (see the module docstring). `connect(ip)`
+    makes a connected Gripper (open_gripper(binding)); `clock` stamps readings for the finger speed."""
+
+    def __init__(self, ip: str, max_width: float, connect: Callable[[str], Any], netns: str = "",
+                 clock: Callable[[], float] = time.monotonic, reconnect_period: float = RECONNECT_PERIOD):
+        self.ip, self.max_width, self.netns = ip, float(max_width), netns
+        self._connect, self._clock, self._reconnect_period = connect, clock, reconnect_period
+        self._lock = threading.Condition()
+        self._hand: Any = None                    # the connected Gripper (None: not connected)
+        self._reading = gripper.HandReading(width=0.0, moving=False, error=f"connecting to the hand at {ip}")
+        self._last: tuple[float, float] | None = None   # (time, width) of the last state read
+        self._stamp: float | None = None                # the hand's time of that state
+        self._pending: gripper.HandOp | None = None     # the next motion, not started yet
+        self._running: gripper.HandOp | None = None     # the motion in a blocking call now
+        self._failed = ""                               # why the last motion failed ("" none)
+        self._stops_asked = self._stops_done = 0
+        self._closed = False
+        self.stops_sent = 0                             # Gripper.stop calls made (tests, logs)
+        self.connects = 0
+        self._threads = [threading.Thread(target=f, name=f"hand-{n}", daemon=True)
+                         for n, f in (("reader", self._read_loop), ("commander", self._command_loop),
+                                      ("stopper", self._stop_loop))]
+        for t in self._threads:
+            t.start()
+
+    # ------------------------------------------------------------------ HandDriver (non-blocking)
+    def start(self, op: gripper.HandOp) -> None:
+        """Queue `op` (the latest wins); a running motion is stopped first."""
+        with self._lock:
+            if self._hand is None:
+                raise ConnectionError(self._reading.error or "the hand is not connected")
+            self._pending, self._failed = op, ""
+            if self._running is not None:
+                self._stops_asked += 1
+            self._lock.notify_all()
+
+    def stop(self) -> None:
+        """Stop a running motion (Gripper.stop from the stopper thread); drop one not started yet.
+        Nothing is sent when no motion runs: a finished grasp keeps holding."""
+        with self._lock:
+            self._pending = None
+            if self._running is not None:
+                self._stops_asked += 1
+                self._lock.notify_all()
+
+    def read(self) -> gripper.HandReading:
+        with self._lock:
+            r = self._reading
+            return gripper.HandReading(width=r.width, grasped=r.grasped, error=r.error,
+                                       finger_velocity=r.finger_velocity, failed=self._failed,
+                                       moving=self._pending is not None or self._running is not None)
+
+    def close(self, timeout: float = 1.0) -> None:
+        """Stop a running motion, end the threads (bounded: a blocked call is left to its daemon)."""
+        self.stop()
+        with self._lock:
+            self._closed = True
+            self._lock.notify_all()
+        deadline = time.monotonic() + timeout
+        for t in self._threads:
+            t.join(max(0.0, deadline - time.monotonic()))
+
+    # ------------------------------------------------------------------ threads
+    def _read_loop(self) -> None:
+        if self.netns:
+            try:
+                join_netns(self.netns)
+            except OSError as exc:
+                with self._lock:
+                    self._reading = gripper.HandReading(width=0.0, moving=False, error=str(exc))
+                return
+        while not self._closed:
+            hand = self._hand
+            if hand is None:
+                try:
+                    hand = self._connect(self.ip)
+                except Exception as exc:
+                    self._lose(None, f"cannot connect to the hand at {self.ip}: {_text(exc)}")
+                    with self._lock:
+                        self._lock.wait_for(lambda: self._closed, self._reconnect_period)
+                    continue
+                with self._lock:
+                    self._hand = hand
+                    self.connects += 1
+            try:
+                state = hand.read_once()
+            except Exception as exc:
+                self._lose(hand, f"reading the hand: {_text(exc)}")
+                continue
+            self._store(state)
+
+    def _store(self, state) -> None:
+        now, width = self._clock(), float(state.width)
+        stamp = getattr(getattr(state, "time", None), "to_sec", lambda: None)()
+        with self._lock:
+            if stamp is not None and self._stamp is not None and stamp < self._stamp:
+                return                          # an older state than one stored (the other thread's)
+            self._stamp = stamp
+            v = 0.0
+            if self._last is not None and now > self._last[0]:
+                v = (width - self._last[1]) / (now - self._last[0])
+            self._last = (now, width)
+            self._reading = gripper.HandReading(width=width, moving=False, grasped=bool(state.is_grasped),
+                                                finger_velocity=v)
+
+    def _lose(self, hand: Any, why: str) -> None:
+        """The connection `hand` is gone (None: none was made): drop it; readings report `why`."""
+        with self._lock:
+            if hand is None or self._hand is hand:
+                self._hand, self._last, self._stamp = None, None, None
+                self._pending = None
+                self._reading = gripper.HandReading(width=self._reading.width, moving=False, error=why)
+
+    def _command_loop(self) -> None:
+        while True:
+            with self._lock:
+                self._lock.wait_for(lambda: self._closed or (self._pending is not None
+                                                             and self._stops_done >= self._stops_asked))
+                if self._closed:
+                    return
+                op, hand, asked = self._pending, self._hand, self._stops_asked
+                self._pending, self._running = None, op
+            failed, state = "", None
+            try:
+                if hand is None:
+                    raise ConnectionError("the hand is not connected")
+                try:
+                    if op.kind == gripper.HOMING:
+                        hand.homing()
+                    elif op.kind == gripper.GRASP:
+                        hand.grasp(op.width, op.speed, op.force, op.epsilon_inner, op.epsilon_outer)
+                    else:
+                        hand.move(op.width, op.speed)
+                except Exception as exc:
+                    if _lost(exc):
+                        raise
+                    with self._lock:
+                        stopped = self._stops_asked > asked       # aborted by our stop: no failure
+                    failed = "" if stopped else f"the hand refused the {_kind(op)}: {_text(exc)}"
+                hand.read_once()                # (may have been queued before the motion ended)
+                state = hand.read_once()        # the hand where the motion ended
+            except Exception as exc:
+                self._lose(hand, f"during {_kind(op)}: {_text(exc)}")
+            if state is not None:
+                self._store(state)
+            with self._lock:
+                self._running = None
+                if failed and self._pending is None:
+                    self._failed = failed
+                self._lock.notify_all()
+
+    def _stop_loop(self) -> None:
+        while True:
+            with self._lock:
+                self._lock.wait_for(lambda: self._closed or self._stops_asked > self._stops_done)
+                if self._closed:
+                    return
+                asked, hand, running = self._stops_asked, self._hand, self._running is not None
+            if running and hand is not None:
+                try:
+                    hand.stop()
+                    self.stops_sent += 1
+                except Exception as exc:
+                    if _lost(exc):
+                        self._lose(hand, f"during stop: {_text(exc)}")
+            with self._lock:
+                self._stops_done = asked
+                self._lock.notify_all()
+
+
+def _kind(op: gripper.HandOp) -> str:
+    return {gripper.HOMING: "homing", gripper.GRASP: "grasp"}.get(op.kind, "move")

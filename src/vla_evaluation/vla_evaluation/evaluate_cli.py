@@ -44,17 +44,21 @@ def task_list(spec: str, catalogue: Catalogue | None = None) -> list[str]:
 
 
 def add_teleop_arguments(p: argparse.ArgumentParser, rate: float, horizon: float = DEFAULT_HORIZON) -> None:
+    d = TeleopSettings()  # the defaults, declared there once
     g = p.add_argument_group("simulated teleoperator and controller")
     g.add_argument("--rate", type=float, default=rate,
                    help="control rate in Hz of simulated time (physics and graph: 100 unless set)")
-    g.add_argument("--time-limit", type=float, default=30.0, help="episode length (s), the paper's 30")
-    g.add_argument("--switch-time", type=float, default=15.0,
+    g.add_argument("--time-limit", type=float, default=d.time_limit,
+                   help="episode length (s), the paper's 30")
+    g.add_argument("--switch-time", type=float, default=d.switch_time,
                    help="time on the pre-push waypoint, the paper's k")
     g.add_argument("--horizon", type=float, default=horizon,
                    help=f"look-ahead of the projected state (s; default {horizon:g})")
-    g.add_argument("--candidates", type=int, default=41, help="stick values tried over [-1, 1] (odd)")
-    g.add_argument("--action-scale", type=float, default=1.0, help="controller action_scale")
-    g.add_argument("--max-joint-speed", type=float, default=1.5, help="controller norm clamp (rad/s)")
+    g.add_argument("--candidates", type=int, default=d.n_candidates,
+                   help="stick values tried over [-1, 1] (odd)")
+    g.add_argument("--action-scale", type=float, default=d.action_scale, help="controller action_scale")
+    g.add_argument("--max-joint-speed", type=float, default=d.max_joint_speed,
+                   help="controller norm clamp (rad/s)")
 
 
 def settings_from(args) -> TeleopSettings:

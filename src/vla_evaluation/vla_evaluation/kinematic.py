@@ -19,6 +19,7 @@ from vla_common.objects import ObjectPose
 from vla_common.robot import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
 from vla_common.tasks import parse_task, task_layout
 from vla_latent_controller.context import ContextError, select_detection
+from vla_latent_controller.teleop import TeleopParams
 from vla_sim.planner import PlanError, plan_task
 
 from vla_evaluation.metrics import EpisodeResult, final_state_error
@@ -36,6 +37,7 @@ from vla_evaluation.sim_teleoperator import (
 # Validation layouts are drawn from seeds at and above this offset; demonstration generators use
 # small seeds, so evaluation layouts are never training layouts.
 VALIDATION_SEED_OFFSET = 100_000
+_CONTROLLER = TeleopParams()  # the controller's defaults, declared there
 LAYOUT_RETRY_STRIDE = 1_000_003  # derived seeds when a layout cannot be planned
 
 
@@ -48,11 +50,12 @@ class TeleopSettings:
     n_candidates: int = DEFAULT_CANDIDATES
     switch_time: float = DEFAULT_SWITCH_TIME
     time_limit: float = DEFAULT_TIME_LIMIT
-    deadband: float = 0.1
-    axis_scale: float = 1.0
-    action_scale: float = 1.0
-    max_joint_speed: float = 1.5
-    goal_selection: str = "highest_score"
+    # The controller's stick mapping and goal choice (its defaults, from TeleopParams)
+    deadband: float = _CONTROLLER.deadband
+    axis_scale: float = _CONTROLLER.axis_scale
+    action_scale: float = _CONTROLLER.action_scale
+    max_joint_speed: float = _CONTROLLER.max_joint_speed
+    goal_selection: str = _CONTROLLER.goal_selection
     dq_max: tuple | None = tuple(float(v) for v in DQ_MAX)  # the controller node's per-joint limit
     path_every: int = 2  # keep every n-th TCP position for plots
     max_stick_rate: float = 0.0  # stick units per second; 0: unlimited (the paper)

@@ -35,6 +35,7 @@ from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import ContextError
 from vla_latent_controller.model import LatentModel
+from vla_latent_controller.teleop import TeleopParams
 from vla_sim.planner import plan_task
 
 from vla_evaluation.resources import latent_model_dir
@@ -61,6 +62,8 @@ def _odd(n: int) -> str | None:
     return None if n % 2 == 1 else f"must be odd (0 must be a candidate), got {n}"
 
 
+_CONTROLLER = TeleopParams()  # the stick mapping mirrors the controller's: its defaults, declared there
+
 PARAMETERS = ParameterTable([
     Param("model_path", "", "latent-action model directory (the controller's); empty: the shipped one; "
           "refused while an episode runs", dynamic=True),
@@ -68,19 +71,26 @@ PARAMETERS = ParameterTable([
     Param("catalogue", "", "object catalogue YAML with the tasks and the objects' shapes (the planner's); "
           "empty: the default (the paper's five)"),
     Param("rate", 100.0, "stick publishing rate (Hz): the controller's rate", range=(1.0, 1000.0)),
-    Param("axis", 0, "index of the stick axis in Joy.axes (the controller's `axis`)", range=(0, 15),
+    Param("axis", _CONTROLLER.axis,
+          "index of the stick axis in Joy.axes (the controller's `axis`)", range=(0, 15),
           dynamic=True),
     Param("num_axes", 2, "length of Joy.axes", range=(1, 16), dynamic=True),
-    Param("enable_button", -1, "deadman button held pressed during an episode (-1: none)", range=(-1, 31),
+    Param("enable_button", _CONTROLLER.enable_button,
+          "deadman button held pressed during an episode (-1: none)", range=(-1, 31),
           dynamic=True),
-    Param("grasp_button", -1, "button pressed to toggle the hand in tasks with the hand (the controller's "
+    Param("grasp_button", _CONTROLLER.grasp_button,
+          "button pressed to toggle the hand in tasks with the hand (the controller's "
           "grasp_button; -1: none, those tasks then fail)", range=(-1, 31), dynamic=True),
     Param("num_buttons", 4, "length of Joy.buttons", range=(0, 32), dynamic=True),
-    Param("deadband", 0.1, "the controller's stick deadband", range=(0.0, 0.9), dynamic=True),
-    Param("axis_scale", 1.0, "the controller's axis_scale", range=(-10.0, 10.0), dynamic=True),
-    Param("action_scale", 1.0, "the controller's action_scale (decoder output -> rad/s)", range=(0.0, 100.0),
+    Param("deadband", _CONTROLLER.deadband,
+          "the controller's stick deadband", range=(0.0, 0.9), dynamic=True),
+    Param("axis_scale", _CONTROLLER.axis_scale,
+          "the controller's axis_scale", range=(-10.0, 10.0), dynamic=True),
+    Param("action_scale", _CONTROLLER.action_scale,
+          "the controller's action_scale (decoder output -> rad/s)", range=(0.0, 100.0),
           dynamic=True),
-    Param("max_joint_speed", 1.5, "the controller's joint-speed norm clamp (rad/s)", range=(0.01, 5.0),
+    Param("max_joint_speed", _CONTROLLER.max_joint_speed,
+          "the controller's joint-speed norm clamp (rad/s)", range=(0.01, 5.0),
           dynamic=True),
     Param("n_candidates", DEFAULT_CANDIDATES, "stick values tried over [-1, 1] (odd)", range=(3, 401),
           dynamic=True, check=_odd),

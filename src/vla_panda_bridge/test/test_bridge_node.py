@@ -490,6 +490,7 @@ def test_the_bridge_stops_within_2_s_of_a_signal_with_use_sim_time_and_no_clock(
         if proc.poll() is None:
             proc.kill()
     text = log.read_text()
+    # The rule's 2 s: 4.3x the 0.32-0.47 s measured at load 1.7 (2026-12-03).
     assert rc == 0 and took < 2.0, (rc, took, text)
     assert "Traceback" not in text, text
 

@@ -69,7 +69,8 @@ class Station:
             self._loop.run_forever()
 
     def stop(self) -> None:
-        if self._loop is None:
+        """Close the pages and the server; a second call (on_shutdown, then destroy_node) does nothing."""
+        if self._loop is None or not self._loop.is_running():
             return
         async def close():
             for ws in list(self._sockets.values()):

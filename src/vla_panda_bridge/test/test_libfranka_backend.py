@@ -31,7 +31,7 @@ class Host:
                        "lower_torque_thresholds": [20.0] * 7, "upper_torque_thresholds": [20.0] * 7,
                        "lower_force_thresholds": [20.0] * 6, "upper_force_thresholds": [20.0] * 6,
                        "joint_impedance": [3000.0] * 7, "teaching_damping": [1.0] * 7, "loop_prefix": "",
-                       "loop_priority": 0, "gripper": False, "gripper_netns": "",
+                       "loop_priority": 0, "gripper": False,
                        "velocity_scale": 1.0, "acceleration_scale": 1.0,
                        "jerk_scale": 1.0, "position_margin": 0.1, "command_timeout": 0.1,
                        "position_sync_tolerance": 0.05, "plausibility_factor": 2.0, **params}

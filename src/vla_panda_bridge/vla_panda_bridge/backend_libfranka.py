@@ -24,7 +24,7 @@ import numpy as np
 
 from vla_panda_bridge.backend import TEACHING, BackendBase, BackendError, Host, JointSample
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
-from vla_panda_bridge.libfranka_hand import LibfrankaHand, open_gripper
+from vla_panda_bridge.libfranka_hand import HandProcess
 from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus
 from vla_panda_bridge.libfranka_process import LibfrankaStatus, LoopProcess
 
@@ -77,10 +77,10 @@ class LibfrankaBackend(BackendBase):
             host.get_logger().warn("realtime_config 'ignore': the loop runs without a real-time kernel "
                                    "(fine for franka-sim and tests; on a real arm expect lost cycles)")
         self.process = LoopProcess(self.settings, loop_prefix=p["loop_prefix"])
-        # The Franka Hand: libfranka's Gripper in threads of its own (its calls block), behind the
-        # node's gripper layer; connects (and reconnects) by itself, LOST until it answers.
-        self.hand = (LibfrankaHand(p["robot_ip"], host.spec.hand.max_width, open_gripper(p["driver"]),
-                                   netns=p["gripper_netns"]) if p["gripper"] else None)
+        # The Franka Hand: libfranka's Gripper in a process of its own (its calls block, holding the
+        # GIL), behind the node's gripper layer; connects (and reconnects) by itself, LOST until then.
+        self.hand = (HandProcess(p["robot_ip"], host.spec.hand.max_width, p["driver"], p["loop_prefix"])
+                     if p["gripper"] else None)
         self._latest: JointSample | None = None
         self._status = LibfrankaStatus(LoopStatus.CONNECTING, "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)

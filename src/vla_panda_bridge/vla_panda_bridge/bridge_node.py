@@ -60,11 +60,6 @@ def _not_empty(value: str) -> str | None:
     return None if value else "must not be empty"
 
 
-def _netns_name(value: str) -> str | None:
-    ok = all(c.isalnum() or c in "._-" for c in value) and not value.startswith(".")
-    return None if ok else f"must be a network namespace name (letters, digits, '._-'), got {value!r}"
-
-
 def _seven_finite(value) -> str | None:
     q = np.asarray(value, dtype=float)
     if q.shape != (7,) or not np.all(np.isfinite(q)):
@@ -136,13 +131,12 @@ PARAMETERS = ParameterTable([
           "libfranka: stiffness of the robot's joint impedance controller (7, Nm/rad)"),
     Param("teaching_damping", list(DriverSettings.teaching_damping),
           "libfranka, mujoco: teaching mode damping, tau = -d * dq (7, Nm s/rad)"),
-    Param("loop_prefix", "", "libfranka: command words before the loop process (e.g. 'ip netns exec NS')"),
+    Param("loop_prefix", "", "libfranka: command words before the loop process and the hand's (e.g. "
+          "'ip netns exec NS')"),
     Param("loop_priority", 0, "libfranka: SCHED_FIFO priority of the 1 kHz loop process (0 = normal; "
           "80 on a real-time kernel)", range=(0, 99)),
     Param("gripper", True, "libfranka: drive the Franka Hand (libfranka's Gripper at robot_ip) behind "
           "~/gripper, its finger joints in joint_states; false: an arm without a hand"),
-    Param("gripper_netns", "", "libfranka: network namespace (/var/run/netns/NAME) the hand's connection "
-          "is made in; empty = the node's (tests run franka-sim in one)", check=_netns_name),
 ])
 
 
@@ -312,7 +306,10 @@ class PandaBridge(LifecycleNode):
         return self._own(super().create_service(*args, **kwargs))
 
     def _publish_gripper(self) -> None:
+        """The hand's status at status_rate; followed here too, so a silent arm (no joint_states) does
+        not hide a hand that was lost or came back."""
         if self.gripper is not None:
+            self.gripper.update()
             self.gripper.publish()
 
     @staticmethod

@@ -1,27 +1,34 @@
 """The Franka Hand through libfranka's Gripper behind gripper.HandDriver (plain Python, no rclpy).
 
 libfranka's Gripper calls block (a move, a grasp, homing until the fingers stop; read_once until the
-hand's next state datagram), so none of them runs on the ROS executor. Three threads of this driver's
-own do: a reader (connects, then read_once in a loop: the latest width and is_grasped), a commander
-(runs one motion at a time) and a stopper (Gripper.stop while a motion runs: libfranka answers each
-command by its id, so a stop from another thread on the same connection interrupts a running move or
-grasp, as franka_gripper does). `start`, `stop` and `read` only hand over or copy under a lock.
+hand's next state datagram), and the bindings hold the GIL while they do (measured with pylibfranka
+0.21.3 against franka-sim: a thread that calls read_once in a loop lets the rest of its process run
+only once per datagram, every 16.7 ms). So the Gripper lives in a process of its own, as the arm's
+1 kHz loop does: `HandProcess` (the node's driver) starts `python -m vla_panda_bridge.libfranka_hand`
+(after `prefix`, the loop's: e.g. `ip netns exec NS`) and exchanges JSON lines with it; its
+`start`, `stop` and `read` only write a line or copy the latest reading.
 
-A connection that fails (the network, the hand switched off) makes `read` report an error, which
-GripperCore turns into LOST; the reader reconnects every RECONNECT_PERIOD and the hand answers again.
-A motion the hand refuses (libfranka's CommandException) is reported as that motion's failure.
-`stop` with no motion running sends nothing: a finished grasp keeps holding (Gripper.stop would
-release its force).
+In that process `LibfrankaHand` runs three threads: a reader (connects, then read_once in a loop: the
+latest width and is_grasped), a commander (one motion at a time) and a stopper (Gripper.stop while a
+motion runs: libfranka answers each command by its id, so a stop on the same connection interrupts a
+running move or grasp, as franka_gripper does; with a binding that holds the GIL the stop is sent
+when the running call lets go of it). A connection that fails (the network, the hand switched off)
+makes `read` report an error, which GripperCore turns into LOST; the reader reconnects every
+RECONNECT_PERIOD and the hand answers again. A motion the hand refuses (libfranka's
+CommandException) is reported as that motion's failure. `stop` with no motion running sends
+nothing: a finished grasp keeps holding (Gripper.stop would release its force).
 
 Bindings: pylibfranka's Gripper (FR3) or panda-py's `panda_py.libfranka.Gripper` (Panda), the same
-five calls. `netns` makes the connection inside a network namespace (tests run franka-sim in one):
-the reader thread joins it with setns(2), which moves only that thread, before it connects.
+five calls; `open_gripper('auto')` tries pylibfranka first.
 """
 
 from __future__ import annotations
 
-import ctypes
-import os
+import json
+import math
+import shlex
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable
@@ -32,7 +39,7 @@ from vla_panda_bridge.libfranka_driver import _LOST
 
 RECONNECT_PERIOD = 1.0     # s between connection attempts while the hand does not answer
 STOP_WAIT = 5.0            # s a new motion waits for a stop sent to the previous one to be answered
-CLONE_NEWNET = 0x40000000  # <sched.h>
+REPORT_PERIOD = 0.01       # s: the hand process reports a changed reading at most this often
 BINDINGS = ("pylibfranka", "panda_py")
 
 
@@ -66,18 +73,6 @@ def open_gripper(binding: str) -> Callable[[str], Any]:
     return connect
 
 
-def join_netns(name: str) -> None:
-    """Move the calling thread into the network namespace /var/run/netns/<name> (setns(2))."""
-    fd = os.open(f"/var/run/netns/{name}", os.O_RDONLY)
-    try:
-        libc = ctypes.CDLL(None, use_errno=True)
-        if libc.setns(fd, CLONE_NEWNET) != 0:
-            err = ctypes.get_errno()
-            raise OSError(err, f"setns to network namespace {name!r}: {os.strerror(err)}")
-    finally:
-        os.close(fd)
-
-
 def _lost(exc: BaseException) -> bool:
     """A connection that is gone (not a command the hand refused)."""
     if "Network" in type(exc).__name__:
@@ -92,12 +87,13 @@ def _text(exc: BaseException) -> str:
 
 
 class LibfrankaHand:
-    """gripper.HandDriver over libfranka's Gripper at `ip` (see the module docstring). `connect(ip)`
-    makes a connected Gripper (open_gripper(binding)); `clock` stamps readings for the finger speed."""
+    """gripper.HandDriver over libfranka's Gripper at `ip`, in the process it runs in (see the module
+    docstring). `connect(ip)` makes a connected Gripper (open_gripper(binding)); `clock` stamps
+    readings for the finger speed."""
 
-    def __init__(self, ip: str, max_width: float, connect: Callable[[str], Any], netns: str = "",
+    def __init__(self, ip: str, max_width: float, connect: Callable[[str], Any],
                  clock: Callable[[], float] = time.monotonic, reconnect_period: float = RECONNECT_PERIOD):
-        self.ip, self.max_width, self.netns = ip, float(max_width), netns
+        self.ip, self.max_width = ip, float(max_width)
         self._connect, self._clock, self._reconnect_period = connect, clock, reconnect_period
         self._lock = threading.Condition()
         self._hand: Any = None                    # the connected Gripper (None: not connected)
@@ -156,13 +152,6 @@ class LibfrankaHand:
 
     # ------------------------------------------------------------------ threads
     def _read_loop(self) -> None:
-        if self.netns:
-            try:
-                join_netns(self.netns)
-            except OSError as exc:
-                with self._lock:
-                    self._reading = gripper.HandReading(width=0.0, moving=False, error=str(exc))
-                return
         while not self._closed:
             hand = self._hand
             if hand is None:
@@ -264,3 +253,143 @@ class LibfrankaHand:
 
 def _kind(op: gripper.HandOp) -> str:
     return {gripper.HOMING: "homing", gripper.GRASP: "grasp"}.get(op.kind, "move")
+
+
+# ---------------------------------------------------------------------------------- the node's side
+class HandProcess:
+    """gripper.HandDriver for the node: the Gripper in a process of its own (see the module
+    docstring). Readings arrive on the process' stdout; ops and stops go to its stdin."""
+
+    def __init__(self, ip: str, max_width: float, binding: str = "auto", prefix: str | list[str] = "",
+                 python: str = sys.executable):
+        self.max_width = float(max_width)
+        words = shlex.split(prefix) if isinstance(prefix, str) else list(prefix)
+        cmd = [*words, python, "-m", "vla_panda_bridge.libfranka_hand", ip, repr(self.max_width), binding]
+        self._lock = threading.Lock()
+        self._reading = gripper.HandReading(width=0.0, moving=False, error=f"connecting to the hand at {ip}")
+        self._sent = self._done = 0                    # ops sent / ops the process reported finished
+        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                                      bufsize=1, start_new_session=True)
+        self._thread = threading.Thread(target=self._listen, name="hand-listen", daemon=True)
+        self._thread.start()
+
+    @property
+    def pid(self) -> int:
+        return self._proc.pid
+
+    def start(self, op: gripper.HandOp) -> None:
+        with self._lock:
+            if self._reading.error:
+                raise ConnectionError(self._reading.error)
+            self._sent += 1
+            self._send({"op": op.kind, "width": op.width, "speed": op.speed, "force": op.force,
+                        "epsilon_inner": op.epsilon_inner, "epsilon_outer": op.epsilon_outer,
+                        "seq": self._sent})
+
+    def stop(self) -> None:
+        with self._lock:
+            self._send({"stop": True})
+
+    def read(self) -> gripper.HandReading:
+        with self._lock:
+            r = self._reading
+            return gripper.HandReading(width=r.width, grasped=r.grasped, error=r.error, failed=r.failed,
+                                       finger_velocity=r.finger_velocity,
+                                       moving=r.moving or self._done < self._sent)
+
+    def close(self, timeout: float = 1.0) -> None:
+        """Stop a running motion and end the process (killed after `timeout`)."""
+        with self._lock:
+            self._send({"close": True})
+        try:
+            self._proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+
+    def _send(self, msg: dict) -> None:
+        try:
+            self._proc.stdin.write(json.dumps(msg) + "\n")
+            self._proc.stdin.flush()
+        except (BrokenPipeError, ValueError, OSError):
+            pass                                    # the process is gone: _listen reports it
+
+    def _listen(self) -> None:
+        for line in self._proc.stdout:
+            try:
+                m = json.loads(line)
+                r = gripper.HandReading(width=float(m["width"]), moving=bool(m["moving"]),
+                                        grasped=m["grasped"], error=str(m["error"]), failed=str(m["failed"]),
+                                        finger_velocity=float(m["v"]))
+                done = int(m["done"])
+            except (ValueError, KeyError, TypeError):
+                continue                            # not a reading (a stray print): ignored
+            with self._lock:
+                self._reading, self._done = r, max(self._done, done)
+        code = self._proc.wait()
+        with self._lock:
+            self._reading = gripper.HandReading(width=self._reading.width, moving=False,
+                                                error=f"the hand process exited with code {code}")
+            self._done = self._sent
+
+
+def _serve(hand: LibfrankaHand, out) -> None:
+    """The hand process: ops and stops from stdin to `hand`; its readings to `out` when they change
+    (at most every REPORT_PERIOD), with the number of the last op that finished."""
+    lock = threading.Lock()
+    started = [0, 0]                                 # [seq of the last op started, seq finished]
+    closing = threading.Event()
+
+    def commands() -> None:
+        for line in sys.stdin:
+            try:
+                m = json.loads(line)
+            except ValueError:
+                continue
+            if m.get("close"):
+                break
+            if m.get("stop"):
+                hand.stop()
+                continue
+            op = gripper.HandOp(int(m["op"]), float(m["width"]), float(m["speed"]), float(m["force"]),
+                                float(m["epsilon_inner"]), float(m["epsilon_outer"]))
+            with lock:
+                try:
+                    hand.start(op)
+                    started[0] = int(m["seq"])
+                except ConnectionError:
+                    started[0] = started[1] = int(m["seq"])     # refused: reported by the reading's error
+        closing.set()
+
+    threading.Thread(target=commands, name="hand-commands", daemon=True).start()
+    last = None
+    while not closing.is_set():
+        with lock:
+            r = hand.read()
+            if not r.moving:
+                started[1] = started[0]
+            msg = {"width": r.width if math.isfinite(r.width) else 0.0, "moving": r.moving,
+                   "grasped": r.grasped, "error": r.error, "failed": r.failed, "v": r.finger_velocity,
+                   "done": started[1]}
+        if msg != last:
+            out.write(json.dumps(msg) + "\n")
+            out.flush()
+            last = msg
+        closing.wait(REPORT_PERIOD)
+    hand.close()
+
+
+def main(argv: list[str] | None = None) -> int:
+    """python -m vla_panda_bridge.libfranka_hand IP MAX_WIDTH BINDING"""
+    ip, max_width, binding = (argv if argv is not None else sys.argv[1:])
+    out = sys.stdout
+    sys.stdout = sys.stderr                          # stdout carries only readings
+    try:
+        _serve(LibfrankaHand(ip, float(max_width), open_gripper(binding)), out)
+    except BrokenPipeError:
+        return 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -65,7 +65,8 @@ class Bridge(RosHarness):
 
         values = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
                   "realtime_config": "ignore", "loop_prefix": " ".join(server.netns.prefix()),
-                  "robot_model": "fr3", "loop_priority": RT_PRIORITY, **LIGHT, **FR3_SCALES, **params}
+                  "robot_model": "fr3", "loop_priority": RT_PRIORITY, "gripper": False,   # --no-gripper
+                  **LIGHT, **FR3_SCALES, **params}
         overrides = [Parameter(k, value=v) for k, v in values.items()]
         self.node = self.add(PandaBridge(context=self.context, parameter_overrides=overrides))
         self.backend = self.node.backend

@@ -248,3 +248,91 @@ def test_grasp_arguments_reach_libfranka_in_its_order(rig):
     assert rig.until(lambda: rig.state() == gripper.HOLDING)
     assert rig.fake.calls[-1] == ("grasp", 0.03, 0.02, 40.0, 0.01, 0.02)
     assert GRASP == gripper.GRASP
+
+
+# ------------------------------------------------------------------ HandProcess (the node's side)
+FAKE_MODULE = '''
+import time
+class Duration:
+    def __init__(self, t): self.t = t
+    def to_sec(self): return self.t
+class GripperState:
+    def __init__(self, w, g, t):
+        self.width, self.is_grasped, self.max_width, self.time = w, g, 0.08, Duration(t)
+class CommandException(RuntimeError): pass
+class Gripper:
+    def __init__(self, ip):
+        self.width, self.grasped, self.t = 0.08, False, 0.0
+    def read_once(self):
+        time.sleep(0.005); self.t += 0.005
+        return GripperState(self.width, self.grasped, self.t)
+    def homing(self): self.width = 0.08; return True
+    def move(self, width, speed):
+        if not 0.0 <= width <= 0.08: raise CommandException("libfranka gripper: Command failed!")
+        self.width, self.grasped = width, False; return True
+    def grasp(self, width, speed, force, ei, eo):
+        self.width = 0.03; self.grasped = width - ei < 0.03 < width + eo; return self.grasped
+    def stop(self): return True
+'''
+
+
+@pytest.fixture
+def process(tmp_path):
+    """A HandProcess whose child imports a fake pylibfranka (PYTHONPATH set by its prefix)."""
+    import os
+    import sys
+
+    from vla_panda_bridge.libfranka_hand import HandProcess
+
+    (tmp_path / "pylibfranka.py").write_text(FAKE_MODULE)
+    path = os.pathsep.join([str(tmp_path), *sys.path[1:]])
+    hand = HandProcess("192.0.2.7", 0.08, "pylibfranka", ["env", f"PYTHONPATH={path}"])
+    yield hand
+    hand.close()
+
+
+def _poll(core: GripperCore, cond, timeout=WAIT) -> bool:
+    end = time.monotonic() + timeout
+    t = 0.0
+    while time.monotonic() < end:
+        t += 1.0
+        core.update(t)
+        if cond():
+            return True
+        time.sleep(0.002)
+    return False
+
+
+def test_the_hand_process_carries_motions_and_readings(process):
+    core = GripperCore(process)
+    assert _poll(core, lambda: core.status.state == gripper.IDLE), core.status
+    assert core.status.width == pytest.approx(0.08)
+    ok, _ = core.request(gripper.MOVE, 1e5, width=0.05)
+    assert ok and process.read().moving                   # from the moment start returns
+    assert _poll(core, lambda: core.status.state == gripper.IDLE and "moved" in core.status.text), core.status
+    assert core.status.width == pytest.approx(0.05)
+    ok, _ = core.request(gripper.GRASP, 1e6, width=0.03)
+    assert ok and _poll(core, lambda: core.status.state == gripper.HOLDING), core.status
+    process.start(HandOp(MOVE, 0.5, 0.05))                # past the core (which would refuse it): the
+    core._op = HandOp(MOVE, 0.5, 0.05)                    # hand refuses it, that motion's failure
+    assert _poll(core, lambda: core.status.state == gripper.STOPPED), core.status
+    assert "refused the move" in core.status.text
+
+
+def test_a_hand_process_that_dies_makes_the_hand_lost(process):
+    core = GripperCore(process)
+    assert _poll(core, lambda: core.status.state == gripper.IDLE), core.status
+    process._proc.kill()
+    assert _poll(core, lambda: core.status.state == gripper.LOST), core.status
+    assert "the hand process exited" in core.status.text
+    with pytest.raises(ConnectionError):
+        process.start(HandOp(HOMING))
+    process.stop()                                        # harmless on a dead process
+
+
+def test_closing_ends_the_hand_process(process):
+    core = GripperCore(process)
+    assert _poll(core, lambda: core.status.state == gripper.IDLE), core.status
+    t0 = time.monotonic()
+    process.close()
+    assert process._proc.poll() is not None and time.monotonic() - t0 < 2.0

@@ -196,6 +196,7 @@ def test_stop_with_no_motion_running_sends_nothing_so_a_grasp_keeps_holding(rig)
     rig.core.set_estop(True)                              # the e-stop never opens a closed hand
     ok, _ = rig.request(gripper.STOP)
     assert ok and rig.state() == gripper.HOLDING
+    assert rig.until(lambda: rig.hand._stops_done >= rig.hand._stops_asked)   # any stop handled
     assert ("stop",) not in rig.fake.calls and rig.hand.stops_sent == 0
 
 

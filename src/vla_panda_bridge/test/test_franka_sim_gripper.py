@@ -2,9 +2,10 @@
 kinematic hand: a command sets the width at once; a virtual object --gripper-object-width wide between
 the fingers). panda_bridge with backend libfranka and gripper on, its hand process in the server's
 network namespace (loop_prefix, as the arm's loop); everything through ~/gripper, ~/estop,
-gripper/status and joint_states. A grasp on nothing runs the node's driver (HandProcess) and
-GripperCore against a server without an object. Skipped (failed where VLA_REQUIRE_FRANKA_SIM=1)
-where franka-sim or namespaces are missing."""
+gripper/status and joint_states. Homing, a move and a grasp on nothing run the node's driver
+(HandProcess) and GripperCore against a server without an object, with pylibfranka's Gripper and
+panda-py's (its libfranka 0.9.2 speaks franka-sim's gripper protocol, version 3). Skipped (failed
+where VLA_REQUIRE_FRANKA_SIM=1) where franka-sim or namespaces are missing."""
 
 from __future__ import annotations
 
@@ -234,15 +235,17 @@ def test_a_killed_server_makes_the_hand_lost_and_the_arm_keeps_its_bridge(bridge
     assert bridge.wait(gripper.IDLE, "moved to 0.060")
 
 
-def test_a_grasp_on_nothing_is_grasp_failed():
-    """franka-sim without an object: the fingers close to 0, outside the band around 0.04 m."""
+@pytest.mark.parametrize("binding", ["pylibfranka", "panda_py"])
+def test_a_grasp_on_nothing_is_grasp_failed(binding):
+    """franka-sim without an object: the fingers close to 0, outside the band around 0.04 m. Both
+    bindings: panda-py's libfranka 0.9.2 speaks the same gripper protocol (version 3) as franka-sim."""
     with running(priority=RT_PRIORITY, gripper=True) as server:
-        hand = HandProcess("127.0.0.1", 0.08, "pylibfranka", server.netns.prefix())
+        hand = HandProcess("127.0.0.1", 0.08, binding, server.netns.prefix())
         try:
             core = GripperCore(hand)
             clock = iter(range(1, 10**9))
 
-            def until(cond, timeout=15.0) -> bool:
+            def until(cond, timeout=SLOW) -> bool:
                 end = time.monotonic() + timeout
                 while time.monotonic() < end:
                     core.update(next(clock))
@@ -250,10 +253,14 @@ def test_a_grasp_on_nothing_is_grasp_failed():
                         return True
                     time.sleep(0.005)     # a poll period (the core is polled, as the node's timer does)
                 return False
+
+            def done(text: str) -> bool:
+                return until(lambda: core.status.state == gripper.IDLE and text in core.status.text)
             assert until(lambda: core.status.state == gripper.IDLE), core.status
-            assert core.request(gripper.OPEN, next(clock))[0]
-            assert until(lambda: core.status.state == gripper.IDLE and "moved" in core.status.text), \
-                core.status
+            assert core.request(gripper.HOMING, next(clock))[0]
+            assert done("homed to 0.080"), core.status
+            assert core.request(gripper.MOVE, next(clock), width=0.05)[0]
+            assert done("moved to 0.050"), core.status
             ok, text = core.request(gripper.GRASP, next(clock), width=0.04, force=20.0)
             assert ok, text
             assert until(lambda: core.status.state == gripper.GRASP_FAILED), core.status

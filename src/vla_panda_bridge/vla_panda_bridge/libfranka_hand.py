@@ -38,7 +38,7 @@ from vla_panda_bridge import gripper
 from vla_panda_bridge.libfranka_driver import _LOST
 
 RECONNECT_PERIOD = 1.0     # s between connection attempts while the hand does not answer
-STOP_WAIT = 5.0            # s a new motion waits for a stop sent to the previous one to be answered
+STATE_WAIT = 1.0           # s a finished motion waits for the hand's states after it (bounded)
 REPORT_PERIOD = 0.01       # s: the hand process reports a changed reading at most this often
 BINDINGS = ("pylibfranka", "panda_py")
 
@@ -99,7 +99,7 @@ class LibfrankaHand:
         self._hand: Any = None                    # the connected Gripper (None: not connected)
         self._reading = gripper.HandReading(width=0.0, moving=False, error=f"connecting to the hand at {ip}")
         self._last: tuple[float, float] | None = None   # (time, width) of the last state read
-        self._stamp: float | None = None                # the hand's time of that state
+        self._reads = 0                                 # states stored
         self._pending: gripper.HandOp | None = None     # the next motion, not started yet
         self._running: gripper.HandOp | None = None     # the motion in a blocking call now
         self._failed = ""                               # why the last motion failed ("" none)
@@ -174,15 +174,13 @@ class LibfrankaHand:
 
     def _store(self, state) -> None:
         now, width = self._clock(), float(state.width)
-        stamp = getattr(getattr(state, "time", None), "to_sec", lambda: None)()
         with self._lock:
-            if stamp is not None and self._stamp is not None and stamp < self._stamp:
-                return                          # an older state than one stored (the other thread's)
-            self._stamp = stamp
             v = 0.0
             if self._last is not None and now > self._last[0]:
                 v = (width - self._last[1]) / (now - self._last[0])
             self._last = (now, width)
+            self._reads += 1
+            self._lock.notify_all()
             self._reading = gripper.HandReading(width=width, moving=False, grasped=bool(state.is_grasped),
                                                 finger_velocity=v)
 
@@ -190,7 +188,7 @@ class LibfrankaHand:
         """The connection `hand` is gone (None: none was made): drop it; readings report `why`."""
         with self._lock:
             if hand is None or self._hand is hand:
-                self._hand, self._last, self._stamp = None, None, None
+                self._hand, self._last = None, None
                 self._pending = None
                 self._reading = gripper.HandReading(width=self._reading.width, moving=False, error=why)
 
@@ -203,7 +201,7 @@ class LibfrankaHand:
                     return
                 op, hand, asked = self._pending, self._hand, self._stops_asked
                 self._pending, self._running = None, op
-            failed, state = "", None
+            failed = ""
             try:
                 if hand is None:
                     raise ConnectionError("the hand is not connected")
@@ -220,13 +218,13 @@ class LibfrankaHand:
                     with self._lock:
                         stopped = self._stops_asked > asked       # aborted by our stop: no failure
                     failed = "" if stopped else f"the hand refused the {_kind(op)}: {_text(exc)}"
-                hand.read_once()                # (may have been queued before the motion ended)
-                state = hand.read_once()        # the hand where the motion ended
             except Exception as exc:
                 self._lose(hand, f"during {_kind(op)}: {_text(exc)}")
-            if state is not None:
-                self._store(state)
             with self._lock:
+                # The reader's second state from now was sent after the motion ended (the first may
+                # have been queued before): only then is the motion over for `read`.
+                self._lock.wait_for(lambda n=self._reads, h=hand: self._reads >= n + 2 or self._hand is not h
+                                    or self._closed, STATE_WAIT)
                 self._running = None
                 if failed and self._pending is None:
                     self._failed = failed

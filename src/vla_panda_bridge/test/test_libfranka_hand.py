@@ -38,6 +38,8 @@ class FakeGripper:
 
     def __init__(self, ip, object_width=None, hold=False):
         self.ip, self.object_width, self.hold = ip, object_width, hold
+        self.in_grasp, self.grasp_may_end = threading.Event(), threading.Event()
+        self.grasp_may_end.set()
         self.width, self.grasped, self.t = 0.08, False, 0.0
         self.calls: list[tuple] = []
         self.dead = False
@@ -78,6 +80,8 @@ class FakeGripper:
     def grasp(self, width, speed, force, eps_in, eps_out):
         self._check()
         self.calls.append(("grasp", width, speed, force, eps_in, eps_out))
+        self.in_grasp.set()
+        self.grasp_may_end.wait(WAIT)
         self.width = self.object_width or 0.0
         self.grasped = width - eps_in < self.width < width + eps_out
         return self.grasped
@@ -198,6 +202,21 @@ def test_stop_with_no_motion_running_sends_nothing_so_a_grasp_keeps_holding(rig)
     assert ok and rig.state() == gripper.HOLDING
     assert rig.until(lambda: rig.hand._stops_done >= rig.hand._stops_asked)   # any stop handled
     assert ("stop",) not in rig.fake.calls and rig.hand.stops_sent == 0
+
+
+def test_the_estop_during_a_grasp_lets_it_finish_and_never_releases_it(rig):
+    """Gripper.stop after a grasp releases its force; with the bindings holding the GIL a stop can
+    only arrive after the grasp, so none is sent into one."""
+    rig.fake.grasp_may_end.clear()
+    assert rig.request(gripper.GRASP, width=0.03)[0]
+    assert rig.fake.in_grasp.wait(WAIT)
+    rig.core.set_estop(True)
+    assert rig.state() == gripper.STOPPED
+    assert rig.until(lambda: rig.hand._stops_done >= rig.hand._stops_asked == 1)   # the stop handled
+    rig.fake.grasp_may_end.set()
+    assert rig.until(lambda: not rig.hand.read().moving)
+    assert ("stop",) not in rig.fake.calls and rig.hand.stops_sent == 0
+    assert rig.fake.grasped and rig.hand.read().width == pytest.approx(0.03) and rig.hand.read().grasped
 
 
 def test_a_refused_move_is_that_motions_failure_and_the_hand_stays(rig):

@@ -9,14 +9,15 @@ only once per datagram, every 16.7 ms). So the Gripper lives in a process of its
 `start`, `stop` and `read` only write a line or copy the latest reading.
 
 In that process `LibfrankaHand` runs three threads: a reader (connects, then read_once in a loop: the
-latest width and is_grasped), a commander (one motion at a time) and a stopper (Gripper.stop while a
-motion runs: libfranka answers each command by its id, so a stop on the same connection interrupts a
-running move or grasp, as franka_gripper does; with a binding that holds the GIL the stop is sent
-when the running call lets go of it). A connection that fails (the network, the hand switched off)
-makes `read` report an error, which GripperCore turns into LOST; the reader reconnects every
-RECONNECT_PERIOD and the hand answers again. A motion the hand refuses (libfranka's
-CommandException) is reported as that motion's failure. `stop` with no motion running sends
-nothing: a finished grasp keeps holding (Gripper.stop would release its force).
+latest width and is_grasped), a commander (one motion at a time) and a stopper (Gripper.stop into a
+running move or homing: libfranka answers each command by its id, so a stop on the same connection
+interrupts it, as franka_gripper does, where the binding lets the stopper run during the call; the two
+bindings here hold the GIL, so against them a running call ends first. Never into a grasp: a stop
+after it closed would release what the hand holds, so a grasp is left to finish). A connection that
+fails (the network, the hand switched off) makes `read` report an error, which GripperCore turns
+into LOST; the reader reconnects every RECONNECT_PERIOD and the hand answers again. A motion the
+hand refuses (libfranka's CommandException) is reported as that motion's failure. `stop` with no
+motion running sends nothing: a finished grasp keeps holding (Gripper.stop would release its force).
 
 Bindings: pylibfranka's Gripper (FR3) or panda-py's `panda_py.libfranka.Gripper` (Panda), the same
 five calls; `open_gripper('auto')` tries pylibfranka first.
@@ -101,7 +102,8 @@ class LibfrankaHand:
         self._last: tuple[float, float] | None = None   # (time, width) of the last state read
         self._reads = 0                                 # states stored
         self._pending: gripper.HandOp | None = None     # the next motion, not started yet
-        self._running: gripper.HandOp | None = None     # the motion in a blocking call now
+        self._running: gripper.HandOp | None = None     # the motion being run (its call, then its states)
+        self._in_call: gripper.HandOp | None = None     # the motion whose blocking call has not returned
         self._failed = ""                               # why the last motion failed ("" none)
         self._stops_asked = self._stops_done = 0
         self._closed = False
@@ -205,6 +207,8 @@ class LibfrankaHand:
             try:
                 if hand is None:
                     raise ConnectionError("the hand is not connected")
+                with self._lock:
+                    self._in_call = op
                 try:
                     if op.kind == gripper.HOMING:
                         hand.homing()
@@ -213,6 +217,8 @@ class LibfrankaHand:
                     else:
                         hand.move(op.width, op.speed)
                 except Exception as exc:
+                    with self._lock:
+                        self._in_call = None
                     if _lost(exc):
                         raise
                     with self._lock:
@@ -221,6 +227,7 @@ class LibfrankaHand:
             except Exception as exc:
                 self._lose(hand, f"during {_kind(op)}: {_text(exc)}")
             with self._lock:
+                self._in_call = None
                 # The reader's second state from now was sent after the motion ended (the first may
                 # have been queued before): only then is the motion over for `read`.
                 self._lock.wait_for(lambda n=self._reads, h=hand: self._reads >= n + 2 or self._hand is not h
@@ -236,8 +243,11 @@ class LibfrankaHand:
                 self._lock.wait_for(lambda: self._closed or self._stops_asked > self._stops_done)
                 if self._closed:
                     return
-                asked, hand, running = self._stops_asked, self._hand, self._running is not None
-            if running and hand is not None:
+                # Only into a call still running, and never into a grasp: a stop that arrives after the
+                # grasp closed (the bindings hold the GIL, so it cannot get there sooner) would release
+                # what the hand holds. A grasp is left to finish.
+                asked, hand, call = self._stops_asked, self._hand, self._in_call
+            if call is not None and call.kind != gripper.GRASP and hand is not None:
                 try:
                     hand.stop()
                     self.stops_sent += 1

@@ -6,7 +6,24 @@ from vla_common.ros.domain import DOMAINS, DomainError, isolate, isolated_env, p
 def test_a_given_domain_is_kept_unless_busy():
     assert pick_domain(42) == 42
     with pytest.raises(DomainError, match="42 already has another graph"):
-        pick_domain(42, busy=lambda d: True)
+        pick_domain(42, busy=lambda d: True, stale_s=0.0)
+
+
+def test_a_given_domain_is_probed_again_while_a_graph_that_ended_leaves_discovery():
+    """A killed graph's participants linger until their lease runs out: the probe waits them out
+    (here on a fake clock: each probe takes 1.5 s), and refuses a graph that stays."""
+    t = [0.0]
+
+    def probe(answers):
+        def busy(_d):
+            t[0] += 1.5
+            return next(answers)
+        return busy
+    assert pick_domain(42, busy=probe(iter([True, True, False])), clock=lambda: t[0]) == 42
+    t[0] = 0.0
+    with pytest.raises(DomainError, match="already has another graph"):
+        pick_domain(42, busy=probe(iter([True] * 100)), stale_s=30.0, clock=lambda: t[0])
+    assert 30.0 <= t[0] <= 33.0
     with pytest.raises(DomainError, match="outside"):
         pick_domain(300)
 

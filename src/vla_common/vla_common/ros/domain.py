@@ -21,16 +21,24 @@ class DomainError(RuntimeError):
     """No usable ROS domain: the one asked for is busy, or no free one was found."""
 
 
+# s: a graph that just ended (killed, or still going down) stays in discovery until its participants'
+# lease runs out (Fast DDS: 20 s), so a given domain is probed again for this long before it is refused.
+STALE_GRAPH_S = 30.0
+
+
 def pick_domain(preferred: int | None = None, *, busy: Callable[[int], bool] | None = None,
-                tries: int = 8) -> int:
-    """`preferred` if given (DomainError when `busy` says another graph uses it), else a random
-    domain from DOMAINS that `busy` (when given) finds free."""
+                tries: int = 8, stale_s: float = STALE_GRAPH_S,
+                clock: Callable[[], float] = time.monotonic) -> int:
+    """`preferred` if given (DomainError when `busy` still says another graph uses it after
+    `stale_s`), else a random domain from DOMAINS that `busy` (when given) finds free."""
     if preferred is not None:
         if not 0 <= preferred <= DOMAINS.stop - 1:
             raise DomainError(f"ROS domain {preferred} is outside 0..{DOMAINS.stop - 1}")
-        if busy is not None and busy(preferred):
-            raise DomainError(f"ROS domain {preferred} already has another graph on it; "
-                              "choose a free ROS_DOMAIN_ID")
+        deadline = clock() + stale_s
+        while busy is not None and busy(preferred):      # each probe listens for a while itself
+            if clock() >= deadline:
+                raise DomainError(f"ROS domain {preferred} already has another graph on it; "
+                                  "choose a free ROS_DOMAIN_ID")
         return preferred
     for domain in random.SystemRandom().sample(DOMAINS, tries):
         if busy is None or not busy(domain):

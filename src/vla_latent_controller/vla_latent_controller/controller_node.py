@@ -275,7 +275,11 @@ class ControllerNode(Node):
     def _on_joy(self, msg: Joy) -> None:
         if (now := self._input_time()) is None:
             return
+        before = self.core.stick_code(now)
         self.core.on_joy(msg.axes, msg.buttons, now)
+        if self.core.stick_code(now) != before:
+            self._tick()   # a press, a release or the input back after a timeout: its command now, not
+            #                up to a period later (the operator station's key -> command latency)
         if self.core.grasp_presses != self._grasp_presses:    # one toggle per press; the bridge
             self._grasp_presses = self.core.grasp_presses      # refuses presses too close together
             self._toggle_hand()

@@ -441,6 +441,11 @@ class TeleopCore:
             return z, self.model.decoder.decode(q, z) * self.params.action_scale
         return u, self.ee.command(q, u)
 
+    def stick_code(self, now: float) -> Code | None:
+        """What the stick says now (None: it drives; else why it gives zero): a change is a press, a
+        release or an input that came back, whose command should not wait for the next period."""
+        return self._stick(now)[0]
+
     def _stick(self, now: float) -> tuple[Code | None, str, float]:
         """(problem code or None, reason, stick value u ∈ [-1, 1] after deadband and scale)."""
         p = self.params

@@ -55,6 +55,24 @@ def test_inputs_faster_than_the_rate_are_coalesced_latest_wins():
     assert link.value(10.105) == 0.4
 
 
+def test_a_press_after_neutral_is_published_at_once_with_that_neutral_first():
+    """The station publishes the operator's neutral again just before a press (the controller may
+    have missed the neutral stream and would wait for one); a resend or a change while moving does
+    not, and a press right after a publish is not held back by the coalescing."""
+    link, cid = driving()
+    link.published(10.0)
+    v = link.on_message(cid, inp(1, 5.0, 0.6), 10.005)          # 5 ms after the neutral's publish
+    assert v.publish and v.from_neutral and link.counters.coalesced == 0
+    link.published(10.005)
+    v = link.on_message(cid, inp(2, 45.0, 0.6), 10.045)         # the page's resend while held
+    assert v.publish and not v.from_neutral
+    v = link.on_message(cid, inp(3, 85.0, -0.6), 10.085)        # a change of direction
+    assert v.publish and not v.from_neutral
+    assert link.value(10.3) == 0.0                              # expired: not the operator's neutral
+    v = link.on_message(cid, inp(4, 300.0, 0.6), 10.3)
+    assert v.publish and not v.from_neutral
+
+
 def test_close_hidden_and_silence_give_zero_at_once():
     link, cid = driving()
     link.on_message(cid, inp(1, 100.0, 0.5), 10.1)

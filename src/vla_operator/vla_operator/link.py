@@ -76,6 +76,8 @@ class Verdict:
     publish: bool = False
     request: dict | None = None
     error: str = ""
+    from_neutral: bool = False       # a press after the driver's accepted neutral: publish that neutral
+                                     # first (see Link._input)
 
 
 @dataclass
@@ -185,11 +187,17 @@ class Link:
         elif not c.armed:
             return self._drop("not_armed", "motion needs a neutral input first (a new or reloaded page)")
         self.counters.accepted += 1
+        # A press after the operator's own neutral: its first command is never held back, and that
+        # neutral is published again just before it. A consumer that missed the neutral stream for a
+        # moment (the controller's joy_timeout on a starved machine) would otherwise take the press
+        # as a stick held through a stop and wait for neutral: a press that did nothing. The neutral
+        # is the operator's (accepted, not an expiry or a stop: those leave or set armed differently).
+        from_neutral = self.axis == 0.0 and axis != 0.0
         self.axis, self.axis_t = float(axis), now
-        if now - self.last_publish < self.params.min_interval and axis != 0.0:
+        if now - self.last_publish < self.params.min_interval and axis != 0.0 and not from_neutral:
             self.counters.coalesced += 1   # kept as the latest; the node's timer publishes it
             return Verdict()
-        return Verdict(publish=True)
+        return Verdict(publish=True, from_neutral=from_neutral)
 
     def published(self, now: float) -> None:
         self.last_publish = now

@@ -35,6 +35,7 @@ class Station:
         self._runner: web.AppRunner | None = None
         self._thread: threading.Thread | None = None
         self.address = ""
+        self.frames_sent = 0
         files = web_dir.iterdir() if web_dir.is_dir() else ()
         self._files = {f.name for f in files if f.suffix in (".js", ".css")}
 
@@ -175,6 +176,8 @@ class Station:
             if verdict.publish:
                 self.link.published(now)
         if verdict.publish:
+            if verdict.from_neutral:
+                self.publish_axis(0.0)
             self.publish_axis(axis)
         if verdict.error:
             self._send(cid, {"type": "refused", "reason": verdict.error})
@@ -201,6 +204,7 @@ class Station:
             meta = {**meta, "type": "frame", "age_ms": (time.monotonic() - meta["received"]) * 1000.0}
             await ws.send_str(json.dumps(meta))
             await ws.send_bytes(jpeg)
+            self.frames_sent += 1
             await asyncio.sleep(FRAME_PERIOD / 2)   # frames that came meanwhile: only the latest is sent
 
 

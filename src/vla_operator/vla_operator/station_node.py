@@ -9,27 +9,31 @@ import threading
 import time
 from pathlib import Path
 
-import cv2
-import numpy as np
 from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, Joy
 from std_srvs.srv import SetBool, Trigger
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
-from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
+from vla_common.ros.qos import SENSOR_QOS
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray, GripperStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import GripperCommand, SelectTarget, StartEpisode
 from vla_operator import settings as cfg
+from vla_operator.frames import FrameEncoder
 from vla_operator.link import LOOPBACK, LinkParams
 from vla_operator.server import Station
 from vla_operator.words import controller_words, safety_words
 
 NODE_NAME = "operator_station"
+# Reliable (large frames lose fragments best effort), and only the newest kept: a station that fell
+# behind shows the latest frame, never works through a backlog (IMAGE_QOS keeps 30 for recording).
+LATEST_IMAGE_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
+                              depth=1)
 
 PARAMETERS = ParameterTable([
     Param("bind", "127.0.0.1", "address the page is served on; anything but loopback needs the token"),
@@ -79,7 +83,7 @@ class StationNode(Node):
         b, c, r = p["bridge"], p["controller"], p["recorder"]
         self.state: dict = {"tasks": list(p["tasks"]), "settings": self.settings,
                             "settings_problem": self.settings_problem}
-        self.create_subscription(Image, "camera/image_raw", self._on_image, IMAGE_QOS)
+        self.create_subscription(Image, "camera/image_raw", self._on_image, LATEST_IMAGE_QOS)
         self.create_subscription(DetectionArray, "detections", self._on_dets, SENSOR_QOS)
         self.create_subscription(ControllerStatus, f"{c}/status", self._on_ctrl, 10)
         self.create_subscription(SafetyStatus, f"{b}/status", self._on_safety, 10)
@@ -105,6 +109,7 @@ class StationNode(Node):
             LinkParams(stale_after=p["stale_after"], heartbeat_timeout=p["heartbeat_timeout"]),
         )
         self.address = self.station.start()
+        self.frames = FrameEncoder(self.station.set_frame, p["jpeg_quality"])
         self.create_timer(1.0 / p["rate"], self._tick)
         self.create_timer(1.0, self._publish_status)
         # printed, not only logged: the launch shows it to the person who starts the graph
@@ -260,13 +265,8 @@ class StationNode(Node):
     def _on_image(self, msg: Image) -> None:
         if not self.station.wants_frames() or msg.encoding not in ("rgb8", "bgr8"):
             return
-        img = np.frombuffer(msg.data, np.uint8).reshape(msg.height, msg.width, 3)
-        if msg.encoding == "rgb8":
-            img = img[:, :, ::-1]
-        ok, jpeg = cv2.imencode(".jpg", img, [cv2.IMWRITE_JPEG_QUALITY, self.p["jpeg_quality"]])
-        if ok:
-            self.station.set_frame(jpeg.tobytes(), {"width": msg.width, "height": msg.height,
-                                                    "received": time.monotonic(), **self._dets})
+        self.frames.submit(msg.data, msg.width, msg.height, msg.encoding,
+                           {"width": msg.width, "height": msg.height, **self._dets})
 
     def _on_dets(self, msg: DetectionArray) -> None:
         self._dets = {"size": [msg.image_width, msg.image_height], "boxes": [
@@ -298,6 +298,8 @@ class StationNode(Node):
             driving = self.station.link.driver() is not None
         s = DiagnosticStatus(name=NODE_NAME, hardware_id=self.address,
                              message=f"{pages} page(s), {'one drives' if driving else 'nobody drives'}")
+        counters.update(frames_received=self.frames.received, frames_encoded=self.frames.encoded,
+                        frames_skipped=self.frames.skipped, frames_sent=self.station.frames_sent)
         s.values = [KeyValue(key=k, value=str(v)) for k, v in counters.items()]
         self.status_pub.publish(s)
 
@@ -306,6 +308,7 @@ class StationNode(Node):
         if self.context.ok():
             self._publish_axis(0.0)
         self.station.stop()
+        self.frames.stop()
 
     def destroy_node(self):
         self.on_shutdown()

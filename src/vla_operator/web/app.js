@@ -6,7 +6,7 @@ const $ = (id) => document.getElementById(id);
 const STEP_MS = 300;     // step mode: one press drives this long, then stops by itself
 const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {}, settingsJson: '',
                 held: 0, toggled: 0, stepTimer: 0, padAxis: 0, sent: {}, replies: {}, scan: -1, frames: 0,
-                fpsT: performance.now(), fps: 0, age: null };
+                fpsT: performance.now(), fps: 0, age: null, refused: null };
 window.station = state;  // read by the browser tests and the benchmark
 
 function say(text) { $('message').textContent = text; }
@@ -26,7 +26,7 @@ function onMessage(m) {
     if (m.what === 'estop' && m.ok) state.estopLatency = performance.now() - state.estopSent;
     say(`${m.what}: ${m.ok ? 'done' : 'refused'}${m.message ? ' – ' + m.message : ''}`);
   }
-  else if (m.type === 'refused') say(`Refused: ${m.reason}`);
+  else if (m.type === 'refused') { state.refused = m.reason; say(`Refused: ${m.reason}`); }
 }
 
 function setRole(driver) {

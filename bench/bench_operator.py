@@ -2,12 +2,19 @@
 nothing.
 
 The shipped teleop.launch.yaml (use_operator_station:=true) on the simulated Panda and one headless
-Chromium on its page:
-1. key press -> joint_velocity_cmd latency: the page's own keydown handler is fired in the browser
-   (its epoch time taken there), the first non-zero command is timed here on the same machine's clock
-   (median, p99 over --presses); the goal is p99 <= 30 ms on localhost;
-2. e-stop round trip in the browser's clock (press -> the bridge's answer that it latched);
-3. frames per second and frame age shown on the page (640x480 from the simulated camera);
+Chromium on its page. Every time is on this machine's wall clock: the browser's (performance.timeOrigin
++ now, its offset to ours measured through WebDriver), the stamps DDS puts on each sample (source: when
+it was published; received: when it reached this process's reader, independent of when this process
+gets round to it) and the station's Joy stamp (arrival of the input at the station):
+1. key press -> joint_velocity_cmd latency over --presses (goal p99 <= 30 ms on localhost), split into
+   page -> station (the Joy's stamp), station -> the controller's command (both publish stamps) and the
+   command's delivery here; a press that gets no command says why (the page's last refusal, the
+   station's counters);
+2. e-stop press -> the bridge latched: the first panda_bridge/status with estop_active, by its publish
+   stamp (the bridge publishes it inside the estop service, right after latching); and the answer's
+   round trip in the browser's clock;
+3. frames: the camera's rate (frames the station received), the frames it sent, and what the page
+   showed (frames/s, frame age);
 4. the station process's CPU share (% of one core) over the run, and the load average.
 
 Usage: python bench/bench_operator.py [--presses 30]   (after `source scripts/env.sh`)
@@ -27,27 +34,61 @@ isolate()  # before any rclpy context exists
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 
 import numpy as np  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from launch_process import LaunchProcess, Observer  # noqa: E402
+from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from sensor_msgs.msg import Joy  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from test_operator_station import Browser  # noqa: E402
 from vla_common.ros.testing import RosHarness  # noqa: E402
 
-PRESS = ("document.body.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp', bubbles: true}));"
-         "return performance.timeOrigin + performance.now();")
+from vla_interfaces.msg import SafetyStatus  # noqa: E402
+
+NOW = "performance.timeOrigin + performance.now()"
+PRESS = (f"const t = {NOW};"
+         "document.body.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp', bubbles: true}));"
+         "return t;")
 RELEASE = "document.body.dispatchEvent(new KeyboardEvent('keyup', {key: 'ArrowUp', bubbles: true}));"
+ESTOP = f"const t = {NOW}; document.getElementById('estop').click(); return t;"
 
 
-class Cmds(Observer):
+def stamp(t) -> float:
+    return t.sec + t.nanosec * 1e-9
+
+
+class Probe(Observer):
+    """Joy, commands and the bridge's status with their DDS stamps (seconds, wall clock)."""
+
     def __init__(self, context):
         super().__init__(context, "bench_operator")
-        self.first_move: float | None = None
-        self.moving = False
-        self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._cmd, 10)
+        self.joy: list[tuple[float, float, float]] = []     # (axis, stamp, published)
+        self.cmd: list[tuple[bool, float, float]] = []      # (moving, published, received)
+        self.latch: list[float] = []                        # published, estop_active rising
+        self.station: dict[str, str] = {}
+        self._estop = False
+        self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._cmd, 50)
+        self.create_subscription(Joy, "joy", self._joy, qos_profile_sensor_data)
+        self.create_subscription(SafetyStatus, "panda_bridge/status", self._safety, 50)
+        self.create_subscription(DiagnosticStatus, "operator_station/status", self._station, 10)
 
-    def _cmd(self, msg):
-        self.moving = bool(np.any(np.abs(np.array(msg.data)) > 1e-6))
-        if self.moving and self.first_move is None:
-            self.first_move = time.time()
+    def _cmd(self, msg, info):
+        moving = bool(np.any(np.abs(np.array(msg.data)) > 1e-6))
+        self.cmd.append((moving, info["source_timestamp"] * 1e-9, info["received_timestamp"] * 1e-9))
+
+    def _joy(self, msg, info):
+        self.joy.append((msg.axes[0] if msg.axes else 0.0, stamp(msg.header.stamp),
+                         info["source_timestamp"] * 1e-9))
+
+    def _safety(self, msg, info):
+        if msg.estop_active and not self._estop:
+            self.latch.append(info["source_timestamp"] * 1e-9)
+        self._estop = msg.estop_active
+
+    def _station(self, msg):
+        self.station = {kv.key: kv.value for kv in msg.values}
+
+    def moving(self) -> bool:
+        return bool(self.cmd) and self.cmd[-1][0]
 
 
 def cpu_seconds(pid: int) -> float:
@@ -67,15 +108,36 @@ def station_pid() -> int:
     raise RuntimeError("operator_station process not found")
 
 
+def browser_offset(driver, n: int = 15) -> tuple[float, float]:
+    """(browser clock - ours, its uncertainty): the WebDriver round trip with the smallest time."""
+    best = (np.inf, 0.0)
+    for _ in range(n):
+        a = time.time()
+        b = driver.execute_script(f"return {NOW};") / 1000.0
+        c = time.time()
+        best = min(best, (c - a, b - (a + c) / 2))
+    return best[1], best[0] / 2
+
+
+def figures(name: str, s: list[float], goal: str = "") -> str:
+    ms = np.array(s) * 1000.0
+    if ms.size == 0:
+        return f"{name}: none"
+    return (f"{name}: median {np.median(ms):.1f} ms, p99 {np.percentile(ms, 99):.1f} ms, "
+            f"max {ms.max():.1f} ms over {ms.size}{goal}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presses", type=int, default=30)
+    ap.add_argument("--estops", type=int, default=10)
     args = ap.parse_args()
+    print(f"load average at start: {os.getloadavg()}", flush=True)
     h = RosHarness()
     with LaunchProcess("vla_bringup", "teleop.launch.yaml", "use_operator_station:=true",
                        "operator_port:=0",
                        log_path=Path("/tmp") / f"bench_operator_{os.getpid()}.log") as run:
-        obs = h.add(Cmds(h.context))
+        obs = h.add(Probe(h.context))
         addr = lambda: re.search(r"operator station is at (http://\S+)", run.text())  # noqa: E731
         if not h.spin_until(lambda: obs.graph_up() and addr() is not None, 120.0):
             print(run.text()[-2000:])
@@ -86,40 +148,71 @@ def main() -> int:
             js = lambda e: b.driver.execute_script(f"return {e};")  # noqa: E731
             up = "window.station && window.station.driver && window.station.boxes.length > 0"
             h.spin_until(lambda: js(up), 60.0)
+            h.spin_until(lambda: "received" in obs.station, 5.0)
+            counters0 = dict(obs.station)
+            off0, unc0 = browser_offset(b.driver)
             pid = station_pid()
             c0, w0 = cpu_seconds(pid), time.monotonic()
-            lat = []
-            for _ in range(args.presses):
-                h.spin_until(lambda: not obs.moving and obs.ctrl is not None and obs.ctrl.code == 1, 10.0)
-                obs.first_move = None
-                t0 = b.driver.execute_script(PRESS) / 1000.0
-                if h.spin_until(lambda: obs.first_move is not None, 5.0):
-                    lat.append(obs.first_move - t0)
+            total, sent, here, to_station, to_cmd, lost = [], [], [], [], [], []
+            for i in range(args.presses):
+                h.spin_until(lambda: not obs.moving() and obs.ctrl is not None and obs.ctrl.code == 1, 10.0)
+                nj, nc = len(obs.joy), len(obs.cmd)
+                t0 = b.driver.execute_script(PRESS) / 1000.0 - off0
+                if h.spin_until(lambda nc=nc: any(m for m, _, _ in obs.cmd[nc:]), 5.0):
+                    _, pub, rec = next(c for c in obs.cmd[nc:] if c[0])
+                    joy = next((j for j in obs.joy[nj:] if j[0] != 0.0), None)
+                    total.append(pub - t0)
+                    here.append(rec - t0)
+                    if joy is not None:
+                        to_station.append(joy[1] - t0)
+                        sent.append(joy[2] - t0)
+                        to_cmd.append(pub - joy[2])
+                else:
+                    lost.append((i, js("window.station.refused"),
+                                 obs.ctrl.reason if obs.ctrl is not None else "",
+                                 any(j[0] != 0.0 for j in obs.joy[nj:])))
                 h.spin_for(0.2)
                 b.driver.execute_script(RELEASE)
-            h.spin_until(lambda: not obs.moving, 5.0)
-            est = []
-            for _ in range(5):
-                b.driver.execute_script("document.getElementById('estop').click()")
+            h.spin_until(lambda: not obs.moving(), 5.0)
+            off1, unc1 = browser_offset(b.driver)
+            latch, answer = [], []
+            for _ in range(args.estops):
+                h.spin_for(0.3)
+                n = len(obs.latch)
+                t0 = b.driver.execute_script(ESTOP) / 1000.0 - off1
+                if h.spin_until(lambda n=n: len(obs.latch) > n, 5.0):
+                    latch.append(obs.latch[n] - t0)
                 h.spin_until(lambda: js("window.station.estopLatency !== null"), 5.0)
-                est.append(js("window.station.estopLatency"))
+                answer.append(js("window.station.estopLatency") / 1000.0)
                 b.driver.execute_script("document.getElementById('release-confirm').click()")
                 h.spin_until(lambda: bool(obs.safety) and not obs.safety[-1].estop_active, 5.0)
             fps, age = js("window.station.fps"), js("window.station.age")
-            cpu = 100.0 * (cpu_seconds(pid) - c0) / (time.monotonic() - w0)
+            wall = time.monotonic() - w0
+            cpu = 100.0 * (cpu_seconds(pid) - c0) / wall
+            h.spin_for(1.2)   # the station's next 1 Hz status
+            counters1 = dict(obs.station)
         finally:
             b.quit()
         run.stop()
     h.shutdown()
-    ms = np.array(lat) * 1000.0
-    print(f"key press -> joint_velocity_cmd: median {np.median(ms):.1f} ms, "
-          f"p99 {np.percentile(ms, 99):.1f} ms, max {ms.max():.1f} ms over {len(ms)} presses "
-          "(goal p99 <= 30 ms)")
-    print(f"e-stop press -> bridge latched (answer, browser clock): median {np.median(est):.0f} ms, "
-          f"max {max(est):.0f} ms over {len(est)}")
+    print(figures("key press -> joint_velocity_cmd published", total, " (goal p99 <= 30 ms)"))
+    print(figures("  key press -> the station (Joy stamp)", to_station))
+    print(figures("  key press -> the station's Joy published", sent))
+    print(figures("  station's Joy published -> the controller's command", to_cmd))
+    print(figures("  key press -> the command received here", here))
+    print(f"  presses with no command within 5 s: {len(lost)} of {args.presses}"
+          + "".join(f"\n    press {i}: page refusal {r!r}, controller {c!r}, Joy moved: {j}"
+                    for i, r, c, j in lost))
+    print(f"  browser clock offset {off0 * 1000:.1f} +- {unc0 * 1000:.1f} ms, "
+          f"{off1 * 1000:.1f} +- {unc1 * 1000:.1f} ms after the presses")
+    print(figures("e-stop press -> bridge latched (its status published)", latch))
+    print(figures("e-stop press -> the bridge's answer on the page (browser clock)", answer))
+    diff = {k: int(counters1.get(k, 0)) - int(counters0.get(k, 0)) for k in counters1
+            if k in counters0 and counters1[k].lstrip("-").isdigit()}
+    print(f"station counters during the run: {diff}")
     print(f"page: {fps:.1f} frames/s, frame age {age:.0f} ms")
     print(f"operator_station CPU: {cpu:.1f} % of one core")
-    print(f"load average: {os.getloadavg()}")
+    print(f"load average at the end: {os.getloadavg()}")
     return 0
 
 

@@ -36,10 +36,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 import numpy as np  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from launch_process import LaunchProcess, Observer  # noqa: E402
-from rclpy.qos import qos_profile_sensor_data  # noqa: E402
+from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
 from sensor_msgs.msg import Joy  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
-from test_operator_station import Browser  # noqa: E402
+from test_operator_station import Browser, browser_offset  # noqa: E402
 from vla_common.ros.testing import RosHarness  # noqa: E402
 
 from vla_interfaces.msg import SafetyStatus  # noqa: E402
@@ -67,7 +67,9 @@ class Probe(Observer):
         self.station: dict[str, str] = {}
         self._estop = False
         self.create_subscription(Float64MultiArray, "joint_velocity_cmd", self._cmd, 50)
-        self.create_subscription(Joy, "joy", self._joy, qos_profile_sensor_data)
+        # best effort as the controller, but deep: this process is blocked in WebDriver calls at times
+        self.create_subscription(Joy, "joy", self._joy, QoSProfile(
+            reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST, depth=200))
         self.create_subscription(SafetyStatus, "panda_bridge/status", self._safety, 50)
         self.create_subscription(DiagnosticStatus, "operator_station/status", self._station, 10)
 
@@ -85,7 +87,7 @@ class Probe(Observer):
         self._estop = msg.estop_active
 
     def _station(self, msg):
-        self.station = {kv.key: kv.value for kv in msg.values}
+        self.station = {**{kv.key: kv.value for kv in msg.values}, "t": time.monotonic()}
 
     def moving(self) -> bool:
         return bool(self.cmd) and self.cmd[-1][0]
@@ -106,17 +108,6 @@ def station_pid() -> int:
             if b"lib/vla_operator/operator_station" in cmd and b"python" in cmd.split(b"\0")[0]:
                 return int(p.name)
     raise RuntimeError("operator_station process not found")
-
-
-def browser_offset(driver, n: int = 15) -> tuple[float, float]:
-    """(browser clock - ours, its uncertainty): the WebDriver round trip with the smallest time."""
-    best = (np.inf, 0.0)
-    for _ in range(n):
-        a = time.time()
-        b = driver.execute_script(f"return {NOW};") / 1000.0
-        c = time.time()
-        best = min(best, (c - a, b - (a + c) / 2))
-    return best[1], best[0] / 2
 
 
 def figures(name: str, s: list[float], goal: str = "") -> str:
@@ -208,8 +199,11 @@ def main() -> int:
     print(figures("e-stop press -> bridge latched (its status published)", latch))
     print(figures("e-stop press -> the bridge's answer on the page (browser clock)", answer))
     diff = {k: int(counters1.get(k, 0)) - int(counters0.get(k, 0)) for k in counters1
-            if k in counters0 and counters1[k].lstrip("-").isdigit()}
+            if k in counters0 and str(counters1[k]).lstrip("-").isdigit()}
+    span = counters1["t"] - counters0["t"]
     print(f"station counters during the run: {diff}")
+    print("frames/s over the run: camera -> station {:.1f}, encoded {:.1f}, sent to the page {:.1f}".format(
+        *(diff.get(k, 0) / span for k in ("frames_received", "frames_encoded", "frames_sent"))))
     print(f"page: {fps:.1f} frames/s, frame age {age:.0f} ms")
     print(f"operator_station CPU: {cpu:.1f} % of one core")
     print(f"load average at the end: {os.getloadavg()}")

@@ -88,6 +88,15 @@ def test_close_hidden_and_silence_give_zero_at_once():
     assert "neutral" in link2.on_message(cid2, inp(2, 700.0, 0.5), 10.7).error   # must re-arm
 
 
+def test_a_silence_at_rest_does_not_disarm_the_next_press():
+    link, cid = driving(10.0)
+    assert not link.tick(10.0 + 2.0)                       # a starved page, nothing held: nothing to stop
+    v = link.on_message(cid, inp(1, 2000.0, 0.5), 12.0)    # its next press is new input
+    assert v.publish and link.value(12.0) == 0.5
+    assert not link.tick(12.0 + 0.4)
+    assert link.tick(12.0 + 0.6) and link.value(12.6) == 0.0   # silent while moving: zero, disarmed
+
+
 def test_one_driver_watchers_may_only_estop():
     link, cid = driving()
     w = link.connect(10.0)

@@ -119,10 +119,14 @@ class Link:
         return self.axis
 
     def tick(self, now: float) -> bool:
-        """The heartbeat rule: True when the driver just went silent (publish zero). It keeps the role
-        (a busy browser is not a thief) but must send a neutral input again before moving."""
+        """The heartbeat rule: True when the driver just went silent while its input moved the arm
+        (publish zero). It keeps the role (a busy browser is not a thief) but must send a neutral input
+        again before moving. A silence at rest (its latest input neutral) changes nothing: nothing is
+        held that could resume, and a later press is new input, checked as any other (a starved page
+        used to be disarmed at rest, and its next press did nothing until released)."""
         d = self.driver()
-        if d is not None and d.armed and now - d.last_seen > self.params.heartbeat_timeout:
+        if (d is not None and d.armed and self.axis != 0.0
+                and now - d.last_seen > self.params.heartbeat_timeout):
             d.armed = False
             self.stop()
             return True

@@ -76,6 +76,40 @@ def test_operator_releases_the_stick_when_the_controller_awaits_neutral():
     assert a.axis == 0.0
 
 
+def _toy_push(sign: float, params: part.HumanParams, seconds: float = 30.0):
+    """A latent axis the person does not know: stick `sign` * u moves the hand along a learned-looking
+    path (up over the object, down behind it, then through, pushing it 15 cm south), -u back along
+    it, and further back away from the object. The path passes through none of the points a person
+    would plan. Returns (operator, pushed m, reported done, how far back it went)."""
+    obj0 = np.array([0.5, 0.0])
+    knots = np.array([[0.10, 0.0, 0.60], [0.30, 0.0, 0.45], [0.50, 0.0, 0.30], [0.62, 0.02, 0.20],
+                      [0.58, 0.0, 0.05], [0.36, 0.0, 0.05]])
+    s_knots = np.array([-1.0, 0.0, 0.3, 0.6, 1.0, 2.0])
+    goal = part.TaskGoal("push", (-1.0, 0.0), 0.15, 0.10, 0.05)
+    op = part.HumanOperator(params, goal, "latent", seed=3)
+    s, obj, dt, back = 0.0, obj0.copy(), 0.05, 0.0
+    for i in range(int(seconds / dt)):
+        hand = np.array([np.interp(s, s_knots, knots[:, k]) for k in range(3)])
+        obj[0] = min(obj[0], hand[0] - 0.07) if hand[2] < 0.10 and s > 1.0 else obj[0]
+        a = op.act(GuardedObservation(t=i * dt, hand=hand, obj=obj.copy(), controller_code=0, ee_axis="x"))
+        if a.done:
+            return op, float(obj0[0] - obj[0]), True, back
+        s = float(np.clip(s + sign * a.axis * 0.25 * dt, -1.0, 2.0))
+        back = min(back, s)
+    return op, float(obj0[0] - obj[0]), False, back
+
+
+@pytest.mark.parametrize("sign", [1.0, -1.0])
+def test_latent_participant_finds_the_way_by_watching_the_task(sign):
+    """Push, watch, reverse: whichever way the learned axis runs, the person pushes the object the
+    told distance along a path it never planned, and reverses when the task gets further away."""
+    params = part.HumanParams(lapse_p=0.0)
+    op, pushed, done, back = _toy_push(sign, params)
+    assert done and pushed >= 0.15, (pushed, op.reversals)
+    if sign < 0:  # it went the wrong way first, saw it within a second or two and turned
+        assert op.reversals >= 1 and back > -0.5, (op.reversals, back)
+
+
 def test_population_is_seeded_and_varied():
     a, b = part.population(9, 5), part.population(9, 5)
     assert a == b and len({p.reaction_s for p in a}) == 9

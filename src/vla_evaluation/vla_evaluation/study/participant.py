@@ -305,9 +305,10 @@ class HumanOperator:
 
         Every commit_s the person compares how far from done the task looks with the last time: worse
         by more than they can see (twice their perception noise) and they reverse; no visible change
-        twice in a row and they push fully, then, still stuck, try the other way; better and they
-        keep going, easing off as the end nears. The stick's magnitude is a latent coordinate, not a
-        speed, so a person who eases off may see the motion change; the same rule then corrects it.
+        twice in a row and they change how far they push, then, still stuck, try the other way; better
+        and they keep going, easing off as the end nears. The stick's magnitude is a latent coordinate, not a
+        speed (a gentler push may move the arm another way), so a stuck person first tries the other
+        extent (full or half), then the other direction.
         """
         if t >= self.judge_at:
             cost = self._task_cost(hand, obj)
@@ -325,8 +326,10 @@ class HumanOperator:
                         self.stalls = 0
                 else:
                     self.stalls = 0
-            self.magnitude = 1.0 if self.stalls >= 2 else float(
-                np.clip(self.p.gain * cost / 0.15, 0.4, 1.0))
+            if self.stalls == 0:
+                self.magnitude = float(np.clip(self.p.gain * cost / 0.15, 0.4, 1.0))
+            elif self.stalls == 2:  # stuck: try the stick's other extent before the other way
+                self.magnitude = 0.5 if self.magnitude > 0.75 else 1.0
             self.last_cost = cost
             self.judge_at = t + self.p.commit_s
         return self._out(self._motor(self.direction * self.magnitude))

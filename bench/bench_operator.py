@@ -17,30 +17,42 @@ gets round to it) and the station's Joy stamp (arrival of the input at the stati
    showed (frames/s, frame age);
 4. the station process's CPU share (% of one core) over the run, and the load average.
 
-Usage: python bench/bench_operator.py [--presses 30]   (after `source scripts/env.sh`)
+With --synthetic-camera HZ only the station runs (vla run), fed 640x480 rgb8 frames at HZ from here,
+and the page's frame rate, the station's counters and its CPU share are printed: the station and the
+page's share of the frame rate without the simulated camera, which falls behind real time on a loaded
+machine (the bridge's exit line in the launch log says by how much, and how many frames it dropped).
+
+Usage: python bench/bench_operator.py [--presses 30] [--synthetic-camera 30]
+       (after `source scripts/env.sh`)
 """
 from __future__ import annotations
 
 import argparse
 import os
 import re
+import signal
+import subprocess
 import sys
 import time
 from pathlib import Path
 
 from vla_common.ros.domain import isolate
+from vla_common.ros.qos import IMAGE_QOS, use_large_image_transport
 
 isolate()  # before any rclpy context exists
+use_large_image_transport()   # as the nodes: frames to the station through shared memory
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "test"))
 
 import numpy as np  # noqa: E402
 from diagnostic_msgs.msg import DiagnosticStatus  # noqa: E402
 from launch_process import LaunchProcess, Observer  # noqa: E402
+from rclpy.node import Node  # noqa: E402
 from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy  # noqa: E402
-from sensor_msgs.msg import Joy  # noqa: E402
+from sensor_msgs.msg import Image, Joy  # noqa: E402
 from std_msgs.msg import Float64MultiArray  # noqa: E402
 from test_operator_station import Browser, browser_offset  # noqa: E402
 from vla_common.ros.testing import RosHarness  # noqa: E402
+from vla_launch.run import find_executable  # noqa: E402
 
 from vla_interfaces.msg import SafetyStatus  # noqa: E402
 
@@ -118,12 +130,97 @@ def figures(name: str, s: list[float], goal: str = "") -> str:
             f"max {ms.max():.1f} ms over {ms.size}{goal}")
 
 
+class Camera(Node):
+    """640x480 rgb8 frames at `rate` Hz: a textured scene with a moving patch (not trivially compressible),
+    and the station's status."""
+
+    def __init__(self, context, rate: float):
+        super().__init__("bench_operator_camera", context=context)
+        y, x = np.mgrid[0:480, 0:640]
+        base = np.stack([(x * 255 // 639), (y * 255 // 479), ((x // 16 + y // 16) % 2) * 200], -1)
+        noise = np.random.default_rng(0).integers(0, 40, (480, 640, 3))
+        self.frames = []
+        for i in range(30):
+            f = (base + noise).astype(np.uint8)
+            f[200:280, 20 * i:20 * i + 80] = (250, 60, 30)
+            self.frames.append(f.tobytes())
+        self.pub = self.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+        self.sent, self.station = 0, {}
+        self.create_subscription(DiagnosticStatus, "operator_station/status", self._station, 10)
+        self.create_timer(1.0 / rate, self._tick)
+
+    def _station(self, msg):
+        self.station = {**{kv.key: kv.value for kv in msg.values}, "t": time.monotonic()}
+
+    def _tick(self):
+        m = Image(height=480, width=640, encoding="rgb8", step=640 * 3)
+        m.header.stamp = self.get_clock().now().to_msg()
+        m.header.frame_id = "camera_optical_frame"
+        m.data = self.frames[self.sent % len(self.frames)]
+        self.pub.publish(m)
+        self.sent += 1
+
+
+def synthetic(rate: float, seconds: float = 20.0) -> int:
+    """Only the station, fed frames from here: its and the page's share of the frame rate."""
+    h = RosHarness()
+    cam = h.add(Camera(h.context, rate))
+    log = Path("/tmp") / f"bench_operator_station_{os.getpid()}.log"
+    with open(log, "wb") as out:
+        cmd = [find_executable("vla_launch", "vla"), "run", "vla_operator", "operator_station",
+               "--ros-args", "-p", "port:=0"]
+        proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, start_new_session=True)
+    b = None
+    try:
+        addr = lambda: re.search(r"operator station is at (http://\S+)", log.read_text())  # noqa: E731
+        if not h.spin_until(lambda: addr() is not None, 60.0):
+            print(log.read_text()[-2000:])
+            return 1
+        b = Browser()
+        b.driver.get(addr().group(1))
+        js = lambda e: b.driver.execute_script(f"return {e};")  # noqa: E731
+        h.spin_until(lambda: js("window.station && window.station.fps > 0"), 30.0)
+        h.spin_for(2.0)
+        h.spin_until(lambda: "frames_received" in cam.station, 5.0)
+        c0, w0, s0, n0 = cpu_seconds(proc.pid), time.monotonic(), dict(cam.station), cam.sent
+        fps = []
+        while time.monotonic() - w0 < seconds:
+            h.spin_for(1.0)
+            fps.append(js("window.station.fps"))
+        cpu = 100.0 * (cpu_seconds(proc.pid) - c0) / (time.monotonic() - w0)
+        sent_rate = (cam.sent - n0) / (time.monotonic() - w0)
+        h.spin_for(1.2)
+        s1 = cam.station
+        age = js("window.station.age")
+    finally:
+        if b is not None:
+            b.quit()
+        proc.send_signal(signal.SIGINT)
+        proc.wait(10)
+        h.shutdown()
+    print(f"synthetic camera: {sent_rate:.1f} frames/s published (640x480 rgb8)")
+    if "frames_sent" in s1 and "frames_sent" in s0:
+        span = s1["t"] - s0["t"]
+        keys = ("frames_received", "frames_encoded", "frames_sent")
+        rates = [(int(s1[k]) - int(s0[k])) / span for k in keys]
+        print("station: {:.1f} received, {:.1f} encoded, {:.1f} sent to the page per s".format(*rates))
+    print(f"page: median {np.median(fps):.1f} frames/s (min {min(fps):.1f}, max {max(fps):.1f} over "
+          f"{len(fps)} s), frame age {age:.0f} ms")
+    print(f"operator_station CPU: {cpu:.1f} % of one core")
+    print(f"load average at the end: {os.getloadavg()}")
+    return 0
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presses", type=int, default=30)
     ap.add_argument("--estops", type=int, default=10)
+    ap.add_argument("--synthetic-camera", type=float, default=0.0, metavar="HZ",
+                    help="only the station, fed 640x480 frames at HZ from here (the frame rate alone)")
     args = ap.parse_args()
     print(f"load average at start: {os.getloadavg()}", flush=True)
+    if args.synthetic_camera > 0:
+        return synthetic(args.synthetic_camera)
     h = RosHarness()
     with LaunchProcess("vla_bringup", "teleop.launch.yaml", "use_operator_station:=true",
                        "operator_port:=0",
@@ -200,7 +297,7 @@ def main() -> int:
     print(figures("e-stop press -> the bridge's answer on the page (browser clock)", answer))
     diff = {k: int(counters1.get(k, 0)) - int(counters0.get(k, 0)) for k in counters1
             if k in counters0 and str(counters1[k]).lstrip("-").isdigit()}
-    span = counters1["t"] - counters0["t"]
+    span = counters1.get("t", 0.0) - counters0.get("t", -1.0)
     print(f"station counters during the run: {diff}")
     print("frames/s over the run: camera -> station {:.1f}, encoded {:.1f}, sent to the page {:.1f}".format(
         *(diff.get(k, 0) / span for k in ("frames_received", "frames_encoded", "frames_sent"))))

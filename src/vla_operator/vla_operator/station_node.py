@@ -14,12 +14,11 @@ from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.srv import GetParameters, SetParameters
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image, Joy
 from std_srvs.srv import SetBool, Trigger
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
-from vla_common.ros.qos import SENSOR_QOS
+from vla_common.ros.qos import SENSOR_QOS, image_qos
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray, GripperStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import GripperCommand, SelectTarget, StartEpisode
@@ -30,10 +29,9 @@ from vla_operator.server import Station
 from vla_operator.words import controller_words, safety_words
 
 NODE_NAME = "operator_station"
-# Reliable (large frames lose fragments best effort), and only the newest kept: a station that fell
-# behind shows the latest frame, never works through a backlog (IMAGE_QOS keeps 30 for recording).
-LATEST_IMAGE_QOS = QoSProfile(reliability=ReliabilityPolicy.RELIABLE, history=HistoryPolicy.KEEP_LAST,
-                              depth=1)
+# Only the newest frame kept (reliable, as the camera): a station that fell behind shows the latest
+# frame and never works through a backlog (IMAGE_QOS keeps 30, for the detector and the recorder).
+LATEST_IMAGE_QOS = image_qos(depth=1)
 
 PARAMETERS = ParameterTable([
     Param("bind", "127.0.0.1", "address the page is served on; anything but loopback needs the token"),

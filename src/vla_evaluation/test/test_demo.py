@@ -67,3 +67,38 @@ def test_table_lists_every_task_with_success_and_error():
     bread = next(line for line in lines if line.startswith("bread/push_east"))
     assert "50 %" in bread and "0.120" in bread
     assert any(line.startswith("soda_can/push_south") and "100 %" in line for line in lines)
+
+
+@pytest.mark.parametrize("outcomes, rc", [((True, True), 0), ((True, False), 3)])
+def test_the_demo_fails_when_an_episode_fails(tmp_path, monkeypatch, capsys, outcomes, rc):
+    """`make demo` is the main job: CI and a user's shell see a failed task in the exit code."""
+    tasks = ["bread/push_east", "cereal_box/push_south"]
+    for name in ("default", "cereal_box_push_south"):
+        (tmp_path / "models" / name).mkdir(parents=True)
+        (tmp_path / "models" / name / "config.json").write_text('{"encoder": "detector"}')
+    results = dict(zip(tasks, outcomes))
+
+    class FakeGraph:
+        def __init__(self, cfg, log):
+            pass
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def set_model(self, path):
+            pass
+
+        def run_episode(self, task, seed, label):
+            return _record(task, results[task])
+
+    monkeypatch.setattr(demo, "GraphEvaluator", FakeGraph)
+    monkeypatch.setattr(demo, "ensure_detector", lambda path, data, log: tmp_path / "det.onnx")
+    args = build_parser().parse_args(["demo", "--tasks", ",".join(tasks), "--no-video", "--out",
+                                      str(tmp_path / "out"), "--models", str(tmp_path / "models")])
+    assert demo.run(args) == rc
+    err = capsys.readouterr().err
+    assert ("1 of 2 episodes failed: cereal_box/push_south" in err) == (rc != 0)
+    assert (tmp_path / "out" / "results.json").is_file()            # the results are written either way

@@ -143,6 +143,10 @@ def run(args) -> int:
         + "".join(f", {Path(v).name}" for v in files.values())
         + f" in {data['wall_s']:.0f} s"
     )
+    failed = [r.task for r in results if not r.success]
+    if failed:      # the main job did not do its job: say so, and let make / CI see it
+        print(f"demo: {len(failed)} of {len(results)} episodes failed: {', '.join(failed)}", file=sys.stderr)
+        return 3
     return 0
 
 

@@ -41,4 +41,26 @@ def test_an_unusable_measurement_changes_nothing(bad):
 def test_a_missing_joint_is_skipped_and_the_rest_judged():
     tau = _tau(3, -0.5)
     tau[1] = math.nan
-    assert contact_scales([0.4] * 7, np.array(tau), TAU_MAX) == {3: pytest.approx(0.5)}
+    assert contact_scales([0, 0, 0, 0.4, 0, 0, 0], np.array(tau), TAU_MAX) == {3: pytest.approx(0.5)}
+    # every joint moving: the hand as a whole pushes into the contact, so all of them slow
+    assert contact_scales([0.4] * 7, np.array(tau), TAU_MAX) == dict.fromkeys(range(7), pytest.approx(0.5))
+
+
+def test_joints_that_push_the_hand_into_a_contact_felt_at_another_joint_are_slowed_too():
+    """One contact point: tau = J^T F. Joints 2 and 4 drive the hand down against the table while the
+    torque shows on the wrist (joint 6): the whole command slows; lifting the hand does not."""
+    rng = np.random.default_rng(4)
+    jac = rng.normal(size=(3, 7))
+    force = np.array([0.0, 0.0, 1.0])                          # the table pushes the hand up
+    tau = jac.T @ force
+    tau *= 0.5 * TAU_MAX[5] / abs(tau[5])                       # the wrist at half its tau_max
+    assert max(abs(t) / m for t, m in zip(tau, TAU_MAX)) == pytest.approx(0.5)
+    down = np.linalg.pinv(jac) @ np.array([0.0, 0.0, -0.2])     # the hand moved down into the table
+    assert float(tau @ down) < 0.0
+    got = contact_scales(down.tolist(), tau, TAU_MAX)
+    assert set(got) == {i for i in range(7) if down[i] != 0.0}
+    assert max(got.values()) == pytest.approx(0.5)              # (0.7 - 0.5) / (0.7 - 0.3)
+    up = -down                                                  # backing out: only the per-joint rule
+    assert float(tau @ up) > 0.0
+    per_joint = {i for i in range(7) if abs(tau[i]) / TAU_MAX[i] > CONTACT_SLOW and up[i] * tau[i] < 0}
+    assert set(contact_scales(up.tolist(), tau, TAU_MAX)) == per_joint

@@ -49,6 +49,7 @@ from vla_panda_bridge.backends import BACKENDS
 from vla_panda_bridge.gripper_ros import GripperInterface
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
+from vla_panda_bridge.workspace import DEFAULT_FLOOR, WorkspaceFloor, tcp_height
 
 EE_FRAMES = ("tcp", "flange")
 MAX_CAMERA_SIZE = (1920, 1440)  # scene.MAX_OFFSCREEN (the offscreen buffer)
@@ -98,6 +99,9 @@ PARAMETERS = ParameterTable([
           choices=EE_FRAMES),
     Param("command_timeout", 0.1, "Watchdog: brake to zero after this long without a valid command (s)",
           range=(0.001, 10.0)),
+    Param("workspace_floor", DEFAULT_FLOOR, "Lowest height of the tool centre point in the base frame (m; "
+          "the table the robot stands on is z = 0): the hand's descent slows to a stop above it. -2: off "
+          "(beyond the arm's reach)", range=(-2.0, 1.0)),
     Param("position_margin", 0.1, "Distance kept from every joint position limit (rad)", range=(0.0, 0.5)),
     Param("velocity_scale", 1.0, "Fraction of the robot's dq_max allowed", range=(0.01, 1.0)),
     Param("acceleration_scale", 1.0, "Fraction of the robot's ddq_max allowed", range=(0.01, 1.0)),
@@ -159,16 +163,18 @@ class PandaBridge(LifecycleNode):
         self.base_frame = p["base_frame_id"] or self.spec.base_frame
         self.image_qos = IMAGE_QOS
         self._dt = 1.0 / p["control_rate"]
-        self.filter = SafetyFilter(SafetyConfig(
-            dt=self._dt, velocity_scale=p["velocity_scale"], acceleration_scale=p["acceleration_scale"],
-            jerk_scale=p["jerk_scale"], position_margin=p["position_margin"],
-            command_timeout=p["command_timeout"], position_sync_tolerance=p["position_sync_tolerance"],
-            plausibility_factor=p["plausibility_factor"]), robot=self.spec)
         # Pinocchio: import only when needed. The FR3's kinematics are the Panda's (checked against
         # franka-sim's FR3 model to 2e-15 m).
         from vla_common.kinematics import PandaKinematics
 
         kin = PandaKinematics()
+        self.filter = SafetyFilter(SafetyConfig(
+            dt=self._dt, velocity_scale=p["velocity_scale"], acceleration_scale=p["acceleration_scale"],
+            jerk_scale=p["jerk_scale"], position_margin=p["position_margin"],
+            command_timeout=p["command_timeout"], position_sync_tolerance=p["position_sync_tolerance"],
+            plausibility_factor=p["plausibility_factor"]), robot=self.spec,
+            # its own Pinocchio data: the state publisher's FK below must not share the buffers
+            floor=WorkspaceFloor(tcp_height(PandaKinematics()), p["workspace_floor"]))
         self._fk = kin.fk if p["ee_frame"] == "tcp" else kin.flange_fk
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._published_code = -1

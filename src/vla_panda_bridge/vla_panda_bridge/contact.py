@@ -6,6 +6,13 @@ the constraint forces on the arm's joints (`PandaSim.external_torque`). From `sl
 joint commanded further into the torque is slowed linearly, and it stops at `stop` x tau_max, well
 before the reflex at 1 x. A command that eases the torque is never slowed, so the operator can always
 back out. The safety filter (`safety.py`) applies the factors to its target; this module only judges.
+
+The torque on one joint also rises when other joints push the hand into something: the demo's box
+push loaded joint 6 (wrist) to its reflex while joints 2 and 4 drove the hand against the table. For
+one contact point the external torque is J_c^T F, so the contact point moves into the obstacle
+exactly when the external power sum(tau_i v_i) = F . (J_c v) is negative. So, past `slow` on any
+joint, a command with negative external power is slowed as a whole by that joint's factor; one that
+backs out of the contact (power >= 0) is not.
 """
 from __future__ import annotations
 
@@ -27,10 +34,22 @@ def contact_scales(target: Sequence[float], tau_ext, tau_max: Sequence[float],
     if len(tau) != len(tau_max) or len(target) != len(tau_max):
         return {}
     out: dict[int, float] = {}
+    power, worst = 0.0, 0.0
     for i, (v, t, tm) in enumerate(zip(target, tau, tau_max)):
         ratio = abs(t) / tm
         if not ratio == ratio:                                # NaN: no measurement for this joint
             continue
+        power += v * t
+        worst = max(worst, ratio)
         if ratio > slow and v * t < 0.0:                     # moving against what pushes back
-            out[i] = 0.0 if ratio >= stop else (stop - ratio) / (stop - slow)
+            out[i] = _factor(ratio, slow, stop)
+    if worst > slow and power < 0.0:                         # the hand as a whole pushed into it
+        whole = _factor(worst, slow, stop)
+        for i, v in enumerate(target):
+            if v != 0.0:
+                out[i] = min(out.get(i, 1.0), whole)
     return out
+
+
+def _factor(ratio: float, slow: float, stop: float) -> float:
+    return 0.0 if ratio >= stop else (stop - ratio) / (stop - slow)

@@ -23,6 +23,8 @@ Pipeline per control period:
      constraint forces), a joint commanded further into it is slowed from `contact_slow` x tau_max on
      and stopped at `contact_stop` x tau_max, well before the robot's reflex at 1 x; motion that
      eases the torque is never slowed (the operator can always back out);
+     the workspace floor, likewise, where the bridge gives one (`workspace.py`): the part of the target
+     that lowers the hand faster than it may go that close to the table is removed; the rest is kept;
   5. a per-joint jerk-limited tracker moves the output velocity towards the target;
   6. position margin, hard part: if the tracker's step would leave the joint unable to stop before
      the margin (by a braking-distance bound), that joint takes the braking step instead.
@@ -54,6 +56,7 @@ from vla_common.arming import Arming
 from vla_common.robot import NUM_JOINTS, PANDA, RobotSpec
 
 from vla_panda_bridge.contact import CONTACT_SLOW, CONTACT_STOP, contact_scales
+from vla_panda_bridge.workspace import WorkspaceFloor
 
 # Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
 # a test checks they agree).
@@ -71,11 +74,13 @@ REFLEX = 10
 TEACHING = 11
 AWAITING_ZERO = 12
 CONTACT = 13
+WORKSPACE = 14
 CODE_NAMES = {OK: "OK", NON_FINITE_COMMAND: "NON_FINITE_COMMAND", WRONG_LENGTH: "WRONG_LENGTH",
               VELOCITY_SCALED: "VELOCITY_SCALED", ACCELERATION_LIMITED: "ACCELERATION_LIMITED",
               POSITION_MARGIN: "POSITION_MARGIN", COMMAND_TIMEOUT: "COMMAND_TIMEOUT", ESTOP: "ESTOP",
               INVALID_STATE: "INVALID_STATE", IMPLAUSIBLE_COMMAND: "IMPLAUSIBLE_COMMAND",
-              REFLEX: "REFLEX", TEACHING: "TEACHING", AWAITING_ZERO: "AWAITING_ZERO", CONTACT: "CONTACT"}
+              REFLEX: "REFLEX", TEACHING: "TEACHING", AWAITING_ZERO: "AWAITING_ZERO", CONTACT: "CONTACT",
+              WORKSPACE: "WORKSPACE"}
 _REJECTIONS = (NON_FINITE_COMMAND, WRONG_LENGTH, IMPLAUSIBLE_COMMAND)
 
 # The soft position cap plans the approach with this fraction of the deceleration limit, so the
@@ -131,8 +136,10 @@ class SafetyFilter:
     values that is several times faster than NumPy, which matters at 1 kHz.
     """
 
-    def __init__(self, config: SafetyConfig | None = None, robot: RobotSpec = PANDA):
+    def __init__(self, config: SafetyConfig | None = None, robot: RobotSpec = PANDA,
+                 floor: WorkspaceFloor | None = None):
         self.config = cfg = config or SafetyConfig()
+        self.floor = floor                                  # the TCP's lowest height, where given
         cfg.validate()
         self.robot = robot
         self._names = robot.joint_names
@@ -163,6 +170,7 @@ class SafetyFilter:
         self._v = [0.0] * NUM_JOINTS
         self._a = [0.0] * NUM_JOINTS
         self._q_ref: list[float] | None = None
+        self._q_meas: list[float] | None = None             # the latest valid measurement
         self._target = [0.0] * NUM_JOINTS
         self._target_code = OK                              # why the target is what it is
         self._target_text = ""
@@ -348,6 +356,12 @@ class SafetyFilter:
         contact = None if hold or tau_ext is None else self._contact_scales(target, tau_ext)
         if contact:
             target = [t * contact.get(i, 1.0) for i, t in enumerate(target)]
+        floored = None
+        if self.floor is not None and not hold and q_ref is not None and any(target):
+            floored = self._floor_limit(target, q_ref, self._q_meas or q_ref)
+            if floored is not None:                         # back within the velocity table, if it left
+                over = max(abs(t) / lim[0] for t, lim in zip(floored, self._lim))
+                target = [t / over for t in floored] if over > 1.0 else floored
         for i, (_, A, J, D, lo, hi, tail, cap_n, cap_a, far) in enumerate(self._lim):
             t = 0.0 if hold else target[i]
             v, a = vel[i], acc[i]
@@ -402,6 +416,10 @@ class SafetyFilter:
             text = (f"{', '.join(self._names[i] for i in sorted(contact))} slowed by an external torque "
                     f"({self._names[worst]} at {contact[worst]:.0%} speed): moving further into the "
                     "contact stops before a reflex")
+        elif floored is not None:
+            code = WORKSPACE
+            text = (f"the hand slowed above the workspace floor (TCP at z >= {self.floor.floor:.3g} m): "
+                    "lowering it further is slowed to a stop; moving up or sideways is not")
         elif margin_joints:
             names = ", ".join(self._names[i] for i in margin_joints)
             code = POSITION_MARGIN
@@ -413,7 +431,7 @@ class SafetyFilter:
         else:
             code, text = OK, ""
         if code != self._code and code in (VELOCITY_SCALED, ACCELERATION_LIMITED, POSITION_MARGIN,
-                                           INVALID_STATE, AWAITING_ZERO, CONTACT):
+                                           INVALID_STATE, AWAITING_ZERO, CONTACT, WORKSPACE):
             self._count_intervention(code)                  # the others are counted where they happen
         self._code = code
         return np.array(v_out), code, text
@@ -475,6 +493,20 @@ class SafetyFilter:
         return contact_scales(target, tau_ext, self._tau_max, self.config.contact_slow,
                               self.config.contact_stop)
 
+    def _floor_limit(self, target: list[float], q_ref: list[float], q: list[float]) -> list[float] | None:
+        """`workspace.WorkspaceFloor.limit` at the measured position (the reference may be up to
+        position_sync_tolerance away: centimetres at the hand), on the target as the position caps
+        below will leave it: a joint near its limit keeps its capped speed and is not used for the
+        change (the cap would undo it, and the hand would go on down)."""
+        capped, free = [], []
+        for t, qi, (_, _, _, _, lo, hi, tail, cap_n, cap_a, far) in zip(target, q_ref, self._lim):
+            near = hi - qi < far or qi - lo < far
+            if near:
+                t = min(max(t, -_cap(qi - lo, tail, cap_n, cap_a)), _cap(hi - qi, tail, cap_n, cap_a))
+            capped.append(t)
+            free.append(not near)
+        return self.floor.limit(capped, q, free)
+
     def _reject(self, code: int, text: str) -> tuple[int, str]:
         self.commands_rejected += 1
         self._count_intervention(code)
@@ -492,6 +524,7 @@ class SafetyFilter:
         q = _valid_q(q)
         if q is None:
             return False
+        self._q_meas = q
         if self._q_ref is None or self.is_stopped:
             self._q_ref = q
         elif max(abs(x - y) for x, y in zip(q, self._q_ref)) > self.config.position_sync_tolerance:

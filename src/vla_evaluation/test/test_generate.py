@@ -69,3 +69,15 @@ def test_generated_pick_and_place_records_the_hand(tmp_path):
     held = [h for _t, state, h in demo.grasp_events if state == 3]
     assert 2 in states and held == ["soda_can"]           # GRASPING, then HOLDING the can
     assert states.index(3) < len(states) - 1               # ... and opened after
+
+
+def test_plan_pace_slows_the_plan_clock_while_the_arm_lags():
+    """The demonstrator's plan clock: full speed while the arm follows, stopped when it lags far
+    behind (a loaded machine), so that the hand events come where the arm is."""
+    from vla_evaluation.generate import PLAN_LAG, plan_pace
+
+    lo, hi = PLAN_LAG
+    assert plan_pace(0.0) == 1.0 and plan_pace(lo) == 1.0
+    assert 0.0 < plan_pace((lo + hi) / 2) < 1.0
+    assert plan_pace(hi) == 0.0 and plan_pace(1.0) == 0.0
+    assert plan_pace(float("nan")) == 0.0

@@ -56,12 +56,27 @@ RECORDER = "recorder"
 LAUNCH_FILE = ("vla_bringup", "record.launch.yaml")
 RECORD_TAIL_S = 0.2  # s of simulated time recorded past the end of the plan and its settling
 RECORDER_STATUS_PERIOD_S = 0.05  # the recorder's ~/status (its clock) while generating
+# The plan's own clock runs at simulated time while the arm follows it (largest joint error under
+# the first value, rad), slows down beyond and stops at the second, so that a demonstrator that falls
+# behind (a loaded machine: late commands, the bridge's watchdog stopping the arm) neither closes the
+# hand above the object nor drags the arm after a reference far ahead (measured at real time beside
+# two busy processes: 3 of 4 episodes kept before, the hand closed 2 cm over a can that was stopped).
+PLAN_LAG = (0.03, 0.08)
 # What the demonstrator asks of the hand for a plan's events (the planner leaves time for them).
 HAND_REQUESTS = {
     "open": GripperCommand.Request(command=GripperCommand.Request.OPEN, speed=0.08),
     "grasp": GripperCommand.Request(command=GripperCommand.Request.GRASP, position=0.0, speed=0.08,
                                     max_effort=30.0, epsilon_inner=0.005, epsilon_outer=0.08),
 }
+
+
+def plan_pace(lag: float) -> float:
+    """How fast the plan's clock runs (0..1) for the arm's largest joint error from the reference
+    (rad): 1 within PLAN_LAG[0], falling linearly to 0 at PLAN_LAG[1]; 0 for a non-finite error."""
+    lo, hi = PLAN_LAG
+    if not math.isfinite(lag):
+        return 0.0
+    return min(1.0, max(0.0, (hi - lag) / (hi - lo)))
 
 
 class GenerateError(RuntimeError):
@@ -148,6 +163,10 @@ class Demonstrator:
         self.recorder_stamp = -math.inf  # the recorder's clock, from its ~/status
         self.plan = None
         self.plan_t0: float | None = None
+        self.plan_wall = 0.0               # stamp of the last joint state the plan's clock advanced on
+        self.plan_clock = 0.0              # the plan's own time (s), see _advance_plan_clock
+        self.pace = 1.0
+        self.plan_failure = ""             # why the running plan was abandoned (a reflex)
         self.plan_end = math.inf
         self.plan_done = threading.Event()
         self.commands = 0
@@ -186,9 +205,9 @@ class Demonstrator:
         if plan is None:
             return
         if self.plan_t0 is None:
-            self.plan_t0 = t
-        elapsed = t - self.plan_t0
-        dq = plan.command(elapsed, q) if elapsed <= plan.duration else np.zeros(7)
+            self.plan_t0 = self.plan_wall = t
+        elapsed = self.plan_clock = self._advance_plan_clock(plan, t, q)
+        dq = plan.command(elapsed, q, self.pace) if elapsed <= plan.duration else np.zeros(7)
         if self.send_zero:
             self.send_zero, dq = False, np.zeros(7)
         self.cmd_pub.publish(Float64MultiArray(data=[float(v) for v in dq]))
@@ -202,9 +221,26 @@ class Demonstrator:
             self.plan = None
             self.plan_done.set()
 
+    def _advance_plan_clock(self, plan, t: float, q: np.ndarray) -> float:
+        """The plan's time at this joint state (stamp t): advanced by the simulated time since the last
+        state at `pace` (1 while the arm follows the reference, down to 0 as it lags, PLAN_LAG; 0
+        while the bridge waits for a zero command); at the simulated time's rate past the plan's end."""
+        dt = max(0.0, t - self.plan_wall)
+        self.plan_wall = t
+        if self.plan_clock >= plan.duration:
+            self.pace = 1.0
+        else:
+            lag = float(np.max(np.abs(plan.reference(self.plan_clock)[0] - q)))
+            self.pace = 0.0 if self.send_zero else plan_pace(lag)
+        return self.plan_clock + dt * self.pace
+
     def _on_safety(self, msg) -> None:
         if msg.code == SafetyStatus.AWAITING_ZERO:
             self.send_zero = True
+        elif msg.code == SafetyStatus.REFLEX and self.plan is not None:
+            # the arm holds until a recovery (the next reset clears it): the plan cannot go on
+            self.plan, self.plan_failure = None, f"robot reflex during the plan: {msg.text}"
+            self.plan_done.set()
 
     def _on_hand_reply(self, future) -> None:
         res = future.result()
@@ -253,16 +289,20 @@ class Demonstrator:
 
     def run_plan(self, plan, settle: float, timeout: float) -> None:
         self.plan_done.clear()
-        self.plan_t0 = None
+        self.plan_t0, self.plan_clock, self.pace = None, 0.0, 1.0
         self.plan_end = plan.duration + settle
         self.hand_sent, self.hand_replies, self.heights = 0, [], []
         self.track = plan.task.object_class
         self.send_zero = True
+        self.plan_failure = ""
         self.plan = plan
         if not self.plan_done.wait(timeout):
             self.plan = None
             self.zero()
             raise GenerateError(f"plan of {plan.duration:.1f} s did not finish within {timeout:.0f} s wall")
+        if self.plan_failure:
+            self.zero()
+            raise GenerateError(self.plan_failure)
 
     def zero(self) -> None:
         self.cmd_pub.publish(Float64MultiArray(data=[0.0] * 7))

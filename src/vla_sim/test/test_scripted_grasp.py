@@ -61,3 +61,38 @@ def test_scripted_grasp_tasks_succeed(sim, task, seed):
     if spec.kind == "pick_place":
         assert np.linalg.norm(np.array([end.x, end.y]) - place_target(spec, start)) < 0.03
         assert sim.held_objects() == []
+
+
+def _directions(plan, kin):
+    """Unit TCP directions of the plan's keyframe-to-keyframe moves (zero moves dropped)."""
+    tcp = np.array([kin.fk(q)[0] for q in plan.waypoints])
+    d = np.diff(tcp, axis=0)
+    n = np.linalg.norm(d, axis=1)
+    return d[n > 1e-4] / n[n > 1e-4, None]
+
+
+@pytest.mark.parametrize("task", ["soda_can/lift", "soda_can/pick_place_west"])
+def test_grasp_paths_never_go_back_over_themselves(task):
+    """A 1-D latent has one way forward at each state: no move of the hand's path reverses the one
+    before it (a vertical descent then a lift on the same line taught + down and up at once)."""
+    kin = PandaKinematics()
+    spec = default_catalogue().task(task)
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        start = task_layout(spec, rng)[0]
+        plan = plan_task(kin, spec, start, random_start_pose(rng), rng)
+        d = _directions(plan, kin)
+        cos = np.sum(d[1:] * d[:-1], axis=1)
+        assert cos.min() > -0.8, (task, seed, cos.min())
+
+
+def test_plan_command_pace_scales_the_feed_forward():
+    kin = PandaKinematics()
+    spec = default_catalogue().task("soda_can/pick_place_west")
+    rng = np.random.default_rng(0)
+    plan = plan_task(kin, spec, task_layout(spec, rng)[0], random_start_pose(rng), rng)
+    t = plan.duration / 3
+    q_ref, dq_ref = plan.reference(t)
+    assert np.allclose(plan.command(t, q_ref), dq_ref)
+    assert np.allclose(plan.command(t, q_ref, pace=0.0), 0.0)
+    assert np.allclose(plan.command(t, q_ref, pace=0.5), 0.5 * dq_ref)

@@ -111,9 +111,10 @@ class TaskPlan:
         dq_ds = (seg.q[i + 1] - seg.q[i]) / span
         return seg.q[i] + w * (seg.q[i + 1] - seg.q[i]), dq_ds * ds / seg.duration
 
-    def command(self, t: float, q) -> np.ndarray:
-        """Joint-velocity command (7,) at time t for measured joint positions q. Never raises:
-        non-finite or malformed q gives a zero command."""
+    def command(self, t: float, q, pace: float = 1.0) -> np.ndarray:
+        """Joint-velocity command (7,) at time t for measured joint positions q, the feed-forward
+        scaled by `pace` (how fast the caller's plan clock runs, 0..1: a demonstrator that slows its
+        clock while the arm lags). Never raises: non-finite or malformed q gives a zero command."""
         try:
             qm = np.asarray(q, dtype=float).reshape(-1)
         except (TypeError, ValueError):
@@ -121,7 +122,7 @@ class TaskPlan:
         if qm.shape != (7,) or not np.all(np.isfinite(qm)):
             return np.zeros(7)
         q_ref, dq_ref = self.reference(t)
-        dq = dq_ref + self.gain * (q_ref - qm)
+        dq = min(max(float(pace), 0.0), 1.0) * dq_ref + self.gain * (q_ref - qm)
         limit = COMMAND_SPEED_SHARE * np.asarray(DQ_MAX)
         ratio = float(np.max(np.abs(dq) / limit))
         return dq / ratio if ratio > 1.0 else dq
@@ -431,16 +432,28 @@ GRASP_DEPTH = 0.035
 PLACE_CLEARANCE = 0.004
 HAND_CLOSE_S = 1.4   # s the demonstrator waits for the fingers to close and squeeze (80 mm at 0.08 m/s)
 HAND_OPEN_S = 0.8
+# The path of a task with the hand never goes back over itself, so that a 1-D latent has one way
+# forward at every state: the hand comes down onto the object sliding along its fingers' gap (from
+# the robot's side, -x: the fingers pass either side of it), leaves on another line (a lift rises
+# on away from the robot; a pick-and-place rises towards the target and comes down onto it), and
+# after the place withdraws along the gap again (back towards the robot, up). A vertical descent
+# and a lift over the same line ask the decoder for down and up at the same states under the same
+# stick sign: a model trained on such demonstrations never brought the hand down to the object.
+APPROACH_RUN = (0.05, 0.07)   # m along x covered while descending onto the object
+RETREAT_RUN = 0.06            # m back along x while rising after the place
 
 
 def _plan_grasp(b: _Builder, spec: TaskSpec, shape: ObjectSpec, c: np.ndarray, rng) -> dict:
-    """Lift: hover above, descend (hand open), close, raise by the task distance, hold. Pick and
-    place: ... then carry at that height to the target, lower it to the table, open, retreat up.
-    The hand points down (DOWN, fingers closing along world y): objects that fit the open hand at
-    any yaw (the catalogue checks it), so the poses depend on (x, y) only, as the model's context."""
+    """Lift: hover behind the object (robot side) and above it, come down onto it along the
+    fingers' gap (hand open), close, raise it by the task distance while going on away from the
+    robot, hold. Pick and place: close, rise towards the target to the carry height half way there,
+    come down onto the target, open, withdraw back and up. The hand points down (DOWN, fingers
+    closing along world y): objects that fit the open hand at any yaw (the catalogue checks it), so
+    the poses depend on (x, y) only, as the model's context."""
     z_grasp = max(shape.height - GRASP_DEPTH, shape.height / 2)
     p = {
         "hover_height": z_grasp + float(rng.uniform(0.08, 0.12)),
+        "approach_run": float(rng.uniform(*APPROACH_RUN)),
         "lift": float(spec.distance if spec.kind == "lift" else rng.uniform(0.08, 0.11)),
         "grasp_offset": float(rng.uniform(-0.004, 0.004)),   # along x: how well the hand is centred
         "transit_speed": float(rng.uniform(0.15, 0.22)),
@@ -450,18 +463,20 @@ def _plan_grasp(b: _Builder, spec: TaskSpec, shape: ObjectSpec, c: np.ndarray, r
     }
     g = np.array([c[0] + p["grasp_offset"], c[1]])
     events = [(0.0, "open")]
-    b.joint_move([*g, p["hover_height"]], DOWN, p["transit_speed"])
+    b.joint_move([g[0] - p["approach_run"], g[1], p["hover_height"]], DOWN, p["transit_speed"])
     b.line([*g, z_grasp], DOWN, p["approach_speed"])
     events.append((b.t, "grasp"))
     b.dwell(HAND_CLOSE_S)
-    b.line([*g, z_grasp + p["lift"]], DOWN, p["approach_speed"])
     if spec.kind == "pick_place":
         goal = g + spec.direction_vector * spec.distance
-        b.line([*goal, z_grasp + p["lift"]], DOWN, p["carry_speed"])
-        b.line([*goal, z_grasp + PLACE_CLEARANCE], DOWN, p["approach_speed"])
+        top = (g + goal) / 2
+        b.line([*top, z_grasp + p["lift"]], DOWN, p["carry_speed"])
+        b.line([*goal, z_grasp + PLACE_CLEARANCE], DOWN, p["carry_speed"])
         events.append((b.t, "open"))
         b.dwell(HAND_OPEN_S)
-        b.line([*goal, z_grasp + p["lift"]], DOWN, p["approach_speed"])
+        b.line([goal[0] - RETREAT_RUN, goal[1], z_grasp + p["lift"]], DOWN, p["approach_speed"])
+    else:
+        b.line([g[0] + p["approach_run"], g[1], z_grasp + p["lift"]], DOWN, p["approach_speed"])
     b.dwell(p["hold"])
     p["_hand_events"] = events
     return p

@@ -182,7 +182,8 @@ class _Observer:
             m.on_joint_state(self.q_stamp, q, dq, self.teleop)
 
     def _objects(self, msg) -> None:
-        objs = {o.class_id: ObjectPose(o.class_id, o.x, o.y, o.yaw) for o in msg.objects}
+        # with the height: a pick-and-place is judged put down (an object held over its target is not)
+        objs = {o.class_id: ObjectPose(o.class_id, o.x, o.y, o.yaw, o.pose.position.z) for o in msg.objects}
         with self.cond:
             self.objects, self.objects_stamp = objs, _stamp(msg)
             self.cond.notify_all()

@@ -160,7 +160,7 @@ class HumanOperator:
         self.reversals = 0
         self.lapses = 0
         self.next_decision = 0.0
-        self.magnitude = 1.0  # latent: how far the person pushes (full until the task is nearly done)
+        self.magnitude = 1.0  # latent: how far the person pushes now
         self.stalls = 0  # latent: judgements in a row with no visible progress
         self.sweep = 0.0  # circle: how far round the object the hand has gone (rad, signed)
         self.sweep_sign = 0.0  # circle: the way round the person goes with, once it is seen
@@ -305,10 +305,9 @@ class HumanOperator:
 
         Every commit_s the person compares how far from done the task looks with the last time: worse
         by more than they can see (twice their perception noise) and they reverse; no visible change
-        twice in a row and they change how far they push, then, still stuck, try the other way; better
-        and they keep going, easing off as the end nears. The stick's magnitude is a latent coordinate, not a
-        speed (a gentler push may move the arm another way), so a stuck person first tries the other
-        extent (full or half), then the other direction.
+        twice in a row and they push fully, four times and they try the other way; better and they
+        keep going, easing off as the end nears. (Also tried, on a 9-trial circle run, and not kept:
+        a stuck person trying other extents of the stick (0.6, 0.3) before turning; no better.)
         """
         if t >= self.judge_at:
             cost = self._task_cost(hand, obj)
@@ -326,10 +325,8 @@ class HumanOperator:
                         self.stalls = 0
                 else:
                     self.stalls = 0
-            if self.stalls == 0:
-                self.magnitude = float(np.clip(self.p.gain * cost / 0.15, 0.4, 1.0))
-            elif self.stalls == 2:  # stuck: try the stick's other extent before the other way
-                self.magnitude = 0.5 if self.magnitude > 0.75 else 1.0
+            self.magnitude = 1.0 if self.stalls >= 2 else float(
+                np.clip(self.p.gain * cost / 0.15, 0.4, 1.0))
             self.last_cost = cost
             self.judge_at = t + self.p.commit_s
         return self._out(self._motor(self.direction * self.magnitude))

@@ -147,6 +147,17 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path):
     assert any(m.startswith(f"{f}:4:") and "Seen" in m for m in msgs), msgs
     assert any(m.startswith(f"{f}:5:") and "trials" in m for m in msgs), msgs
     assert any(m.startswith(f"{f}:6:") and "colour" in m for m in msgs), msgs
+    # the command refuses it with the same lines and makes nothing
+    out = tmp_path / "study"
+    res = subprocess.run([sys.executable, "-m", "vla_evaluation.cli", "study", "--protocol", str(f),
+                          "--out", str(out)], capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2, res.stdout + res.stderr
+    assert f"{f}:2:" in res.stderr and f"{f}:6:" in res.stderr
+    assert not out.exists()
+    f.write_text("participants: sim:3\nstrategies: [latent-YOLO\nsettings: {}\n")  # not YAML
+    with pytest.raises(ProtocolError) as e:
+        load_protocol(f)
+    assert e.value.errors[0].startswith(f"{f}:3:") and "YAML" in e.value.errors[0], e.value.errors
 
 
 def test_the_paper_protocol_plans_the_papers_trials():
@@ -205,6 +216,7 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
     rows = _rows(out)
     keys = [r["key"] for r in rows]
     assert len(keys) == len(set(keys)) == 4
+    assert keys == [t.key for t in trial_plan(load_protocol(proto))]  # none lost, none twice, in order
     assert [r["key"] for r in rows[: len(first)]] == [r["key"] for r in first]  # earlier rows kept
     assert (out / "trials.jsonl.partial").read_text().startswith('{"key": "half')
     for r in rows:
@@ -218,3 +230,36 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert res.returncode != 0 and "another protocol" in (res.stdout + res.stderr)
     assert len(_rows(out)) == 4
+
+
+def test_anonymise_leaves_no_participant_id_in_the_shared_copy(tmp_path):
+    from vla_evaluation.study.anonymise import anonymise
+    from vla_evaluation.study.runner import file_stem
+
+    src, dest, key = tmp_path / "study", tmp_path / "shared", tmp_path / "private" / "key.csv"
+    (src / "trials").mkdir(parents=True)
+    rows = []
+    for who in ("alice_smith", "sim:1", "bob-jones", "alice_smith"):
+        k = f"{who}|latent-YOLO|Seen|cereal_box/push_south|test|{len(rows)}"
+        rows.append({"key": k, "file": file_stem(k), "participant": who, "success": True})
+        np.savez(src / "trials" / f"{file_stem(k)}.npz", tcp=np.zeros((3, 3)))
+    (src / "trials.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    (src / "likert.jsonl").write_text(json.dumps({"participant": "bob-jones", "strategy": "latent-YOLO",
+                                                  "answers": {"easy": 6}}) + "\n")
+    (src / "study.json").write_text(json.dumps({"protocol": "/home/alice_smith/lab/p.yaml"}))
+    before = {p: p.read_bytes() for p in src.rglob("*") if p.is_file()}
+    assert anonymise(src, dest, key) == {"alice_smith": "P01", "sim:1": "sim:1", "bob-jones": "P02"}
+    for p in dest.rglob("*"):
+        assert "alice" not in p.name and "bob" not in p.name
+        if p.suffix in (".jsonl", ".json"):
+            assert "alice" not in p.read_text() and "bob" not in p.read_text(), p
+    out = [json.loads(x) for x in (dest / "trials.jsonl").read_text().splitlines()]
+    assert [r["participant"] for r in out] == ["P01", "sim:1", "P02", "P01"]
+    assert len({r["key"] for r in out}) == 4 and all((dest / "trials" / f"{r['file']}.npz").is_file()
+                                                     for r in out)
+    assert key.read_text().splitlines()[1:] == ["P01,alice_smith", "P02,bob-jones"]
+    assert {p: p.read_bytes() for p in src.rglob("*") if p.is_file()} == before  # source untouched
+    with pytest.raises(ValueError, match="exists"):
+        anonymise(src, dest, tmp_path / "key2.csv")
+    with pytest.raises(ValueError, match="outside"):
+        anonymise(src, tmp_path / "shared2", tmp_path / "shared2" / "key.csv")

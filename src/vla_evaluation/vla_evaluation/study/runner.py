@@ -57,7 +57,12 @@ class Trial:
 
     @property
     def file_stem(self) -> str:
-        return "".join(c if c.isalnum() or c in "-_" else "_" for c in self.key)
+        return file_stem(self.key)
+
+
+def file_stem(key: str) -> str:
+    """A trial's file name in trials/ from its key."""
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in key)
 
 
 def trial_plan(p: Protocol) -> list[Trial]:

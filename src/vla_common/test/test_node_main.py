@@ -9,19 +9,24 @@ import pytest
 NODE = textwrap.dedent('''
     import sys, time
     from rclpy.node import Node
-    from vla_common.ros.node_main import ConfigError, run_node
+    from vla_common.ros.node_main import SHUTDOWN_GRACE_S, ConfigError, run_node
 
     class N(Node):
         def __init__(self):
             super().__init__("n")
             if "config" in sys.argv:
                 raise ConfigError("parameter 'x' refused")
+            if "slow" in sys.argv:
+                self.shutdown_timeout_s = 4 * SHUTDOWN_GRACE_S
             self.create_timer(0.05, lambda: None)
             print("ready", flush=True)
         def on_shutdown(self):
             print("zero sent", time.monotonic(), flush=True)  # CLOCK_MONOTONIC: the test's clock too
             if "hang" in sys.argv:
                 time.sleep(60)      # a teardown that never returns
+            if "slow" in sys.argv:  # work that takes longer than the teardown's own bound (a bag to close)
+                time.sleep(SHUTDOWN_GRACE_S + 1.0)
+                print("closed", flush=True)
 
     sys.exit(run_node(N, "n", ["--ros-args", "-p", "use_sim_time:=true"]))
 ''')
@@ -62,3 +67,14 @@ def test_a_shutdown_that_hangs_is_ended_by_the_watchdog():
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=15)
     assert p.returncode == 1 and "zero sent" in out and "Thread" in err  # where it hung, then exit
+
+
+def test_a_node_that_declares_a_longer_shutdown_gets_it_and_the_teardown_its_own_bound():
+    """on_shutdown of a node with `shutdown_timeout_s` may take longer than SHUTDOWN_GRACE_S: the
+    recorder closing an episode's bag took most of the 3 s under load, and the watchdog then ended it
+    with exit code 1 in destroy_publisher (issue 21). The sleep is the work, not a synchronisation."""
+    import signal
+    p = start("slow")
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=30)
+    assert p.returncode == 0 and "closed" in out and "Thread" not in err, err

@@ -8,10 +8,14 @@
 - Fast DDS gets the large-image transport profile (`qos.use_large_image_transport`) before
   rclpy.init, unless the environment chooses transports itself: whole camera frames go through
   shared memory, for every node alike.
-- Shutdown is bounded: if it has not finished `SHUTDOWN_GRACE_S` after it began (Fast DDS 2.14 can
-  busy-wait in participant deletion when several nodes leave the graph at once, eProsima/Fast-DDS
-  #6513), a C-level watchdog (faulthandler, it needs no Python lock) prints where each thread is and
-  ends the process with exit code 1, instead of leaving it for a SIGKILL.
+- Shutdown is bounded: if the node's teardown (destroy_node, rclpy shutdown) has not finished
+  `SHUTDOWN_GRACE_S` after it began (Fast DDS 2.14 can busy-wait in participant deletion when several
+  nodes leave the graph at once, eProsima/Fast-DDS #6513), a C-level watchdog (faulthandler, it needs
+  no Python lock) prints where each thread is and ends the process with exit code 1, instead of
+  leaving it for a SIGKILL. `on_shutdown` has a bound of its own: `SHUTDOWN_GRACE_S`, or the node's
+  `shutdown_timeout_s` where its work needs longer (the recorder closes an episode's bag). One budget
+  for both ended the recorder with exit code 1 in `destroy_publisher` when closing a bag had taken
+  most of the 3 s (issue 21).
 - Exit codes: 0 after a signal or when the node sets `finished`; 2 for a refused parameter
   (`ConfigError`, one line on stderr); 1 for any other failure at startup or in a callback (its
   message on stderr, no traceback for a startup error). A second signal during cleanup is ignored.
@@ -46,6 +50,9 @@ class StartupError(RuntimeError):
 
 
 class Stoppable(Protocol):
+    # Optional: seconds on_shutdown may take (default SHUTDOWN_GRACE_S); destroy_node then gets its own.
+    shutdown_timeout_s: float
+
     def on_shutdown(self) -> None:
         """Command zero (and wait for it to be acknowledged) while the context is still valid."""
 
@@ -98,18 +105,27 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         code = 1
     finally:
         signals.ignore()
-        faulthandler.dump_traceback_later(SHUTDOWN_GRACE_S, exit=True)
         _shutdown(node, name)
         faulthandler.cancel_dump_traceback_later()
     return code
 
 
+def _watchdog(seconds: float) -> None:
+    """(Re)arm the watchdog: in `seconds`, print every thread's stack and exit 1."""
+    faulthandler.dump_traceback_later(seconds, exit=True)
+
+
 def _shutdown(node: Node | None, name: str) -> None:
+    _watchdog(SHUTDOWN_GRACE_S)
     try:
         if node is not None:
             on_shutdown = getattr(node, "on_shutdown", None)
             if on_shutdown is not None and rclpy.ok():
-                on_shutdown()
+                _watchdog(max(SHUTDOWN_GRACE_S, float(getattr(node, "shutdown_timeout_s", 0.0))))
+                try:
+                    on_shutdown()
+                finally:
+                    _watchdog(SHUTDOWN_GRACE_S)  # the teardown's own bound, however long that took
             node.destroy_node()
     except Exception as exc:  # the context may already be gone: nothing more can be sent
         print(f"{name}: during shutdown: {exc}", file=sys.stderr)

@@ -132,7 +132,7 @@ def test_latin_square_puts_each_strategy_once_in_each_position():
             assert sorted(r[pos] for r in rows[:n]) == list(range(n))
 
 
-def test_protocol_errors_are_refused_with_file_and_line(tmp_path):
+def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
     f = tmp_path / "bad.yaml"
     f.write_text("participants: sim:3\n"
                  "strategies: [latent-YOLO, teleport]\n"
@@ -154,6 +154,18 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path):
     assert res.returncode == 2, res.stdout + res.stderr
     assert f"{f}:2:" in res.stderr and f"{f}:6:" in res.stderr
     assert not out.exists()
+    # a valid protocol: --check prints each participant's session and writes nothing
+    import argparse
+
+    from vla_evaluation.study import cli
+
+    f.write_text(REDUCED)
+    ap = argparse.ArgumentParser()
+    cli.add_arguments(ap)
+    assert cli.run(ap.parse_args(["--protocol", str(f), "--participants", "P01,P02", "--out", str(out),
+                                  "--check"])) == 0
+    printed = capsys.readouterr().out
+    assert "2 participants, 4 trials" in printed and "P02:" in printed and not out.exists()
     f.write_text("participants: sim:3\nstrategies: [latent-YOLO\nsettings: {}\n")  # not YAML
     with pytest.raises(ProtocolError) as e:
         load_protocol(f)

@@ -3,6 +3,7 @@
     vla_evaluation study --participants sim:9                  # the paper's protocol, shipped models
     vla_evaluation study --protocol my.yaml --out out/study    # another protocol
     vla_evaluation study --analyse-only --out out/study        # figures and tables from what ran
+    vla_evaluation study --protocol my.yaml --check            # validate, print the sessions, run nothing
 Run it again with the same --out to resume; a different protocol in that --out is refused.
 """
 from __future__ import annotations
@@ -28,6 +29,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trials", type=int, default=None, help="test trials per task (overrides the file)")
     p.add_argument("--time-limit", type=float, default=None, help="s per trial (overrides the file)")
     p.add_argument("--analyse-only", action="store_true", help="only the figures and tables")
+    p.add_argument("--check", action="store_true",
+                   help="validate the protocol and print each participant's session; run and write nothing")
     p.add_argument("--figures", type=Path, default=None, help="where figures and tables go (default: --out)")
 
 
@@ -50,6 +53,18 @@ def run(args) -> int:
         proto = dataclasses.replace(proto, trials=args.trials)
     if args.time_limit is not None:
         proto = dataclasses.replace(proto, time_limit=args.time_limit)
+    if args.check:
+        from vla_evaluation.study.runner import trial_plan
+
+        plan = trial_plan(proto)
+        print(f"{proto.source}: valid; {len(proto.participants)} participants, {len(plan)} trials "
+              f"({sum(t.phase == 'practice' for t in plan)} practice)")
+        for who in proto.participants:
+            print(f"\n{who}:")
+            for t in (t for t in plan if t.participant == who):
+                print(f"  {t.order + 1:3d}. {t.strategy:20s} {t.setting:6s} {t.task:30s} {t.phase:8s} "
+                      f"trial {t.trial + 1}, placement seed {t.layout_seed}")
+        return 0
     if not args.analyse_only:
         from vla_evaluation.study.runner import run_study
 

@@ -89,14 +89,17 @@ class GraphConfig:
     log_level: str = "info"
     extra_params: dict[str, dict] = field(default_factory=dict)  # node -> run-time parameters
     catalogue: str = ""  # object catalogue YAML ("": the default): the scene, detector and teleoperator
+    operator_port: int | None = None  # also start the operator station on 127.0.0.1:port (None: not)
 
     def launch_arguments(self) -> dict[str, object]:
         """demo.launch.yaml's arguments: what the nodes read once, at startup."""
+        station = ({} if self.operator_port is None else
+                   {"use_operator_station": True, "operator_port": int(self.operator_port)})
         return {"catalogue": str(Path(self.catalogue).absolute()) if self.catalogue else "",
                 "use_sim_time": True, "real_time_factor": float(self.real_time_factor),
                 "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
                 "rate": float(self.rate), "detector_model": str(self.detector_model),
-                "controller_model": str(self.model_path), "log_level": self.log_level}
+                "controller_model": str(self.model_path), "log_level": self.log_level, **station}
 
     def node_parameters(self) -> dict[str, dict]:
         """Run-time parameters set through the nodes' parameter services once the graph is up. The

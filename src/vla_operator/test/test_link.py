@@ -97,6 +97,15 @@ def test_a_silence_at_rest_does_not_disarm_the_next_press():
     assert link.tick(12.0 + 0.6) and link.value(12.6) == 0.0   # silent while moving: zero, disarmed
 
 
+def test_a_watch_only_page_never_drives():
+    link = Link()
+    w = link.connect(0.0, may_drive=False)
+    assert not w.driver and link.driver() is None
+    assert "another station drives" in link.on_message(w.cid, inp(0, 0.0, 0.0), 0.01).error
+    d = link.connect(0.02)
+    assert d.driver
+
+
 def test_one_driver_watchers_may_only_estop():
     link, cid = driving()
     w = link.connect(10.0)

@@ -91,10 +91,10 @@ class Link:
     _next_id: int = 0
 
     # ------------------------------------------------------------------ clients
-    def connect(self, now: float) -> Client:
-        """A new client: the driver when nobody drives, else a watcher."""
+    def connect(self, now: float, may_drive: bool = True) -> Client:
+        """A new client: the driver when nobody drives (and it may), else a watcher."""
         self._next_id += 1
-        c = Client(self._next_id, driver=self.driver() is None, last_seen=now)
+        c = Client(self._next_id, driver=may_drive and self.driver() is None, last_seen=now)
         self.clients[c.cid] = c
         return c
 

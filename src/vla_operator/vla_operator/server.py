@@ -141,8 +141,8 @@ class Station:
             return web.Response(status=403, text=refusal)
         ws = web.WebSocketResponse(heartbeat=None, max_msg_size=self.link.params.max_message_bytes * 4)
         await ws.prepare(request)
-        with self.lock:
-            client = self.link.connect(self.clock())
+        with self.lock:   # ?watch=1: a page that only shows (a display, the demo's recording)
+            client = self.link.connect(self.clock(), may_drive=request.query.get("watch") != "1")
         cid = client.cid
         self._sockets[cid] = ws
         await ws.send_str(json.dumps({"type": "hello", "client": cid, "driver": client.driver,

@@ -31,7 +31,9 @@ function onMessage(m) {
 
 function setRole(driver) {
   state.driver = driver;
-  $('s-role').textContent = driver ? 'Driving' : 'Watching (another station drives; you may press STOP)';
+  $('s-role').textContent = driver ? 'Driving'
+    : link.watchOnly ? 'Watching only (this page does not drive; you may press STOP)'
+    : 'Watching (another station drives; you may press STOP)';
 }
 
 function showState(s) {

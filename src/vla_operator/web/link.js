@@ -8,9 +8,13 @@ export class Link {
   constructor(onMessage, onFrame, onConnection) {
     this.onMessage = onMessage; this.onFrame = onFrame; this.onConnection = onConnection;
     this.seq = 0; this.axis = 0; this.ws = null; this.meta = null;
-    const token = new URLSearchParams(location.search).get('token') || '';
+    const query = new URLSearchParams(location.search), token = query.get('token') || '';
     const proto = location.protocol === 'https:' ? 'wss:' : 'ws:';
-    this.url = `${proto}//${location.host}/ws` + (token ? `?token=${encodeURIComponent(token)}` : '');
+    const ws = new URLSearchParams();
+    if (token) ws.set('token', token);
+    this.watchOnly = query.get('watch') === '1';
+    if (this.watchOnly) ws.set('watch', '1');   // a page that only shows (never drives, sends no input)
+    this.url = `${proto}//${location.host}/ws` + (ws.toString() ? `?${ws}` : '');
     setInterval(() => this.send({ type: 'heartbeat' }), HEARTBEAT_MS);
     setInterval(() => { if (this.axis !== 0) this.sendAxis(); }, RESEND_MS);
     document.addEventListener('visibilitychange', () => { if (document.hidden) this.hidden(); });
@@ -32,6 +36,6 @@ export class Link {
   }
   send(msg) { if (this.ws && this.ws.readyState === WebSocket.OPEN) this.ws.send(JSON.stringify(msg)); }
   setAxis(a) { const changed = a !== this.axis; this.axis = a; if (changed) this.sendAxis(); }
-  sendAxis() { this.send({ type: 'input', seq: ++this.seq, t: performance.now(), axis: this.axis }); }
+  sendAxis() { if (this.watchOnly) return; this.send({ type: 'input', seq: ++this.seq, t: performance.now(), axis: this.axis }); }
   hidden() { this.axis = 0; this.send({ type: 'hidden' }); }
 }

@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 from vla_common.tasks import BASE_TASKS
 
+from vla_evaluation import page_recording
 from vla_evaluation.demo_video import write_video_and_strip
 from vla_evaluation.evaluate_cli import add_teleop_arguments, print_table, settings_from, task_list
 from vla_evaluation.graph import CAMERA_SIZE, GraphConfig, GraphError, GraphEvaluator
@@ -65,6 +66,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="where demonstrations are generated when a model must be trained",
     )
     p.add_argument("--no-video", action="store_true", help="skip the video and image strip")
+    p.add_argument("--record-page", type=Path, default=None, metavar="MP4",
+                   help="also start the operator station and record its page (headless Chromium) into MP4")
     p.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for the graph (default: own)")
     add_teleop_arguments(p, rate=100.0, horizon=DEMO_HORIZON)
 
@@ -101,10 +104,12 @@ def run(args) -> int:
         keep_frames=not args.no_video,
         domain_id=args.domain_id,
         log_dir=out / "logs",
+        operator_port=page_recording.free_port() if args.record_page else None,
     )
     records = []
     try:
-        with GraphEvaluator(cfg, log=_log) as ev:
+        page = page_recording.recording(args.record_page, cfg.operator_port, _log)
+        with GraphEvaluator(cfg, log=_log) as ev, page:
             for task in tasks:
                 name = model_name_for(task)
                 ev.set_model(str(model_dirs[name]))
@@ -115,7 +120,7 @@ def run(args) -> int:
                     if cfg.keep_frames:
                         rec.frames = _thin_frames(rec.frames)
                     records.append(rec)
-    except GraphError as e:
+    except (GraphError, page_recording.RecordingError) as e:
         print(f"demo: {e}", file=sys.stderr)
         return 1
     results = [r.result for r in records]

@@ -102,3 +102,40 @@ def test_the_demo_fails_when_an_episode_fails(tmp_path, monkeypatch, capsys, out
     err = capsys.readouterr().err
     assert ("1 of 2 episodes failed: cereal_box/push_south" in err) == (rc != 0)
     assert (tmp_path / "out" / "results.json").is_file()            # the results are written either way
+
+
+def test_the_pick_and_place_model_trains_on_its_own_demos_alone(monkeypatch, tmp_path):
+    """The demo's pick-and-place model: that task's few-shot demonstrations, no base ones (the soda
+    can's push south would share its context)."""
+    import sys
+    import types
+
+    from vla_evaluation import training_data as td
+
+    calls = []
+    monkeypatch.setattr(td, "Detector", lambda path: "detector")
+    monkeypatch.setattr(td, "ensure_demos",
+                        lambda task, n, data, seed, log=print: calls.append((task, n, seed)) or tmp_path)
+    monkeypatch.setattr(td, "load_task_demos", lambda folder, task, det, limit=None: [task] * limit)
+
+    class Result:
+        def save(self, path):
+            return path
+
+    trained = {}
+
+    def train_model(demos, cfg, **kw):
+        trained["demos"], trained["cfg"] = demos, cfg
+        return Result()
+
+    fake = types.ModuleType("vla_latent_training.train")
+    fake.TrainConfig = lambda **kw: kw
+    fake.train_model = train_model
+    monkeypatch.setitem(sys.modules, "vla_latent_training.train", fake)
+    made = td.ensure_latent_models(["soda_can_pick_place_west"], tmp_path, tmp_path / "d.onnx", tmp_path,
+                                   log=lambda s: None)
+    assert made == {"soda_can_pick_place_west": tmp_path / "soda_can_pick_place_west"}
+    assert calls == [("soda_can/pick_place_west", td.FEW_SHOT_EPISODES, td.UNSEEN_SEED)]
+    assert trained["demos"] == ["soda_can/pick_place_west"] * td.FEW_SHOT_EPISODES
+    assert trained["cfg"]["encoder"] == "detector"
+    assert demo.model_name_for("soda_can/pick_place_west") == "soda_can_pick_place_west"

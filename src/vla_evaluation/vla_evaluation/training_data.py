@@ -13,6 +13,7 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from vla_common.catalogue import default_catalogue
 from vla_common.tasks import BASE_TASKS, UNSEEN_TASKS
 from vla_demo_recorder.dataset import load_demos
 from vla_detector.inference import Detector
@@ -24,6 +25,10 @@ BASE_EPISODES = 30
 FEW_SHOT_EPISODES = 5  # per unseen task, the paper's largest k
 BASE_SEED = 0
 UNSEEN_SEED = 5_000
+# Tasks with the hand (the demo's pick-and-place): a model of their own, from that task's
+# FEW_SHOT_EPISODES demonstrations alone. With the base demos beside them the soda can's context
+# would ask one latent for its push south and its pick-and-place at once.
+HAND_TASKS: list[str] = [s.name for s in default_catalogue().task_set("hand")]
 
 
 def run_command(
@@ -137,18 +142,24 @@ def ensure_latent_models(
     log: Callable[[str], None] = print,
     epochs: int = 1000,
 ) -> dict[str, Path]:
-    """Train the named models (`default`: base tasks; `cereal_box_<action>`: base + few-shot)."""
+    """Train the named models (`default`: base tasks; `cereal_box_<action>`: base + few-shot; a task
+    with the hand, e.g. `soda_can_pick_place_west`: its few-shot demos alone)."""
     from vla_latent_training.train import TrainConfig, train_model  # torch: optional, only to train
 
     detector = Detector(detector_path)
+    hand = {t.replace("/", "_"): t for t in HAND_TASKS}
     base = []
-    for task in BASE_TASKS:
-        folder = ensure_demos(task, BASE_EPISODES, data_dir, BASE_SEED, log)
-        base += load_task_demos(folder, task, detector, BASE_EPISODES)
+    if any(name not in hand for name in names):
+        for task in BASE_TASKS:
+            folder = ensure_demos(task, BASE_EPISODES, data_dir, BASE_SEED, log)
+            base += load_task_demos(folder, task, detector, BASE_EPISODES)
     made: dict[str, Path] = {}
     for name in names:
         if name == "default":
             demos = base
+        elif name in hand:
+            folder = ensure_demos(hand[name], FEW_SHOT_EPISODES, data_dir, UNSEEN_SEED, log)
+            demos = load_task_demos(folder, hand[name], detector, FEW_SHOT_EPISODES)
         else:
             task = next((t for t in UNSEEN_TASKS if t.replace("/", "_") == name), None)
             if task is None:

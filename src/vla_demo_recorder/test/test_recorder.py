@@ -5,7 +5,7 @@ import threading
 import numpy as np
 import pytest
 from recorder_testing import joint_state
-from vla_demo_recorder.bag_writer import EpisodeInfo, _Rosbag2Writer, read_metadata_yaml
+from vla_demo_recorder.bag_writer import BagWriter, EpisodeInfo, _Rosbag2Writer, read_metadata_yaml
 from vla_demo_recorder.recorder import Recorder, RecorderError, validate_task
 
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
@@ -76,3 +76,39 @@ def test_tasks_are_checked_by_one_function():
         validate_task("spaceship/push_east")
     with pytest.raises(RecorderError, match="must look like"):
         validate_task("../etc/push_east")
+
+
+def test_shutdown_writes_the_queue_for_drain_s_then_counts_the_rest_dropped_and_closes_the_bag(
+        tmp_path, monkeypatch):
+    """Ctrl-C while the disk is behind: the bag must still be closed in time (the recorder was ended
+    by its node's watchdog, exit code 1, bag left 'recording', under load: issue 21). Each write
+    takes one second of the recorder's clock; the writer is stuck until shutdown(drain_s=3.5) is
+    called: 4 of the 10 queued messages are written, 6 counted as dropped, the bag is closed."""
+    now = [0.0]
+    stuck = threading.Event()
+    writer_thread = []
+
+    def clock():
+        if threading.current_thread() is threading.main_thread():
+            stuck.set()  # shutdown reads the clock: the disk comes back from then on
+        return now[0]
+
+    real_write = BagWriter.write
+
+    def slow_write(self, topic, t_ns, data):
+        writer_thread.append(threading.current_thread())
+        assert stuck.wait(60)
+        now[0] += 1.0
+        real_write(self, topic, t_ns, data)
+
+    monkeypatch.setattr(BagWriter, "write", slow_write)
+    rec = Recorder(tmp_path, fsync=False, clock=clock)
+    path = rec.start("bread/push_east")
+    for i in range(10):
+        assert rec.record("/joint_states", JS, [], i + 1, joint_state(i + 1, NAMES, np.full(7, float(i))))
+    result = rec.shutdown(drain_s=3.5)
+    assert writer_thread and writer_thread[0] is not threading.main_thread()
+    assert (result.outcome, result.messages, result.dropped) == ("interrupted", 4, 6), result.summary()
+    ep = EpisodeInfo.from_custom_data(read_metadata_yaml(path)["custom_data"])
+    assert ep.outcome == "interrupted" and ep.messages_dropped == 6
+    assert read_metadata_yaml(path)["message_count"] == 4 and rec.state().messages_dropped == 6

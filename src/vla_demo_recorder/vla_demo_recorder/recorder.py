@@ -5,6 +5,8 @@ middleware drops messages. Callbacks only enqueue serialized bytes; the writer t
 flushes complete chunks at least every `flush_period_s` and closes episodes. A bounded queue
 (`max_queue_bytes`) turns a disk that cannot keep up into counted drops instead of unbounded memory.
 A write error (disk full) ends the episode with a clear error; earlier bags are never touched.
+`shutdown(drain_s=...)` bounds the close of an open episode: what is still queued after `drain_s` is
+counted as dropped, so a process that must exit (Ctrl-C) still leaves a complete bag in time.
 """
 from __future__ import annotations
 
@@ -146,6 +148,7 @@ class _Episode:
         self.info = info
         self.dropped = 0
         self.failed = False
+        self.write_until: float | None = None  # clock time after which queued messages are dropped
         self.result: EpisodeResult | None = None
         self.done = threading.Event()
 
@@ -158,8 +161,10 @@ class Recorder:
 
     def __init__(self, output_dir: str | Path, *, flush_period_s: float = 0.5, fsync: bool = True,
                  max_queue_bytes: int = 1 << 30, delete_discarded: bool = False,
-                 catalogue: Catalogue | None = None, log: Callable[[str, str], None] | None = None) -> None:
-        """`catalogue`: where episode tasks are defined (None: the default catalogue)."""
+                 catalogue: Catalogue | None = None, log: Callable[[str, str], None] | None = None,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        """`catalogue`: where episode tasks are defined (None: the default catalogue); `clock`: the
+        clock of `shutdown`'s drain bound."""
         self.output_dir = Path(output_dir).expanduser().absolute()
         self.catalogue = catalogue
         self.flush_period_s = flush_period_s
@@ -167,6 +172,7 @@ class Recorder:
         self.max_queue_bytes = int(max_queue_bytes)
         self.delete_discarded = delete_discarded
         self._log = log or (lambda level, text: None)
+        self._clock = clock
         self._registry = TypeRegistry()
         self._lock = threading.Lock()
         self._queue: queue.Queue = queue.Queue()
@@ -303,14 +309,18 @@ class Recorder:
             st.messages_dropped = ep.dropped
         return st
 
-    def shutdown(self, timeout: float = 30.0) -> EpisodeResult | None:
-        """Close a running episode as `interrupted` and stop the writer thread."""
+    def shutdown(self, timeout: float = 30.0, drain_s: float | None = None) -> EpisodeResult | None:
+        """Close a running episode as `interrupted` and stop the writer thread. With `drain_s`, the
+        messages still queued `drain_s` after the call are not written but counted as dropped: the
+        bag is closed in time however far behind the disk is."""
         result = None
         with self._lock:
             ep, self._episode = self._episode, None
             if ep is not None:
                 self._last = ep
         if ep is not None:
+            if drain_s is not None:
+                ep.write_until = self._clock() + drain_s
             self._queue.put((_STOP, ep, "interrupted", time.time_ns()))
             ep.done.wait(timeout)
             result = ep.result
@@ -336,9 +346,12 @@ class Recorder:
                 self._finish(ep, outcome, end_ns)
                 continue
             ep, topic, msgtype, qos, t_ns, data = item
+            late = ep.write_until is not None and self._clock() > ep.write_until
             with self._lock:
                 self._queued_bytes -= len(data)
-            if ep.failed or ep.writer.closed:
+                if late and not ep.failed:
+                    ep.dropped += 1  # shutting down: no time left to write it
+            if late or ep.failed or ep.writer.closed:
                 continue
             open_eps.add(ep)
 

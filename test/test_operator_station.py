@@ -251,7 +251,7 @@ def test_hold_button_key_and_switch_move_the_arm_and_release_stops(graph, page):
 
 
 # ---------------------------------------------------------------------- action modes and devices
-DEFAULTS = {"action_mode": "hold", "input_device": "buttons",
+DEFAULTS = {"action_mode": "hold", "input_device": "buttons", "step_seconds": 0.3, "scan_period": 1.5,
             "keys": {"forward": ["ArrowUp", "ArrowRight", "j"], "back": ["ArrowDown", "ArrowLeft", "k"],
                      "stop": ["Escape"]}}
 
@@ -347,6 +347,30 @@ def test_gamepad_stick_moves_and_neutral_or_a_lost_pad_stops(graph, page, settin
     moves_while(h, obs, push, lambda: d.execute_script("window.fakePad.axes[1] = 0;"))
     moves_while(h, obs, push, lambda: d.execute_script("navigator.getGamepads = () => [null];"))
     d.execute_script("navigator.getGamepads = () => [window.fakePad]; window.fakePad.axes[1] = 0;")
+
+
+def test_gamepad_b_stops_on_any_device_and_a_toggles_the_hand(graph, page, settings_restored):
+    """The standard mapping's B (button 1) is STOP whatever the input device; A (button 0) asks the
+    bridge to toggle the hand when the gamepad is the input device. Each acts once per press."""
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    d = page.driver
+    d.execute_script("window.fakePad = {connected: true, axes: [0, 0], buttons: [{pressed: false},"
+                     " {pressed: false}]}; navigator.getGamepads = () => [window.fakePad];")
+    try:
+        d.execute_script("window.fakePad.buttons[1].pressed = true;")
+        assert h.spin_until(obs.estop, 5.0)
+        d.execute_script("window.fakePad.buttons[1].pressed = false;")
+        d.find_element(By.ID, "release").click()
+        d.find_element(By.ID, "release-confirm").click()
+        assert h.spin_until(lambda: not obs.estop(), 5.0)
+        apply_settings(h, page, input_device="gamepad")
+        d.execute_script("delete window.station.replies['gripper'];"
+                         "window.fakePad.buttons[0].pressed = true;")
+        assert wait_page(h, page, "'gripper' in window.station.replies", 10.0)
+        d.execute_script("window.fakePad.buttons[0].pressed = false;")
+    finally:
+        d.execute_script("navigator.getGamepads = () => [];")
 
 
 def test_single_switch_scanning_drives_while_held_on_forward(graph, page, settings_restored):

@@ -110,6 +110,10 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
     Setting("input_device", "buttons", _choice("input_device", ("buttons", "switch1", "switch2", "gamepad")),
             "buttons (on-screen and keys), switch1 (single switch, scanning with Space), switch2 (dual "
             "switch: its keys are the mapping's), gamepad (the first pad's left stick)"),
+    Setting("step_seconds", 0.3, _number("step_seconds", 0.1, 2.0),
+            "step mode: how long one press drives, in seconds (0.1 to 2)"),
+    Setting("scan_period", 1.5, _number("scan_period", 0.5, 5.0),
+            "single switch: seconds the scanning highlight stays on each control (0.5 to 5)"),
     Setting("keys", {"forward": ["ArrowUp", "ArrowRight", "j"], "back": ["ArrowDown", "ArrowLeft", "k"],
                      "stop": ["Escape"]}, _keys,
             f"keys for forward, back and stop: 1 to {MAX_KEYS_PER_ACTION} each, no key twice, Escape only "

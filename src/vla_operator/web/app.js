@@ -3,7 +3,9 @@
 import { Link } from './link.js';
 
 const $ = (id) => document.getElementById(id);
-const STEP_MS = 300;     // step mode: one press drives this long, then stops by itself
+const STEP_S = 0.3;      // step mode: one press drives this long, then stops by itself (setting step_seconds)
+const SCAN_S = 1.5;      // single switch: the highlight's time on each control (setting scan_period)
+const PAD_GRASP = 0, PAD_STOP = 1;   // the standard gamepad's A (south) and B (east) buttons
 const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {}, settingsJson: '',
                 held: 0, toggled: 0, stepTimer: 0, padAxis: 0, sent: {}, replies: {}, scan: -1, frames: 0,
                 fpsT: performance.now(), fps: 0, age: null, refused: null };
@@ -68,6 +70,7 @@ function showSettings(st) {
   $('set-speed').value = st.speed_scale;
   $('set-deadband').value = st.deadband ?? '';
   $('set-mode').value = st.action_mode; $('set-device').value = st.input_device;
+  $('set-step').value = st.step_seconds ?? STEP_S; $('set-scan').value = st.scan_period ?? SCAN_S;
   for (const a of ['forward', 'back', 'stop']) $(`key-${a}`).value = st.keys[a].join(' ');
   $('estop').setAttribute('aria-keyshortcuts', st.keys.stop.join(' '));
   $('estop').querySelector('.hint').textContent = `(${st.keys.stop.join(', ')})`;
@@ -129,7 +132,7 @@ function mode() { return state.settings.action_mode || 'hold'; }
 function press(dir) {             // dir: +1, -1
   const m = mode();
   if (m === 'toggle') { state.toggled = state.toggled === dir ? 0 : dir; drive(state.toggled); }
-  else if (m === 'step') { clearTimeout(state.stepTimer); drive(dir); state.stepTimer = setTimeout(() => release(dir, true), STEP_MS); }
+  else if (m === 'step') { clearTimeout(state.stepTimer); drive(dir); state.stepTimer = setTimeout(() => release(dir, true), 1000 * (state.settings.step_seconds ?? STEP_S)); }
   else { state.held = dir; drive(dir); }
 }
 function stopDriving() { clearTimeout(state.stepTimer); state.held = 0; state.toggled = 0; drive(0); }
@@ -175,18 +178,27 @@ addEventListener('keyup', (e) => {
   const act = keyAction(e);
   if (act === 'forward' || act === 'back') release(act === 'forward' ? 1 : -1);
 });
-setInterval(() => {        // single-switch scanning: the highlight steps every 1.5 s while nothing is held
+function scanStep() {       // single-switch scanning: the highlight steps every scan_period while nothing is held
+  setTimeout(scanStep, 1000 * (state.settings.scan_period ?? SCAN_S));
   if (!scanning()) { if (state.scan >= 0) { document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan')); state.scan = -1; } return; }
   if (state.held) return;
   document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan'));
   state.scan = (state.scan + 1) % SCAN.length; $(SCAN[state.scan]).classList.add('scan');
-}, 1500);
+}
+setTimeout(scanStep, 1000 * SCAN_S);
 function pollGamepad() {   // the Gamepad API: the first connected pad's left stick (up = toward the task)
   // Only a change of the stick drives (the buttons and keys keep working); a pad that goes away, or a
   // device that is no longer the gamepad, stops what the stick was doing.
+  // Buttons act on a press (not while held): B (button 1) is STOP on any pad, whatever the device
+  // setting; A (button 0) toggles the hand when the gamepad is the input device.
   let a = 0;
+  const pad = [...(navigator.getGamepads ? navigator.getGamepads() : [])].find((p) => p && p.connected);
+  const down = (i) => !!(pad && pad.buttons && pad.buttons[i] && pad.buttons[i].pressed);
+  const stopNow = down(PAD_STOP), grasp = down(PAD_GRASP);
+  if (stopNow && !state.padStop) estop();
+  if (grasp && !state.padGrasp && state.settings.input_device === 'gamepad') link.send({ type: 'gripper' });
+  state.padStop = stopNow; state.padGrasp = grasp;
   if (state.settings.input_device === 'gamepad') {
-    const pad = [...(navigator.getGamepads ? navigator.getGamepads() : [])].find((p) => p && p.connected);
     const v = pad && pad.axes.length > 1 ? -pad.axes[1] : 0;
     a = Number.isFinite(v) && Math.abs(v) >= 0.15 ? +(Math.max(-1, Math.min(1, v)) * state.speed).toFixed(2) : 0;
   }
@@ -220,6 +232,6 @@ $('set-save').onclick = () => {
   $('set-message').textContent = 'Saving…';
   link.send({ type: 'settings', values: {
     speed_scale: num('set-speed'), deadband: num('set-deadband'), action_mode: $('set-mode').value,
-    input_device: $('set-device').value,
+    input_device: $('set-device').value, step_seconds: num('set-step'), scan_period: num('set-scan'),
     keys: { forward: keyList('key-forward'), back: keyList('key-back'), stop: keyList('key-stop') } } });
 };

@@ -4,6 +4,8 @@ runs end to end (CI) with its figures labelled as simulated."""
 from __future__ import annotations
 
 import ast
+import dataclasses
+import inspect
 import json
 import os
 import signal
@@ -55,6 +57,11 @@ def test_operator_reads_only_the_hand_the_object_and_the_status():
 
     goal = task_goal("cereal_box/push_south", load_catalogue(""))
     assert set(vars(goal)) == {"kind", "direction", "distance", "object_height", "object_radius"}
+    # all the runner can hand it: the goal, its own parameters, a seed, and observations of these fields
+    assert {f.name for f in dataclasses.fields(part.Observation)} == ALLOWED_OBS
+    assert list(inspect.signature(part.HumanOperator).parameters) == ["params", "goal", "mode", "seed",
+                                                                      "reach_tol"]
+    assert all(isinstance(v, (int, float)) for v in vars(part.HumanParams()).values())
     for mode in ("latent", "end_effector"):
         op = part.HumanOperator(part.HumanParams(), goal, mode, seed=1)
         hand = np.array([0.3, 0.0, 0.5])

@@ -208,3 +208,29 @@ def test_projection_lands_on_object_colour(rsim):
 def _chroma(rgb):
     rgb = np.asarray(rgb, float)
     return rgb / max(rgb.sum(), 1e-6)
+
+
+def test_a_blocked_arm_stores_no_travel_and_does_not_lunge_when_freed(sim, monkeypatch):
+    """The servo's target leads the joint by at most MAX_FOLLOWING_ERROR: a hand pressed down on the
+    table while commands go on (the demo's cereal-box push, resting on the box) must not store the
+    travel and release it as a lunge when the commands turn (fails with the clamp lifted)."""
+    import vla_sim.sim as sim_module
+
+    kin = PandaKinematics()
+    q0, ok = kin.ik([0.5, 0.0, 0.03], np.diag([1.0, -1.0, -1.0]))
+    assert ok
+    sim.reset(objects=[], q0=q0)
+    sim.clear_reflex()
+    down = np.linalg.pinv(kin.jacobian(q0)) @ np.array([0.0, 0.0, -0.1, 0.0, 0.0, 0.0])
+    sim.set_velocity_command(down)                 # 0.1 m/s into the table for 1 s: 10 cm of travel
+    lead = 0.0
+    for _ in range(1000):
+        sim.step(1)
+        lead = max(lead, float(np.max(np.abs(sim.q_target - sim.q))))
+    assert lead <= sim_module.MAX_FOLLOWING_ERROR + 1e-9
+    sim.set_velocity_command(np.zeros(7))          # the operator lets go: the arm settles, no lunge
+    speed = 0.0
+    for _ in range(500):
+        sim.step(1)
+        speed = max(speed, float(np.max(np.abs(sim.dq))))
+    assert speed < 0.5

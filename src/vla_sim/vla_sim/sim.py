@@ -49,6 +49,11 @@ from vla_sim.scene import (
 ROBOT_PREFIX = "panda_"
 ENVIRONMENT_GEOMS = ("table_top", "floor")
 SERVO_BANDWIDTH = 50.0   # rad/s: natural frequency of the (critically damped) tracking-error loop
+# rad: how far the servo's position target may lead the joint. A hand held up by an object while
+# commands go on would otherwise store the whole commanded travel (0.13 rad measured, on the demo's
+# cereal-box push) and release it as a lunge when the hand slips off: 1 m/s into the table and a
+# reflex. Free motion leads by under 0.01 rad; the safety filter re-syncs its own reference at 0.05.
+MAX_FOLLOWING_ERROR = 0.05
 
 
 def _as_slice(index: np.ndarray) -> slice | np.ndarray:
@@ -219,6 +224,7 @@ class PandaSim:
             hi = amax if hi > amax else hi
             acc.append(lo if a < lo else hi if a > hi else a)
             x = q_t[i] + h * c                     # the target of the next step, inside the limits
+            x = min(max(x, q[i] - MAX_FOLLOWING_ERROR), q[i] + MAX_FOLLOWING_ERROR)   # no windup
             q_t[i] = q_lo if x < q_lo else q_hi if x > q_hi else x
         self._acc[self._dofs] = acc
         mujoco.mj_mulM(self.model, d, self._mv, self._acc)

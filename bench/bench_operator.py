@@ -147,7 +147,14 @@ class Camera(Node):
         self.pub = self.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
         self.sent, self.station = 0, {}
         self.create_subscription(DiagnosticStatus, "operator_station/status", self._station, 10)
+        self.joy: list[tuple[float, float, float]] = []   # (axis, stamp, received here by DDS)
+        self.create_subscription(Joy, "joy", self._joy, QoSProfile(
+            reliability=ReliabilityPolicy.BEST_EFFORT, history=HistoryPolicy.KEEP_LAST, depth=200))
         self.create_timer(1.0 / rate, self._tick)
+
+    def _joy(self, msg, info):
+        self.joy.append((msg.axes[0] if msg.axes else 0.0, stamp(msg.header.stamp),
+                         info["received_timestamp"] * 1e-9))
 
     def _station(self, msg):
         self.station = {**{kv.key: kv.value for kv in msg.values}, "t": time.monotonic()}
@@ -161,8 +168,9 @@ class Camera(Node):
         self.sent += 1
 
 
-def synthetic(rate: float, seconds: float = 20.0) -> int:
-    """Only the station, fed frames from here: its and the page's share of the frame rate."""
+def synthetic(rate: float, presses: int, seconds: float = 20.0) -> int:
+    """Only the station, fed frames from here: its and the page's share of the frame rate, and of the
+    key press latency (press -> the Joy's stamp, taken as the input arrives at the station)."""
     h = RosHarness()
     cam = h.add(Camera(h.context, rate))
     log = Path("/tmp") / f"bench_operator_station_{os.getpid()}.log"
@@ -192,6 +200,18 @@ def synthetic(rate: float, seconds: float = 20.0) -> int:
         h.spin_for(1.2)
         s1 = cam.station
         age = js("window.station.age")
+        off, _ = browser_offset(b.driver)
+        arrive, here = [], []
+        for _ in range(presses):
+            n = len(cam.joy)
+            t0 = b.driver.execute_script(PRESS) / 1000.0 - off
+            if h.spin_until(lambda n=n: any(j[0] != 0.0 for j in cam.joy[n:]), 5.0):
+                j = next(j for j in cam.joy[n:] if j[0] != 0.0)
+                arrive.append(j[1] - t0)
+                here.append(j[2] - t0)
+            h.spin_for(0.1)
+            b.driver.execute_script(RELEASE)
+            h.spin_for(0.1)
     finally:
         if b is not None:
             b.quit()
@@ -207,6 +227,8 @@ def synthetic(rate: float, seconds: float = 20.0) -> int:
     print(f"page: median {np.median(fps):.1f} frames/s (min {min(fps):.1f}, max {max(fps):.1f} over "
           f"{len(fps)} s), frame age {age:.0f} ms")
     print(f"operator_station CPU: {cpu:.1f} % of one core")
+    print(figures("key press -> the station (Joy stamp)", arrive) + f" of {presses}")
+    print(figures("key press -> its Joy received here", here))
     print(f"load average at the end: {os.getloadavg()}")
     return 0
 
@@ -220,7 +242,7 @@ def main() -> int:
     args = ap.parse_args()
     print(f"load average at start: {os.getloadavg()}", flush=True)
     if args.synthetic_camera > 0:
-        return synthetic(args.synthetic_camera)
+        return synthetic(args.synthetic_camera, args.presses)
     h = RosHarness()
     with LaunchProcess("vla_bringup", "teleop.launch.yaml", "use_operator_station:=true",
                        "operator_port:=0",

@@ -15,8 +15,6 @@ from aiohttp import WSMsgType, web
 
 from vla_operator.link import Link, LinkParams, handshake_refusal, token_refusal
 
-FRAME_PERIOD = 1 / 30  # s: the station sends at most this often per page (the camera's rate)
-
 
 class Station:
     def __init__(self, web_dir: Path, bind: str, port: int, token: str,
@@ -203,9 +201,8 @@ class Station:
             sent = version
             meta = {**meta, "type": "frame", "age_ms": (time.monotonic() - meta["received"]) * 1000.0}
             await ws.send_str(json.dumps(meta))
-            await ws.send_bytes(jpeg)
-            self.frames_sent += 1
-            await asyncio.sleep(FRAME_PERIOD / 2)   # frames that came meanwhile: only the latest is sent
+            await ws.send_bytes(jpeg)   # waits while the page's socket is full: frames that come
+            self.frames_sent += 1       # meanwhile replace each other, only the latest is sent next
 
 
 async def _send_quietly(ws: web.WebSocketResponse, text: str) -> None:

@@ -107,6 +107,7 @@ class StationNode(Node):
             LinkParams(stale_after=p["stale_after"], heartbeat_timeout=p["heartbeat_timeout"]),
         )
         self.address = self.station.start()
+        self.station.set_state(self.state)   # the settings (key map) even before any node's status
         self.frames = FrameEncoder(self.station.set_frame, p["jpeg_quality"])
         self.create_timer(1.0 / p["rate"], self._tick)
         self.create_timer(1.0, self._publish_status)

@@ -80,8 +80,23 @@ function showSettings(st) {
 
 // ------------------------------------------------------------------ live view
 const canvas = $('frame'), ctx = canvas.getContext('2d');
-async function onFrame(blob, meta) {
-  const bmp = await createImageBitmap(blob);
+// Latest only here too: a frame that comes while one is decoded replaces the one waiting, so a busy
+// page shows the newest frame and never decodes a backlog.
+let decoding = false, waiting = null;
+function onFrame(blob, meta) {
+  if (waiting) state.skipped = (state.skipped || 0) + 1;
+  waiting = [blob, meta];
+  if (!decoding) drawFrames();
+}
+async function drawFrames() {
+  decoding = true;
+  while (waiting) {
+    const [blob, meta] = waiting; waiting = null;
+    try { drawFrame(await createImageBitmap(blob), meta); } catch (e) { /* a damaged frame: the next one */ }
+  }
+  decoding = false;
+}
+function drawFrame(bmp, meta) {
   if (canvas.width !== bmp.width) { canvas.width = bmp.width; canvas.height = bmp.height; }
   ctx.drawImage(bmp, 0, 0);
   bmp.close();

@@ -24,7 +24,8 @@ class Station:
         self.web_dir, self.bind, self.port, self.token = web_dir, bind, port, token
         self.publish_axis, self.request, self.clock = publish_axis, request, clock
         self.link = Link(params or LinkParams())
-        self.lock = threading.Lock()          # the link is shared with the node's timer
+        self.lock = threading.Lock()          # the link, and the order of what is published from it,
+        #                                       shared with the node's timer
         self._sockets: dict[int, web.WebSocketResponse] = {}
         self._frame: tuple[int, bytes, dict] = (0, b"", {})
         self._state: dict = {}
@@ -160,23 +161,23 @@ class Station:
             self._sockets.pop(cid, None)
             self._events.pop(cid, None)
             with self.lock:
-                drove = self.link.disconnect(cid)
-            if drove:
-                self.publish_axis(0.0)
+                if self.link.disconnect(cid):
+                    self.publish_axis(0.0)
             self._broadcast_roles()
         return ws
 
     def _on_message(self, cid: int, data: str | bytes) -> None:
         now = self.clock()
+        # Decided and published under the link's lock, as the node's timer does: otherwise the timer
+        # could publish a held value it read just before a release, after the release's zero (a blip
+        # of motion after the operator let go, seen on a loaded machine).
         with self.lock:
             verdict = self.link.on_message(cid, data, now)
-            axis = self.link.value(now)
             if verdict.publish:
                 self.link.published(now)
-        if verdict.publish:
-            if verdict.from_neutral:
-                self.publish_axis(0.0)
-            self.publish_axis(axis)
+                if verdict.from_neutral:
+                    self.publish_axis(0.0)
+                self.publish_axis(self.link.value(now))
         if verdict.error:
             self._send(cid, {"type": "refused", "reason": verdict.error})
         if verdict.request is not None:

@@ -127,12 +127,10 @@ class StationNode(Node):
 
     def _tick(self) -> None:
         now = time.monotonic()
-        with self.station.lock:
-            went_silent = self.station.link.tick(now)
-            driving = self.station.link.driver() is not None
-            axis = self.station.link.value(now)
-        if driving or went_silent:
-            self._publish_axis(axis)
+        with self.station.lock:   # read and published together: a release's zero is never followed by
+            went_silent = self.station.link.tick(now)      # the held value read just before it
+            if self.station.link.driver() is not None or went_silent:
+                self._publish_axis(self.station.link.value(now))
 
     # ------------------------------------------------------------------ requests from a page
     def _request(self, msg: dict, reply) -> None:

@@ -332,7 +332,10 @@ def test_toggle_mode_a_press_starts_and_a_second_press_stops(graph, page, settin
     assert h.spin_until(lambda: not obs.moving(), 5.0), obs.cmd
     n = len(obs.cmd_log)
     assert h.spin_until(lambda: len(obs.cmd_log) > n + 20, 10.0)   # and it stays stopped
-    assert not nonzero_since(obs, n + 5)
+    t_stop = obs.cmd_log[n][0]
+    assert not nonzero_since(obs, n + 5), (
+        [(round(t - t_stop, 3), bool(np.any(c != 0))) for t, c in obs.cmd_log[n - 5:n + 40]],
+        [(m.code, m.reason) for m in obs.ctrl_log[-10:]], js(page, "window.station.toggled"))
 
 
 def test_gamepad_stick_moves_and_neutral_or_a_lost_pad_stops(graph, page, settings_restored):

@@ -282,3 +282,20 @@ def test_anonymise_leaves_no_participant_id_in_the_shared_copy(tmp_path):
         anonymise(src, dest, tmp_path / "key2.csv")
     with pytest.raises(ValueError, match="outside"):
         anonymise(src, tmp_path / "shared2", tmp_path / "shared2" / "key.csv")
+
+
+def test_sensitivity_resumes_from_its_rows_and_writes_the_table(tmp_path):
+    """Every cell already recorded: nothing runs (no simulator is made) and the table is written."""
+    from vla_evaluation.study import sensitivity
+
+    rows = []
+    for d in (0.1, 0.5):
+        for s in ("latent-YOLO", "end-effector"):
+            rows.append({"key": f"{s}|cereal_box/push_south|{d}|0.05|0", "strategy": s, "reaction_s": d,
+                         "motor_k": 0.05, "success": d < 0.3})
+    (tmp_path / "sensitivity.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    assert sensitivity.main(["--out", str(tmp_path), "--delays", "0.1,0.5", "--noise", "0.05",
+                             "--tasks", "cereal_box/push_south", "--layouts", "1"]) == 0
+    table = (tmp_path / "sensitivity.md").read_text()
+    assert "| 0.1 | 0.05 | 1/1 | 1/1 |" in table and "| 0.5 | 0.05 | 0/1 | 0/1 |" in table
+    assert len((tmp_path / "sensitivity.jsonl").read_text().splitlines()) == 4

@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     rows_path = a.out / "sensitivity.jsonl"
     done = {json.loads(x)["key"] for x in rows_path.read_text().splitlines() if x.strip()} \
         if rows_path.exists() else set()
-    backend = PhysicsBackend(proto)
+    backend = None
     for delay in [float(x) for x in a.delays.split(",")]:
         for k in [float(x) for x in a.noise.split(",")]:
             params = dataclasses.replace(HumanParams(), reaction_s=delay, motor_k=k)
@@ -45,12 +45,21 @@ def main(argv=None) -> int:
                             continue
                         trial = Trial("sim:1", strategy, setting.get(task, "base"), task, j, "test",
                                       300_000 + j, 0)
+                        backend = backend or PhysicsBackend(proto)
                         row, _ = backend.run(trial, params, hash_seed(key))
                         row.update({"key": key, "strategy": strategy, "task": task, "reaction_s": delay,
                                     "motor_k": k, "layout": j})
                         with open(rows_path, "a") as f:
                             f.write(json.dumps(row, sort_keys=True) + "\n")
                         print(f"[sensitivity] {key}: success {row['success']}", flush=True)
+    if rows_path.exists():
+        from vla_evaluation.study.analysis import sensitivity_table
+
+        table = "\n".join(sensitivity_table(rows_path))
+        (a.out / "sensitivity.md").write_text(
+            "# Sensitivity (simulated participant: HumanParams() with the reaction delay and the stick "
+            "noise varied; successes/trials)\n\n" + table + "\n")
+        print(table)
     return 0
 
 

@@ -173,6 +173,12 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
                                   "--check"])) == 0
     printed = capsys.readouterr().out
     assert "2 participants, 4 trials" in printed and "P02:" in printed and not out.exists()
+    # real participants are refused before anything is made (they need the graph backend)
+    from vla_evaluation.study.runner import run_study
+
+    with pytest.raises(SystemExit, match="P01"):
+        run_study(dataclasses.replace(load_protocol(f), participants=["P01"]), out)
+    assert not out.exists()
     f.write_text("participants: sim:3\nstrategies: [latent-YOLO\nsettings: {}\n")  # not YAML
     with pytest.raises(ProtocolError) as e:
         load_protocol(f)

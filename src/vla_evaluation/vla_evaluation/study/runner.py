@@ -306,6 +306,10 @@ class PhysicsBackend:
 def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], None] = print,
               ask: Callable[[str], str] = input, limit: int | None = None) -> StudyStore:
     """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials."""
+    real = [w for w in protocol.participants if not w.startswith("sim:")]
+    if real:  # refused before anything is made or run
+        raise SystemExit(f"real participants ({', '.join(real)}) run through the launched graph, which "
+                         "is not done yet (docs/study-participants.md); --check prints their sessions")
     store = StudyStore(out, protocol)
     plan = trial_plan(protocol)
     todo = [t for t in plan if t.key not in store.done]
@@ -320,9 +324,6 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
         if limit is not None and n >= limit:
             break
         who = trial.participant
-        if not who.startswith("sim:"):
-            raise SystemExit("real participants run through the launched graph, which is not done yet "
-                             "(docs/study.md)")
         wall0 = time.monotonic()
         row, arrays = backend.run(trial, params[who], operator_seed=hash_seed(trial.key))
         row.update({"key": trial.key, "file": trial.file_stem, "participant": who,

@@ -1,6 +1,7 @@
 """The libfranka backend's node side with a fake host and no loop process (its slots written by the
 test as the loop would): control periods catch up by the wall clock, every robot state is
-published once, faults reach host.on_fault once per change, a silent or faulted robot brakes."""
+published once, faults reach host.on_fault once per change, a silent or faulted robot brakes, the
+robot's external torque estimate slows motion into a contact before the collision reflex."""
 
 from __future__ import annotations
 
@@ -10,8 +11,11 @@ import numpy as np
 import pytest
 from vla_common.robot import FR3
 from vla_panda_bridge.backend_libfranka import MAX_CATCH_UP, LibfrankaBackend
+from vla_panda_bridge.backends import reflex_torque
+from vla_panda_bridge.libfranka_driver import DriverSettings
 from vla_panda_bridge.libfranka_loop import LoopStatus
-from vla_panda_bridge.libfranka_slots import STATE
+from vla_panda_bridge.libfranka_slots import CMD_VALUES, STATE
+from vla_panda_bridge.safety import CONTACT, SafetyConfig, SafetyFilter
 
 
 class Logger:
@@ -65,7 +69,8 @@ def rig():
     backend.process.slots.close()
 
 
-def loop_writes(backend, cycle: int, status: int = LoopStatus.OK, text: str = "connected", q=None):
+def loop_writes(backend, cycle: int, status: int = LoopStatus.OK, text: str = "connected", q=None,
+                tau_ext=None):
     """What the loop process would write for robot state `cycle`."""
     slots = backend.process.slots
     q = [0.1] * 7 if q is None else q
@@ -73,6 +78,7 @@ def loop_writes(backend, cycle: int, status: int = LoopStatus.OK, text: str = "c
     b = slots.begin_state()
     b[STATE["cycle"]], b[STATE["pid"]], b[STATE["status"]] = cycle, 1, status
     b[STATE["q"]] = q
+    b[STATE["tau_ext_hat_filtered"]] = [0.0] * 7 if tau_ext is None else tau_ext
     slots.end_state()
     slots.write_text("status", text)
 
@@ -122,3 +128,66 @@ def test_faults_reach_the_node_once_per_change_and_the_filter_brakes(rig):
     backend._t0 -= 0.0105
     backend._tick()
     assert len(host.faults) == 2 and not np.isnan(backend.filter_position()).any()
+
+
+class NodeHost(Host):
+    """A host whose control step is the bridge node's: its SafetyFilter, with the reflex table the node
+    gives it (backends.reflex_torque), run against the backend's state and external torque."""
+
+    def __init__(self, **params):
+        super().__init__(backend="libfranka",
+                         upper_torque_thresholds=list(DriverSettings.upper_torque_thresholds), **params)
+        self.filter = SafetyFilter(SafetyConfig(dt=0.001), robot=FR3,
+                                   reflex_torque=reflex_torque(self.params, FR3))
+        self.code = None
+
+    def control_step(self):
+        b = self.backend
+        dq, self.code, _ = self.filter.filter(None, b.filter_position(), b.now(), b.external_torque())
+        b.write(dq)
+
+
+def test_the_robots_external_torque_slows_motion_into_it_before_the_collision_reflex():
+    """Issue 20 items 5/6: on a real arm the contact slowing works from libfranka's tau_ext_hat_filtered
+    and acts below the collision thresholds the robot was configured with (upper_torque_thresholds:
+    20 Nm on joint 2; tau_max is 87 Nm, so fractions of it would come after the reflex)."""
+    host = NodeHost()
+    backend = host.backend = LibfrankaBackend(host)
+    cycle = 0
+
+    def drive(cmd, ticks, tau_ext=None):
+        nonlocal cycle
+        for _ in range(ticks):
+            cycle += 1
+            loop_writes(backend, cycle, tau_ext=tau_ext)
+            host.filter.submit(cmd, backend.now())
+            backend._t0 -= 0.001                            # one control period due (more if late)
+            backend._tick()
+        return backend.process.slots.read_command()[CMD_VALUES:].copy()
+
+    try:
+        assert backend.external_torque() is None             # no robot state yet
+        zero = [0.0] * 7
+        into = [0.0, 0.5, 0, 0, 0, 0, 0]
+        drive(zero, 20)                                      # the first state, armed by a zero command
+        np.testing.assert_array_equal(backend.external_torque(), np.zeros(7))
+        assert drive(into, 300)[1] == pytest.approx(0.5)     # free motion: full speed
+        push = [0.0, -12.0, 0, 0, 0, 0, 0]                   # 0.6 x 20 Nm against the motion (0.14 x tau_max)
+        assert drive(into, 300, push)[1] == pytest.approx(0.5 * 0.25)
+        assert host.code == CONTACT
+        push[1] = -15.0                                      # 0.75 x 20 Nm: stopped, before the reflex at 20
+        assert drive(into, 300, push)[1] == pytest.approx(0.0, abs=1e-12)
+        assert drive([-x for x in into], 300, push)[1] == pytest.approx(-0.5)   # backing out: free
+        loop_writes(backend, cycle + 1, LoopStatus.REFLEX, "reflex", tau_ext=push)
+        backend._t0 -= 0.0105
+        backend._tick()
+        assert backend.external_torque() is None             # no valid state: none (the filter brakes)
+    finally:
+        backend.process.slots.close()
+
+
+def test_the_node_scales_contact_slowing_to_the_reflex_of_the_robot_behind_its_backend():
+    params = {"backend": "libfranka", "upper_torque_thresholds": [30.0, 25, 20, 20, 10, 10, 8]}
+    assert reflex_torque(params, FR3) == [30.0, 25, 20, 20, 10, 10, 8]
+    for backend in ("mujoco", "ros2_control"):              # the simulated arm's reflex: tau_max
+        assert reflex_torque({**params, "backend": backend}, FR3) == [float(x) for x in FR3.tau_max]

@@ -50,6 +50,7 @@ class State:
     q: list
     dq: list
     tau_J: list  # noqa: N815 (libfranka's field names)
+    tau_ext_hat_filtered: list
     O_T_EE: list
     robot_mode: int
     control_command_success_rate: float
@@ -68,10 +69,12 @@ class FakeRobot:
     reachable: bool = True
     fatal: str = ""
     attempts: int = 0
+    tau_ext: list = field(default_factory=lambda: [0.0] * 7)   # what pushes on the arm (Nm)
 
     def state(self) -> State:
         pose = [1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.3, 0, 0.5, 1]
-        return State(list(self.q), list(self.dq), [0.0] * 7, pose, self.mode, 1.0, Duration(self.t))
+        return State(list(self.q), list(self.dq), [0.0] * 7, list(self.tau_ext), pose, self.mode, 1.0,
+                     Duration(self.t))
 
     def tick(self, dq=None) -> None:
         self.t = round(self.t + 0.001, 9)
@@ -256,6 +259,18 @@ def test_connects_and_publishes_idle_states(rig):
     assert np.allclose(s.q, rig.robot.q)
     assert rig.slots.read_text("status") == "connected to 192.0.2.1 (fake)"
     assert rig.driver.velocities == []                     # nothing commanded: no motion
+
+
+def test_the_robots_external_torque_estimate_reaches_the_state_slot(rig):
+    rig.run(3)
+    assert np.array_equal(rig.state().tau_ext_hat_filtered, np.zeros(7))
+    rig.robot.tau_ext = [0.5, -12.0, 0.0, 3.0, 0.0, -1.0, 0.25]
+    rig.run(1, command=ZERO)                                # idle: read_idle's state
+    assert np.array_equal(rig.state().tau_ext_hat_filtered, rig.robot.tau_ext)
+    rig.run_until(lambda: rig.loop.mode == lf.Mode.VELOCITY, command=velocity(0, 0.1))
+    rig.robot.tau_ext = [1.0] * 7
+    rig.run(1, command=velocity(0, 0.1))                    # in a motion: read_cycle's state
+    assert np.array_equal(rig.state().tau_ext_hat_filtered, np.ones(7))
 
 
 def test_a_command_starts_a_continuous_motion_that_ends_at_rest(rig):

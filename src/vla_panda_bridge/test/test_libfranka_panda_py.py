@@ -31,6 +31,7 @@ class State:
     q: list
     dq: list = field(default_factory=lambda: [0.0] * 7)
     tau_J: list = field(default_factory=lambda: [0.0] * 7)  # noqa: N815 (libfranka's name)
+    tau_ext_hat_filtered: list = field(default_factory=lambda: [0.0] * 7)
     O_T_EE: list = field(default_factory=lambda: [1.0, 0, 0, 0, 0, 1, 0, 0, 0, 0, 1, 0, 0.3, 0, 0.5, 1])
     robot_mode: object = libfranka.RobotMode.kIdle
     control_command_success_rate: float = 1.0

@@ -451,3 +451,25 @@ def test_motion_into_a_rising_external_torque_slows_and_stops_before_a_reflex():
     for bad in (None, [1.0, 2.0], "x", [np.nan] * 7):
         dq, code, _ = garbage.filter(cmd, MID, 0.0, bad)
         assert np.all(np.isfinite(dq)) and code != safety.CONTACT
+
+
+def test_contact_thresholds_are_fractions_of_the_reflex_table_the_filter_is_given():
+    """A real Franka's reflex fires at its configured collision thresholds (libfranka's
+    upper_torque_thresholds, 20 Nm on joint 2), far below tau_max (87 Nm): the contact slowing must act
+    below them. 15 Nm against joint 2's motion is 0.17 x tau_max (nothing slows) but 0.75 x 20 Nm."""
+    reflex = [20.0, 20.0, 18.0, 18.0, 16.0, 14.0, 12.0]
+    cmd = np.zeros(7)
+    cmd[1] = 0.5
+    tau = np.zeros(7)
+    tau[1] = -15.0
+    for f, want in ((SafetyFilter(), 0.5), (SafetyFilter(reflex_torque=reflex), 0.0)):
+        q = MID.copy()
+        for k in range(1500):
+            dq, code, _ = f.filter(cmd if k % 50 == 0 else None, q, k * DT, tau)
+            q = q + DT * dq
+        assert dq[1] == pytest.approx(want, abs=1e-9)
+    assert code == safety.CONTACT
+    assert SafetyFilter().reflex_torque == [float(x) for x in safety.PANDA.tau_max]   # the default
+    for bad in ([20.0] * 6, [20.0] * 6 + [0.0], [20.0] * 6 + [math.nan]):
+        with pytest.raises(ValueError, match="reflex_torque"):
+            SafetyFilter(reflex_torque=bad)

@@ -11,8 +11,10 @@ stops writing altogether.
 
 Every few control ticks (state_rate) the latest robot state is published, and only a new one: a
 silent robot (a lost network, a server restart) produces no joint_states, and its position counts as
-invalid for the node's filter (it brakes). Robot errors (a reflex, a lost connection) reach the node
-through host.on_fault with libfranka's text; ~/recover and ~/set_teaching go to the loop.
+invalid for the node's filter (it brakes). With the states comes the robot's external torque
+estimate (tau_ext_hat_filtered) for the filter's contact slowing; none while the state is
+invalid. Robot errors (a reflex, a lost connection) reach the node through host.on_fault with
+libfranka's text; ~/recover and ~/set_teaching go to the loop.
 """
 
 from __future__ import annotations
@@ -82,6 +84,7 @@ class LibfrankaBackend(BackendBase):
         self.hand = (HandProcess(p["robot_ip"], host.spec.hand.max_width, p["driver"], p["loop_prefix"])
                      if p["gripper"] else None)
         self._latest: JointSample | None = None
+        self._tau_ext: np.ndarray | None = None         # tau_ext_hat_filtered of the latest state read
         self._status = LibfrankaStatus(LoopStatus.CONNECTING, "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
         self._reported = -1                             # the loop status code last reported
@@ -110,6 +113,7 @@ class LibfrankaBackend(BackendBase):
             for sample in self.process.new_samples(self._states_every):
                 self._latest = sample
                 self._host.publish_state()
+            self._tau_ext = self.process.external_torque()   # of the state new_samples just read
         if self._ticks // self._ticks_per_watch != self._watch_tick:
             self._watch_tick = self._ticks // self._ticks_per_watch
             note = self.process.poll()
@@ -151,12 +155,18 @@ class LibfrankaBackend(BackendBase):
     def now_ns(self) -> int:
         return self._host.get_clock().now().nanoseconds
 
+    def _state_valid(self) -> bool:
+        st = self._status
+        return self._latest is not None and st.code == LoopStatus.OK and st.silent_for <= self._state_timeout
+
     def filter_position(self) -> np.ndarray:
         """The robot's latest position while it talks and is fine; invalid (brake) otherwise."""
-        st = self._status
-        if self._latest is None or st.code != LoopStatus.OK or st.silent_for > self._state_timeout:
-            return self._no_state
-        return self._latest.position
+        return self._latest.position if self._state_valid() else self._no_state
+
+    def external_torque(self) -> np.ndarray | None:
+        """The robot's external torque estimate (tau_ext_hat_filtered, Nm; updated with the joint
+        states, at state_rate) while the state is valid, else None (the filter brakes anyway)."""
+        return self._tau_ext if self._state_valid() else None
 
     def position(self) -> np.ndarray | None:
         sample = self.process.read()

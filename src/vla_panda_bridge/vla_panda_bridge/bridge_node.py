@@ -45,7 +45,7 @@ from vla_interfaces.msg import SafetyStatus
 from vla_interfaces.srv import ResetScene
 from vla_panda_bridge import safety
 from vla_panda_bridge.backend import TEACHING, BackendError, UnsupportedError
-from vla_panda_bridge.backends import BACKENDS
+from vla_panda_bridge.backends import BACKENDS, reflex_torque
 from vla_panda_bridge.gripper_ros import GripperInterface
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
@@ -65,6 +65,13 @@ def _seven_finite(value) -> str | None:
     q = np.asarray(value, dtype=float)
     if q.shape != (7,) or not np.all(np.isfinite(q)):
         return f"must be 7 finite joint positions (rad), got {list(value)}"
+    return None
+
+
+def _seven_positive(value) -> str | None:
+    t = np.asarray(value, dtype=float)
+    if t.shape != (7,) or not np.all(np.isfinite(t)) or not np.all(t > 0.0):
+        return f"must be 7 finite torques > 0 (Nm), got {list(value)}"
     return None
 
 
@@ -126,7 +133,8 @@ PARAMETERS = ParameterTable([
     Param("lower_torque_thresholds", list(DriverSettings.lower_torque_thresholds),
           "libfranka: contact torque thresholds (7, Nm; set_collision_behavior)"),
     Param("upper_torque_thresholds", list(DriverSettings.upper_torque_thresholds),
-          "libfranka: collision (reflex) torque thresholds (7, Nm)"),
+          "libfranka: collision (reflex) torque thresholds (7, Nm); the contact slowing acts at fractions "
+          "of them", check=_seven_positive),
     Param("lower_force_thresholds", list(DriverSettings.lower_force_thresholds),
           "libfranka: contact force/torque thresholds at the end effector (6, N and Nm)"),
     Param("upper_force_thresholds", list(DriverSettings.upper_force_thresholds),
@@ -174,7 +182,8 @@ class PandaBridge(LifecycleNode):
             command_timeout=p["command_timeout"], position_sync_tolerance=p["position_sync_tolerance"],
             plausibility_factor=p["plausibility_factor"]), robot=self.spec,
             # its own Pinocchio data: the state publisher's FK below must not share the buffers
-            floor=WorkspaceFloor(tcp_height(PandaKinematics()), p["workspace_floor"]))
+            floor=WorkspaceFloor(tcp_height(PandaKinematics()), p["workspace_floor"]),
+            reflex_torque=reflex_torque(p, self.spec))   # contact slowing comes before the robot's reflex
         self._fk = kin.fk if p["ee_frame"] == "tcp" else kin.flange_fk
         self._steady = Clock(clock_type=ClockType.STEADY_TIME)
         self._published_code = -1

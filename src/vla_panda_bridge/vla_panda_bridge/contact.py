@@ -2,10 +2,14 @@
 
 A held stick drove the hand into a loaf until the robot's reflex (87-249 Nm on joint 2). The real arm
 estimates the external torque on each joint (libfranka's tau_ext_hat_filtered); MuJoCo gives it as
-the constraint forces on the arm's joints (`PandaSim.external_torque`). From `slow` x tau_max on, a
-joint commanded further into the torque is slowed linearly, and it stops at `stop` x tau_max, well
-before the reflex at 1 x. A command that eases the torque is never slowed, so the operator can always
-back out. The safety filter (`safety.py`) applies the factors to its target; this module only judges.
+the constraint forces on the arm's joints (`PandaSim.external_torque`). The thresholds are fractions
+of `reflex`, the per-joint torque at which the robot's own reflex fires (the safety filter's reflex
+table: tau_max for the simulated arm, whose reflex fires there; on a real arm the collision
+thresholds libfranka configures, `upper_torque_thresholds`, 12-20 Nm, far below tau_max). From
+`slow` x reflex on, a joint commanded further into the torque is slowed linearly, and it stops at
+`stop` x reflex, well before the reflex at 1 x. A command that eases the torque is never slowed, so
+the operator can always back out. The safety filter (`safety.py`) applies the factors to its target;
+this module only judges.
 
 The torque on one joint also rises when other joints push the hand into something: the demo's box
 push loaded joint 6 (wrist) to its reflex while joints 2 and 4 drove the hand against the table. For
@@ -18,24 +22,25 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-CONTACT_SLOW = 0.3  # external torque / tau_max from which motion into it slows
+CONTACT_SLOW = 0.3  # external torque / reflex torque from which motion into it slows
 CONTACT_STOP = 0.7  # ... and at which it stops (the robot's reflex is at 1.0)
 
 
-def contact_scales(target: Sequence[float], tau_ext, tau_max: Sequence[float],
+def contact_scales(target: Sequence[float], tau_ext, reflex: Sequence[float],
                    slow: float = CONTACT_SLOW, stop: float = CONTACT_STOP) -> dict[int, float]:
     """{joint: speed factor in [0, 1)} for the joints whose `target` velocity pushes against an external
-    torque past `slow` x tau_max (0 from `stop` x tau_max on); {} when none does, or when `tau_ext` is
-    unusable (not a finite number per joint): a missing measurement changes nothing."""
+    torque past `slow` x `reflex` (the joint's reflex torque, Nm; 0 from `stop` x reflex on); {} when
+    none does, or when `tau_ext` is unusable (not a finite number per joint): a missing measurement
+    changes nothing."""
     try:
         tau = [float(x) for x in tau_ext]
     except (TypeError, ValueError):
         return {}
-    if len(tau) != len(tau_max) or len(target) != len(tau_max):
+    if len(tau) != len(reflex) or len(target) != len(reflex):
         return {}
     out: dict[int, float] = {}
     power, worst = 0.0, 0.0
-    for i, (v, t, tm) in enumerate(zip(target, tau, tau_max)):
+    for i, (v, t, tm) in enumerate(zip(target, tau, reflex)):
         ratio = abs(t) / tm
         if not ratio == ratio:                                # NaN: no measurement for this joint
             continue

@@ -93,7 +93,7 @@ class DriverSettings:
 
 class Driver(Protocol):
     """See the module docstring. States have libfranka's RobotState attributes (q, dq, tau_J,
-    O_T_EE, robot_mode, control_command_success_rate, time, last_motion_errors)."""
+    tau_ext_hat_filtered, O_T_EE, robot_mode, control_command_success_rate, time, last_motion_errors)."""
 
     name: str
 

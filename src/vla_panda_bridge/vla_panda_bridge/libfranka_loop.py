@@ -609,6 +609,7 @@ class ControlLoop:
         b[STATE["q"]] = state.q
         b[STATE["dq"]] = state.dq
         b[STATE["tau_J"]] = state.tau_J
+        b[STATE["tau_ext_hat_filtered"]] = state.tau_ext_hat_filtered
         b[STATE["O_T_EE"]] = state.O_T_EE
         b[STATE["robot_mode"]] = int(state.robot_mode)
         b[STATE["success_rate"]] = state.control_command_success_rate

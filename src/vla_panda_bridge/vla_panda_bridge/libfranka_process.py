@@ -249,6 +249,13 @@ class LoopProcess:
         self._history_cycle = now
         return out
 
+    def external_torque(self) -> np.ndarray | None:
+        """The robot's external torque estimate (libfranka's tau_ext_hat_filtered, Nm per joint) in the
+        state last read (by `new_samples`, `read`, `status`: no read of its own), or None before the
+        first robot state."""
+        s = self._state
+        return None if s is None or s.cycle <= 0 else s.tau_ext_hat_filtered
+
     def fresh_sample(self) -> LibfrankaSample | None:
         """The latest robot state if it is newer than the one returned last time, else None."""
         s = self._read()

@@ -48,6 +48,7 @@ STATE_DTYPE = np.dtype([                                                        
     ("q", _F, _J),
     ("dq", _F, _J),
     ("tau_J", _F, _J),
+    ("tau_ext_hat_filtered", _F, _J),   # the robot's estimate of the external torque (Nm), low-passed
     ("O_T_EE", _F, (16,)),    # column-major 4x4, the robot's end-effector pose in its base frame
     ("dq_cmd", _F, _J),       # the velocity last commanded (after the safety filter)
     ("robot_mode", _F),       # franka RobotMode as an int

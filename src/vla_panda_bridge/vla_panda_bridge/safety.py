@@ -20,9 +20,11 @@ Pipeline per control period:
   4. position margin, soft part: near a limit the target towards it is capped so the joint can still
      stop at `position_margin` from the limit; motion away is never capped;
      contact, likewise: where the backend measures an external torque (a real arm's estimate, MuJoCo's
-     constraint forces), a joint commanded further into it is slowed from `contact_slow` x tau_max on
-     and stopped at `contact_stop` x tau_max, well before the robot's reflex at 1 x; motion that
-     eases the torque is never slowed (the operator can always back out);
+     constraint forces), a joint commanded further into it is slowed from `contact_slow` x its reflex
+     torque on and stopped at `contact_stop` x, well before the robot's own reflex at 1 x (the
+     reflex table `reflex_torque`: tau_max by default, where the simulated arm's reflex fires; the
+     bridge gives a real arm's collision thresholds); motion that eases the torque is never slowed
+     (the operator can always back out);
      the workspace floor, likewise, where the bridge gives one (`workspace.py`): the part of the target
      that lowers the hand faster than it may go that close to the table is removed; the rest is kept;
   5. a per-joint jerk-limited tracker moves the output velocity towards the target;
@@ -49,6 +51,7 @@ re-synchronised to the measured position at rest and whenever they differ by mor
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -102,7 +105,7 @@ class SafetyConfig:
     command_timeout: float = 0.1         # s without a valid command before braking to zero
     position_sync_tolerance: float = 0.05  # rad of reference-vs-measured drift that forces a re-sync
     plausibility_factor: float = 2.0     # a command beyond this times dq_max is a fault: rejected
-    contact_slow: float = CONTACT_SLOW   # external torque / tau_max from which motion into it slows
+    contact_slow: float = CONTACT_SLOW   # external torque / reflex torque from which motion into it slows
     contact_stop: float = CONTACT_STOP   # ... and at which it stops (the robot's reflex is at 1.0)
 
     def validate(self) -> None:
@@ -137,10 +140,17 @@ class SafetyFilter:
     """
 
     def __init__(self, config: SafetyConfig | None = None, robot: RobotSpec = PANDA,
-                 floor: WorkspaceFloor | None = None):
+                 floor: WorkspaceFloor | None = None, reflex_torque: Sequence[float] | None = None):
         self.config = cfg = config or SafetyConfig()
         self.floor = floor                                  # the TCP's lowest height, where given
         cfg.validate()
+        # The joint torques (Nm) at which the robot's own reflex stops it: the contact thresholds are
+        # fractions of these. Default tau_max (the simulated arm's reflex); a real Franka's fires at
+        # the collision thresholds it was configured with (libfranka: upper_torque_thresholds).
+        reflex = [float(x) for x in (robot.tau_max if reflex_torque is None else reflex_torque)]
+        if len(reflex) != NUM_JOINTS or not all(math.isfinite(x) and x > 0.0 for x in reflex):
+            raise ValueError(f"safety: reflex_torque must be {NUM_JOINTS} finite values > 0, got {reflex}")
+        self.reflex_torque = reflex
         self.robot = robot
         self._names = robot.joint_names
         h = cfg.dt
@@ -148,7 +158,6 @@ class SafetyFilter:
         self.a_max = robot.ddq_max * cfg.acceleration_scale
         self.j_max = robot.dddq_max * cfg.jerk_scale
         self._plausible = robot.dq_max * cfg.plausibility_factor
-        self._tau_max = [float(x) for x in robot.tau_max]
         A, J = self.a_max, self.j_max
         D = J * h                                           # largest acceleration change per step
         v_star = h * A + A * A / (2 * J)                    # below it braking is on the jerk-limited curve
@@ -489,8 +498,8 @@ class SafetyFilter:
         return OK, ""
 
     def _contact_scales(self, target: list[float], tau_ext) -> dict[int, float]:
-        """`contact.contact_scales` with this filter's robot and thresholds."""
-        return contact_scales(target, tau_ext, self._tau_max, self.config.contact_slow,
+        """`contact.contact_scales` with this filter's reflex table and thresholds."""
+        return contact_scales(target, tau_ext, self.reflex_torque, self.config.contact_slow,
                               self.config.contact_stop)
 
     def _floor_limit(self, target: list[float], q_ref: list[float], q: list[float]) -> list[float] | None:

@@ -431,6 +431,7 @@ def test_bad_parameters_are_refused_in_process():
                                     ("robot_model", "fr3", "robot_model.*Panda"),
                                     ("robot_model", "ur5", "robot_model"),
                                     ("teaching_damping", [1.0, -1.0] + [1.0] * 5, "teaching_damping"),
+                                    ("upper_torque_thresholds", [20.0] * 6 + [0.0], "upper_torque"),
                                     ("camera_width", 4, "camera_width"),
                                     ("real_time_factor", -1.0, "real_time_factor"),
                                     ("ee_frame", "elbow", "ee_frame")]:

@@ -46,7 +46,7 @@ def find_chromium() -> str:
 class PageRecorder:
     """Records `url` into `path` (mp4) from start() to stop(); `frames` counts the page's frames."""
 
-    def __init__(self, url: str, path: Path, size: tuple[int, int] = (1024, 800), fps: float = 10.0):
+    def __init__(self, url: str, path: Path, size: tuple[int, int] = (1024, 1100), fps: float = 10.0):
         self.url, self.path, self.size, self.fps = url, Path(path), size, fps
         self.frames = 0        # frames the page sent
         self.written = 0       # frames in the video (fixed rate)

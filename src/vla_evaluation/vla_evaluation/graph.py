@@ -469,6 +469,17 @@ class GraphEvaluator:
         res = obs.call(obs.start_cli, StartEpisode.Request(task=task), 10.0, "start_episode")
         if not res.success:
             raise GraphError(f"teleoperator refused {task}: {res.message}")
+        # The previous episode's last status (DONE, same task) can still arrive after the request: the
+        # first status of this episode is WAITING or RUNNING, or a FAILED that says it could not start
+        # (one such stale DONE ended an episode of a 10-layout evaluation before it began). A
+        # publisher's messages arrive in order, so once one of these is seen the rest are this episode's.
+        def fresh() -> bool:
+            st = obs.teleop
+            return obs.teleop_recv > t_request and st.task == task and (
+                st.state in (TeleopStatus.WAITING, TeleopStatus.RUNNING)
+                or (st.state == TeleopStatus.FAILED and st.reason.startswith(("gave up", "cannot start"))))
+
+        obs.wait_for(fresh, 30.0, "the teleoperator to take the episode", self.alive)
         started = (TeleopStatus.RUNNING, TeleopStatus.DONE, TeleopStatus.FAILED)
         obs.wait_for(lambda: obs.teleop_recv > t_request and obs.teleop.task == task
                      and obs.teleop.state in started, 30.0, "the teleoperator to start", self.alive)

@@ -167,6 +167,7 @@ class SimTeleoperatorNode(Node):
         self.grasp: GraspButton | None = None       # tasks with the hand: when to press grasp_button
         self._plan = None
         self._phase_t0 = 0.0
+        self._episode_limit = float(self.p["time_limit"])   # the running episode's (s)
         self._press = False
         self._update_image_subscription()
         self.create_service(StartEpisode, "~/start_episode", self._srv_start)
@@ -336,6 +337,7 @@ class SimTeleoperatorNode(Node):
         plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
                          np.random.default_rng(int(p["plan_seed"])), self.catalogue)
         self._command, self._plan, self.grasp = command, plan, None
+        self._episode_limit = float(p["time_limit"])
         if spec.kind in HAND_KINDS:
             self.grasp = GraspButton(hand_phases(plan))
             return self._phase_teleoperator(0.0), cls
@@ -432,7 +434,9 @@ class SimTeleoperatorNode(Node):
             msg.waypoint_count = len(sched.waypoints)
             msg.final_waypoint = [float(v) for v in sched.final]
             if self.t0 is not None:
-                msg.elapsed = min((self._now() - self.t0).nanoseconds * 1e-9, sched.time_limit)
+                # the episode's time limit (a task with the hand has a schedule per phase, each
+                # with the time left when it began)
+                msg.elapsed = min((self._now() - self.t0).nanoseconds * 1e-9, self._episode_limit)
             if self.last_step is not None:
                 msg.waypoint_index = int(self.last_step.waypoint_index)
                 msg.waypoint = [float(v) for v in sched.waypoints[self.last_step.waypoint_index]]

@@ -52,8 +52,9 @@ SERVO_BANDWIDTH = 50.0   # rad/s: natural frequency of the (critically damped) t
 # rad: how far the servo's position target may lead the joint. A hand held up by an object while
 # commands go on would otherwise store the whole commanded travel (0.13 rad measured, on the demo's
 # cereal-box push) and release it as a lunge when the hand slips off: 1 m/s into the table and a
-# reflex. Free motion leads by under 0.01 rad; the safety filter re-syncs its own reference at 0.05.
-MAX_FOLLOWING_ERROR = 0.05
+# reflex; at 0.05 a hand slipping off a loaf still dropped 3 cm into a reflex (3 of 25 held-stick
+# holds). Free motion away from the position limits leads by ~1e-13 rad (random 1.5 rad/s steps).
+MAX_FOLLOWING_ERROR = 0.01
 
 
 def _as_slice(index: np.ndarray) -> slice | np.ndarray:

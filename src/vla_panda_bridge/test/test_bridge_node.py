@@ -207,7 +207,8 @@ def test_estop_release_with_the_stick_held_starts_no_motion(harness):
 def test_a_reflex_holds_the_arm_until_recover_and_recovery_needs_a_zero_command(harness):
     """Full speed into the table: the simulated Panda stops itself with a libfranka-like reflex; the
     stream (still held) moves nothing, neither after ~/recover until the stick passes through zero."""
-    h = harness(real_time_factor=4.0, command_timeout=0.2)
+    # the workspace floor off: with it the hand slows to a stop above the table (test_workspace.py)
+    h = harness(real_time_factor=4.0, command_timeout=0.2, workspace_floor=-2.0)
     q0 = list(READY_POSE)
     q0[3] = -1.2
     assert h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(initial_positions=q0)).success

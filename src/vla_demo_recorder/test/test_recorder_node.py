@@ -240,18 +240,27 @@ def test_sigint_mid_episode_closes_the_bag_and_exits_0(ros, tmp_path, sim_time):
         c = Client(ros, prefix="/sigint")
         res = c.start("bread/push_east")
         assert res.success, res.message
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=30)  # a hang guard, not a timing check
+        out = _interrupt(proc, 30)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        _reap(proc)
     assert proc.returncode == 0, out
     assert "shut down while recording: interrupted episode 1" in out
     bag = Path(res.bag_path)
     assert has_footer(find_mcap(bag))
     ep = EpisodeInfo.from_custom_data(read_metadata_yaml(bag)["custom_data"])
     assert ep.outcome == "interrupted" and ep.task == "bread/push_east"
+
+
+def _interrupt(proc: subprocess.Popen, guard_s: float) -> str:
+    """Ctrl-C to the recorder; its output once it exits (guard_s is a hang guard, not a timing check)."""
+    proc.send_signal(signal.SIGINT)
+    return proc.communicate(timeout=guard_s)[0]
+
+
+def _reap(proc: subprocess.Popen) -> None:
+    if proc.poll() is None:
+        proc.kill()
+        proc.wait()
 
 
 def test_sigint_while_busy_writing_camera_frames_closes_the_bag_and_exits_0(ros, tmp_path):
@@ -277,12 +286,9 @@ def test_sigint_while_busy_writing_camera_frames_closes_the_bag_and_exits_0(ros,
         assert ros.spin_until(lambda: any(s.messages_written for s in c.status), 30)
         for _ in range(40):  # more frames on their way as the signal comes
             c.img.publish(frame)
-        proc.send_signal(signal.SIGINT)
-        out, _ = proc.communicate(timeout=60)  # a hang guard, not a timing check
+        out = _interrupt(proc, 60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
+        _reap(proc)
     assert proc.returncode == 0, out
     assert "shut down while recording: interrupted episode 1" in out and "Timeout" not in out, out
     bag = Path(res.bag_path)

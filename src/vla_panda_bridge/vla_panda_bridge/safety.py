@@ -377,7 +377,7 @@ class SafetyFilter:
             near = q_ref is not None and (hi - q_ref[i] < far or q_ref[i] - lo < far)
             if near:
                 qi = q_ref[i]
-                capped = min(max(t, -_cap(qi - lo, tail, cap_n, cap_a)), _cap(hi - qi, tail, cap_n, cap_a))
+                capped = _position_cap(t, qi, lo, hi, tail, cap_n, cap_a)
                 if abs(capped - t) > 1e-9:
                     margin_joints.append(i)
                 t = capped
@@ -511,7 +511,7 @@ class SafetyFilter:
         for t, qi, (_, _, _, _, lo, hi, tail, cap_n, cap_a, far) in zip(target, q_ref, self._lim):
             near = hi - qi < far or qi - lo < far
             if near:
-                t = min(max(t, -_cap(qi - lo, tail, cap_n, cap_a)), _cap(hi - qi, tail, cap_n, cap_a))
+                t = _position_cap(t, qi, lo, hi, tail, cap_n, cap_a)
             capped.append(t)
             free.append(not near)
         return self.floor.limit(capped, q, free)
@@ -593,6 +593,11 @@ def _excursion_bound(v: float, a: float, h: float, A: float, D: float, tail: flo
         return 0.0
     ramp_steps = math.ceil((max(a, -A) + A) / D)
     return ramp_steps * h * v_pk + v_pk * v_pk / (2 * A) + tail
+
+
+def _position_cap(t: float, q: float, lo: float, hi: float, tail: float, cap_n: float, cap_a: float) -> float:
+    """Target velocity t capped so the joint at q can still stop inside [lo, hi] (step 4's soft part)."""
+    return min(max(t, -_cap(q - lo, tail, cap_n, cap_a)), _cap(hi - q, tail, cap_n, cap_a))
 
 
 def _cap(d: float, tail: float, cap_n: float, cap_a: float) -> float:

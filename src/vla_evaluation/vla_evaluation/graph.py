@@ -90,11 +90,14 @@ class GraphConfig:
     extra_params: dict[str, dict] = field(default_factory=dict)  # node -> run-time parameters
     catalogue: str = ""  # object catalogue YAML ("": the default): the scene, detector and teleoperator
     operator_port: int | None = None  # also start the operator station on 127.0.0.1:port (None: not)
+    record_dir: Path | None = None  # also start the recorder (one bag per ~/start_episode) into this folder
 
     def launch_arguments(self) -> dict[str, object]:
         """demo.launch.yaml's arguments: what the nodes read once, at startup."""
         station = ({} if self.operator_port is None else
                    {"use_operator_station": True, "operator_port": int(self.operator_port)})
+        if self.record_dir is not None:
+            station.update(use_recorder=True, record_dir=str(Path(self.record_dir).absolute()))
         return {"catalogue": str(Path(self.catalogue).absolute()) if self.catalogue else "",
                 "use_sim_time": True, "real_time_factor": float(self.real_time_factor),
                 "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
@@ -312,10 +315,14 @@ class EpisodeMonitor:
 class GraphEvaluator:
     """Runs evaluation episodes on the live graph (use as a context manager)."""
 
-    def __init__(self, config: GraphConfig, log: Callable[[str], None] = print) -> None:
+    def __init__(self, config: GraphConfig, log: Callable[[str], None] = print,
+                 observer: Callable[..., _Observer] = _Observer) -> None:
+        """`observer(context, keep_frames)`: the orchestrator's node (a subclass may add publishers,
+        as the user study's participant does)."""
         self.catalogue = load_catalogue(config.catalogue)
         self.config = config
         self.log = log
+        self.observer = observer
         self.runner: GraphRunner[_Observer] | None = None
         self.obs: _Observer | None = None
         self.kin = PandaKinematics()
@@ -335,7 +342,7 @@ class GraphEvaluator:
         self.runner = GraphRunner(LAUNCH_FILE, cfg.launch_arguments(), domain=cfg.domain_id,
                                   log_path=log_path, error=GraphError)
         try:
-            self.obs = self.runner.start(lambda ctx: _Observer(ctx, cfg.keep_frames))
+            self.obs = self.runner.start(lambda ctx: self.observer(ctx, cfg.keep_frames))
             self.log(f"[graph] vla launch {' '.join(LAUNCH_FILE)} (ROS_DOMAIN_ID {self.runner.domain}, "
                      f"output in {self.runner.session.log_path})")
             self._wait_ready()

@@ -28,6 +28,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
     p.add_argument("--trials", type=int, default=None, help="test trials per task (overrides the file)")
     p.add_argument("--time-limit", type=float, default=None, help="s per trial (overrides the file)")
+    p.add_argument("--backend", choices=("graph", "physics"), default=None,
+                   help="graph: the launched graph, the stick as Joy, a bag per trial (the file's default); "
+                        "physics: the same participant in one process (faster, no bags)")
     p.add_argument("--analyse-only", action="store_true", help="only the figures and tables")
     p.add_argument("--check", action="store_true",
                    help="validate the protocol and print each participant's session; run and write nothing")
@@ -53,6 +56,8 @@ def run(args) -> int:
         proto = dataclasses.replace(proto, trials=args.trials)
     if args.time_limit is not None:
         proto = dataclasses.replace(proto, time_limit=args.time_limit)
+    if args.backend is not None:
+        proto = dataclasses.replace(proto, backend=args.backend)
     if args.check:
         from vla_evaluation.study.runner import trial_plan
 

@@ -20,6 +20,9 @@ DEFAULT_MODELS = {"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_so
 KEYS = {"study", "participants", "population_seed", "strategies", "settings", "trials", "practice",
         "counterbalance", "time_limit", "rate", "models", "backend"}
 PAPER = Path(__file__).with_name("protocols") / "paper.yaml"
+# graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
+# physics: the same participant and scoring with the graph's computations in one process (fast sweeps)
+BACKENDS = ("graph", "physics")
 
 
 class ProtocolError(ValueError):
@@ -44,7 +47,7 @@ class Protocol:
     time_limit: float
     rate: float
     models: dict[str, dict[str, str]] = field(default_factory=dict)
-    backend: str = "physics"
+    backend: str = "graph"
     source: str = ""
 
     def digest(self) -> str:
@@ -172,8 +175,8 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
              lambda v: None if v in ("latin_square", "none") else "latin_square or none")
     tl = get("time_limit", 30.0, (int, float), lambda v: None if 1 <= v <= 600 else "must be 1..600 s")
     rate = get("rate", 20.0, (int, float), lambda v: None if 5 <= v <= 200 else "must be 5..200 Hz")
-    backend = get("backend", "physics", str, lambda v: None if v == "physics" else
-                  "only physics is implemented (graph: see docs/study.md)")
+    backend = get("backend", "graph", str,
+                  lambda v: None if v in BACKENDS else f"one of {', '.join(BACKENDS)}")
     models = {k: dict(v) for k, v in DEFAULT_MODELS.items()}
     if "models" in nodes:
         mv = _scalar(nodes["models"])

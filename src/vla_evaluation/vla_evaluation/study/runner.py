@@ -8,10 +8,12 @@ resumes where it stopped without losing or duplicating a trial; a partial last l
 write) is set aside in `trials.jsonl.partial`, never deleted. An output directory made for another
 protocol is refused.
 
-Backend: `physics` — the graph's computations in one process (MuJoCo PandaSim, the bridge's
-SafetyFilter, the controller's StickToCommand / EndEffectorBaseline; vla_evaluation.physics), about
-5x faster than the launched graph on 2 cores. Running the participant through the launched graph
-(GraphEvaluator) is not done yet (docs/study.md).
+Backends, one participant model and one scorer (`trial_row`), two transports:
+- `graph` (the default, and what CI's reduced study runs): the shipped launch file through the one
+  graph runner, the participant's stick as sensor_msgs/Joy, each trial a bag (study/graph_backend.py);
+- `physics`: the graph's computations in one process (MuJoCo PandaSim, the bridge's SafetyFilter, the
+  controller's StickToCommand / EndEffectorBaseline; vla_evaluation.physics), several times faster:
+  for the sensitivity sweep and the oracle comparison, not for the study's record.
 """
 from __future__ import annotations
 
@@ -271,36 +273,51 @@ class PhysicsBackend:
             if i % judge_every == judge_every - 1:
                 tracker.update(sim.time - t0, _goal_pose(sim, cls))
         t_end = sim.time - t0
-        _servo(sim, safety, int(round(0.5 / sim.physics_dt)))
+        _servo(sim, safety, int(round(0.5 / sim.physics_dt)))  # the arm comes to rest, the object settles
         end = _goal_pose(sim, cls)
         path_a = np.asarray(path) if path else np.zeros((0, 3))
-        times_a = np.asarray(times)
-        ok, disp, ang = judge_task(trial.task, start, end, path_a[:, :2])
-        every = max(1, int(round(PATH_DT / dt)))
-        speed = speed_profile(path_a[::every], times_a[::every])
-        row = {
-            "success": bool(ok),
-            "time_s": round(float(tracker.time_to_success if ok and tracker.time_to_success is not None
-                                  else (t_done if ok and t_done is not None else t_end)), 3),
-            "duration_s": round(float(t_end), 3),
-            "final_state_error": round(float(final_state_error(sim.q, layout.waypoints[-1])), 4),
-            "object_displacement_m": round(float(disp), 4),
-            "path_length_m": round(path_length(path_a), 4),
-            "n_inputs": int(op.n_inputs),
-            "mode_switches": int(op.n_switches),
-            "mode_switch_s": round(float(op.switch_s), 3),
-            "reversals": int(op.reversals),
-            "lapses": int(op.lapses),
-            "sparc": round(sparc(speed, 1.0 / (every * dt)), 4) if len(speed) > 2 else None,
-            "ldlj": (round(log_dimensionless_jerk(path_a[::every], times_a[::every]), 4)
-                     if len(path_a) > 5 * every else None),
-            "participant_done": t_done is not None,
-            "safety_interventions": int(safety.interventions),
-            "object_start": start.to_dict(),
-            "note": note,
-        }
-        return row, {"tcp": path_a.astype(np.float32), "t": times_a.astype(np.float32),
-                      "stick": np.asarray(sticks, np.float32)}
+        ok, disp, _ang = judge_task(trial.task, start, end, path_a[:, :2])
+        t_success = tracker.time_to_success
+        return trial_row(op, path_a, np.asarray(times), np.asarray(sticks), ok=ok, disp=disp,
+                         t_success=t_success, t_done=t_done, t_end=t_end,
+                         fse=final_state_error(sim.q, layout.waypoints[-1]),
+                         interventions=safety.interventions, start=start, note=note)
+
+
+def trial_row(op: HumanOperator, path: np.ndarray, times: np.ndarray, sticks: np.ndarray, *, ok: bool,
+              disp: float, t_success: float | None, t_done: float | None, t_end: float, fse: float,
+              interventions: int, start, note: str) -> tuple[dict, dict]:
+    """One trial's row and arrays from what any backend measured: the TCP path (T, 3) and its times
+    (s since the trial began), the stick, the outcome; the participant's counts from the operator.
+    Both backends (the launched graph, the in-process physics) score a trial with this one function."""
+    path = np.asarray(path, float).reshape(-1, 3)
+    times = np.asarray(times, float)
+    dt = float(np.median(np.diff(times))) if len(times) > 1 else PATH_DT
+    every = max(1, int(round(PATH_DT / dt)))
+    speed = speed_profile(path[::every], times[::every])
+    row = {
+        "success": bool(ok),
+        "time_s": round(float(t_success if ok and t_success is not None
+                              else (t_done if ok and t_done is not None else t_end)), 3),
+        "duration_s": round(float(t_end), 3),
+        "final_state_error": round(float(fse), 4),
+        "object_displacement_m": round(float(disp), 4),
+        "path_length_m": round(path_length(path), 4),
+        "n_inputs": int(op.n_inputs),
+        "mode_switches": int(op.n_switches),
+        "mode_switch_s": round(float(op.switch_s), 3),
+        "reversals": int(op.reversals),
+        "lapses": int(op.lapses),
+        "sparc": round(sparc(speed, 1.0 / (every * dt)), 4) if len(speed) > 2 else None,
+        "ldlj": (round(log_dimensionless_jerk(path[::every], times[::every]), 4)
+                 if len(path) > 5 * every else None),
+        "participant_done": t_done is not None,
+        "safety_interventions": int(interventions),
+        "object_start": start.to_dict(),
+        "note": note,
+    }
+    return row, {"tcp": path.astype(np.float32), "t": times.astype(np.float32),
+                 "stick": np.asarray(sticks, np.float32)}
 
 
 def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], None] = print,
@@ -308,8 +325,9 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
     """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials."""
     real = [w for w in protocol.participants if not w.startswith("sim:")]
     if real:  # refused before anything is made or run
-        raise SystemExit(f"real participants ({', '.join(real)}) run through the launched graph, which "
-                         "is not done yet (docs/study-participants.md); --check prints their sessions")
+        raise SystemExit(f"real participants ({', '.join(real)}) need the experimenter's reset and a "
+                         "person's joystick on the robot's launch, which are not done yet "
+                         "(docs/study-participants.md); --check prints their sessions")
     store = StudyStore(out, protocol)
     plan = trial_plan(protocol)
     todo = [t for t in plan if t.key not in store.done]
@@ -317,7 +335,26 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
         f"{len(todo)} to run")
     if not todo:
         return store
-    backend = backend or PhysicsBackend(protocol)
+    own = backend is None
+    if own:
+        backend = (PhysicsBackend(protocol) if protocol.backend == "physics" else
+                   _graph_backend(protocol, out, log))
+    try:
+        _run_trials(protocol, store, todo, backend, log, ask, limit, out)
+    finally:
+        if own and hasattr(backend, "close"):
+            backend.close()
+    return store
+
+
+def _graph_backend(protocol: Protocol, out: Path, log):
+    from vla_evaluation.study.graph_backend import GraphBackend
+
+    return GraphBackend(protocol, out, log)
+
+
+def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backend, log, ask, limit,
+                out: Path) -> None:
     params = participant_params(protocol)
     asked = {(r["participant"], r["strategy"]) for r in _likert_rows(out)}
     for n, trial in enumerate(todo):
@@ -339,7 +376,6 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
                                    for t in todo[n + 1:])
         if last_of_strategy and not who.startswith("sim:") and (who, trial.strategy) not in asked:
             store.record_likert(ask_likert(who, trial.strategy, ask))
-    return store
 
 
 def _likert_rows(out: Path) -> list[dict]:

@@ -1,0 +1,253 @@
+"""The study's trials through the launched graph: the participant publishes its stick as sensor_msgs/Joy.
+
+`GraphBackend` starts the shipped `demo.launch.yaml` with the one graph runner (`graph.GraphEvaluator`,
+as `vla_evaluation evaluate --mode graph` and `demo` do) plus the recorder, and per trial:
+- sets the controller's `mode` (latent or end_effector) and, for latent actions, its model;
+- resets the scene through the bridge's `~/reset` (the trial's seeded layout, as the evaluation);
+- latent actions: asks the controller to latch the new scene's detection (`~/redetect`);
+- starts a bag (`recorder/start_episode`, the trial's key in the note);
+- lets the participant drive: at the protocol's rate (simulated time) it sees the hand (forward
+  kinematics of `joint_states`, what TF shows), the object (the simulation's ground truth
+  `scene/objects`, what a person sees on the table) and the controller's status, and publishes `joy`:
+  the stick on axis 0, the end-effector mode button as button 0 (the controller's `ee_mode_button`).
+  The controller turns it into a command (the decoder, or the end-effector baseline), and the bridge's
+  safety layer into motion: every command takes the path a person's would;
+- ends at the participant's "done" or the time limit, releases the stick, lets the arm come to rest
+  (0.5 s), closes the bag and scores the trial with `runner.trial_row`, the physics backend's scorer.
+The shipped sim_teleoperator (the oracle) is in the launch too; it stays idle (no episode is asked of
+it), so the participant is the only publisher on `joy`.
+"""
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import numpy as np
+from sensor_msgs.msg import Joy
+from std_srvs.srv import Trigger
+
+from vla_evaluation.graph import (
+    CONTROLLER,
+    EpisodeMonitor,
+    GraphConfig,
+    GraphError,
+    GraphEvaluator,
+    _Observer,
+)
+from vla_evaluation.study.participant import HumanOperator, HumanParams, Observation
+from vla_evaluation.study.protocol import STRATEGIES, Protocol
+from vla_interfaces.msg import ControllerStatus, RecorderStatus, SafetyStatus
+from vla_interfaces.srv import StartEpisode
+
+RECORDER = "recorder"
+AXIS, EE_MODE_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 4  # the stick as the controller is set up for it
+SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to settle (as the physics backend)
+
+
+class TrialDriver:
+    """One trial's participant on the observer's timer: observation in, Joy out."""
+
+    def __init__(self, op: HumanOperator, object_class: str, t_start: float, time_limit: float, kin,
+                 end_effector: bool) -> None:
+        self.op, self.cls, self.t_start, self.time_limit = op, object_class, t_start, time_limit
+        self.kin, self.end_effector = kin, end_effector
+        self.sticks: list[float] = []
+        self.t_done: float | None = None
+        self.t_end: float | None = None
+        self.finished = threading.Event()
+
+    def tick(self, obs: StudyObserver) -> None:
+        if self.finished.is_set():
+            return
+        t = obs.now() - self.t_start
+        with obs.cond:
+            q, objs, ctrl, safety = obs.q, obs.objects, obs.ctrl, obs.safety
+        obj = objs.get(self.cls)
+        if t >= self.time_limit or q is None or obj is None:
+            if t >= self.time_limit:
+                self._end(obs, t)
+            else:
+                obs.publish_stick(0.0)
+            return
+        code = int(ctrl.code) if ctrl is not None else 0
+        if safety is not None and safety.code == SafetyStatus.AWAITING_ZERO:
+            # the bridge stopped the arm and moves it again after a zero: what the controller's
+            # AWAITING_NEUTRAL says, the station shows both as "return the stick to neutral"
+            code = ControllerStatus.AWAITING_NEUTRAL
+        seen = Observation(t, self.kin.fk(q)[0], np.array([obj.x, obj.y]), code,
+                           (ctrl.ee_axis if ctrl is not None and self.end_effector else "x"))
+        act = self.op.act(seen)
+        if act.done:
+            self.t_done = t
+            self._end(obs, t)
+            return
+        obs.publish_stick(act.axis, press=act.press)
+        self.sticks.append(act.axis)
+
+    def _end(self, obs: StudyObserver, t: float) -> None:
+        obs.publish_stick(0.0)  # the participant lets go
+        self.t_end = t
+        with obs.cond:
+            self.finished.set()
+            obs.cond.notify_all()
+
+
+class StudyObserver(_Observer):
+    """The evaluation's observer plus the participant's stick (`joy`) and the recorder's services."""
+
+    def __init__(self, ctx, keep_frames: bool, rate: float) -> None:
+        super().__init__(ctx, keep_frames)
+        n = self.node
+        self.joy_pub = n.create_publisher(Joy, "joy", 10)
+        self.rec_start_cli = n.create_client(StartEpisode, f"{RECORDER}/start_episode")
+        self.rec_stop_cli = n.create_client(Trigger, f"{RECORDER}/stop_episode")
+        self.recorder: RecorderStatus | None = None
+        self.recorder_stamp = -np.inf
+        n.create_subscription(RecorderStatus, f"{RECORDER}/status", self._recorder, 10)
+        self.driver: TrialDriver | None = None
+        n.create_timer(1.0 / float(rate), self._tick)  # simulated time (use_sim_time)
+
+    def _recorder(self, msg: RecorderStatus) -> None:
+        with self.cond:
+            self.recorder = msg
+            self.recorder_stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+            self.cond.notify_all()
+
+    def _tick(self) -> None:
+        d = self.driver
+        if d is not None:
+            d.tick(self)
+
+    def publish_stick(self, axis: float, press: bool = False) -> None:
+        msg = Joy()
+        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.frame_id = ""  # a Joy has no geometry
+        axes = [0.0] * NUM_AXES
+        axes[AXIS] = float(axis)
+        buttons = [0] * NUM_BUTTONS
+        buttons[EE_MODE_BUTTON] = 1 if press else 0
+        msg.axes, msg.buttons = axes, buttons
+        self.joy_pub.publish(msg)
+
+
+def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0) -> GraphConfig:
+    from vla_evaluation.kinematic import TeleopSettings
+    from vla_evaluation.resources import detector_model_path, latent_model_dir
+
+    return GraphConfig(
+        model_path=str(latent_model_dir("default")), detector_model=str(detector_model_path()),
+        # the controller commands at its shipped 100 Hz (the bridge's 0.1 s watchdog then survives a
+        # stalled period); the participant's stick comes at the protocol's rate
+        real_time_factor=real_time_factor, rate=100.0,
+        settings=TeleopSettings(rate=float(p.rate), time_limit=float(p.time_limit)),
+        log_dir=Path(out) / "logs", record_dir=Path(out) / "bags",
+        # the stick at the protocol's rate: 0.5 sim s without joy zeroes the command (twice the
+        # evaluation's 0.25 s: the participant runs in the study's process on a busy machine)
+        joy_timeout=0.5,
+        extra_params={CONTROLLER: {"axis": AXIS, "ee_mode_button": EE_MODE_BUTTON, "enable_button": -1}})
+
+
+class GraphBackend:
+    """Runs each trial on the launched graph (start it once; `close()` stops it)."""
+
+    def __init__(self, protocol: Protocol, out: Path, log=print, real_time_factor: float = 2.0) -> None:
+        from vla_common.kinematics import PandaKinematics
+
+        self.p, self.log = protocol, log
+        Path(out, "logs").mkdir(parents=True, exist_ok=True)
+        Path(out, "bags").mkdir(parents=True, exist_ok=True)
+        self.out = Path(out)
+        cfg = study_graph_config(protocol, out, real_time_factor)
+        self.ev = GraphEvaluator(cfg, log, observer=lambda ctx, keep: StudyObserver(ctx, keep, protocol.rate))
+        self.kin = PandaKinematics()
+        self.mode: str | None = None
+        self.ev.start()
+        self.catalogue = self.ev.catalogue
+
+    def close(self) -> None:
+        self.ev.close()
+
+    def _set_strategy(self, trial) -> str:
+        mode = STRATEGIES[trial.strategy]
+        if mode != self.mode:
+            self.ev.obs.set_parameters(CONTROLLER, {"mode": mode})
+            self.mode = mode
+        if mode == "latent":
+            from vla_evaluation.resources import latent_model_dir
+
+            self.ev.set_model(str(latent_model_dir(self.p.models[trial.strategy][trial.setting])))
+        return mode
+
+    def run(self, trial, params: HumanParams, operator_seed: int) -> tuple[dict, dict]:
+        from vla_common.tasks import parse_task
+
+        from vla_evaluation.kinematic import plan_waypoints
+        from vla_evaluation.metrics import final_state_error, judge_task
+        from vla_evaluation.study.runner import task_goal, trial_row
+
+        ev, obs, p = self.ev, self.ev.obs, self.p
+        mode = self._set_strategy(trial)
+        spec = parse_task(trial.task, self.catalogue)
+        _seed, start, q_now = ev._reset(spec, int(trial.layout_seed), 1)  # ~/reset, settled, detected
+        note = ""
+        if mode == "latent" and (why := ev._latch()):
+            note = f"no context: {why}"  # the controller waits, nothing moves (as the physics backend)
+        bag = self._start_bag(trial)
+        op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed)
+        monitor = EpisodeMonitor(spec, start, self.kin, max(1, round(ev.config.state_rate / 20.0)), False)
+        obs.monitor = monitor
+        monitor.t_start = obs.now()
+        driver = TrialDriver(op, spec.object_class, monitor.t_start, float(p.time_limit), self.kin,
+                             mode == "end_effector")
+        obs.driver = driver
+        try:
+            wall_limit = p.time_limit / max(ev.config.real_time_factor, 0.05) * 4 + 60
+            obs.wait_for(driver.finished.is_set, wall_limit, f"the end of trial {trial.key}", ev.alive)
+        finally:
+            obs.driver = None
+        t_end = driver.t_start + driver.t_end
+        obs.wait_for(lambda: obs.objects_stamp >= t_end + SETTLE_S and obs.q_stamp >= t_end + SETTLE_S,
+                     60.0, "the arm to rest after the trial", ev.alive)
+        obs.monitor = None
+        with obs.cond:
+            q_final, end = obs.q.copy(), obs.objects.get(spec.object_class)
+        bag_row = self._stop_bag(t_end + SETTLE_S, bag)
+        keep = np.asarray(monitor.path_t) <= driver.t_end + 1e-9
+        path = np.asarray(monitor.path)[keep[: len(monitor.path)]] if monitor.path else np.zeros((0, 3))
+        times = np.asarray(monitor.path_t)[keep]
+        if end is None:
+            raise GraphError(f"{spec.object_class} missing from scene/objects after trial {trial.key}")
+        ok, disp, _ang = judge_task(spec, start, end, path[:, :2] if len(path) else np.zeros((0, 2)))
+        final_wp = plan_waypoints(self.kin, spec, start, q_now, catalogue=self.catalogue)[-1]
+        row, arrays = trial_row(op, path, times, np.asarray(driver.sticks), ok=ok, disp=disp,
+                                t_success=monitor.tracker.time_to_success, t_done=driver.t_done,
+                                t_end=driver.t_end, fse=final_state_error(q_final, final_wp),
+                                interventions=monitor.tally.interventions, start=start, note=note)
+        row.update(bag_row)
+        row["limit_violations"] = int(monitor.limits.violations)
+        return row, arrays
+
+    def _start_bag(self, trial) -> str:
+        obs = self.ev.obs
+        t_reset = obs.q_stamp  # the recorder's clock can lag the bridge's: start after the reset
+        obs.wait_for(lambda: obs.recorder_stamp >= t_reset, 30.0, "the recorder's clock to pass the reset",
+                     self.ev.alive)
+        res = obs.call(obs.rec_start_cli, StartEpisode.Request(task=trial.task, note=json.dumps(
+            {"study_trial": trial.key})), 30.0, "start the trial's bag")
+        if not res.success:
+            raise GraphError(f"the recorder refused trial {trial.key}: {res.message}")
+        return res.bag_path
+
+    def _stop_bag(self, t_end: float, bag: str) -> dict:
+        obs = self.ev.obs
+        # stop once the recorder's clock has passed the trial's end (else its tail is lost)
+        obs.wait_for(lambda: obs.recorder_stamp >= t_end, 30.0, "the recorder to catch up", self.ev.alive)
+        res = obs.call(obs.rec_stop_cli, Trigger.Request(), 60.0, "close the trial's bag")
+        if not res.success:
+            raise GraphError(f"closing the bag {bag} failed: {res.message}")
+        try:
+            rel = str(Path(bag).resolve().relative_to(self.out.resolve()))
+        except ValueError:
+            rel = bag
+        return {"bag": rel}

@@ -116,8 +116,43 @@ def test_one_driver_watchers_may_only_estop():
     assert link.on_message(w.cid, msg(type="estop"), 10.1).request == {"type": "estop"}
     assert link.counters.forbidden == 5
     link.disconnect(cid)
-    assert link.on_message(w.cid, msg(type="claim"), 10.2).request == {"type": "claim"}
+    assert link.on_message(w.cid, msg(type="claim"), 10.2).request == {"type": "claim", "taken_from": None}
     assert link.driver() is w
+
+
+def test_a_watcher_takes_control_only_confirmed_and_with_the_driver_at_rest():
+    """Take control: never while the driver's input moves the arm, never without confirm: true; then a
+    zero at once, the old driver watches, and the new driver moves only after a neutral input."""
+    link, d = driving(10.0)
+    w = link.connect(10.0)
+    assert link.on_message(d, inp(1, 100.0, 0.5), 10.1).publish            # the driver moves the arm
+    v = link.on_message(w.cid, msg(type="claim", confirm=True), 10.12)
+    assert "moving the arm" in v.error and link.driver().cid == d and link.value(10.12) == 0.5
+    assert "confirm" in link.on_message(w.cid, msg(type="claim"), 10.13).error
+    link.on_message(d, inp(2, 140.0, 0.0), 10.14)                          # the driver lets go
+    assert "confirm" in link.on_message(w.cid, msg(type="claim"), 10.15).error
+    v = link.on_message(w.cid, msg(type="claim", confirm=True), 10.16)
+    assert v.publish and v.request == {"type": "claim", "taken_from": d}
+    assert link.driver() is w and link.value(10.16) == 0.0
+    assert "another station drives" in link.on_message(d, inp(3, 170.0, 0.5), 10.17).error
+    # the new driver: a key held through the change moves nothing; a neutral, then a press, moves
+    assert "neutral" in link.on_message(w.cid, inp(0, 180.0, 0.5), 10.18).error
+    assert link.on_message(w.cid, inp(1, 190.0, 0.0), 10.19).publish
+    assert link.on_message(w.cid, inp(2, 200.0, 0.5), 10.2).publish and link.value(10.2) == 0.5
+
+
+def test_taking_control_from_a_silent_driver_and_never_by_a_display():
+    link, d = driving(10.0)
+    link.on_message(d, inp(1, 100.0, 0.5), 10.1)
+    w = link.connect(10.1)
+    shown = link.connect(10.1, may_drive=False)
+    assert link.tick(10.7) and link.value(10.7) == 0.0          # the driver's page went silent moving
+    assert "watch" in link.on_message(shown.cid, msg(type="claim", confirm=True), 10.8).error
+    assert link.on_message(w.cid, msg(type="claim", confirm=True), 10.8).publish
+    assert link.driver() is w
+    link.disconnect(w.cid)                                      # nobody drives: a display still never does
+    assert "watch" in link.on_message(shown.cid, msg(type="claim"), 10.9).error
+    assert link.driver() is None
 
 
 @pytest.mark.parametrize("raw, counter", [

@@ -8,7 +8,8 @@ Every rule here exists because an operator interface got it wrong (FACTS.md sect
   zero without waiting for a close;
 - a closed socket, a missed heartbeat or a hidden page gives zero at once;
 - one client drives; the others watch and may only press the e-stop; a new driver starts at neutral,
-  so a reload never re-sends motion;
+  so a reload never re-sends motion; a watcher takes control only deliberately (``claim`` with
+  ``confirm: true``) and only while the driver's input is at rest (see ``Link._claim``);
 - malformed, oversized, unknown or forbidden messages are dropped and counted; none moves the arm.
 """
 from __future__ import annotations
@@ -50,6 +51,7 @@ class Client:
     last_seq: int = -1
     offset: float = math.inf         # min over inputs of (server time - browser time): the link's base delay
     armed: bool = False              # a driver's input moves only after a neutral one
+    may_drive: bool = True           # False: a display page (?watch=1) that never drives
 
 
 @dataclass
@@ -94,7 +96,8 @@ class Link:
     def connect(self, now: float, may_drive: bool = True) -> Client:
         """A new client: the driver when nobody drives (and it may), else a watcher."""
         self._next_id += 1
-        c = Client(self._next_id, driver=may_drive and self.driver() is None, last_seen=now)
+        c = Client(self._next_id, driver=may_drive and self.driver() is None, last_seen=now,
+                   may_drive=may_drive)
         self.clients[c.cid] = c
         return c
 
@@ -153,11 +156,7 @@ class Link:
             self.counters.accepted += 1
             return Verdict()
         if kind == "claim":
-            if self.driver() is not None and not c.driver:
-                return self._drop("forbidden", "another station drives")
-            c.driver = True
-            self.counters.accepted += 1
-            return Verdict(request={"type": "claim"})
+            return self._claim(c, msg, now)
         if kind == "hidden":
             self.counters.accepted += 1
             if c.driver:
@@ -202,6 +201,30 @@ class Link:
             self.counters.coalesced += 1   # kept as the latest; the node's timer publishes it
             return Verdict()
         return Verdict(publish=True, from_neutral=from_neutral)
+
+    def _claim(self, c: Client, msg: dict, now: float) -> Verdict:
+        """A watcher asks to drive. Nobody drives (the driver's page closed or went away): it drives.
+        A driver is there: only with ``confirm: true`` (a dialog on the page, never a stray key) and only
+        while the driver's input is at rest, never while it moves the arm. The arm then gets a zero at
+        once (``publish``: the link's value is zero), the old driver watches, and the new one must send
+        a neutral input before it moves (as a new page): a key held through the change moves nothing."""
+        if c.driver:
+            self.counters.accepted += 1
+            return Verdict()
+        if not c.may_drive:
+            return self._drop("forbidden", "this page only watches (opened with watch=1)")
+        d = self.driver()
+        if d is not None:
+            if msg.get("confirm") is not True:
+                return self._drop("forbidden", "another station drives: taking control needs confirm: true")
+            if self.value(now) != 0.0:
+                return self._drop("forbidden", "the driving station is moving the arm: "
+                                               "take control when it is at rest")
+            d.driver = d.armed = False
+        c.driver, c.armed = True, False
+        self.stop()
+        self.counters.accepted += 1
+        return Verdict(publish=True, request={"type": "claim", "taken_from": d.cid if d else None})
 
     def published(self, now: float) -> None:
         self.last_publish = now

@@ -145,6 +145,7 @@ class Station:
         cid = client.cid
         self._sockets[cid] = ws
         await ws.send_str(json.dumps({"type": "hello", "client": cid, "driver": client.driver,
+                                      "driver_present": self.link.driver() is not None,
                                       "stale_after": self.link.params.stale_after}))
         if self._state:
             await ws.send_str(json.dumps({"type": "state", **self._state}))
@@ -182,14 +183,16 @@ class Station:
             self._send(cid, {"type": "refused", "reason": verdict.error})
         if verdict.request is not None:
             if verdict.request["type"] == "claim":
-                self._broadcast_roles()
+                self._broadcast_roles(taken_from=verdict.request["taken_from"])
             else:
                 self.request(verdict.request, lambda reply: self.reply(cid, reply))
 
-    def _broadcast_roles(self) -> None:
+    def _broadcast_roles(self, taken_from: int | None = None) -> None:
+        """Every page's role; the page that drove before a watcher took control is told so."""
         for cid, c in list(self.link.clients.items()):
-            self._send(cid, {"type": "role", "driver": c.driver,
-                             "driver_present": self.link.driver() is not None})
+            self._send(cid, {"type": "role", "driver": c.driver, "may_drive": c.may_drive,
+                             "driver_present": self.link.driver() is not None,
+                             "taken": cid == taken_from})
 
     async def _send_frames(self, ws: web.WebSocketResponse, event: asyncio.Event) -> None:
         sent = 0

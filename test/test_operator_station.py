@@ -630,6 +630,119 @@ def test_a_second_client_cannot_drive_but_may_stop(graph, page):
     assert h.spin_until(lambda: not obs.estop(), 5.0)
 
 
+def tab_order(d, stop_at: str = "view-toggle", n: int = 60) -> list[str]:
+    """The controls Tab reaches from the page's heading, in order (each once)."""
+    d.execute_script("const h = document.querySelector('h1'); h.tabIndex = -1; h.focus();")
+    order = []
+    for _ in range(n):
+        ActionChains(d).send_keys(Keys.TAB).perform()
+        el = d.switch_to.active_element
+        key = el.get_attribute("id") or el.get_attribute("name") or el.get_attribute("aria-label")
+        if key in order and key == stop_at:
+            break
+        if not order or order[-1] != key:
+            order.append(key)
+    return order
+
+
+def axe_violations(b) -> list:
+    import axe_playwright_python
+    d = b.driver
+    d.execute_script((Path(axe_playwright_python.__file__).parent / "axe.min.js").read_text())
+    return d.execute_async_script(
+        "const done = arguments[arguments.length - 1];"
+        "axe.run(document, {runOnly: {type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa',"
+        " 'wcag22aa']}}).then(r => done(r.violations.map(v => [v.id, v.nodes.map(n => n.target)])));")
+
+
+def small_targets(b) -> list:
+    return js(b, """[...document.querySelectorAll('button, select, input, a')]
+        .filter(e => e.offsetParent !== null)
+        .map(e => { const t = e.type === 'radio' ? e.closest('label') : e;
+                    const r = t.getBoundingClientRect();
+                    return [e.id || e.textContent.trim(), r.width, r.height]; })
+        .filter(([, w, h]) => w < 44 || h < 44)""")
+
+
+ROLE = "document.getElementById('s-role').textContent"
+MESSAGE = "document.getElementById('message').textContent"
+
+
+def test_a_watcher_takes_control_by_keyboard_only_at_rest_and_starts_from_neutral(graph, page):
+    """Take control (issue 22: one drives, the others watch): reached by Tab, confirmed in a dialog,
+    refused in words while the driver moves the arm; then the old driver's keys move nothing, it is told
+    in words, and the new driver moves only after letting go (a key held through the change is not a
+    press). The watcher's page with the dialog open passes axe-core with 44 px targets."""
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    b = Browser()
+    try:
+        b.driver.get(url)
+        d = b.driver
+        assert wait_page(h, b, f"{ROLE}.startsWith('Watching (another station drives')")
+        assert not page.driver.find_element(By.ID, "take-control").is_displayed()
+        order = tab_order(d)
+        assert order.index("redetect") < order.index("take-control") < order.index("back"), order
+        hold_in(h, obs, page)                                     # the driver moves the arm
+        d.find_element(By.ID, "take-control").send_keys(Keys.ENTER)
+        assert wait_page(h, b, "document.getElementById('take-dialog').open")
+        assert axe_violations(b) == [] and small_targets(b) == []
+        assert d.switch_to.active_element.get_attribute("id") == "take-confirm"
+        d.switch_to.active_element.send_keys(Keys.ENTER)
+        assert wait_page(h, b, f"{MESSAGE}.includes('moving the arm')"), js(b, MESSAGE)
+        assert js(page, "window.station.driver") and js(b, "!window.station.driver") and obs.moving()
+        ActionChains(page.driver).key_up(Keys.ARROW_UP).perform()
+        assert h.spin_until(lambda: not obs.moving(), 5.0)
+        h.spin_for(0.3)   # the release reached the station: the driver's input is at rest
+        key(d, Keys.ARROW_UP, True)   # the watcher's key is down through the change
+        d.find_element(By.ID, "take-control").send_keys(Keys.ENTER)
+        assert wait_page(h, b, "document.getElementById('take-dialog').open")
+        d.switch_to.active_element.send_keys(Keys.ENTER)
+        assert wait_page(h, b, "window.station.driver"), js(b, MESSAGE)
+        assert wait_page(h, page, f"{ROLE}.includes('another station took control')")
+        assert wait_page(h, page, f"{MESSAGE}.includes('Another station took control')")
+        assert wait_page(h, b, f"{ROLE} === 'Driving'")
+        n = len(obs.cmd_log)
+        key(page.driver, Keys.ARROW_UP, True)                    # the old driver presses: nothing moves
+        h.spin_for(0.6)                                          # and the new driver's held key neither
+        assert not nonzero_since(obs, n), obs.ctrl
+        key(page.driver, Keys.ARROW_UP, False)
+        key(d, Keys.ARROW_UP, False)
+        body = d.find_element(By.TAG_NAME, "body")
+        moves_while(h, obs, lambda: ActionChains(d).move_to_element(body).key_down(Keys.ARROW_UP).perform(),
+                    lambda: ActionChains(d).key_up(Keys.ARROW_UP).perform())
+    finally:
+        b.quit()
+        page.driver.get(url)   # nobody drives now: the module's page drives again
+
+
+def test_a_single_switch_watcher_takes_control_through_scanning(graph, page, settings_restored):
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    apply_settings(h, page, input_device="switch1", scan_period=1.0)
+    b = Browser()
+    try:
+        b.driver.get(url)
+        assert wait_page(h, b, f"{ROLE}.startsWith('Watching (another station drives')")
+        dialog_open = "document.getElementById('take-dialog').open"
+        scanned = "document.getElementById('{}').classList.contains('scan')"
+        for _ in range(12):   # the highlight may move on before the switch closes: scan round again
+            if js(b, "window.station.driver"):
+                break
+            target = "take-confirm" if js(b, dialog_open) else "take-control"
+            assert wait_page(h, b, scanned.format(target), 20.0)
+            key(b.driver, Keys.SPACE, True)
+            key(b.driver, Keys.SPACE, False)
+            h.spin_until(lambda: bool(js(b, "window.station.driver")), 0.5)
+        else:
+            pytest.fail("the single switch did not take control: " + js(b, MESSAGE))
+        assert wait_page(h, page, f"{ROLE}.includes('another station took control')")
+    finally:
+        b.quit()
+        page.driver.get(url)
+        assert wait_page(h, page, "window.station && window.station.driver")
+
+
 def ws_url(url: str, token: str | None) -> str:
     u = urlsplit(url)
     return f"ws://{u.netloc}/ws" + (f"?token={token}" if token is not None else "")

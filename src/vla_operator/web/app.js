@@ -8,7 +8,7 @@ const SCAN_S = 1.5;      // single switch: the highlight's time on each control 
 const PAD_GRASP = 0, PAD_STOP = 1;   // the standard gamepad's A (south) and B (east) buttons
 const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {}, settingsJson: '',
                 held: 0, toggled: 0, stepTimer: 0, padAxis: 0, sent: {}, replies: {}, scan: -1, frames: 0,
-                fpsT: performance.now(), fps: 0, age: null, refused: null };
+                fpsT: performance.now(), fps: 0, age: null, refused: null, scanIds: [], claimed: false };
 window.station = state;  // read by the browser tests and the benchmark
 
 function say(text) { $('message').textContent = text; }
@@ -18,7 +18,7 @@ const link = new Link(onMessage, onFrame, (up) => {
 });
 
 function onMessage(m) {
-  if (m.type === 'hello' || m.type === 'role') setRole(m.driver);
+  if (m.type === 'hello' || m.type === 'role') setRole(m);
   else if (m.type === 'state') showState(m);
   else if (m.type === 'reply' && m.what === 'settings') {
     $('set-message').textContent = m.ok ? `Settings ${m.message}` : `Not saved: ${m.message}`;
@@ -31,12 +31,32 @@ function onMessage(m) {
   else if (m.type === 'refused') { state.refused = m.reason; say(`Refused: ${m.reason}`); }
 }
 
-function setRole(driver) {
+// One station drives; a watcher may take control (a confirmed dialog; the station refuses while the
+// driver moves the arm). A change of role lets go of whatever this page held, without sending it: the
+// new driver starts from a neutral input, so a key held through the change moves nothing.
+function setRole(m) {
+  const was = state.driver, driver = !!m.driver;
   state.driver = driver;
+  if (was !== driver) {
+    clearTimeout(state.stepTimer); state.held = 0; state.toggled = 0; link.axis = 0;
+    $('forward').setAttribute('aria-pressed', 'false'); $('back').setAttribute('aria-pressed', 'false');
+    if (driver) link.sendAxis();
+  }
+  const canTake = !driver && !link.watchOnly;
+  $('take-control').hidden = !canTake;
+  if (!canTake && $('take-dialog').open) $('take-dialog').close();
   $('s-role').textContent = driver ? 'Driving'
     : link.watchOnly ? 'Watching only (this page does not drive; you may press STOP)'
-    : 'Watching (another station drives; you may press STOP)';
+    : m.taken ? 'Watching: another station took control (you may press STOP or take control back)'
+    : m.driver_present === false ? 'Watching (nobody drives: you may take control)'
+    : 'Watching (another station drives; you may press STOP, or take control while the arm is at rest)';
+  if (was && !driver && m.taken) say('Another station took control: this station now watches');
+  if (!was && driver && state.claimed) say('This station drives now: let go of the input, then drive');
+  state.claimed = false;
 }
+$('take-control').onclick = () => $('take-dialog').showModal();
+$('take-cancel').onclick = () => $('take-dialog').close();
+$('take-confirm').onclick = () => { state.claimed = true; link.send({ type: 'claim', confirm: true }); $('take-dialog').close(); };
 
 function showState(s) {
   const c = s.controller, f = s.safety;
@@ -174,7 +194,12 @@ $('gripper').onclick = () => link.send({ type: 'gripper' });
 // keys: the caregiver's mapping (settings.keys: forward, back, stop; a dual switch types two of them).
 // Forward and back work anywhere on the page but in a form field; a stop key works everywhere, except a
 // letter or digit typed into a field. Space is the single switch when scanning is chosen.
-const SCAN = ['forward', 'back', 'next', 'gripper'];
+const SCAN = ['forward', 'back', 'next', 'gripper', 'take-control'];
+function scanList() {   // the open dialog's buttons, else the scanned controls that are shown
+  const dialog = document.querySelector('dialog[open]');
+  if (dialog) return [...dialog.querySelectorAll('button')].map((b) => b.id);
+  return SCAN.filter((id) => !$(id).hidden);
+}
 function scanning() { return state.settings.input_device === 'switch1'; }
 function keyAction(e) {
   const key = e.key.length === 1 ? e.key.toLowerCase() : e.key, keys = state.settings.keys || {};
@@ -184,12 +209,12 @@ addEventListener('keydown', (e) => {
   const act = keyAction(e), inField = e.target.matches('select, input, textarea');
   if (act === 'stop' && !(inField && e.key.length === 1)) { e.preventDefault(); estop(); return; }
   if (inField || e.repeat) return;
-  if (scanning() && e.key === ' ') { e.preventDefault(); const id = SCAN[state.scan];
+  if (scanning() && e.key === ' ') { e.preventDefault(); const id = state.scanIds[state.scan];
     if (id === 'forward' || id === 'back') press(id === 'forward' ? 1 : -1); else if (id) $(id).click(); return; }
   if (act) { e.preventDefault(); press(act === 'forward' ? 1 : -1); }
 });
 addEventListener('keyup', (e) => {
-  if (scanning() && e.key === ' ') { const id = SCAN[state.scan]; if (id === 'forward' || id === 'back') release(0); return; }
+  if (scanning() && e.key === ' ') { const id = state.scanIds[state.scan]; if (id === 'forward' || id === 'back') release(0); return; }
   const act = keyAction(e);
   if (act === 'forward' || act === 'back') release(act === 'forward' ? 1 : -1);
 });
@@ -198,7 +223,9 @@ function scanStep() {       // single-switch scanning: the highlight steps every
   if (!scanning()) { if (state.scan >= 0) { document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan')); state.scan = -1; } return; }
   if (state.held) return;
   document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan'));
-  state.scan = (state.scan + 1) % SCAN.length; $(SCAN[state.scan]).classList.add('scan');
+  const ids = scanList();
+  if (ids.join() !== state.scanIds.join()) { state.scanIds = ids; state.scan = -1; }
+  state.scan = (state.scan + 1) % ids.length; $(ids[state.scan]).classList.add('scan');
 }
 setTimeout(scanStep, 1000 * SCAN_S);
 function pollGamepad() {   // the Gamepad API: the first connected pad's left stick (up = toward the task)

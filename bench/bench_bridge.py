@@ -5,7 +5,8 @@
    max) and messages lost (gaps in the simulated-time stamps);
 2. the node's real-time factor with real_time_factor:=0 (as fast as possible), camera off and on
    (640x480 at 30 Hz): simulated seconds per wall second, from the /clock it publishes;
-3. the per-step cost inside the loop: SafetyFilter.filter and one 1 kHz physics step (in-process).
+3. the per-step cost inside the loop: SafetyFilter.filter bare and as the MuJoCo bridge runs it
+   (workspace floor, measured external torque), alternated; one 1 kHz physics step (in-process).
 
 Usage: python bench/bench_bridge.py [--duration 5]   (after `source scripts/env.sh`)
 """
@@ -110,23 +111,40 @@ def real_time_factor(label: str, params: dict, duration: float) -> None:
     print(f"  {label:34s} real-time factor {factor:6.2f}x")
 
 
-def step_costs(n: int = 3000) -> None:
+def step_costs(n: int = 3000, rounds: int = 5) -> None:
+    """SafetyFilter.filter as the MuJoCo bridge runs it (the workspace floor, a measured external
+    torque) against the bare filter (neither), alternated in rounds on the same commands so that the
+    ratio is fair on a loaded machine; then one physics step."""
+    from vla_common.kinematics import PandaKinematics
     from vla_common.robot import READY_POSE
     from vla_panda_bridge.safety import SafetyFilter
+    from vla_panda_bridge.workspace import DEFAULT_FLOOR, WorkspaceFloor, tcp_height
     from vla_sim.sim import PandaSim
 
-    f = SafetyFilter()
     rng = np.random.default_rng(0)
     cmds = [rng.normal(0, 0.5, 7) if k % 10 == 0 else None for k in range(n)]
-    q = READY_POSE.copy()
-    times = []
-    for k, cmd in enumerate(cmds):
-        t0 = time.perf_counter()
-        dq, _, _ = f.filter(cmd, q, k * 1e-3)
-        times.append(time.perf_counter() - t0)
-        q = q + 1e-3 * dq
-    t = np.array(times) * 1e6
-    print(f"  SafetyFilter.filter        median {np.median(t):6.1f} us  p99 {np.percentile(t, 99):6.1f} us")
+    tau = np.full(7, 1.0)                               # a small torque: the contact rule evaluates
+    floor = WorkspaceFloor(tcp_height(PandaKinematics()), DEFAULT_FLOOR)
+
+    def run(f: SafetyFilter, tau_ext) -> list[float]:
+        q = READY_POSE.copy()
+        times = []
+        for k, cmd in enumerate(cmds):
+            t0 = time.perf_counter()
+            dq, _, _ = f.filter(cmd, q, k * 1e-3, tau_ext)
+            times.append(time.perf_counter() - t0)
+            q = q + 1e-3 * dq
+        return times
+
+    bare: list[float] = []
+    full: list[float] = []
+    for _ in range(rounds):
+        bare += run(SafetyFilter(), None)
+        full += run(SafetyFilter(floor=floor), tau)
+    b, f_ = np.array(bare) * 1e6, np.array(full) * 1e6
+    print(f"  SafetyFilter.filter, bare  median {np.median(b):6.1f} us  p99 {np.percentile(b, 99):6.1f} us")
+    print(f"  ... + floor + contact      median {np.median(f_):6.1f} us  p99 {np.percentile(f_, 99):6.1f} us"
+          f"  (median ratio {np.median(f_) / np.median(b):.2f})")
     sim = PandaSim(render=False, physics_dt=0.001)
     times = []
     for _ in range(n):

@@ -14,6 +14,7 @@ computes. Kinematics are injected (`height`), so the rule is tested without a ro
 """
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 
 import numpy as np
@@ -49,21 +50,25 @@ class WorkspaceFloor:
         the whole command is scaled down instead (direction kept)."""
         try:
             z, jz = self._height(np.asarray(q, dtype=float))
-            jz = np.asarray(jz, dtype=float).reshape(-1)
-        except ValueError:
+            jz = [float(x) for x in np.asarray(jz, dtype=float).reshape(-1)]
+            z = float(z)
+            v = [float(x) for x in cmd]
+        except (TypeError, ValueError):
             return None
-        v = np.asarray(cmd, dtype=float)
-        if jz.shape != v.shape or not (np.isfinite(z) and np.all(np.isfinite(jz))):
+        # Python floats on 7 values: this runs every period of the 1 kHz loop, where NumPy's
+        # per-call overhead was half its cost.
+        if len(jz) != len(v) or not (math.isfinite(z) and all(map(math.isfinite, jz))):
             return None
-        vz = float(jz @ v)
-        bound = -self.allowed_descent(float(z))
+        vz = sum(a * b for a, b in zip(jz, v))
+        bound = -self.allowed_descent(z)
         if vz >= bound:                    # within the rule (rising, level, or slow enough)
             return None
-        use = jz if free is None else jz * np.asarray(free, dtype=float)
-        reach = float(jz @ use)
+        use = jz if free is None else [a if f else 0.0 for a, f in zip(jz, free)]
+        reach = sum(a * b for a, b in zip(jz, use))
         if reach < 1e-9:                   # no free joint moves the hand vertically: slow it all
-            return (v * (bound / vz)).tolist()
-        return (v + use * ((bound - vz) / reach)).tolist()
+            return [x * (bound / vz) for x in v]
+        k = (bound - vz) / reach
+        return [x + u * k for x, u in zip(v, use)]
 
 
 def tcp_height(kinematics) -> Callable[[np.ndarray], tuple[float, np.ndarray]]:

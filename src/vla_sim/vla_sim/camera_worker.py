@@ -3,10 +3,17 @@
 Rendering (10-30 ms a frame on a CPU) runs on a second PandaSim in a worker thread — its own GL
 context and its own MjData, fed a copy of the physics state's qpos — so the sim loop keeps its
 period while a frame renders. Frames are stamped with the simulated time of that state.
+
+Mesa's llvmpipe renders in the calling thread (LP_NUM_THREADS=0 unless the environment sets it): its
+default, one rasteriser thread per core, costs the same CPU per frame but has to get every one of
+those threads onto a core; on a loaded 2-core machine that took a frame's wall time from 15-18 ms
+to 100-130 ms at the 90th percentile (bench: 640x480, load 13), and the camera dropped the frames
+requested meanwhile.
 """
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Callable
@@ -20,9 +27,11 @@ from vla_sim.sim import PandaSim
 class CameraWorker:
     """Renders requested states in a background thread and hands each frame to `on_frame(rgb, stamp)`.
 
-    request() never blocks: if the previous frame is still rendering the request is dropped and
-    counted (real-time pacing wins). wait_idle() lets an as-fast-as-possible loop wait instead, so no
-    frame is dropped there.
+    request() never blocks (real-time pacing wins). A request that comes while a frame renders waits
+    in one slot and is rendered right after it; a newer request replaces a waiting one (counted in
+    ``dropped``): the newest state is rendered next, never a backlog. (A request used to be dropped
+    whenever a frame was rendering: a frame that rendered a little late cost the next one too.)
+    wait_idle() lets an as-fast-as-possible loop wait instead, so no frame is dropped there.
     """
 
     def __init__(
@@ -34,6 +43,7 @@ class CameraWorker:
         on_error: Callable[[str], None] | None = None,
         catalogue: Catalogue | None = None,
     ):
+        os.environ.setdefault("LP_NUM_THREADS", "0")   # before the first GL context (module docstring)
         self._sim = PandaSim(camera_width=width, camera_height=height, render=True, physics_dt=physics_dt,
                              catalogue=catalogue)
         self.intrinsics = self._sim.camera_intrinsics()
@@ -52,13 +62,13 @@ class CameraWorker:
         self._thread.start()
 
     def request(self, qpos: np.ndarray, stamp: float) -> bool:
+        """Render this state next; False when it replaced a request still waiting."""
         with self._cond:
-            if self._busy or self._job is not None:
-                self.dropped += 1
-                return False
+            replaced = self._job is not None
+            self.dropped += replaced
             self._job = (qpos, stamp)
             self._cond.notify()
-            return True
+            return not replaced
 
     def wait_idle(self, timeout: float) -> bool:
         with self._cond:

@@ -193,7 +193,8 @@ class MujocoBackend(BackendBase):
             self._camera.close()
         self.sim.set_velocity_command(np.zeros(7))
         wall = time.monotonic() - getattr(self, "_wall_start", time.monotonic())
-        cam = (f", camera {self._camera.frames} frames ({self._camera.dropped} dropped while rendering)"
+        cam = (f", camera {self._camera.frames} frames ({self._camera.dropped} dropped while rendering, "
+               f"{1000 * self._camera.render_seconds / max(self._camera.frames, 1):.1f} ms a frame)"
                if self._camera is not None else "")
         sim_s = self.now()
         print(f"panda_bridge: {sim_s:.1f} s simulated in {wall:.1f} s (x{sim_s / max(wall, 1e-9):.2f}, "

@@ -267,6 +267,29 @@ def test_end_effector_mode_follows_selected_axis():
     assert core.ee.axis == "x"  # cycled once per step, wrapped around
 
 
+def test_end_effector_mode_cycles_only_the_given_axes():
+    """ee_axes [x, y, z] (a task with the hand pointing down): the button goes z -> x in one press,
+    not through roll, pitch and yaw; a change at run time keeps the selected axis where it can."""
+    core = make_core(None, mode="end_effector", ee_mode_button=0, max_joint_speed=100.0,
+                     ee_axes=["x", "y", "z"])
+    kin = core.kinematics
+    seen = []
+    for k in range(4):
+        feed(core, 10.0 * k, axis=0.55, dets=None)
+        cmd, st = core.step(10.0 * k)
+        seen.append(st.ee_axis)
+        twist = kin.J @ cmd
+        assert np.argmax(np.abs(twist)) == "xyz".index(st.ee_axis)
+        core.on_joy([0.55, 0.0], [1, 0, 0], 10.0 * k + 0.01)  # press: next axis
+        core.on_joy([0.55, 0.0], [0, 0, 0], 10.0 * k + 0.05)
+    assert seen == ["x", "y", "z", "x"] and core.ee.axis == "y"
+    core.params.ee_axes = ["z", "x"]
+    core.sync_params()
+    assert core.ee.axes == ("z", "x") and core.ee.axis == "z"  # y is gone: the first of the new cycle
+    with pytest.raises(ValueError, match="distinct axes"):
+        core.ee.set_axes(["x", "x"])
+
+
 def test_status_codes_match_message_constants():
     for c in Code:
         assert getattr(ControllerStatus, c.name) == c.value

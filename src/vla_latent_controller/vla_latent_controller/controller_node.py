@@ -35,6 +35,7 @@ from vla_interfaces.msg import ControllerStatus, DetectionArray
 from vla_interfaces.srv import GripperCommand, SelectTarget, SetMode
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
+from vla_latent_controller.ee_baseline import check_axes
 from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import MODES, NEUTRAL_CODES, Code, Status, TeleopCore, TeleopParams
@@ -45,6 +46,14 @@ BASE_FRAME = "panda_link0"
 
 def _xyz(value: Any) -> str | None:
     return None if len(value) == 3 else f"needs 3 numbers (x, y, z), got {len(value)}"
+
+
+def _ee_axes_refusal(value: Any) -> str | None:
+    try:
+        check_axes(value)
+    except ValueError as e:
+        return str(e)
+    return None
 
 
 def _joint_map_refusal(value: Any) -> str | None:
@@ -105,6 +114,9 @@ PARAMETERS = ParameterTable([
     _core("ee_mode_button", "button that cycles the end-effector axis x, y, z, roll, pitch, yaw; "
           "-1: none", range=(-1, 63), dynamic=True),
     _core("ee_debounce", "end-effector axis button debounce (s)", range=(0.0, 5.0), dynamic=True),
+    _core("ee_axes", "the axes ee_mode_button cycles, in order (distinct, of x, y, z, roll, "
+          "pitch, yaw); a task with the hand pointing down needs x, y, z", dynamic=True,
+          check=_ee_axes_refusal, array="string_array"),
     _core("ee_linear_speed", "end-effector mode: TCP speed at full stick (m/s); paper: 0.5",
           range=(0.0, 1.7), dynamic=True),
     _core("ee_angular_speed", "end-effector mode: rotation speed at full stick (rad/s)",

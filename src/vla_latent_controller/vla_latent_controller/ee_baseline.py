@@ -1,15 +1,28 @@
 """The paper's end-effector baseline: one stick axis drives one Cartesian direction at a time.
 
-A button cycles x, y, z, roll, pitch, yaw (debounced); the axis value times a speed gives the twist
+A button cycles x, y, z, roll, pitch, yaw (debounced), or the subset a lab gives (`axes`: a task done
+with the hand pointing down needs only x, y, z, and each mode a person does not need costs presses);
+the axis value times a speed gives the twist
 along that direction (world-aligned, at the tool centre point), mapped to joint velocities with a damped
 pseudo-inverse of the Jacobian (well-behaved near singularities, unlike the paper's plain pinv).
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")
+
+
+def check_axes(axes: Sequence[str]) -> tuple[str, ...]:
+    """The axes the mode button cycles, in order; ValueError unless distinct names from EE_AXES."""
+    axes = tuple(str(a) for a in axes)
+    bad = [a for a in axes if a not in EE_AXES]
+    if not axes or bad or len(set(axes)) != len(axes):
+        raise ValueError(f"needs distinct axes from {list(EE_AXES)}, got {list(axes)}")
+    return axes
 
 
 def damped_pinv(J: np.ndarray, damping: float) -> np.ndarray:
@@ -29,31 +42,39 @@ class EndEffectorBaseline:
         angular_speed: float = 0.5,
         damping: float = 0.05,
         debounce: float = 0.25,
+        axes: Sequence[str] = EE_AXES,
     ):
         self.kinematics = kinematics
         self.linear_speed, self.angular_speed = linear_speed, angular_speed
         self.damping, self.debounce = damping, debounce
+        self.axes = check_axes(axes)
         self.index = 0
         self._last_switch = -np.inf
 
     @property
     def axis(self) -> str:
-        return EE_AXES[self.index]
+        return self.axes[self.index]
 
     def select(self, axis: str) -> None:
-        self.index = EE_AXES.index(axis)
+        self.index = self.axes.index(axis)
+
+    def set_axes(self, axes: Sequence[str]) -> None:
+        """Cycle these axes from now on; the selected one stays if it is among them, else the first."""
+        axis, self.axes = self.axis, check_axes(axes)
+        self.index = self.axes.index(axis) if axis in self.axes else 0
 
     def press(self, now: float) -> bool:
         """Cycle to the next axis unless the previous switch was less than ``debounce`` s ago."""
         if now - self._last_switch < self.debounce:
             return False
         self._last_switch = now
-        self.index = (self.index + 1) % len(EE_AXES)
+        self.index = (self.index + 1) % len(self.axes)
         return True
 
     def twist(self, u: float) -> np.ndarray:
         xd = np.zeros(6)
-        xd[self.index] = u * (self.linear_speed if self.index < 3 else self.angular_speed)
+        k = EE_AXES.index(self.axis)
+        xd[k] = u * (self.linear_speed if k < 3 else self.angular_speed)
         return xd
 
     def command(self, q: np.ndarray, u: float) -> np.ndarray:

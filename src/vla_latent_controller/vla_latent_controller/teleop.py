@@ -69,6 +69,7 @@ class TeleopParams:
     ee_linear_speed: float = 0.2
     ee_angular_speed: float = 0.5
     ee_damping: float = 0.05
+    ee_axes: list[str] = field(default_factory=lambda: list(EE_AXES))  # what ee_mode_button cycles
     detection_max_age: float = 0.0
     goal_selection: str = "highest_score"
     joint_states_timeout: float = 0.5
@@ -173,7 +174,8 @@ class TeleopCore:
         self.kinematics = kinematics
         self.ee_pixel = ee_pixel
         self.ee = EndEffectorBaseline(
-            kinematics, params.ee_linear_speed, params.ee_angular_speed, params.ee_damping, params.ee_debounce
+            kinematics, params.ee_linear_speed, params.ee_angular_speed, params.ee_damping,
+            params.ee_debounce, params.ee_axes,
         )
         self.mode = params.mode if params.mode in MODES else "latent"
         self.kin_joints = tuple(joint_names) if joint_names is not None else JOINT_NAMES
@@ -233,6 +235,8 @@ class TeleopCore:
         p, ee = self.params, self.ee
         ee.linear_speed, ee.angular_speed = p.ee_linear_speed, p.ee_angular_speed
         ee.damping, ee.debounce = p.ee_damping, p.ee_debounce
+        if tuple(p.ee_axes) != ee.axes:
+            ee.set_axes(p.ee_axes)
 
     def set_mode(self, mode: str) -> tuple[bool, str]:
         if mode not in MODES:

@@ -59,8 +59,9 @@ def test_operator_reads_only_the_hand_the_object_and_the_status():
     assert set(vars(goal)) == {"kind", "direction", "distance", "object_height", "object_radius"}
     # all the runner can hand it: the goal, its own parameters, a seed, and observations of these fields
     assert {f.name for f in dataclasses.fields(part.Observation)} == ALLOWED_OBS
+    # the cycle is what the operator station shows: the names of the end-effector modes, in order
     assert list(inspect.signature(part.HumanOperator).parameters) == ["params", "goal", "mode", "seed",
-                                                                      "reach_tol"]
+                                                                      "reach_tol", "cycle"]
     assert all(isinstance(v, (int, float)) for v in vars(part.HumanParams()).values())
     for mode in ("latent", "end_effector"):
         op = part.HumanOperator(part.HumanParams(), goal, mode, seed=1)
@@ -70,6 +71,30 @@ def test_operator_reads_only_the_hand_the_object_and_the_status():
                                           controller_code=0, ee_axis="x"))
             assert -1.0 <= a.axis <= 1.0
             hand = hand + np.array([0.0, 0.0, -0.002]) * a.axis
+
+
+@pytest.mark.parametrize("cycle, presses", [(("x", "y", "z"), 1), (part.EE_CYCLE, 4)])
+def test_a_mode_switch_costs_the_presses_of_the_cycle_in_use(cycle, presses):
+    """From z to x: one press when the button cycles x, y, z (the study's ee_axes), four through roll,
+    pitch and yaw with all six; the participant counts them off the cycle the station shows."""
+    from vla_common.catalogue import load_catalogue
+
+    goal = task_goal("bread/push_east", load_catalogue(""))
+    params = dataclasses.replace(part.HumanParams(), perception_sd_m=1e-5, lapse_p=0.0)
+    op = part.HumanOperator(params, goal, "end_effector", seed=3, cycle=cycle)
+    obj = np.array([0.5, 0.0])
+    first = part.plan_hand_points(goal, np.zeros(3), obj)[0]
+    hand = first + np.array([0.25, 0.0, 0.0])  # only x is off: the person wants x
+    axis, pressed = "z", 0
+    for i in range(100):
+        a = op.act(part.Observation(t=i * 0.05, hand=hand, obj=obj, controller_code=0, ee_axis=axis))
+        if a.press:  # the controller's cycle moves on
+            pressed += 1
+            axis = cycle[(cycle.index(axis) + 1) % len(cycle)]
+        if a.axis:
+            break
+    assert axis == "x" and pressed == presses and op.n_switches == 1
+    assert op.switch_s == pytest.approx(params.switch_time + presses * params.press_time)
 
 
 def test_operator_releases_the_stick_when_the_controller_awaits_neutral():
@@ -216,9 +241,24 @@ def _rows(out: Path) -> list[dict]:
     return [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
 
 
+def _bag_joy(bag: Path) -> list:
+    """The Joy messages of a trial's bag (rosbags: a reader we did not write)."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        conns = [c for c in reader.connections if c.topic == "/joy"]
+        return [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages(connections=conns)]
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.timeout(1500)
 def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
-    """A reduced study (2 simulated participants x 2 strategies, 4 s trials) killed after its first
-    recorded trial, with half a line left behind, then resumed to the end; its figures are labelled."""
+    """A reduced study (2 simulated participants x 2 strategies, 4 s trials) through the launched graph
+    (the protocol's default backend): killed after its first recorded trial, with half a line left
+    behind, then resumed to the end; each trial is a bag holding the participant's stick as the
+    controller received it (the end-effector mode button among it when the participant switched), and
+    the figures are labelled."""
     proto = tmp_path / "reduced.yaml"
     proto.write_text(REDUCED)
     out = tmp_path / "study"
@@ -247,6 +287,14 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
     for r in rows:
         assert (out / "trials" / f"{r['file']}.npz").is_file()
         assert r["simulated"] and r["n_inputs"] >= 0 and r["path_length_m"] >= 0
+        assert r["backend"] == "graph"
+        joy = _bag_joy(out / r["bag"])
+        assert len(joy) >= 20, f"{r['key']}: {len(joy)} joy messages in {r['bag']}"  # 4 s at 20 Hz
+        sticks = [m.axes[0] for m in joy]
+        assert any(abs(a) > 0.1 for a in sticks), f"{r['key']}: the stick never moved"
+        if r["mode_switches"]:
+            assert any(m.buttons[0] for m in joy), f"{r['key']}: no mode button press in the bag"
+    assert len({r["bag"] for r in rows}) == 4
     tables = (out / "study_tables.md").read_text()
     assert "simulated participants" in tables
     assert (out / "figure4_success.png").is_file() and (out / "figure3_paths.png").is_file()

@@ -145,7 +145,8 @@ def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0) ->
         # the stick at the protocol's rate: 0.5 sim s without joy zeroes the command (twice the
         # evaluation's 0.25 s: the participant runs in the study's process on a busy machine)
         joy_timeout=0.5,
-        extra_params={CONTROLLER: {"axis": AXIS, "ee_mode_button": EE_MODE_BUTTON, "enable_button": -1}})
+        extra_params={CONTROLLER: {"axis": AXIS, "ee_mode_button": EE_MODE_BUTTON, "enable_button": -1,
+                                   "ee_axes": list(p.end_effector_axes)}})
 
 
 class GraphBackend:
@@ -194,7 +195,8 @@ class GraphBackend:
         if mode == "latent" and (why := ev._latch()):
             note = f"no context: {why}"  # the controller waits, nothing moves (as the physics backend)
         bag = self._start_bag(trial)
-        op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed)
+        op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed,
+                           cycle=p.end_effector_axes)
         monitor = EpisodeMonitor(spec, start, self.kin, max(1, round(ev.config.state_rate / 20.0)), False)
         obs.monitor = monitor
         monitor.t_start = obs.now()

@@ -37,9 +37,11 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-# The end-effector baseline's axis cycle (vla_latent_controller.ee_baseline.EE_AXES); a person reads
-# it off the operator station, we repeat it here instead of importing the controller.
+# The end-effector baseline's full axis cycle (vla_latent_controller.ee_baseline.EE_AXES); a person
+# reads the cycle in use (the controller's ee_axes) off the operator station, we repeat the names here
+# instead of importing the controller.
 EE_CYCLE = ("x", "y", "z", "roll", "pitch", "yaw")
+XYZ = ("x", "y", "z")
 AWAITING_NEUTRAL = 9  # vla_interfaces/ControllerStatus.AWAITING_NEUTRAL: release the stick
 
 
@@ -135,10 +137,13 @@ class HumanOperator:
     """Steps at the control rate; `act(obs)` returns the stick (and the mode button)."""
 
     def __init__(self, params: HumanParams, goal: TaskGoal, mode: str, seed: int = 0,
-                 reach_tol: float = 0.04) -> None:
+                 reach_tol: float = 0.04, cycle: tuple[str, ...] = EE_CYCLE) -> None:
+        """`cycle`: the axes the end-effector mode button cycles (the controller's ee_axes; with x, y, z)."""
         if mode not in ("latent", "end_effector"):
             raise ValueError(f"mode must be latent or end_effector, got {mode!r}")
-        self.p, self.goal, self.mode = params, goal, mode
+        if not set(XYZ) <= set(cycle):
+            raise ValueError(f"the mode cycle must hold x, y and z, got {list(cycle)}")
+        self.p, self.goal, self.mode, self.cycle = params, goal, mode, tuple(cycle)
         self.rng = np.random.default_rng(seed)
         self.reach_tol = reach_tol
         self.seen: deque[Observation] = deque()
@@ -244,8 +249,8 @@ class HumanOperator:
         t = obs.t
         if obs.controller_code == AWAITING_NEUTRAL:  # the controller asks for neutral: release it
             self.neutral_until = t + self.p.reaction_s
-        if self.mode == "end_effector" and obs.ee_axis in EE_CYCLE:
-            self.axis_index = EE_CYCLE.index(obs.ee_axis)
+        if self.mode == "end_effector" and obs.ee_axis in self.cycle:
+            self.axis_index = self.cycle.index(obs.ee_axis)
         view = self._delayed(obs)
         if view is None or self.done:
             return self._out(0.0, done=self.done)
@@ -334,12 +339,14 @@ class HumanOperator:
     def _end_effector(self, t: float, hand: np.ndarray) -> Action:
         """One axis at a time: the axis with the largest error, switched with the button."""
         err = self.plan[self.k] - hand
-        cur = self.axis_index if self.axis_index < 3 else 0
+        here = self.cycle[self.axis_index]
+        rotation = here not in XYZ
+        cur = 0 if rotation else XYZ.index(here)
         want = int(np.argmax(np.abs(err)))
         tol = self.reach_tol / 2
         settled = abs(err[cur]) < tol or abs(err[want]) > 3 * abs(err[cur]) + tol
-        if self.axis_index >= 3 or (want != cur and settled):
-            presses = (want - self.axis_index) % len(EE_CYCLE)
+        if rotation or (want != cur and settled):
+            presses = (self.cycle.index(XYZ[want]) - self.axis_index) % len(self.cycle)
             if presses:
                 self.presses_left = presses
                 self.busy_until = t + self.p.switch_time

@@ -18,7 +18,8 @@ STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-eff
 DEFAULT_MODELS = {"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_south",
                                   "Near": "cereal_box_push_south_east", "Far": "cereal_box_circle"}}
 KEYS = {"study", "participants", "population_seed", "strategies", "settings", "trials", "practice",
-        "counterbalance", "time_limit", "rate", "models", "backend"}
+        "counterbalance", "time_limit", "rate", "models", "backend", "end_effector_axes"}
+EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 PAPER = Path(__file__).with_name("protocols") / "paper.yaml"
 # graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
 # physics: the same participant and scoring with the graph's computations in one process (fast sweeps)
@@ -48,6 +49,8 @@ class Protocol:
     rate: float
     models: dict[str, dict[str, str]] = field(default_factory=dict)
     backend: str = "graph"
+    # what the end-effector mode button cycles (the controller's ee_axes); the participant needs x, y, z
+    end_effector_axes: tuple[str, ...] = EE_AXES
     source: str = ""
 
     def digest(self) -> str:
@@ -177,6 +180,15 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
     rate = get("rate", 20.0, (int, float), lambda v: None if 5 <= v <= 200 else "must be 5..200 Hz")
     backend = get("backend", "graph", str,
                   lambda v: None if v in BACKENDS else f"one of {', '.join(BACKENDS)}")
+    ee_axes = EE_AXES
+    if "end_effector_axes" in nodes:
+        av = _scalar(nodes["end_effector_axes"])
+        if (not isinstance(av, list) or not all(isinstance(a, str) for a in av) or len(set(av)) != len(av)
+                or not set(av) <= set(EE_AXES) or not {"x", "y", "z"} <= set(av)):
+            err("end_effector_axes", f"end_effector_axes must list distinct axes of {list(EE_AXES)} "
+                f"including x, y and z, quoted (YAML reads a bare y as true), got {av!r}")
+        else:
+            ee_axes = tuple(av)
     models = {k: dict(v) for k, v in DEFAULT_MODELS.items()}
     if "models" in nodes:
         mv = _scalar(nodes["models"])
@@ -201,7 +213,8 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
                     population_seed=int(get("population_seed", 2026, int)), strategies=list(strategies),
                     settings=settings, trials=int(trials), practice_trials=int(practice["trials"]),
                     practice_seed=int(practice["reset_seed"]), counterbalance=cb, time_limit=float(tl),
-                    rate=float(rate), models=models, backend=backend, source=where)
+                    rate=float(rate), models=models, backend=backend, end_effector_axes=ee_axes,
+                    source=where)
 
 
 def latin_square(n: int) -> list[list[int]]:

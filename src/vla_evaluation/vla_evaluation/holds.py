@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from vla_evaluation.graph import EpisodeRecord, GraphConfig, evaluate_graph
+from vla_evaluation.graph import EpisodeRecord, GraphConfig, GraphError, GraphEvaluator
 from vla_evaluation.kinematic import TeleopSettings
 from vla_interfaces.msg import SafetyStatus
 
@@ -28,6 +28,9 @@ class HoldTally:
     max_speed_ratio: float = 0.0
     stick_range: tuple[float, float] = (float("inf"), float("-inf"))  # the stick values the arm saw
     reflex_seeds: list[int] = field(default_factory=list)
+    # holds the graph did not finish (a timeout on a loaded machine, a process that ended): counted as
+    # failed holds, with what happened; their reflexes are unknown
+    graph_errors: list[tuple[int, str]] = field(default_factory=list)
 
     def add(self, rec: EpisodeRecord) -> None:
         r = rec.result
@@ -42,8 +45,15 @@ class HoldTally:
             self.stick_range = (min(self.stick_range[0], float(stick.min())),
                                 max(self.stick_range[1], float(stick.max())))
 
+    def add_graph_error(self, seed: int, reason: str) -> None:
+        self.holds += 1
+        self.graph_errors.append((int(seed), reason))
+
     def line(self) -> str:
         seeds = f"  reflex seeds {self.reflex_seeds}" if self.reflex_seeds else ""
+        if self.graph_errors:
+            seeds += (f"  graph errors (failed holds, reflex unknown) in {len(self.graph_errors)}: seeds "
+                      f"{[s for s, _ in self.graph_errors]}")
         return (f"{self.task:28s} holds {self.holds:3d}  reflexes {self.reflexes:3d}  "
                 f"task done {self.successes:3d}/{self.holds}  "
                 f"max |dq|/dq_max {self.max_speed_ratio:.2f}{seeds}")
@@ -58,15 +68,34 @@ def hold_config(model_path: str, detector_model: str, seconds: float = 6.0, stic
 
 
 def run_holds(config: GraphConfig, tasks: Sequence[str], n: int, first_seed: int = FRESH_SEED,
-              log: Callable[[str], None] = print) -> dict[str, HoldTally]:
-    """`n` holds per task on fresh layouts (seeds first_seed, first_seed + 1, ...); tallies by task."""
+              log: Callable[[str], None] = print,
+              evaluator: Callable[..., GraphEvaluator] = GraphEvaluator) -> dict[str, HoldTally]:
+    """`n` holds per task on fresh layouts (seeds first_seed, first_seed + 1, ...); tallies by task.
+
+    A hold the graph does not finish (GraphError: a timeout under load, a process that ended) is
+    counted as a failed hold and said so; the graph is restarted for the next one, so one slow
+    moment does not end the whole run. A graph that does not start ends it."""
     tallies = {t: HoldTally(t) for t in tasks}
-
-    def on_episode(rec: EpisodeRecord) -> None:
-        tally = tallies[rec.result.task]
-        tally.add(rec)
-        log(f"[holds] {tally.line()}")
-
-    evaluate_graph(config, list(tasks), range(first_seed, first_seed + int(n)), "holds", log,
-                   on_episode=on_episode)
+    ev: GraphEvaluator | None = None
+    try:
+        for task in tasks:
+            for seed in range(first_seed, first_seed + int(n)):
+                tally = tallies[task]
+                if ev is None:  # a graph that does not start ends the run
+                    ev = evaluator(config, log)
+                    ev.start()
+                try:
+                    rec = ev.run_episode(task, seed, "holds")
+                except GraphError as e:
+                    tally.add_graph_error(seed, str(e))
+                    log(f"[holds] {task} seed {seed}: graph error ({e}): counted as a failed hold, "
+                        "restarting the graph")
+                    ev.close()
+                    ev = None
+                    continue
+                tally.add(rec)
+                log(f"[holds] seed {seed}: task done {bool(rec.result.success)}; {tally.line()}")
+    finally:
+        if ev is not None:
+            ev.close()
     return tallies

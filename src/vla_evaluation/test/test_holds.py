@@ -1,0 +1,52 @@
+"""The held-stick bench's loop (`vla_evaluation.holds.run_holds`) without a graph: a fake evaluator."""
+
+import numpy as np
+from vla_evaluation.graph import EpisodeRecord, GraphError
+from vla_evaluation.holds import run_holds
+from vla_evaluation.metrics import EpisodeResult
+
+from vla_interfaces.msg import SafetyStatus
+
+
+class FakeGraph:
+    """Each hold succeeds, except seed 301 which times out (once); seed 302 ends in a reflex."""
+
+    started = 0
+    closed = 0
+    timed_out: set = set()
+
+    def __init__(self, config, log):
+        self.open = False
+
+    def start(self):
+        FakeGraph.started += 1
+        self.open = True
+
+    def close(self):
+        if self.open:
+            FakeGraph.closed += 1
+        self.open = False
+
+    def run_episode(self, task, seed, label):
+        assert self.open, "a hold on a closed graph"
+        if seed == 301 and (task, seed) not in FakeGraph.timed_out:
+            FakeGraph.timed_out.add((task, seed))
+            raise GraphError("timed out after 72 s waiting for the end of the episode")
+        r = EpisodeResult(task=task, layout_seed=seed, mode="graph", success=seed != 302)
+        r.extra = {"interventions_by_code": {int(SafetyStatus.REFLEX): 1} if seed == 302 else {},
+                   "max_speed_ratio": 0.5}
+        return EpisodeRecord(r, np.zeros((0, 3)), np.zeros(0))
+
+
+def test_a_graph_timeout_is_a_failed_hold_and_the_run_goes_on_with_a_new_graph():
+    lines = []
+    tallies = run_holds(None, ["bread/push_east", "soda_can/push_south"], 4, first_seed=300,
+                        log=lines.append, evaluator=FakeGraph)
+    for task, t in tallies.items():
+        assert t.holds == 4, task
+        assert t.successes == 2, task  # 300 and 303; 301 timed out, 302 ended in a reflex
+        assert t.reflexes == 1 and t.reflex_seeds == [302]
+        assert [s for s, _ in t.graph_errors] == [301]
+        assert "graph errors" in t.line() and "[301]" in t.line()
+    assert FakeGraph.started == 3 and FakeGraph.closed == 3  # the first graph and one per timeout
+    assert sum("counted as a failed hold" in line for line in lines) == 2

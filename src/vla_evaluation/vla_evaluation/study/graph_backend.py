@@ -146,7 +146,8 @@ def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0) ->
         # evaluation's 0.25 s: the participant runs in the study's process on a busy machine)
         joy_timeout=0.5,
         extra_params={CONTROLLER: {"axis": AXIS, "ee_mode_button": EE_MODE_BUTTON, "enable_button": -1,
-                                   "ee_axes": list(p.end_effector_axes)}})
+                                   "ee_axes": list(p.end_effector_axes),
+                                   "ee_debounce": float(p.end_effector_debounce)}})
 
 
 class GraphBackend:

@@ -18,7 +18,8 @@ STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-eff
 DEFAULT_MODELS = {"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_south",
                                   "Near": "cereal_box_push_south_east", "Far": "cereal_box_circle"}}
 KEYS = {"study", "participants", "population_seed", "strategies", "settings", "trials", "practice",
-        "counterbalance", "time_limit", "rate", "models", "backend", "end_effector_axes"}
+        "counterbalance", "time_limit", "rate", "models", "backend", "end_effector_axes",
+        "end_effector_debounce"}
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 PAPER = Path(__file__).with_name("protocols") / "paper.yaml"
 # graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
@@ -51,6 +52,7 @@ class Protocol:
     backend: str = "graph"
     # what the end-effector mode button cycles (the controller's ee_axes); the participant needs x, y, z
     end_effector_axes: tuple[str, ...] = EE_AXES
+    end_effector_debounce: float = 0.25  # s between mode presses (the controller's ee_debounce)
     source: str = ""
 
     def digest(self) -> str:
@@ -189,6 +191,8 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
                 f"including x, y and z, quoted (YAML reads a bare y as true), got {av!r}")
         else:
             ee_axes = tuple(av)
+    ee_debounce = get("end_effector_debounce", 0.25, (int, float),
+                      lambda v: None if 0.0 <= v <= 5.0 else "must be 0..5 s")
     models = {k: dict(v) for k, v in DEFAULT_MODELS.items()}
     if "models" in nodes:
         mv = _scalar(nodes["models"])
@@ -214,7 +218,7 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
                     settings=settings, trials=int(trials), practice_trials=int(practice["trials"]),
                     practice_seed=int(practice["reset_seed"]), counterbalance=cb, time_limit=float(tl),
                     rate=float(rate), models=models, backend=backend, end_effector_axes=ee_axes,
-                    source=where)
+                    end_effector_debounce=float(ee_debounce), source=where)
 
 
 def latin_square(n: int) -> list[list[int]]:

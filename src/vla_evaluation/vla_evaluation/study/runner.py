@@ -237,7 +237,7 @@ class PhysicsBackend:
             except ValueError as e:  # no context latched: the controller waits, nothing moves
                 note = f"no context: {e}"
         else:
-            ee = EndEffectorBaseline(self.kin, axes=p.end_effector_axes)
+            ee = EndEffectorBaseline(self.kin, debounce=p.end_effector_debounce, axes=p.end_effector_axes)
         op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed,
                            cycle=p.end_effector_axes)
         safety = SafetyFilter(SafetyConfig(dt=sim.physics_dt))

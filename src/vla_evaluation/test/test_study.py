@@ -210,14 +210,14 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
     assert e.value.errors[0].startswith(f"{f}:3:") and "YAML" in e.value.errors[0], e.value.errors
 
 
-def test_end_effector_axes_with_a_bare_y_are_refused_at_their_line(tmp_path):
+def test_end_effector_axes_without_x_y_z_are_refused_at_their_line(tmp_path):
     f = tmp_path / "p.yaml"
     f.write_text("participants: sim:1\nstrategies: [end-effector]\nsettings: {Seen: cereal_box/push_south}\n"
-                 "end_effector_axes: [x, y, z]\n")
+                 "end_effector_axes: [x, y, yaw]\n")
     with pytest.raises(ProtocolError) as e:
         load_protocol(f)
-    assert e.value.errors[0].startswith(f"{f}:4:") and "quoted" in e.value.errors[0], e.value.errors
-    f.write_text(f.read_text().replace("[x, y, z]", '["x", "y", "z"]') + "end_effector_debounce: 0.15\n")
+    assert e.value.errors[0].startswith(f"{f}:4:") and "including x, y and z" in e.value.errors[0]
+    f.write_text(f.read_text().replace("[x, y, yaw]", "[x, y, z]") + "end_effector_debounce: 0.15\n")
     p = load_protocol(f)
     assert p.end_effector_axes == ("x", "y", "z") and p.end_effector_debounce == 0.15
     assert p.backend == "graph"  # the study's default: the launched graph

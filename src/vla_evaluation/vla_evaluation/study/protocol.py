@@ -188,7 +188,7 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
         if (not isinstance(av, list) or not all(isinstance(a, str) for a in av) or len(set(av)) != len(av)
                 or not set(av) <= set(EE_AXES) or not {"x", "y", "z"} <= set(av)):
             err("end_effector_axes", f"end_effector_axes must list distinct axes of {list(EE_AXES)} "
-                f"including x, y and z, quoted (YAML reads a bare y as true), got {av!r}")
+                f"including x, y and z, got {av!r}")
         else:
             ee_axes = tuple(av)
     ee_debounce = get("end_effector_debounce", 0.25, (int, float),

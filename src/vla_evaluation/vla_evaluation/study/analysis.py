@@ -84,6 +84,10 @@ def analyse(out: Path, figures: Path) -> list[str]:
     if simulated:
         lines += ["All numbers below come from **simulated participants** (the human-like operator model "
                   "of vla_evaluation.study.participant), not from people.", ""]
+    ways = {"graph": "through the launched graph (the stick published as Joy, a bag per trial)",
+            "physics": "on the physics backend (the graph's computations in one process)"}
+    backends = sorted({r.get("backend", "physics") for r in rows})
+    lines += ["Trials ran " + " and ".join(ways.get(b, b) for b in backends) + ".", ""]
 
     # ---- Figure 4: success per strategy and setting
     fig, ax = plt.subplots(figsize=(7, 3.6))

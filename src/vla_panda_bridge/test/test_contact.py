@@ -4,7 +4,14 @@ import math
 import numpy as np
 import pytest
 from vla_common.robot import PANDA
-from vla_panda_bridge.contact import CONTACT_SLOW, CONTACT_STOP, contact_scales
+from vla_panda_bridge.contact import (
+    CONTACT_RELEASE,
+    CONTACT_SLOW,
+    CONTACT_STOP,
+    ContactMemory,
+    contact_scales,
+)
+from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
 TAU_MAX = [float(x) for x in PANDA.tau_max]
 
@@ -64,3 +71,57 @@ def test_joints_that_push_the_hand_into_a_contact_felt_at_another_joint_are_slow
     assert float(tau @ up) > 0.0
     per_joint = {i for i in range(7) if abs(tau[i]) / TAU_MAX[i] > CONTACT_SLOW and up[i] * tau[i] < 0}
     assert set(contact_scales(up.tolist(), tau, TAU_MAX)) == per_joint
+
+
+def test_the_memory_follows_a_rise_at_once_and_lets_go_with_its_time_constant():
+    mem = ContactMemory()
+    assert mem.update(_tau(1, -0.1), 0.002) == _tau(1, -0.1)
+    assert mem.update(_tau(1, -0.6), 0.002) == _tau(1, -0.6)            # a rise: at once
+    got = mem.update(_tau(1, 0.0), 0.1)                                 # a fall: decays
+    assert got[1] == pytest.approx(-0.6 * TAU_MAX[1] * math.exp(-0.1 / CONTACT_RELEASE))
+    for _ in range(400):
+        got = mem.update(_tau(1, 0.0), 0.01)
+    assert abs(got[1]) < 1e-3                                           # ... to nothing
+    mem.clear()
+    assert mem.update(_tau(2, 0.2), 0.002) == _tau(2, 0.2)
+
+
+@pytest.mark.parametrize("bad", [None, "x", 5.0, [object()] * 7])
+def test_the_memory_ignores_an_unusable_measurement(bad):
+    mem = ContactMemory()
+    mem.update(_tau(1, -0.5), 0.002)
+    assert mem.update(bad, 0.002) is None
+    assert mem.update(_tau(1, 0.0), 0.0)[1] == pytest.approx(-0.5 * TAU_MAX[1])   # kept
+
+
+@pytest.mark.parametrize("bad", [math.inf, -math.inf, math.nan])
+def test_a_non_finite_sample_is_unknown_not_a_torque_that_lasts_forever(bad):
+    mem = ContactMemory()
+    tau = _tau(1, 0.0)
+    tau[1] = bad
+    assert math.isnan(mem.update(tau, 0.002)[1])
+    assert mem.update(_tau(1, -0.1), 0.002) == _tau(1, -0.1)            # the next sample counts
+
+
+def test_a_bouncing_contact_keeps_the_arm_slowed_between_its_hits():
+    """A full stick into a loaf: the torque swung between ~0.1 and ~1 of the real arm's reflex
+    torque at ~50 Hz. Judged sample by sample the slowing let go between hits and the speed came
+    back (the next hit harder); judged on the recent peak the joint stays slow throughout."""
+    f = SafetyFilter(SafetyConfig(dt=0.002))
+    f.reset([0.0, 0.0, 0.0, -1.5, 0.0, 1.5, 0.0])
+    push = [0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0]
+    f.filter([0.0] * 7, None, 0.0)                                      # armed at rest
+    speeds = []
+    q = [0.0, 0.0, 0.0, -1.5, 0.0, 1.5, 0.0]
+    for k in range(1, 400):                                             # 0.8 s
+        hit = k >= 100 and (k // 5) % 2 == 0                            # 10 ms on, 10 ms off
+        tau = _tau(1, -0.65 if hit else -0.05) if k >= 100 else None
+        dq, _, _ = f.filter(push, q, k * 0.002, tau)
+        q = [a + 0.002 * b for a, b in zip(q, dq)]
+        speeds.append(float(dq[1]))
+    free = max(speeds[:100])
+    after = speeds[150:]                                                # 0.1 s into the bouncing
+    assert free == pytest.approx(0.3, abs=1e-6)
+    # 0.65 of the reflex judged throughout gives (0.7 - 0.65) / 0.4 = 12.5 % speed; the decayed
+    # peak between hits (10 ms, exp(-0.01 / 0.25) = 0.96) allows at most ~20 %.
+    assert max(after) < 0.25 * free

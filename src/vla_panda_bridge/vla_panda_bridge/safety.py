@@ -24,7 +24,8 @@ Pipeline per control period:
      torque on and stopped at `contact_stop` x, well before the robot's own reflex at 1 x (the
      reflex table `reflex_torque`: tau_max by default, where the simulated arm's reflex fires; the
      bridge gives a real arm's collision thresholds); motion that eases the torque is never slowed
-     (the operator can always back out);
+     (the operator can always back out); the torque judged is the recent peak (`ContactMemory`), so
+     a bouncing contact stays slowed between its hits;
      the workspace floor, likewise, where the bridge gives one (`workspace.py`): the part of the target
      that lowers the hand faster than it may go that close to the table is removed; the rest is kept;
   5. a per-joint jerk-limited tracker moves the output velocity towards the target;
@@ -58,7 +59,7 @@ import numpy as np
 from vla_common.arming import Arming
 from vla_common.robot import NUM_JOINTS, PANDA, RobotSpec
 
-from vla_panda_bridge.contact import CONTACT_SLOW, CONTACT_STOP, contact_scales
+from vla_panda_bridge.contact import CONTACT_SLOW, CONTACT_STOP, ContactMemory, contact_scales
 from vla_panda_bridge.workspace import WorkspaceFloor
 
 # Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
@@ -151,6 +152,7 @@ class SafetyFilter:
         if len(reflex) != NUM_JOINTS or not all(math.isfinite(x) and x > 0.0 for x in reflex):
             raise ValueError(f"safety: reflex_torque must be {NUM_JOINTS} finite values > 0, got {reflex}")
         self.reflex_torque = reflex
+        self._contact = ContactMemory()                     # the recent peak torque the rule judges
         self.robot = robot
         self._names = robot.joint_names
         h = cfg.dt
@@ -250,6 +252,7 @@ class SafetyFilter:
         self._target_code, self._target_text = OK, ""
         self._last_valid = None
         self._q_ref = _valid_q(q)
+        self._contact.clear()
 
     def follow(self, v, a, q) -> bool:
         """Continue from the robot's own reference: after lost cycles the FCI extrapolated the velocity
@@ -362,7 +365,8 @@ class SafetyFilter:
         margin_joints: list[int] = []
         accel_limited = False
         target, vel, acc = self._target, self._v, self._a
-        contact = None if hold or tau_ext is None else self._contact_scales(target, tau_ext)
+        judged = None if tau_ext is None else self._contact.update(tau_ext, h)
+        contact = None if hold or judged is None else self._contact_scales(target, judged)
         if contact:
             target = [t * contact.get(i, 1.0) for i, t in enumerate(target)]
         floored = None
@@ -498,7 +502,8 @@ class SafetyFilter:
         return OK, ""
 
     def _contact_scales(self, target: list[float], tau_ext) -> dict[int, float]:
-        """`contact.contact_scales` with this filter's reflex table and thresholds."""
+        """`contact.contact_scales` with this filter's reflex table and thresholds, on the torque
+        `ContactMemory` judges (the recent peak)."""
         return contact_scales(target, tau_ext, self.reflex_torque, self.config.contact_slow,
                               self.config.contact_stop)
 

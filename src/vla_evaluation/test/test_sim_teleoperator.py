@@ -248,7 +248,10 @@ def test_node_drives_joy_through_an_episode(ros, tmp_path):
     running = [s for s in statuses if s.state == TeleopStatus.RUNNING]
     assert running and running[-1].waypoint_count == 2 and len(running[-1].final_waypoint) == 7
     assert running[-1].task == "bread/push_east"
-    assert len(joys) >= 40  # ~50 Hz for 1.5 s
+    # A stream through the whole 1.5 s episode. Not a count from the 50 Hz rate: a loaded machine
+    # runs the timer late (17-21 messages at load ~20), which is not what this test is about.
+    stamps = [j.header.stamp.sec + j.header.stamp.nanosec * 1e-9 for j in joys]
+    assert len(joys) >= 10 and stamps[-1] - stamps[0] >= 1.2
     assert all(len(j.axes) >= 1 and -1.0 <= j.axes[0] <= 1.0 for j in joys)
     assert joys[-1].axes[0] == 0.0  # stick released at the time limit
     assert joys[-1].header.stamp.sec > 0 or joys[-1].header.stamp.nanosec > 0

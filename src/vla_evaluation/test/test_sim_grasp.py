@@ -77,3 +77,14 @@ def test_what_a_person_sees_of_the_hand():
     assert hand_seen(GripperStatus.HOLDING, 0.06) == CLOSED
     assert hand_seen(GripperStatus.IDLE, 0.08) == OPEN
     assert hand_seen(GripperStatus.IDLE, 0.0) == CLOSED
+
+
+def test_the_stick_rests_while_the_hand_closes_and_steers_again_once_it_holds():
+    """A person presses grasp at the object and waits for the fingers before carrying on: steering
+    on towards the carry waypoints while they closed dragged them off the object."""
+    b = GraspButton(hand_phases(PLAN))
+    assert not b.holds_still(OPEN)                                          # approaching, hand open
+    assert b.step(2.0, np.array(TCP[1]), OPEN) and b.phase == 1             # grasp pressed
+    assert b.holds_still(OPEN)                                              # not yet closing
+    assert b.holds_still(BUSY)                                              # closing
+    assert not b.holds_still(CLOSED)                                        # holding: carry on

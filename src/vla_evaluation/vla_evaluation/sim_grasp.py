@@ -9,7 +9,8 @@ the person decides the phase is over (fingers around the object; object over its
 
 A press is a toggle (the controller's grasp_button: one TOGGLE per press). The core presses when the
 hand differs from what the phase wants and is not busy, at most once per `min_interval`; a grasp that
-fails sends the user back to the approach (open, then close again at the grasp point).
+fails sends the user back to the approach (open, then close again at the grasp point). Until the
+hand is as the phase wants, the user holds the stick at rest (`holds_still`).
 No rclpy here: the node (sim_teleoperator_node) feeds it and publishes the button.
 """
 from __future__ import annotations
@@ -108,6 +109,13 @@ class GraspButton:
         self.presses += 1
         self.last_press = t
         return True
+
+    def holds_still(self, hand: str) -> bool:
+        """True while the hand is not yet as the current phase wants (a press sent, the fingers still
+        moving, or a press still to come): a person keeps the stick at rest until the hand has closed
+        or opened, as the demonstrator dwells while its hand acts. Steering on towards the next
+        phase's waypoints dragged the fingers away from the object while they closed."""
+        return hand == BUSY or hand != self.current.want
 
     def _enter(self, phase: int, t: float) -> None:
         self.phase, self.phase_started = phase, t

@@ -165,6 +165,7 @@ class SimTeleoperatorNode(Node):
         self._hand_failed = False                   # a grasp failure not yet shown to the button core
         self.create_subscription(GripperStatus, "gripper/status", self._on_hand, 10)
         self.grasp: GraspButton | None = None       # tasks with the hand: when to press grasp_button
+        self._hand_seen: str | None = None           # the hand as the user last saw it (sim_grasp.hand_seen)
         self._plan = None
         self._phase_t0 = 0.0
         self._episode_limit = float(self.p["time_limit"])   # the running episode's (s)
@@ -336,7 +337,7 @@ class SimTeleoperatorNode(Node):
                                  p["max_joint_speed"], DQ_MAX)
         plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
                          np.random.default_rng(int(p["plan_seed"])), self.catalogue)
-        self._command, self._plan, self.grasp = command, plan, None
+        self._command, self._plan, self.grasp, self._hand_seen = command, plan, None, None
         self._episode_limit = float(p["time_limit"])
         if spec.kind in HAND_KINDS:
             self.grasp = GraspButton(hand_phases(plan))
@@ -366,8 +367,8 @@ class SimTeleoperatorNode(Node):
             return
         phase = self.grasp.phase
         failed, self._hand_failed = self._hand_failed, False
-        self._press = self.grasp.step(t, self.kin.fk(self.q)[0], hand_seen(self.hand.state, self.hand.width),
-                                      failed)
+        self._hand_seen = hand_seen(self.hand.state, self.hand.width)
+        self._press = self.grasp.step(t, self.kin.fk(self.q)[0], self._hand_seen, failed)
         if self.grasp.phase != phase:
             self.tele = self._phase_teleoperator(t)
             self.get_logger().info(f"{self.task}: hand phase {self.grasp.phase} ({self.grasp.current.want})")
@@ -395,9 +396,14 @@ class SimTeleoperatorNode(Node):
             if step.done:
                 self._finish(TeleopStatus.DONE, "time limit")
                 return
-            self._publish_joy(0.0 if self._asked_for_neutral() else step.axis)
+            self._publish_joy(0.0 if self._asked_for_neutral() or self._waits_for_hand() else step.axis)
         if self._ticks % self._status_every == 0:
             self._publish_status()
+
+    def _waits_for_hand(self) -> bool:
+        """Tasks with the hand: the stick rests while the hand closes or opens (GraspButton.holds_still)."""
+        seen = self._hand_seen
+        return self.grasp is not None and seen is not None and self.grasp.holds_still(seen)
 
     def _asked_for_neutral(self) -> bool:
         """The controller or the bridge says a stop happened and motion waits for the stick at

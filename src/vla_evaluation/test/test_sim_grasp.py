@@ -43,7 +43,8 @@ def test_presses_open_then_grasp_at_the_object_then_open_over_the_target():
     assert b.step(0.0, far, CLOSED)            # the hand starts closed: open it
     assert not b.step(0.1, far, BUSY)          # opening
     assert not b.step(1.0, far, OPEN)          # open, far from the object: nothing
-    assert b.step(2.0, np.array(TCP[1]) + 0.005, OPEN) and b.phase == 1   # fingers round it: grasp
+    assert not b.step(1.5, np.array(TCP[1]) - [0.01, 0.0, 0.0], OPEN)   # 1 cm short: not yet round it
+    assert b.step(2.0, np.array(TCP[1]) + 0.002, OPEN) and b.phase == 1   # fingers round it: grasp
     assert not b.step(2.1, np.array(TCP[1]), BUSY)
     assert not b.step(3.0, np.array(TCP[3]), CLOSED)                        # carrying
     assert b.step(5.0, np.array(TCP[4]), CLOSED) and b.phase == 2           # low over the target

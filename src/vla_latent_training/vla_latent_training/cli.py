@@ -9,6 +9,8 @@ from vla_common.cli import Subcommand, run_cli
 SUBCOMMANDS: list[Subcommand] = [
     ("train", "vla_latent_training.train_cli", "train a latent-action model from demonstration bags"),
     ("pairs", "vla_latent_training.pairs_cli", "load demonstration bags and report the training pairs"),
+    ("calibrate", "vla_latent_training.calibrate_cli",
+     "re-calibrate a trained model's latent (what full stick means) without refitting it"),
 ]
 
 

@@ -13,6 +13,7 @@ import sys
 import time
 
 from vla_evaluation.evaluate_cli import task_list
+from vla_evaluation.graph import GraphConfig
 from vla_evaluation.holds import FRESH_SEED, hold_config, run_holds
 from vla_evaluation.resources import detector_model_path, latent_model_dir
 
@@ -26,13 +27,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--first-seed", type=int, default=FRESH_SEED)
     p.add_argument("--model", default="default", help="shipped latent model name or a directory")
     p.add_argument("--log-dir", default=None, help="where the graph's output goes")
+    p.add_argument("--real-time-factor", type=float, default=GraphConfig.real_time_factor,
+                   help="simulated seconds per wall second; lower it on a loaded machine, where joy "
+                        "gaps of 0.25 simulated s stop the arm until neutral (default: %(default)s)")
     a = p.parse_args(argv)
     cfg = hold_config(str(latent_model_dir(a.model)), str(detector_model_path()), a.seconds, a.stick,
-                      log_dir=a.log_dir)
+                      log_dir=a.log_dir, real_time_factor=a.real_time_factor)
     t0 = time.monotonic()
     tallies = run_holds(cfg, task_list(a.tasks), a.n, a.first_seed)
     wall = time.monotonic() - t0
-    print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task ({wall:.0f} s wall)")
+    print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task, real-time factor "
+          f"{a.real_time_factor:g} ({wall:.0f} s wall)")
     for t in tallies.values():
         print(t.line())
     holds = sum(t.holds for t in tallies.values())

@@ -10,8 +10,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-import numpy as np
-
 from vla_evaluation.graph import EpisodeRecord, GraphConfig, GraphError, GraphEvaluator
 from vla_evaluation.kinematic import TeleopSettings
 from vla_interfaces.msg import SafetyStatus
@@ -30,10 +28,6 @@ class HoldTally:
     max_speed_ratio: float = 0.0
     stick_range: tuple[float, float] = (float("inf"), float("-inf"))  # the stick values the arm saw
     reflex_seeds: list[int] = field(default_factory=list)
-    # holds in which the stick went back to neutral: a stop the operator did not choose (a joy timeout
-    # or a watchdog stop when a loaded machine starves the streams) waits for neutral (the arming
-    # rule), and the simulated person lets go and holds again, losing time
-    rearmed: int = 0
     # holds the graph did not finish (a timeout on a loaded machine, a process that ended): counted as
     # failed holds, with what happened; their reflexes are unknown
     graph_errors: list[tuple[int, str]] = field(default_factory=list)
@@ -48,7 +42,6 @@ class HoldTally:
         self.max_speed_ratio = max(self.max_speed_ratio, float(r.extra.get("max_speed_ratio", 0.0)))
         if rec.trace is not None and len(rec.trace):
             stick = rec.trace[:, 8]
-            self.rearmed += bool(np.any(stick[np.argmax(stick != 0):] == 0) and np.any(stick != 0))
             self.stick_range = (min(self.stick_range[0], float(stick.min())),
                                 max(self.stick_range[1], float(stick.max())))
 
@@ -63,7 +56,7 @@ class HoldTally:
                       f"{[s for s, _ in self.graph_errors]}")
         return (f"{self.task:28s} holds {self.holds:3d}  reflexes {self.reflexes:3d}  "
                 f"task done {self.successes:3d}/{self.holds}  "
-                f"re-armed at neutral {self.rearmed:3d}  max |dq|/dq_max {self.max_speed_ratio:.2f}{seeds}")
+                f"max |dq|/dq_max {self.max_speed_ratio:.2f}{seeds}")
 
 
 def hold_config(model_path: str, detector_model: str, seconds: float = 6.0, stick: float = 1.0,

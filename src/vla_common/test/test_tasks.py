@@ -197,3 +197,22 @@ def test_hand_task_layouts_keep_the_target_in_reach():
         target = place_target(spec, layout[0])
         assert GRASP_REGION_X[0] <= target[0] <= GRASP_REGION_X[1]
         assert GRASP_REGION_Y[0] <= target[1] <= GRASP_REGION_Y[1]
+
+
+def test_spread_layouts_put_few_shot_demonstrations_at_the_regions_corners_and_centre():
+    """Five demonstrations of a pick-and-place span the region (a fresh layout lies between them),
+    each place target inside the region; random layouts from five seeds need not."""
+    from vla_common.tasks import GRASP_REGION_X, GRASP_REGION_Y, SPREAD_JITTER, grasp_centre_region
+
+    spec = default_catalogue().task("soda_can/pick_place_west")
+    lo, hi = grasp_centre_region(spec)
+    assert np.allclose(lo, [GRASP_REGION_X[0], GRASP_REGION_Y[0]])
+    assert np.allclose(hi, [GRASP_REGION_X[1], GRASP_REGION_Y[1] - spec.distance])   # west: +y
+    pts = np.array([task_layout(spec, np.random.default_rng(k), spread=k)[0].xy for k in range(5)])
+    span = hi - lo
+    corners = lo + np.array([[0.1, 0.1], [0.9, 0.1], [0.1, 0.9], [0.9, 0.9], [0.5, 0.5]]) * span
+    assert np.all(np.abs(pts - corners) <= SPREAD_JITTER + 1e-9)
+    assert np.all((pts >= lo) & (pts <= hi))
+    assert np.all(pts.max(0) - pts.min(0) >= 0.75 * span)      # the demos cover the region
+    with pytest.raises(ValueError, match="hand"):
+        task_layout("bread/push_east", np.random.default_rng(0), spread=0)

@@ -139,3 +139,26 @@ def test_the_pick_and_place_model_trains_on_its_own_demos_alone(monkeypatch, tmp
     assert trained["demos"] == ["soda_can/pick_place_west"] * td.FEW_SHOT_EPISODES
     assert trained["cfg"]["encoder"] == "detector"
     assert demo.model_name_for("soda_can/pick_place_west") == "soda_can_pick_place_west"
+
+
+@pytest.mark.parametrize("task, spread", [("soda_can/pick_place_west", True), ("bread/push_east", False)])
+def test_few_shot_hand_demonstrations_are_generated_at_spread_layouts(monkeypatch, tmp_path, task, spread):
+    """A task with the hand's five demonstrations span its region (`generate --spread`); pushes keep
+    random layouts."""
+    from vla_evaluation import training_data as td
+
+    cmds = []
+
+    def run_command(cmd, log=print, accept=(0,)):
+        cmds.append(cmd)
+        folder = td.task_dir(tmp_path, task)
+        for i in range(5):
+            (folder / f"ep{i}").mkdir(parents=True, exist_ok=True)
+            (folder / f"ep{i}" / "metadata.yaml").write_text("")
+        return 0
+
+    monkeypatch.setattr(td, "run_command", run_command)
+    td.ensure_demos(task, 5, tmp_path, td.UNSEEN_SEED, log=lambda s: None)
+    assert len(cmds) == 1 and ("--spread" in cmds[0]) == spread
+    args = build_parser().parse_args(["generate", "--task", task, "--spread"])
+    assert args.spread

@@ -102,6 +102,9 @@ class GenerateConfig:
     domain_id: int | None = None
     log_dir: Path | None = None
     catalogue: str = ""  # the object catalogue YAML ("": the default); the scene and recorder read it
+    # tasks with the hand: the k-th episode's object near the k-th spread point of its region
+    # (vla_common.tasks.SPREAD_POINTS: corners and centre, as a teacher places it) instead of anywhere
+    spread: bool = False
 
     def launch_arguments(self) -> dict[str, object]:
         """record.launch.yaml's arguments."""
@@ -126,6 +129,7 @@ class EpisodeRecord:
     detection: dict | None = None
     plan_params: dict = field(default_factory=dict)
     replans: int = 0
+    spread_point: int | None = None  # the spread point of the layout (GenerateConfig.spread)
     error: str = ""
 
 
@@ -373,8 +377,9 @@ def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
         master = np.random.default_rng(cfg.seed)
         catalogue = load_catalogue(cfg.catalogue)
         for spec in cfg.tasks:
-            for _ in range(cfg.episodes):
-                rec = EpisodeRecord(index=len(records) + 1, task=spec.name, seed=int(master.integers(2**31)))
+            for k in range(cfg.episodes):
+                rec = EpisodeRecord(index=len(records) + 1, task=spec.name, seed=int(master.integers(2**31)),
+                                    spread_point=k if cfg.spread and spec.uses_hand else None)
                 wall0 = time.monotonic()
                 try:
                     _run_episode(cfg, demo, kin, spec, catalogue, np.random.default_rng(rec.seed), rec,
@@ -438,7 +443,7 @@ def _plan_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episo
     """A layout and start pose (the episode's variation), reset, and a plan from the measured scene; a
     layout the planner cannot do is re-drawn (counted in the report, never recorded)."""
     for attempt in range(cfg.max_plan_tries):
-        layout = task_layout(spec, rng, catalogue=catalogue)
+        layout = task_layout(spec, rng, catalogue=catalogue, spread=rec.spread_point)
         q0 = random_start_pose(rng)
         start = _reset_scene(demo, spec, layout, q0, alive)
         try:
@@ -541,6 +546,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--log-dir", type=Path, default=None, help="write the graph's output (record.log) here")
     p.add_argument("--catalogue", default="",
                    help="object catalogue YAML with the tasks and objects (default: the paper's five)")
+    p.add_argument("--spread", action="store_true",
+                   help="tasks with the hand: episode k's object near the k-th of the region's corners and "
+                        "centre (few-shot demonstrations a fresh layout lies between)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -554,7 +562,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = GenerateConfig(tasks=tasks, episodes=args.episodes, out=args.out, seed=args.seed,
                          real_time_factor=args.real_time_factor, camera_rate=args.camera_rate,
                          image_every_n=args.image_every_n, keep_failed=not args.delete_failed,
-                         detector_model=args.detector_model, log_dir=args.log_dir, catalogue=args.catalogue)
+                         detector_model=args.detector_model, log_dir=args.log_dir, catalogue=args.catalogue,
+                         spread=args.spread)
     try:
         records = run_generation(cfg)
     except GenerateError as err:

@@ -100,6 +100,8 @@ def ensure_demos(
             "0",
             "--delete-failed",
         ]
+        if task in HAND_TASKS:
+            cmd.append("--spread")   # the object at the region's corners and centre in turn (see generate)
         # exit code 3: some episodes failed the task (deleted); the next attempt tops the folder up
         run_command(cmd, log, accept=(0, 3))
     if count_bags(folder) < episodes:

@@ -228,7 +228,10 @@ class GraphBackend:
                                 t_end=driver.t_end, fse=final_state_error(q_final, final_wp),
                                 interventions=monitor.tally.interventions, start=start, note=note)
         row.update(bag_row)
-        row["limit_violations"] = int(monitor.limits.violations)
+        lim = monitor.limits  # measured on joint_states, as the evaluation's
+        row.update(limit_violations=int(lim.violations), position_violations=int(lim.position_violations),
+                   velocity_violations=int(lim.velocity_violations),
+                   max_speed_ratio=round(float(lim.max_speed_ratio), 3))
         return row, arrays
 
     def _start_bag(self, trial) -> str:

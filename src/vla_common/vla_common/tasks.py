@@ -131,8 +131,9 @@ GRASP_REGION_Y = (-0.22, 0.22)
 # Few-shot demonstrations of a task with the hand placed as a teacher would (task_layout's `spread`):
 # the region's corners (inset) and its centre, in turn, so that a fresh layout lies between
 # demonstrations rather than beyond them. Offline (5 demos + the other objects' pushes, 10 fresh
-# layouts) the user got to press grasp on 7 of 10 against 1 of 9 with 5 random layouts
-# (docs/history.md, 2026-12-03). Fractions of the region (x, y), and the jitter around each point.
+# layouts) the user got to press grasp on 7 and 3 of 10 (two training seeds) against 1 of 9 with 5
+# random layouts; at most 2 of 10 close enough to grasp (docs/history.md, 2026-12-03).
+# Fractions of the region (x, y), and the jitter around each point.
 SPREAD_POINTS = ((0.1, 0.1), (0.9, 0.1), (0.1, 0.9), (0.9, 0.9), (0.5, 0.5))
 SPREAD_JITTER = 0.01  # m
 # Circles are done above the object; its centre must leave room for the loop.

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import sys
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -48,20 +49,15 @@ def _xyz(value: Any) -> str | None:
     return None if len(value) == 3 else f"needs 3 numbers (x, y, z), got {len(value)}"
 
 
-def _ee_axes_refusal(value: Any) -> str | None:
-    try:
-        check_axes(value)
-    except ValueError as e:
-        return str(e)
-    return None
-
-
-def _joint_map_refusal(value: Any) -> str | None:
-    try:
-        parse_joint_map(value)
-    except ValueError as e:
-        return str(e)
-    return None
+def _refusal(parse: Callable[[Any], Any]) -> Callable[[Any], str | None]:
+    """A parameter check from a parser that raises ValueError: its message is the refusal."""
+    def check(value: Any) -> str | None:
+        try:
+            parse(value)
+        except ValueError as e:
+            return str(e)
+        return None
+    return check
 
 
 _CORE_DEFAULTS = TeleopParams()
@@ -95,7 +91,7 @@ PARAMETERS = ParameterTable([
           range=(0.01, 10.0), dynamic=True),
     Param("joint_map", [], "robot joints that stand for the model's: 'robot_joint:model_joint' entries, "
           "e.g. fr3_joint1:panda_joint1 for a Panda model on an FR3; unmapped joints keep their names",
-          dynamic=True, check=_joint_map_refusal, array="string_array"),
+          dynamic=True, check=_refusal(parse_joint_map), array="string_array"),
     _core("goal_selection", "which detection is the goal: highest_score, nearest_to_ee "
           "or a class of the model", dynamic=True),
     _core("detection_max_age", "re-latch when the latched detection is older (s); 0: latch once "
@@ -116,7 +112,7 @@ PARAMETERS = ParameterTable([
     _core("ee_debounce", "end-effector axis button debounce (s)", range=(0.0, 5.0), dynamic=True),
     _core("ee_axes", "the axes ee_mode_button cycles, in order (distinct, of x, y, z, roll, "
           "pitch, yaw); a task with the hand pointing down needs x, y, z", dynamic=True,
-          check=_ee_axes_refusal, array="string_array"),
+          check=_refusal(check_axes), array="string_array"),
     _core("ee_linear_speed", "end-effector mode: TCP speed at full stick (m/s); paper: 0.5",
           range=(0.0, 1.7), dynamic=True),
     _core("ee_angular_speed", "end-effector mode: rotation speed at full stick (rad/s)",

@@ -46,20 +46,22 @@ class ContactMemory:
             raise ValueError(f"contact memory: release={release!r} must be a finite time > 0")
         self.release = float(release)
         self._held: list[float] | None = None
+        self._dt, self._k = math.nan, 1.0       # the last dt and its decay factor
 
     def update(self, tau_ext, dt: float) -> list[float] | None:
         """Feed one measurement (Nm per joint) taken `dt` s after the last; returns the judged torques,
         or None when `tau_ext` is unusable (nothing is remembered from it)."""
-        try:
-            tau = [float(x) for x in tau_ext]
+        try:   # a non-finite value is not a measurement: unknown (NaN)
+            tau = [t if math.isfinite(t) else math.nan for t in map(float, tau_ext)]
         except (TypeError, ValueError):
             return None
-        tau = [t if math.isfinite(t) else math.nan for t in tau]   # not a measurement: unknown
         held = self._held
         if held is None or len(held) != len(tau):
             self._held = tau
             return tau
-        k = math.exp(-max(dt, 0.0) / self.release)
+        if dt != self._dt:                  # the filter's period: the same every call
+            self._dt, self._k = dt, math.exp(-max(dt, 0.0) / self.release)
+        k = self._k
         # NaN on either side fails the comparison: a fresh measurement replaces an unknown one.
         self._held = [t if not abs(t) < abs(h) * k else h * k for t, h in zip(tau, held)]
         return self._held

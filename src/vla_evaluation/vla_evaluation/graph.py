@@ -134,7 +134,7 @@ def image_to_rgb(msg: Image) -> np.ndarray | None:
     return (a[:, :, ::-1] if msg.encoding == "bgr8" else a).copy()
 
 
-class _Observer:
+class GraphObserver:
     """The orchestrator's ROS side: subscriptions, service clients and the latest values seen."""
 
     def __init__(self, ctx, keep_frames: bool) -> None:
@@ -316,15 +316,15 @@ class GraphEvaluator:
     """Runs evaluation episodes on the live graph (use as a context manager)."""
 
     def __init__(self, config: GraphConfig, log: Callable[[str], None] = print,
-                 observer: Callable[..., _Observer] = _Observer) -> None:
+                 observer: Callable[..., GraphObserver] = GraphObserver) -> None:
         """`observer(context, keep_frames)`: the orchestrator's node (a subclass may add publishers,
         as the user study's participant does)."""
         self.catalogue = load_catalogue(config.catalogue)
         self.config = config
         self.log = log
         self.observer = observer
-        self.runner: GraphRunner[_Observer] | None = None
-        self.obs: _Observer | None = None
+        self.runner: GraphRunner[GraphObserver] | None = None
+        self.obs: GraphObserver | None = None
         self.kin = PandaKinematics()
 
     # ------------------------------------------------------------------ lifecycle
@@ -394,10 +394,10 @@ class GraphEvaluator:
         """Reset to the seeded layout of `task`, latch the context, let the teleoperator drive."""
         wall0 = time.monotonic()
         spec = parse_task(task, self.catalogue)
-        used_seed, start_pose, q_now = self._reset(spec, int(seed), n_objects)
+        used_seed, start_pose, q_now = self.reset_scene(spec, int(seed), n_objects)
         result = EpisodeResult(task=task, layout_seed=used_seed, mode="graph", model=label,
                                object_start=start_pose.to_dict())
-        no_latch = self._latch()
+        no_latch = self.latch()
         if no_latch:
             self._score_unlatched(result, spec, start_pose, q_now, no_latch)
             result.extra["wall_s"] = round(time.monotonic() - wall0, 2)
@@ -416,7 +416,7 @@ class GraphEvaluator:
         return EpisodeRecord(result, tcp, np.asarray(monitor.path_t[: len(tcp)]), monitor.frames,
                              np.asarray(monitor.trace))
 
-    def _reset(self, spec: TaskSpec, seed: int, n_objects: int) -> tuple[int, ObjectPose, np.ndarray]:
+    def reset_scene(self, spec: TaskSpec, seed: int, n_objects: int) -> tuple[int, ObjectPose, np.ndarray]:
         """A fresh plannable layout through the bridge's ~/reset, settled and detected; (the layout's
         seed, the goal object's pose, the arm's joint positions)."""
         obs, cfg = self.obs, self.config
@@ -436,7 +436,7 @@ class GraphEvaluator:
             raise GraphError(f"{spec.object_class} missing from scene/objects after reset")
         return used_seed, start_pose, q_now
 
-    def _latch(self, attempts: int = 3, timeout: float = 10.0) -> str:
+    def latch(self, attempts: int = 3, timeout: float = 10.0) -> str:
         """Ask the controller to latch the new scene's detection (retried); "" when it did, else why not."""
         obs = self.obs
         why = ""

@@ -33,7 +33,7 @@ from vla_evaluation.graph import (
     GraphConfig,
     GraphError,
     GraphEvaluator,
-    _Observer,
+    GraphObserver,
 )
 from vla_evaluation.study.participant import HumanOperator, HumanParams, Observation
 from vla_evaluation.study.protocol import STRATEGIES, Protocol
@@ -93,7 +93,7 @@ class TrialDriver:
             obs.cond.notify_all()
 
 
-class StudyObserver(_Observer):
+class StudyObserver(GraphObserver):
     """The evaluation's observer plus the participant's stick (`joy`) and the recorder's services."""
 
     def __init__(self, ctx, keep_frames: bool, rate: float) -> None:
@@ -191,9 +191,9 @@ class GraphBackend:
         ev, obs, p = self.ev, self.ev.obs, self.p
         mode = self._set_strategy(trial)
         spec = parse_task(trial.task, self.catalogue)
-        _seed, start, q_now = ev._reset(spec, int(trial.layout_seed), 1)  # ~/reset, settled, detected
+        _seed, start, q_now = ev.reset_scene(spec, int(trial.layout_seed), 1)  # ~/reset, settled, detected
         note = ""
-        if mode == "latent" and (why := ev._latch()):
+        if mode == "latent" and (why := ev.latch()):
             note = f"no context: {why}"  # the controller waits, nothing moves (as the physics backend)
         bag = self._start_bag(trial)
         op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed,

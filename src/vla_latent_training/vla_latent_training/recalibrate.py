@@ -27,7 +27,7 @@ from vla_latent_training.calibrate import calibrate_latent
 from vla_latent_training.config import TrainConfig
 from vla_latent_training.inputs import prepare_demos
 from vla_latent_training.pairs import make_pairs
-from vla_latent_training.train import F32, _fingerprint, build_pairs
+from vla_latent_training.train import F32, JointScales, PairTensors, _fingerprint, build_pairs
 
 
 def recipe_of(config: dict) -> TrainConfig:
@@ -63,11 +63,12 @@ def recalibrate_model(model_dir: str | Path, demos: Sequence, out_dir: str | Pat
     cae = CAE(ctx.shape[1], pairs.q.shape[1], 1, config["dims"]["hidden"], bounded=cfg.bounded_latent,
               signed=cfg.reverse_pairs)
     cae.load_state_dict({k: torch.tensor(v) for k, v in art.tensors.items() if not k.startswith("cnn.")})
+    # the pairs as training fed them to the encoder, with the model's own normalisation
+    data = PairTensors.of(pairs, JointScales(*(np.asarray(norm[k], dtype=float)
+                                               for k in ("q_mean", "q_std", "a_scale"))))
     with torch.no_grad():
-        z = cae.encode(torch.tensor(ctx[pairs.demo[:n]], dtype=F32),
-                       torch.tensor((pairs.q[:n] - norm["q_mean"]) / np.asarray(norm["q_std"]), dtype=F32),
-                       torch.tensor(pairs.a[:n] / np.asarray(norm["a_scale"]), dtype=F32),
-                       torch.ones(n, 1)).double().numpy()[:, 0]
+        d, q, a, sign = data.take(slice(0, n))
+        z = cae.encode(torch.tensor(ctx, dtype=F32)[d], q, a, sign).double().numpy()[:, 0]
     latent, lines = calibrate_latent(items, ctx, z, pairs.demo[:n], LatentDecoder(art.tensors, config), cfg)
     latent["calibrated_on"] = {**_fingerprint(items), "demos": len(items), "pairs": int(n)}
     old = config["latent"]["gain"]

@@ -690,7 +690,10 @@ def test_a_watcher_takes_control_by_keyboard_only_at_rest_and_starts_from_neutra
         assert d.switch_to.active_element.get_attribute("id") == "take-confirm"
         d.switch_to.active_element.send_keys(Keys.ENTER)
         assert wait_page(h, b, f"{MESSAGE}.includes('moving the arm')"), js(b, MESSAGE)
-        assert js(page, "window.station.driver") and js(b, "!window.station.driver") and obs.moving()
+        # refused: the link gives that reason only while the driver's input is not at rest. Whether
+        # the arm still moves seconds later (after axe-core ran) is not asserted: a loaded machine can
+        # starve the driver's Joy stream, and the controller then holds zero until a neutral (CI, once)
+        assert js(page, "window.station.driver") and js(b, "!window.station.driver")
         ActionChains(page.driver).key_up(Keys.ARROW_UP).perform()
         assert h.spin_until(lambda: not obs.moving(), 5.0)
         h.spin_for(0.3)   # the release reached the station: the driver's input is at rest

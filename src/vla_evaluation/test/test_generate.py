@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 from vla_common.catalogue import default_catalogue, load_catalogue
-from vla_demo_recorder.bag_writer import EpisodeInfo, read_metadata_yaml
+from vla_demo_recorder.bag_writer import BagWriter, EpisodeInfo, read_metadata_yaml
 from vla_demo_recorder.dataset import load_demo
 
 
@@ -69,6 +69,45 @@ def test_generated_pick_and_place_records_the_hand(tmp_path):
     held = [h for _t, state, h in demo.grasp_events if state == 3]
     assert 2 in states and held == ["soda_can"]           # GRASPING, then HOLDING the can
     assert states.index(3) < len(states) - 1               # ... and opened after
+
+
+def _kept_bag(path: Path, detection: bool) -> Path:
+    """A kept bag of 3 s of joint states, with or without a detection at its start."""
+    from rclpy.serialization import serialize_message
+    from sensor_msgs.msg import JointState
+    from vla_common.robot import JOINT_NAMES
+
+    from vla_interfaces.msg import Detection, DetectionArray
+
+    t0 = 1_700_000_000 * 10**9
+    bag = BagWriter(path, EpisodeInfo(task="bread/push_east")).open()
+    bag.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+    bag.add_topic("/detections", "vla_interfaces/msg/DetectionArray")
+    if detection:
+        msg = DetectionArray(image_width=640, image_height=480, detections=[Detection(
+            class_id="bread", class_index=0, score=0.9, center_x=320.0, center_y=240.0,
+            size_x=30.0, size_y=30.0)])
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(t0, 10**9)
+        bag.write("/detections", t0, serialize_message(msg))
+    for i in range(60):
+        t = t0 + i * 5 * 10**7
+        js = JointState(name=list(JOINT_NAMES), position=[0.01 * i] * len(JOINT_NAMES))
+        js.header.stamp.sec, js.header.stamp.nanosec = divmod(t, 10**9)
+        bag.write("/joint_states", t, serialize_message(js))
+    bag.close("kept")
+    return bag.path
+
+
+def test_a_kept_bag_without_a_detection_counts_as_refused(tmp_path):
+    """Training skips a bag without a detection near its start, so generation must not count it as a
+    demonstration (at real-time factor 0 such bags were kept as successes)."""
+    from vla_evaluation.generate import loaded_detection, recording_problem
+
+    problem, det = loaded_detection(_kept_bag(tmp_path / "no_det", detection=False))
+    assert "no detection" in problem and det is None
+    assert recording_problem(_kept_bag(tmp_path / "no_det2", detection=False))
+    problem, det = loaded_detection(_kept_bag(tmp_path / "det", detection=True))
+    assert problem == "" and det["class_id"] == "bread"
 
 
 def test_plan_pace_slows_the_plan_clock_while_the_arm_lags():

@@ -509,12 +509,18 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episod
 
 
 def loaded_detection(bag: str | Path) -> tuple[str, dict | None]:
-    """(why the training loader refuses the bag or "", the demo's detection as a dict or None)."""
+    """(why training cannot use the bag or "", the demo's detection as a dict or None).
+
+    A bag without a detection near its start counts as refused: training (the detector encoder)
+    would skip it, and a kept bag must be one it uses (at real-time factor 0 the context frame can
+    come too late)."""
     try:
         demo = load_demo(bag)
     except DemoError as err:
         return str(err), None
-    return "", (demo.detection.as_dict() if demo.detection is not None else None)
+    if demo.detection is None:
+        return "no detection near the start of the episode (training's context)", None
+    return "", demo.detection.as_dict()
 
 
 def recording_problem(bag: str | Path) -> str:

@@ -57,6 +57,7 @@ from vla_launch.run import find_executable  # noqa: E402
 from vla_interfaces.msg import SafetyStatus  # noqa: E402
 
 NOW = "performance.timeOrigin + performance.now()"
+SKEW = 0.01   # s: the browser clock offset's uncertainty (measured: about 2 ms), with a margin
 PRESS = (f"const t = {NOW};"
          "document.body.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp', bubbles: true}));"
          "return t;")
@@ -103,6 +104,12 @@ class Probe(Observer):
 
     def moving(self) -> bool:
         return bool(self.cmd) and self.cmd[-1][0]
+
+
+def held_joy(joys: list[tuple[float, float, float]], t0: float) -> tuple[float, float, float] | None:
+    """A press's Joy: the first held one stamped after the press. A late sample of the previous press's
+    hold may still arrive (the stamp tells them apart), and this one may reach us after the command."""
+    return next((j for j in joys if j[0] != 0.0 and j[1] >= t0 - SKEW), None)
 
 
 def cpu_seconds(pid: int) -> float:
@@ -263,20 +270,22 @@ def main() -> int:
             off0, unc0 = browser_offset(b.driver)
             pid = station_pid()
             c0, w0 = cpu_seconds(pid), time.monotonic()
-            total, sent, here, to_station, to_cmd, lost = [], [], [], [], [], []
+            total, sent, here, to_station, to_cmd, lost, split = [], [], [], [], [], [], []
             for i in range(args.presses):
                 h.spin_until(lambda: not obs.moving() and obs.ctrl is not None and obs.ctrl.code == 1, 10.0)
                 nj, nc = len(obs.joy), len(obs.cmd)
                 t0 = b.driver.execute_script(PRESS) / 1000.0 - off0
                 if h.spin_until(lambda nc=nc: any(m for m, _, _ in obs.cmd[nc:]), 5.0):
                     _, pub, rec = next(c for c in obs.cmd[nc:] if c[0])
-                    joy = next((j for j in obs.joy[nj:] if j[0] != 0.0), None)
+                    h.spin_until(lambda nj=nj, t0=t0: held_joy(obs.joy[nj:], t0) is not None, 1.0)
+                    joy = held_joy(obs.joy[nj:], t0)
                     total.append(pub - t0)
                     here.append(rec - t0)
                     if joy is not None:
                         to_station.append(joy[1] - t0)
                         sent.append(joy[2] - t0)
                         to_cmd.append(pub - joy[2])
+                        split.append((pub - t0, joy[1] - t0, joy[2] - joy[1], pub - joy[2]))
                 else:
                     lost.append((i, js("window.station.refused"),
                                  obs.ctrl.reason if obs.ctrl is not None else "",
@@ -310,6 +319,9 @@ def main() -> int:
     print(figures("  key press -> the station's Joy published", sent))
     print(figures("  station's Joy published -> the controller's command", to_cmd))
     print(figures("  key press -> the command received here", here))
+    print("  the 5 slowest presses (ms): total = page -> station + station's publish + station -> command")
+    for tot, st, pb, cm in sorted(split, reverse=True)[:5]:
+        print(f"    {tot * 1e3:6.1f} = {st * 1e3:6.1f} + {pb * 1e3:5.1f} + {cm * 1e3:6.1f}")
     print(f"  presses with no command within 5 s: {len(lost)} of {args.presses}"
           + "".join(f"\n    press {i}: page refusal {r!r}, controller {c!r}, Joy moved: {j}"
                     for i, r, c, j in lost))

@@ -112,5 +112,26 @@ class Observer(Node):
         return self.q is not None and self.detections is not None and self.ctrl is not None
 
 
+def thread_nices(executable: str) -> dict[int, int]:
+    """{thread id: nice value} of the running node process whose executable is named so (one only)."""
+    pids = []
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                args = (d / "cmdline").read_bytes().split(b"\0")
+            except OSError:
+                continue
+            if any(Path(a.decode(errors="replace")).name == executable for a in args[:2]):
+                pids.append(d)
+    assert len(pids) == 1, f"{len(pids)} processes run {executable}"
+    nices = {}
+    for t in (pids[0] / "task").iterdir():
+        try:
+            nices[int(t.name)] = int((t / "stat").read_text().rsplit(")", 1)[1].split()[16])
+        except (OSError, IndexError):
+            pass    # a thread that ended meanwhile
+    return nices
+
+
 def cosine(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.dot(a, b) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))

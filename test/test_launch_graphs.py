@@ -13,11 +13,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from launch_process import LaunchProcess, Observer, cosine
+from launch_process import LaunchProcess, Observer, cosine, thread_nices
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Joy
 from std_srvs.srv import Trigger
 from vla_common.kinematics import PandaKinematics
+from vla_common.priority import BACKGROUND_NICE, MAX_NICE, thread_nice
 from vla_common.robot import READY_POSE
 from vla_common.ros.testing import RosHarness
 from vla_evaluation.kinematic import plannable_layout
@@ -92,6 +93,13 @@ def test_teleop_launch_moves_the_arm_the_way_the_stick_commands(ros, tmp_path):
         obs = ros.add(Observer(ros.context))
         joy = obs.create_publisher(Joy, "joy", qos_profile_sensor_data)
         assert ros.spin_until(obs.graph_up, 90.0), run.text()[-3000:]
+        # perception yields the CPU to input and control (vla_common.priority): every detector thread
+        # runs at background priority, the controller's and the bridge's main threads do not
+        base = thread_nice()
+        assert set(thread_nices("detector_node").values()) == {min(MAX_NICE, base + BACKGROUND_NICE)}
+        for node in ("controller_node", "panda_bridge"):
+            nices = thread_nices(node)
+            assert nices[min(nices)] == base, (node, nices)   # its first thread: the executor's
         reset_to_one_object(ros, obs)
         obs.safety.clear()
         forward, cmd_forward = hold_stick(ros, obs, joy, 0.8, 2.0)

@@ -18,6 +18,7 @@ from std_srvs.srv import SetBool
 from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
 from vla_common.detection import Detection
 from vla_common.image_convert import UnsupportedImageError, draw_detections, to_rgb
+from vla_common.priority import run_in_background
 from vla_common.ros import vision
 from vla_common.ros.convert import detection_array
 from vla_common.ros.diagnostics import Diagnostics
@@ -192,6 +193,10 @@ class DetectorNode(Node):
 
 
 def main(args: list[str] | None = None) -> int:
+    # Detection is perception, not control: the whole process (its executor, the pools its imports
+    # started, and ONNX Runtime's and DDS's threads, which inherit it) yields the CPU to the operator's
+    # input and the arm's loop (vla_common.priority).
+    run_in_background(process=True)
     return run_node(DetectorNode, "detector_node", args)
 
 

@@ -44,3 +44,17 @@ def test_rgb8_is_encoded_with_its_colours_and_a_wrong_size_is_skipped():
         assert enc.encode(b"\0" * 10, 32, 32, "rgb8") is None
     finally:
         enc.stop()
+
+
+def test_frames_are_encoded_at_background_priority():
+    """The station's web thread (the operator's input) runs before the encoder (vla_common.priority)."""
+    from vla_common.priority import BACKGROUND_NICE, MAX_NICE, thread_nice
+
+    here, seen, got = thread_nice(), [], threading.Event()
+    enc = FrameEncoder(lambda jpeg, meta: (seen.append(thread_nice()), got.set()), 80)
+    try:
+        enc.submit(np.zeros((8, 8, 3), np.uint8).tobytes(), 8, 8, "bgr8", {})
+        assert got.wait(10.0)
+        assert seen == [min(MAX_NICE, here + BACKGROUND_NICE)] and thread_nice() == here
+    finally:
+        enc.stop()

@@ -6,6 +6,8 @@ that came right after such a gap did nothing) and a backlog of frames was encode
 Here the executor only hands the latest image over; OpenCV releases the GIL while it converts and
 encodes, so the encoding runs beside the node's callbacks and the web server. Frames that come while
 one is being encoded replace each other: only the newest is encoded, so there is never a backlog.
+The thread runs at background priority (vla_common.priority): the station's web thread, which
+receives the operator's input, runs before it.
 """
 from __future__ import annotations
 
@@ -15,6 +17,7 @@ from collections.abc import Callable
 
 import cv2
 import numpy as np
+from vla_common.priority import run_in_background
 
 
 class FrameEncoder:
@@ -44,6 +47,7 @@ class FrameEncoder:
         self._thread.join(2.0)
 
     def _run(self) -> None:
+        run_in_background()
         while True:
             with self._cv:
                 while self._latest is None and not self._stopped:

@@ -30,3 +30,19 @@ def test_a_request_while_rendering_waits_and_the_newest_replaces_a_waiting_one()
     finally:
         let_go.set()
         cam.close()
+
+
+def test_frames_render_at_background_priority():
+    """The renderer yields the CPU to the physics loop and the operator's input (vla_common.priority)."""
+    from vla_common.priority import BACKGROUND_NICE, MAX_NICE, thread_nice
+
+    here = thread_nice()
+    seen: list[int] = []
+    cam = CameraWorker(64, 48, 0.001, lambda rgb, stamp: seen.append(thread_nice()))
+    try:
+        cam.request(PandaSim(render=False).data.qpos.copy(), 1)
+        assert cam.wait_idle(30.0)
+        assert seen == [min(MAX_NICE, here + BACKGROUND_NICE)]
+        assert thread_nice() == here   # the caller's (the sim loop's) priority is untouched
+    finally:
+        cam.close()

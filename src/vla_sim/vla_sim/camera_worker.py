@@ -9,6 +9,9 @@ default, one rasteriser thread per core, costs the same CPU per frame but has to
 those threads onto a core; on a loaded 2-core machine that took a frame's wall time from 15-18 ms
 to 100-130 ms at the 90th percentile (bench: 640x480, load 13), and the camera dropped the frames
 requested meanwhile.
+
+The worker runs at background priority (vla_common.priority): a frame may wait, the 1 kHz physics
+and the operator's input do not wait for a frame.
 """
 
 from __future__ import annotations
@@ -20,6 +23,7 @@ from collections.abc import Callable
 
 import numpy as np
 from vla_common.catalogue import Catalogue
+from vla_common.priority import run_in_background
 
 from vla_sim.sim import PandaSim
 
@@ -81,6 +85,7 @@ class CameraWorker:
         self._thread.join(timeout)
 
     def _run(self) -> None:
+        run_in_background()
         try:
             while True:
                 with self._cond:

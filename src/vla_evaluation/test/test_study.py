@@ -263,6 +263,26 @@ def _bag_joy(bag: Path) -> list:
         return [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages(connections=conns)]
 
 
+def test_the_study_graph_leaves_the_idle_oracle_out(tmp_path):
+    """The participant drives: the study's launch starts no sim_teleoperator (an idle one followed
+    joint_states and loaded each model change), and only the controller is given the models."""
+    from vla_evaluation.graph import CONTROLLER, LAUNCH_FILE, TELEOP
+    from vla_evaluation.study.cli import SHIPPED
+    from vla_evaluation.study.graph_backend import study_graph_config
+    from vla_launch.plan import find_launch_file
+    from vla_launch.plan import load as load_launch
+    from vla_launch.session import argument_text
+
+    cfg = study_graph_config(load_protocol(SHIPPED), tmp_path)
+    assert TELEOP not in cfg.node_parameters() and cfg.model_nodes() == (CONTROLLER,)
+    args = {k: argument_text(v) for k, v in cfg.launch_arguments().items()}
+    _plan, specs = load_launch(find_launch_file(*LAUNCH_FILE), args, str(tmp_path))
+    labels = " ".join(s.label for s in specs)
+    assert "controller_node" in labels and "recorder" in labels and "sim_teleoperator" not in labels
+    _plan, specs = load_launch(find_launch_file(*LAUNCH_FILE), {}, str(tmp_path))  # the demo keeps it
+    assert "sim_teleoperator" in " ".join(s.label for s in specs)
+
+
 @pytest.mark.slow
 @pytest.mark.ros
 @pytest.mark.timeout(1500)

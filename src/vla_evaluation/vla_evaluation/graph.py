@@ -91,6 +91,9 @@ class GraphConfig:
     catalogue: str = ""  # object catalogue YAML ("": the default): the scene, detector and teleoperator
     operator_port: int | None = None  # also start the operator station on 127.0.0.1:port (None: not)
     record_dir: Path | None = None  # also start the recorder (one bag per ~/start_episode) into this folder
+    # start the simulated user (the oracle); False where another node drives (the study's participant):
+    # an idle teleoperator still follows joint_states and loads every model the controller is given
+    teleoperator: bool = True
 
     def launch_arguments(self) -> dict[str, object]:
         """demo.launch.yaml's arguments: what the nodes read once, at startup."""
@@ -98,6 +101,8 @@ class GraphConfig:
                    {"use_operator_station": True, "operator_port": int(self.operator_port)})
         if self.record_dir is not None:
             station.update(use_recorder=True, record_dir=str(Path(self.record_dir).absolute()))
+        if not self.teleoperator:
+            station["use_teleoperator"] = False
         return {"catalogue": str(Path(self.catalogue).absolute()) if self.catalogue else "",
                 "use_sim_time": True, "real_time_factor": float(self.real_time_factor),
                 "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
@@ -118,7 +123,13 @@ class GraphConfig:
         }
         for node, extra in self.extra_params.items():
             params.setdefault(node, {}).update(extra)
+        if not self.teleoperator:
+            params.pop(TELEOP, None)
         return params
+
+    def model_nodes(self) -> tuple[str, ...]:
+        """The nodes that load the latent model (its `model_path`)."""
+        return (CONTROLLER, TELEOP) if self.teleoperator else (CONTROLLER,)
 
 
 def _stamp(msg) -> float:
@@ -239,14 +250,22 @@ class GraphObserver:
                         self.cond.acquire()
 
     def call(self, client, request, timeout: float, what: str):
+        return self.request(client, request, timeout, what)()
+
+    def request(self, client, request, timeout: float, what: str) -> Callable[[], object]:
+        """Send a service request now; the returned function waits for (at most `timeout`) and gives
+        its response, so that the caller can do other work while the service answers."""
         if not client.wait_for_service(timeout_sec=timeout):
             raise GraphError(f"service {client.srv_name} not available ({what})")
         done = threading.Event()
         fut = client.call_async(request)
         fut.add_done_callback(lambda _f: done.set())
-        if not done.wait(timeout):
-            raise GraphError(f"service {client.srv_name} did not answer within {timeout:.0f} s ({what})")
-        return fut.result()
+
+        def response():
+            if not done.wait(timeout):
+                raise GraphError(f"service {client.srv_name} did not answer within {timeout:.0f} s ({what})")
+            return fut.result()
+        return response
 
     def set_parameters(self, node: str, values: dict, timeout: float = 10.0) -> None:
         """Set run-time parameters of a node through its parameter service; GraphError if refused."""
@@ -358,7 +377,9 @@ class GraphEvaluator:
     def _wait_ready(self) -> None:
         obs, t = self.obs, self.config.startup_timeout
         t0 = time.monotonic()
-        clients = (obs.reset_cli, obs.redetect_cli, obs.start_cli, *obs.param_clis.values())
+        clients = (obs.reset_cli, obs.redetect_cli, *(obs.param_clis[n] for n in self.config.model_nodes()))
+        if self.config.teleoperator:
+            clients += (obs.start_cli,)
         for cli in clients:
             while not cli.wait_for_service(timeout_sec=0.5):
                 self.alive()
@@ -367,7 +388,8 @@ class GraphEvaluator:
         obs.wait_for(lambda: obs.q is not None, t, "joint_states from the bridge", self.alive)
         obs.wait_for(lambda: obs.detections is not None, t, "detections from the detector", self.alive)
         obs.wait_for(lambda: obs.ctrl is not None, t, "the controller's status", self.alive)
-        obs.wait_for(lambda: obs.teleop is not None, t, "the teleoperator's status", self.alive)
+        if self.config.teleoperator:
+            obs.wait_for(lambda: obs.teleop is not None, t, "the teleoperator's status", self.alive)
         self.log(f"[graph] up in {time.monotonic() - t0:.1f} s")
 
     def configure(self) -> None:
@@ -384,14 +406,16 @@ class GraphEvaluator:
         """Use another latent model: the controller and the teleoperator load it (their model_path)."""
         if str(model_path) == str(self.config.model_path):
             return
-        for node in (CONTROLLER, TELEOP):
+        for node in self.config.model_nodes():
             self.obs.set_parameters(node, {"model_path": str(model_path)}, timeout=30.0)
         self.config.model_path = str(model_path)
-        self.log(f"[graph] controller and teleoperator now use {model_path}")
+        self.log(f"[graph] {' and '.join(self.config.model_nodes())} now use {model_path}")
 
     # ------------------------------------------------------------------ episodes
     def run_episode(self, task: str, seed: int, label: str = "", n_objects: int = 1) -> EpisodeRecord:
         """Reset to the seeded layout of `task`, latch the context, let the teleoperator drive."""
+        if not self.config.teleoperator:
+            raise GraphError("run_episode needs the teleoperator (GraphConfig.teleoperator is False)")
         wall0 = time.monotonic()
         spec = parse_task(task, self.catalogue)
         used_seed, start_pose, q_now = self.reset_scene(spec, int(seed), n_objects)

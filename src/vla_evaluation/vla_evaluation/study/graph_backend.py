@@ -4,8 +4,8 @@
 as `vla_evaluation evaluate --mode graph` and `demo` do) plus the recorder, and per trial:
 - sets the controller's `mode` (latent or end_effector) and, for latent actions, its model;
 - resets the scene through the bridge's `~/reset` (the trial's seeded layout, as the evaluation);
-- latent actions: asks the controller to latch the new scene's detection (`~/redetect`);
-- starts a bag (`recorder/start_episode`, the trial's key in the note);
+- starts a bag (`recorder/start_episode`, the trial's key in the note) and, while it opens, for latent
+  actions asks the controller to latch the new scene's detection (`~/redetect`);
 - lets the participant drive: at the protocol's rate (simulated time) it sees the hand (forward
   kinematics of `joint_states`, what TF shows), the object (the simulation's ground truth
   `scene/objects`, what a person sees on the table) and the controller's status, and publishes `joy`:
@@ -13,14 +13,18 @@ as `vla_evaluation evaluate --mode graph` and `demo` do) plus the recorder, and 
   The controller turns it into a command (the decoder, or the end-effector baseline), and the bridge's
   safety layer into motion: every command takes the path a person's would;
 - ends at the participant's "done" or the time limit, releases the stick, lets the arm come to rest
-  (0.5 s), closes the bag and scores the trial with `runner.trial_row`, the physics backend's scorer.
-The shipped sim_teleoperator (the oracle) is in the launch too; it stays idle (no episode is asked of
-it), so the participant is the only publisher on `joy`.
+  (0.5 s), closes the bag and, while the recorder closes it, scores the trial with `runner.trial_row`,
+  the physics backend's scorer. Each row carries `wall_phases` (wall s of each step above) and
+  `trial_rtf` (simulated over wall s while the participant drove).
+The launch leaves out the shipped sim_teleoperator (the oracle; `GraphConfig.teleoperator`): the
+participant is the only publisher on `joy`, and no idle node follows joint_states or loads each model.
 """
 from __future__ import annotations
 
 import json
 import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -141,13 +145,26 @@ def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0) ->
         # stalled period); the participant's stick comes at the protocol's rate
         real_time_factor=real_time_factor, rate=100.0,
         settings=TeleopSettings(rate=float(p.rate), time_limit=float(p.time_limit)),
-        log_dir=Path(out) / "logs", record_dir=Path(out) / "bags",
+        log_dir=Path(out) / "logs", record_dir=Path(out) / "bags", teleoperator=False,
         # the stick at the protocol's rate: 0.5 sim s without joy zeroes the command (twice the
         # evaluation's 0.25 s: the participant runs in the study's process on a busy machine)
         joy_timeout=0.5,
         extra_params={CONTROLLER: {"axis": AXIS, "ee_mode_button": EE_MODE_BUTTON, "enable_button": -1,
                                    "ee_axes": list(p.end_effector_axes),
                                    "ee_debounce": float(p.end_effector_debounce)}})
+
+
+class PhaseClock:
+    """Wall seconds per named phase of a trial, in order (what the study's per-trial time is made of)."""
+
+    def __init__(self) -> None:
+        self.phases: dict[str, float] = {}
+        self._t = time.monotonic()
+
+    def mark(self, name: str) -> None:
+        now = time.monotonic()
+        self.phases[name] = round(now - self._t, 3)
+        self._t = now
 
 
 class GraphBackend:
@@ -189,13 +206,20 @@ class GraphBackend:
         from vla_evaluation.study.runner import task_goal, trial_row
 
         ev, obs, p = self.ev, self.ev.obs, self.p
+        clock = PhaseClock()
         mode = self._set_strategy(trial)
         spec = parse_task(trial.task, self.catalogue)
+        clock.mark("strategy")
         _seed, start, q_now = ev.reset_scene(spec, int(trial.layout_seed), 1)  # ~/reset, settled, detected
+        clock.mark("reset")
+        bag = self._start_bag(trial)  # the bag opens while the controller latches (it records the latch)
+        clock.mark("bag_start")
         note = ""
         if mode == "latent" and (why := ev.latch()):
             note = f"no context: {why}"  # the controller waits, nothing moves (as the physics backend)
-        bag = self._start_bag(trial)
+        clock.mark("latch")
+        bag_path = self._bag_opened(bag, trial)
+        clock.mark("bag_opened")
         op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed,
                            cycle=p.end_effector_axes)
         monitor = EpisodeMonitor(spec, start, self.kin, max(1, round(ev.config.state_rate / 20.0)), False)
@@ -209,13 +233,16 @@ class GraphBackend:
             obs.wait_for(driver.finished.is_set, wall_limit, f"the end of trial {trial.key}", ev.alive)
         finally:
             obs.driver = None
+        clock.mark("trial")
         t_end = driver.t_start + driver.t_end
         obs.wait_for(lambda: obs.objects_stamp >= t_end + SETTLE_S and obs.q_stamp >= t_end + SETTLE_S,
                      60.0, "the arm to rest after the trial", ev.alive)
         obs.monitor = None
         with obs.cond:
             q_final, end = obs.q.copy(), obs.objects.get(spec.object_class)
-        bag_row = self._stop_bag(t_end + SETTLE_S, bag)
+        clock.mark("settle")
+        bag_closed = self._stop_bag(t_end + SETTLE_S, bag_path)  # the recorder closes it while we score
+        clock.mark("bag_stop")
         keep = np.asarray(monitor.path_t) <= driver.t_end + 1e-9
         path = np.asarray(monitor.path)[keep[: len(monitor.path)]] if monitor.path else np.zeros((0, 3))
         times = np.asarray(monitor.path_t)[keep]
@@ -227,33 +254,46 @@ class GraphBackend:
                                 t_success=monitor.tracker.time_to_success, t_done=driver.t_done,
                                 t_end=driver.t_end, fse=final_state_error(q_final, final_wp),
                                 interventions=monitor.tally.interventions, start=start, note=note)
-        row.update(bag_row)
+        row.update(bag_closed())
         lim = monitor.limits  # measured on joint_states, as the evaluation's
         row.update(limit_violations=int(lim.violations), position_violations=int(lim.position_violations),
                    velocity_violations=int(lim.velocity_violations),
                    max_speed_ratio=round(float(lim.max_speed_ratio), 3))
+        clock.mark("score")  # with the bag's closing
+        # where the trial's wall time went, and the simulation's pace while the participant drove
+        rtf = driver.t_end / max(clock.phases["trial"], 1e-3)
+        row.update(wall_phases=clock.phases, trial_rtf=round(rtf, 2))
         return row, arrays
 
-    def _start_bag(self, trial) -> str:
+    def _start_bag(self, trial) -> Callable[[], StartEpisode.Response]:
+        """Ask the recorder for the trial's bag once its clock has passed the reset; returns the wait."""
         obs = self.ev.obs
         t_reset = obs.q_stamp  # the recorder's clock can lag the bridge's: start after the reset
         obs.wait_for(lambda: obs.recorder_stamp >= t_reset, 30.0, "the recorder's clock to pass the reset",
                      self.ev.alive)
-        res = obs.call(obs.rec_start_cli, StartEpisode.Request(task=trial.task, note=json.dumps(
+        return obs.request(obs.rec_start_cli, StartEpisode.Request(task=trial.task, note=json.dumps(
             {"study_trial": trial.key})), 30.0, "start the trial's bag")
+
+    def _bag_opened(self, started: Callable[[], StartEpisode.Response], trial) -> str:
+        res = started()
         if not res.success:
             raise GraphError(f"the recorder refused trial {trial.key}: {res.message}")
         return res.bag_path
 
-    def _stop_bag(self, t_end: float, bag: str) -> dict:
+    def _stop_bag(self, t_end: float, bag: str) -> Callable[[], dict]:
+        """Close the bag once the recorder's clock has passed the trial's end (else its tail is lost);
+        returns the wait for it, which gives the row's `bag`."""
         obs = self.ev.obs
-        # stop once the recorder's clock has passed the trial's end (else its tail is lost)
         obs.wait_for(lambda: obs.recorder_stamp >= t_end, 30.0, "the recorder to catch up", self.ev.alive)
-        res = obs.call(obs.rec_stop_cli, Trigger.Request(), 60.0, "close the trial's bag")
-        if not res.success:
-            raise GraphError(f"closing the bag {bag} failed: {res.message}")
-        try:
-            rel = str(Path(bag).resolve().relative_to(self.out.resolve()))
-        except ValueError:
-            rel = bag
-        return {"bag": rel}
+        stopped = obs.request(obs.rec_stop_cli, Trigger.Request(), 60.0, "close the trial's bag")
+
+        def closed() -> dict:
+            res = stopped()
+            if not res.success:
+                raise GraphError(f"closing the bag {bag} failed: {res.message}")
+            try:
+                rel = str(Path(bag).resolve().relative_to(self.out.resolve()))
+            except ValueError:
+                rel = bag
+            return {"bag": rel}
+        return closed

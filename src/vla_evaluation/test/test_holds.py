@@ -50,3 +50,16 @@ def test_a_graph_timeout_is_a_failed_hold_and_the_run_goes_on_with_a_new_graph()
         assert "graph errors" in t.line() and "[301]" in t.line()
     assert FakeGraph.started == 3 and FakeGraph.closed == 3  # the first graph and one per timeout
     assert sum("counted as a failed hold" in line for line in lines) == 2
+
+
+def test_a_hold_the_watchdog_stopped_is_counted_and_said():
+    from vla_evaluation.holds import HoldTally
+
+    tally = HoldTally("bread/push_east")
+    for seed, by_code in ((1, {}), (2, {int(SafetyStatus.COMMAND_TIMEOUT): 2}),
+                          (3, {int(SafetyStatus.AWAITING_ZERO): 1}), (4, {int(SafetyStatus.CONTACT): 3})):
+        r = EpisodeResult(task="bread/push_east", layout_seed=seed, mode="graph", success=True)
+        r.extra = {"interventions_by_code": by_code}
+        tally.add(EpisodeRecord(r, np.zeros((0, 3)), np.zeros(0)))
+    assert tally.stopped == 2  # the watchdog's stop and the wait for neutral; contact slowing is not one
+    assert "stopped by a late command   2" in tally.line()

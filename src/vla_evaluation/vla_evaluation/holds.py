@@ -15,6 +15,9 @@ from vla_evaluation.kinematic import TeleopSettings
 from vla_interfaces.msg import SafetyStatus
 
 FRESH_SEED = 300_000  # layouts from here on were never used for demonstrations or other evaluations
+# Stops no person chose that a loaded machine causes: a command late to the bridge's watchdog, then the
+# wait for neutral (the simulated person lets go and holds again). A hold with one lost time to it.
+MACHINE_STOPS = (int(SafetyStatus.COMMAND_TIMEOUT), int(SafetyStatus.AWAITING_ZERO))
 
 
 @dataclass
@@ -28,6 +31,7 @@ class HoldTally:
     max_speed_ratio: float = 0.0
     stick_range: tuple[float, float] = (float("inf"), float("-inf"))  # the stick values the arm saw
     reflex_seeds: list[int] = field(default_factory=list)
+    stopped: int = 0  # holds the bridge stopped (MACHINE_STOPS) at least once
     # holds the graph did not finish (a timeout on a loaded machine, a process that ended): counted as
     # failed holds, with what happened; their reflexes are unknown
     graph_errors: list[tuple[int, str]] = field(default_factory=list)
@@ -35,9 +39,11 @@ class HoldTally:
     def add(self, rec: EpisodeRecord) -> None:
         r = rec.result
         self.holds += 1
-        if r.extra.get("interventions_by_code", {}).get(int(SafetyStatus.REFLEX), 0) > 0:
+        by_code = r.extra.get("interventions_by_code", {})
+        if by_code.get(int(SafetyStatus.REFLEX), 0) > 0:
             self.reflexes += 1
             self.reflex_seeds.append(int(r.layout_seed))
+        self.stopped += any(by_code.get(c, 0) > 0 for c in MACHINE_STOPS)
         self.successes += bool(r.success)
         self.max_speed_ratio = max(self.max_speed_ratio, float(r.extra.get("max_speed_ratio", 0.0)))
         if rec.trace is not None and len(rec.trace):
@@ -55,7 +61,7 @@ class HoldTally:
             seeds += (f"  graph errors (failed holds, reflex unknown) in {len(self.graph_errors)}: seeds "
                       f"{[s for s, _ in self.graph_errors]}")
         return (f"{self.task:28s} holds {self.holds:3d}  reflexes {self.reflexes:3d}  "
-                f"task done {self.successes:3d}/{self.holds}  "
+                f"task done {self.successes:3d}/{self.holds}  stopped by a late command {self.stopped:3d}  "
                 f"max |dq|/dq_max {self.max_speed_ratio:.2f}{seeds}")
 
 

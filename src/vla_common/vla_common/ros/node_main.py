@@ -31,7 +31,6 @@
 from __future__ import annotations
 
 import faulthandler
-import gc
 import signal
 import sys
 import traceback
@@ -99,7 +98,6 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         node = make_node()
         executor = EventsExecutor()
         executor.add_node(node)
-        freeze_startup_heap()
         spin_until_stopped(node, executor, lambda: signals.received is not None)
         code = int(getattr(node, "exit_code", 0))
     except ConfigError as exc:
@@ -118,17 +116,6 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         _shutdown(node, name)
         faulthandler.cancel_dump_traceback_later()
     return code
-
-
-def freeze_startup_heap() -> None:
-    """Move what imports and the node's set-up allocated (tens of thousands of objects that live as long
-    as the process) out of the garbage collector's reach: a full collection then scans only what the
-    node allocated since. Before, each node's full collection scanned ~67k objects with the GIL held
-    (one to two a minute, 90-150 ms each at load 16 on the 2 cores, with a gen-1 pass up to 30 ms),
-    stalling every callback of the node and the operator station's web thread: the key -> command
-    latency's tail (issue 22). Garbage is collected first, so none of it is kept forever."""
-    gc.collect()
-    gc.freeze()
 
 
 def _watchdog(seconds: float) -> None:

@@ -215,7 +215,7 @@ class StickToCommand:
 
     Mirrors the controller's latent path (`teleop.TeleopCore`): stick clipped to [-1, 1]; within the
     deadband exactly zero, outside it rescaled so +-1 is still reached, times axis_scale (clipped);
-    z = gain(latched class) * u; command = action_scale * phi(z, s) from the NumPy decoder with the
+    z = gain(latched class) * u; command = action_scale * the NumPy decoder's velocity(z, s) with the
     episode's context latched; the whole vector scaled down to the max_joint_speed norm (the paper's
     1.5 rad/s) and to per-joint dq_max when given. A test checks it against the controller core.
     """
@@ -242,7 +242,7 @@ class StickToCommand:
 
     def __call__(self, axes: np.ndarray, q: np.ndarray) -> np.ndarray:
         u = self.stick(axes)
-        cmd = self.action_scale * self.decoder.decode_batch(q, u * self.gain)
+        cmd = self.action_scale * self.decoder.velocity_batch(q, u * self.gain)
         cmd[u == 0.0] = 0.0  # the controller's deadband gives exactly zero
         scale = np.ones(len(cmd))
         if self.max_joint_speed > 0:

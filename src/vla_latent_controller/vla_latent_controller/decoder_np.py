@@ -3,6 +3,15 @@
 The context is latched for an episode, so its contribution to the first layer, the state normalisation
 and the action de-normalisation are folded into the weights once per latch (:meth:`set_context`). A call
 is then three small mat-vecs on preallocated buffers.
+
+What the controller commands is :meth:`LatentDecoder.velocity`, not the raw action: the action at latent
+z is a chord of the demonstrations, q[t+w] - q[t], over a window w that grows with |z| (the training
+pairs take w = 1..10 samples, up to 1 s), and the stick's full extent is the latent of the longest
+chords (the 95th percentile of |z|). Commanded as a velocity, a 1 s chord aims where the demonstration
+will be a second later: a held full stick cut the demonstrations' corners, turned toward the push 15-20
+cm up and slid over the loaf instead of pushing it (issue 20). So the command keeps the chord's speed at
+z, the demonstrated speed, and takes its direction from the chord at ``PATH_FRACTION`` x z, a shorter
+window that follows the demonstrated path.
 """
 
 from __future__ import annotations
@@ -10,6 +19,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
+
+# The latent whose chord gives the command's direction, as a fraction of the stick's latent (1: the raw
+# action, the paper's command). Held-stick holds in physics mode on development layouts (400000...) did
+# the task in about the same number from 0.5 to 0.8 (docs/history/controller.md, 2026-12-03).
+PATH_FRACTION = 0.65
 
 
 class LatentDecoder:
@@ -71,6 +85,30 @@ class LatentDecoder:
         np.dot(self._A3, h2, out=out)
         out += self._c3
         return out
+
+    def velocity(self, q: np.ndarray, z: float, path_fraction: float = PATH_FRACTION) -> np.ndarray:
+        """The command (n,) for latent ``z`` at ``q`` (a new array): the speed of the chord at z in the
+        direction of the chord at ``path_fraction`` x z (see the module docstring)."""
+        chord = self.decode(q, z).copy()
+        if path_fraction == 1.0:
+            return chord
+        path = self.decode(q, path_fraction * z)
+        norm = float(np.linalg.norm(path))
+        if norm == 0.0:
+            return np.zeros_like(chord)
+        return path * (float(np.linalg.norm(chord)) / norm)  # a NaN stays NaN: the core refuses it
+
+    def velocity_batch(self, q: np.ndarray, zs: np.ndarray,
+                       path_fraction: float = PATH_FRACTION) -> np.ndarray:
+        """:meth:`velocity` for N latents (N, n), e.g. a simulated teleoperator's grid."""
+        zs = np.asarray(zs, np.float64).reshape(-1)
+        chord = self.decode_batch(q, zs)
+        if path_fraction == 1.0:
+            return chord
+        path = self.decode_batch(q, path_fraction * zs)
+        speed = np.linalg.norm(chord, axis=1, keepdims=True)
+        norm = np.linalg.norm(path, axis=1, keepdims=True)
+        return np.divide(path * speed, norm, out=np.zeros_like(path), where=norm != 0.0)  # NaN stays
 
     def decode_batch(self, q: np.ndarray, zs: np.ndarray) -> np.ndarray:
         """Actions (N, n) for one state ``q`` and N latents (e.g. a simulated teleoperator's z grid)."""

@@ -442,7 +442,7 @@ class TeleopCore:
         """(latent z, joint velocities in the active joints' order) for stick value u."""
         if self.mode == "latent":
             z = u * self.latched.gain
-            return z, self.model.decoder.decode(q, z) * self.params.action_scale
+            return z, self.model.decoder.velocity(q, z) * self.params.action_scale
         return u, self.ee.command(q, u)
 
     def stick_code(self, now: float) -> Code | None:

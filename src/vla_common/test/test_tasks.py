@@ -24,7 +24,7 @@ def test_task_table_matches_the_paper():
                           "glass_bottle/push_west"]
     assert UNSEEN_TASKS == ["cereal_box/push_south", "cereal_box/push_south_east", "cereal_box/circle"]
     hand = [t.name for t in default_catalogue().task_set("hand")]
-    assert hand == ["soda_can/lift", "soda_can/pick_place_west"]
+    assert hand == ["soda_can/lift", "soda_can/pick_place_west", "glass_bottle/pick_place_west"]
     assert set(TASKS) == set(BASE_TASKS + UNSEEN_TASKS + hand)
     t = TASKS["milk_carton/push_south_west"]
     assert (t.object_class, t.kind, t.direction, t.distance) == ("milk_carton", "push", "south_west", 0.15)

@@ -44,7 +44,8 @@ def run(sim, plan, obj_class, settle=0.5):
     return (times, heights), next(o for o in sim.object_poses() if o.class_id == obj_class)
 
 
-@pytest.mark.parametrize("task", ["soda_can/lift", "soda_can/pick_place_west"])
+@pytest.mark.parametrize("task", ["soda_can/lift", "soda_can/pick_place_west",
+                                  "glass_bottle/pick_place_west"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_scripted_grasp_tasks_succeed(sim, task, seed):
     cat = default_catalogue()
@@ -71,7 +72,29 @@ def _directions(plan, kin):
     return d[n > 1e-4] / n[n > 1e-4, None]
 
 
-@pytest.mark.parametrize("task", ["soda_can/lift", "soda_can/pick_place_west"])
+@pytest.mark.parametrize("task, placed", [("glass_bottle/pick_place_west", True),
+                                          ("soda_can/pick_place_west", False)])
+def test_the_bottle_is_picked_by_its_neck_with_the_hand_2cm_across(sim, task, placed):
+    """The glass bottle's pick-and-place grasps its 26 mm neck: the hand may be 2 cm off across
+    (the fingers' closing axis, y) and still carry it to the target; the soda can's 66 mm body in
+    the 80 mm hand is missed at 1 cm (bench/bench_grasp_window.py). A learned 1-D latent puts the
+    hand near, not at, the grasp point."""
+    from vla_common.objects import ObjectPose
+
+    cat = default_catalogue()
+    spec = cat.task(task)
+    rng = np.random.default_rng(7)
+    planned = ObjectPose(spec.object_class, 0.50, -0.05, 0.0)
+    actual = ObjectPose(spec.object_class, 0.50, -0.05 + 0.02, 0.0)
+    start = sim.reset(objects=[actual], q0=random_start_pose(rng))[0]
+    plan = plan_task(PandaKinematics(), spec, planned, sim.q, rng)
+    lift, end = run(sim, plan, spec.object_class)
+    ok, err, _above = task_success(spec, start, end, lift=lift)
+    assert ok == placed, (task, err, end)
+
+
+@pytest.mark.parametrize("task", ["soda_can/lift", "soda_can/pick_place_west",
+                                  "glass_bottle/pick_place_west"])
 def test_grasp_paths_never_go_back_over_themselves(task):
     """A 1-D latent has one way forward at each state: no move of the hand's path reverses the one
     before it (a vertical descent then a lift on the same line taught + down and up at once)."""

@@ -19,7 +19,7 @@ import pytest
 from vla_evaluation.study import participant as part
 from vla_evaluation.study.protocol import ProtocolError, latin_square, load_protocol
 from vla_evaluation.study.runner import task_goal, trial_plan
-from vla_evaluation.study.smoothness import sparc
+from vla_evaluation.study.smoothness import sparc, speed_profile
 
 ALLOWED_OBS = {"t", "hand", "obj", "controller_code", "ee_axis"}
 
@@ -155,6 +155,17 @@ def test_sparc_ranks_a_jerky_profile_below_a_smooth_one():
     assert sparc(jerky, 100.0) < sparc(smooth, 100.0) < 0
 
 
+def test_a_repeated_stamp_gives_a_finite_speed_and_a_non_finite_speed_no_sparc():
+    """A repeated stamp would divide by zero in np.gradient; a NaN or a resting arm's noise (1e-18 m/s,
+    a person's trial where the arm never moved) raised an IndexError in SPARC and lost the row."""
+    t = np.array([0.0, 0.1, 0.1, 0.2, 0.3, 0.4])
+    path = np.stack([t, 0 * t, 0 * t], axis=1)
+    speed = speed_profile(path, t)
+    assert len(speed) == 5 and np.allclose(speed, 1.0)
+    assert np.isnan(sparc(np.array([0.1, np.nan, 0.2, 0.3]), 20.0))
+    assert np.isnan(sparc(np.full(81, 3e-18), 20.0))   # a resting arm's noise (it raised IndexError)
+
+
 def test_latin_square_puts_each_strategy_once_in_each_position():
     for n in (2, 3, 4):
         rows = latin_square(n)
@@ -198,11 +209,12 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
                                   "--check"])) == 0
     printed = capsys.readouterr().out
     assert "2 participants, 4 trials" in printed and "P02:" in printed and not out.exists()
-    # real participants are refused before anything is made (they need the graph backend)
+    # real participants on the physics backend are refused before anything is made (a person drives
+    # the launched graph: test_study_person.py)
     from vla_evaluation.study.runner import run_study
 
-    with pytest.raises(SystemExit, match="P01"):
-        run_study(dataclasses.replace(load_protocol(f), participants=["P01"]), out)
+    with pytest.raises(SystemExit, match="P01.*--backend graph"):
+        run_study(dataclasses.replace(load_protocol(f), participants=["P01"], backend="physics"), out)
     assert not out.exists()
     f.write_text("participants: sim:3\nstrategies: [latent-YOLO\nsettings: {}\n")  # not YAML
     with pytest.raises(ProtocolError) as e:

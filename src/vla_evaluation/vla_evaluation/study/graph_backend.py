@@ -18,10 +18,17 @@ as `vla_evaluation evaluate --mode graph` and `demo` do) plus the recorder, and 
   `trial_rtf` (simulated over wall s while the participant drove).
 The launch leaves out the shipped sim_teleoperator (the oracle; `GraphConfig.teleoperator`): the
 participant is the only publisher on `joy`, and no idle node follows joint_states or loads each model.
+
+A real participant (an id without `sim:`) drives instead (:mod:`.person`): the launch adds the operator
+station (its address is printed for the person's screen; a joystick's `joy_node` may publish `joy`
+beside it), the study publishes nothing on `joy` and counts what the person sends, the experimenter
+confirms the start of each trial after the reset and ends it at the participant's "done" (or the time
+limit ends it). The rest (reset, bag, latch, scoring) is the same for both.
 """
 from __future__ import annotations
 
 import json
+import re
 import threading
 import time
 from collections.abc import Callable
@@ -40,6 +47,7 @@ from vla_evaluation.graph import (
     GraphObserver,
 )
 from vla_evaluation.study.participant import HumanOperator, HumanParams, Observation
+from vla_evaluation.study.person import Experimenter, InputTally, PersonDriver, run_person_trial
 from vla_evaluation.study.protocol import STRATEGIES, Protocol
 from vla_interfaces.msg import ControllerStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import StartEpisode
@@ -100,10 +108,12 @@ class TrialDriver:
 class StudyObserver(GraphObserver):
     """The evaluation's observer plus the participant's stick (`joy`) and the recorder's services."""
 
-    def __init__(self, ctx, keep_frames: bool, rate: float) -> None:
+    def __init__(self, ctx, keep_frames: bool, rate: float, persons: bool = False) -> None:
         super().__init__(ctx, keep_frames)
         n = self.node
         self.joy_pub = n.create_publisher(Joy, "joy", 10)
+        if persons:   # what a person sends (the station, a joystick), counted by their trial's driver
+            n.create_subscription(Joy, "joy", self._joy, 50)
         self.rec_start_cli = n.create_client(StartEpisode, f"{RECORDER}/start_episode")
         self.rec_stop_cli = n.create_client(Trigger, f"{RECORDER}/stop_episode")
         self.recorder: RecorderStatus | None = None
@@ -123,6 +133,11 @@ class StudyObserver(GraphObserver):
         if d is not None:
             d.tick(self)
 
+    def _joy(self, msg: Joy) -> None:
+        d = self.driver
+        if isinstance(d, PersonDriver):
+            d.op.on_joy(msg.axes, msg.buttons)
+
     def publish_stick(self, axis: float, press: bool = False) -> None:
         msg = Joy()
         msg.header.stamp = self.node.get_clock().now().to_msg()
@@ -135,7 +150,8 @@ class StudyObserver(GraphObserver):
         self.joy_pub.publish(msg)
 
 
-def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0) -> GraphConfig:
+def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0,
+                       operator_port: int | None = None) -> GraphConfig:
     from vla_evaluation.kinematic import TeleopSettings
     from vla_evaluation.resources import detector_model_path, latent_model_dir
 
@@ -146,6 +162,7 @@ def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0) ->
         real_time_factor=real_time_factor, rate=100.0,
         settings=TeleopSettings(rate=float(p.rate), time_limit=float(p.time_limit)),
         log_dir=Path(out) / "logs", record_dir=Path(out) / "bags", teleoperator=False,
+        operator_port=operator_port,
         # the stick at the protocol's rate: 0.5 sim s without joy zeroes the command (twice the
         # evaluation's 0.25 s: the participant runs in the study's process on a busy machine)
         joy_timeout=0.5,
@@ -170,19 +187,30 @@ class PhaseClock:
 class GraphBackend:
     """Runs each trial on the launched graph (start it once; `close()` stops it)."""
 
-    def __init__(self, protocol: Protocol, out: Path, log=print, real_time_factor: float = 2.0) -> None:
+    def __init__(self, protocol: Protocol, out: Path, log=print, real_time_factor: float = 2.0,
+                 experimenter: Experimenter | None = None, operator_port: int = 8080) -> None:
+        """`experimenter`: for real participants (None: simulated ones only); the operator station then
+        starts on 127.0.0.1:`operator_port` (0: any free port)."""
         from vla_common.kinematics import PandaKinematics
 
-        self.p, self.log = protocol, log
+        self.p, self.log, self.experimenter = protocol, log, experimenter
         Path(out, "logs").mkdir(parents=True, exist_ok=True)
         Path(out, "bags").mkdir(parents=True, exist_ok=True)
         self.out = Path(out)
-        cfg = study_graph_config(protocol, out, real_time_factor)
-        self.ev = GraphEvaluator(cfg, log, observer=lambda ctx, keep: StudyObserver(ctx, keep, protocol.rate))
+        persons = experimenter is not None
+        cfg = study_graph_config(protocol, out, real_time_factor, operator_port if persons else None)
+        self.ev = GraphEvaluator(cfg, log, observer=lambda ctx, keep: StudyObserver(ctx, keep, protocol.rate,
+                                                                                   persons))
         self.kin = PandaKinematics()
         self.mode: str | None = None
         self.ev.start()
         self.catalogue = self.ev.catalogue
+        self.station = ""
+        if persons:
+            found = re.search(r"operator station is at (\S+)", self.ev.runner.session.log_path.read_text())
+            self.station = found.group(1) if found else ""
+            log(f"[study] the participant drives from the operator station at {self.station or '(not found)'}"
+                " (or a joystick's joy_node)")
 
     def close(self) -> None:
         self.ev.close()
@@ -198,7 +226,8 @@ class GraphBackend:
             self.ev.set_model(str(latent_model_dir(self.p.models[trial.strategy][trial.setting])))
         return mode
 
-    def run(self, trial, params: HumanParams, operator_seed: int) -> tuple[dict, dict]:
+    def run(self, trial, params: HumanParams | None, operator_seed: int) -> tuple[dict, dict]:
+        """One trial: `params` of a simulated participant, None for a person (the experimenter's)."""
         from vla_common.tasks import parse_task
 
         from vla_evaluation.kinematic import plan_waypoints
@@ -220,16 +249,26 @@ class GraphBackend:
         clock.mark("latch")
         bag_path = self._bag_opened(bag, trial)
         clock.mark("bag_opened")
-        op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed,
-                           cycle=p.end_effector_axes)
         monitor = EpisodeMonitor(spec, start, self.kin, max(1, round(ev.config.state_rate / 20.0)), False)
+        wall_limit = p.time_limit / max(ev.config.real_time_factor, 0.05) * 4 + 60
+        person = params is None
+        if person:
+            self.experimenter.confirm(f"Trial {trial.key}: {trial.task} with {trial.strategy}"
+                                      f" ({trial.phase}). The scene is reset; is the participant ready?")
         obs.monitor = monitor
         monitor.t_start = obs.now()
-        driver = TrialDriver(op, spec.object_class, monitor.t_start, float(p.time_limit), self.kin,
-                             mode == "end_effector")
+        if person:
+            driver = PersonDriver(InputTally(AXIS, EE_MODE_BUTTON), monitor.t_start, float(p.time_limit))
+        else:
+            op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed,
+                               cycle=p.end_effector_axes)
+            driver = TrialDriver(op, spec.object_class, monitor.t_start, float(p.time_limit), self.kin,
+                                 mode == "end_effector")
         obs.driver = driver
         try:
-            wall_limit = p.time_limit / max(ev.config.real_time_factor, 0.05) * 4 + 60
+            if person:
+                run_person_trial(driver, self.experimenter, f"Driving (at most {p.time_limit:g} s): "
+                                 "when the participant says done", wall_limit)
             obs.wait_for(driver.finished.is_set, wall_limit, f"the end of trial {trial.key}", ev.alive)
         finally:
             obs.driver = None
@@ -250,7 +289,7 @@ class GraphBackend:
             raise GraphError(f"{spec.object_class} missing from scene/objects after trial {trial.key}")
         ok, disp, _ang = judge_task(spec, start, end, path[:, :2] if len(path) else np.zeros((0, 2)))
         final_wp = plan_waypoints(self.kin, spec, start, q_now, catalogue=self.catalogue)[-1]
-        row, arrays = trial_row(op, path, times, np.asarray(driver.sticks), ok=ok, disp=disp,
+        row, arrays = trial_row(driver.op, path, times, np.asarray(driver.sticks), ok=ok, disp=disp,
                                 t_success=monitor.tracker.time_to_success, t_done=driver.t_done,
                                 t_end=driver.t_end, fse=final_state_error(q_final, final_wp),
                                 interventions=monitor.tally.interventions, start=start, note=note)

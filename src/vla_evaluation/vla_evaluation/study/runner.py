@@ -11,6 +11,8 @@ protocol is refused.
 Backends, one participant model and one scorer (`trial_row`), two transports:
 - `graph` (the default, and what CI's reduced study runs): the shipped launch file through the one
   graph runner, the participant's stick as sensor_msgs/Joy, each trial a bag (study/graph_backend.py);
+  A real participant (an id without `sim:`) drives the same graph from the operator station or a
+  joystick, the experimenter starting and ending each trial at the terminal (study/person.py);
 - `physics`: the graph's computations in one process (MuJoCo PandaSim, the bridge's SafetyFilter, the
   controller's StickToCommand / EndEffectorBaseline; vla_evaluation.physics), several times faster:
   for the sensitivity sweep and the oracle comparison, not for the study's record.
@@ -34,6 +36,7 @@ from vla_evaluation.study.participant import (
     TaskGoal,
     population,
 )
+from vla_evaluation.study.person import Experimenter, InputTally, TerminalExperimenter
 from vla_evaluation.study.protocol import STRATEGIES, Protocol, latin_square
 from vla_evaluation.study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
 
@@ -285,8 +288,8 @@ class PhysicsBackend:
                          interventions=safety.interventions, start=start, note=note)
 
 
-def trial_row(op: HumanOperator, path: np.ndarray, times: np.ndarray, sticks: np.ndarray, *, ok: bool,
-              disp: float, t_success: float | None, t_done: float | None, t_end: float, fse: float,
+def trial_row(op: HumanOperator | InputTally, path: np.ndarray, times: np.ndarray, sticks: np.ndarray, *,
+              ok: bool, disp: float, t_success: float | None, t_done: float | None, t_end: float, fse: float,
               interventions: int, start, note: str) -> tuple[dict, dict]:
     """One trial's row and arrays from what any backend measured: the TCP path (T, 3) and its times
     (s since the trial began), the stick, the outcome; the participant's counts from the operator.
@@ -306,9 +309,9 @@ def trial_row(op: HumanOperator, path: np.ndarray, times: np.ndarray, sticks: np
         "path_length_m": round(path_length(path), 4),
         "n_inputs": int(op.n_inputs),
         "mode_switches": int(op.n_switches),
-        "mode_switch_s": round(float(op.switch_s), 3),
+        "mode_switch_s": None if op.switch_s is None else round(float(op.switch_s), 3),
         "reversals": int(op.reversals),
-        "lapses": int(op.lapses),
+        "lapses": None if op.lapses is None else int(op.lapses),   # None: a person's are not seen
         "sparc": round(sparc(speed, 1.0 / (every * dt)), 4) if len(speed) > 2 else None,
         "ldlj": (round(log_dimensionless_jerk(path[::every], times[::every]), 4)
                  if len(path) > 5 * every else None),
@@ -322,13 +325,15 @@ def trial_row(op: HumanOperator, path: np.ndarray, times: np.ndarray, sticks: np
 
 
 def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], None] = print,
-              ask: Callable[[str], str] = input, limit: int | None = None) -> StudyStore:
-    """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials."""
+              ask: Callable[[str], str] = input, limit: int | None = None,
+              experimenter: Experimenter | None = None) -> StudyStore:
+    """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials.
+    Real participants (ids without `sim:`) drive the launched graph themselves, with the experimenter at
+    this terminal (`experimenter`: another front end, or a test's)."""
     real = [w for w in protocol.participants if not w.startswith("sim:")]
-    if real:  # refused before anything is made or run
-        raise SystemExit(f"real participants ({', '.join(real)}) need the experimenter's reset and a "
-                         "person's joystick on the robot's launch, which are not done yet "
-                         "(docs/study-participants.md); --check prints their sessions")
+    if real and protocol.backend != "graph" and backend is None:  # refused before anything is made or run
+        raise SystemExit(f"real participants ({', '.join(real)}) drive the launched graph: the "
+                         f"{protocol.backend} backend has no input for a person (use --backend graph)")
     store = StudyStore(out, protocol)
     plan = trial_plan(protocol)
     todo = [t for t in plan if t.key not in store.done]
@@ -338,8 +343,10 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
         return store
     own = backend is None
     if own:
+        if real and experimenter is None:
+            experimenter = TerminalExperimenter()
         backend = (PhysicsBackend(protocol) if protocol.backend == "physics" else
-                   _graph_backend(protocol, out, log))
+                   _graph_backend(protocol, out, log, experimenter if real else None))
     try:
         _run_trials(protocol, store, todo, backend, log, ask, limit, out)
     finally:
@@ -348,10 +355,10 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
     return store
 
 
-def _graph_backend(protocol: Protocol, out: Path, log):
+def _graph_backend(protocol: Protocol, out: Path, log, experimenter: Experimenter | None):
     from vla_evaluation.study.graph_backend import GraphBackend
 
-    return GraphBackend(protocol, out, log)
+    return GraphBackend(protocol, out, log, experimenter=experimenter)
 
 
 def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backend, log, ask, limit,
@@ -363,7 +370,7 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
             break
         who = trial.participant
         wall0 = time.monotonic()
-        row, arrays = backend.run(trial, params[who], operator_seed=hash_seed(trial.key))
+        row, arrays = backend.run(trial, params.get(who), operator_seed=hash_seed(trial.key))
         row.update({"key": trial.key, "file": trial.file_stem, "participant": who,
                     "strategy": trial.strategy, "setting": trial.setting, "task": trial.task,
                     "trial": trial.trial, "phase": trial.phase, "layout_seed": trial.layout_seed,

@@ -15,13 +15,22 @@ def speed_profile(path: np.ndarray, times: np.ndarray) -> np.ndarray:
     path, times = np.asarray(path, float), np.asarray(times, float)
     if len(path) < 3:
         return np.zeros(0)
+    # a repeated stamp (two joint_states with one time) would divide by zero: the first of them stays
+    later = np.concatenate([[True], np.diff(times) > 0])
+    path, times = path[later], times[later]
+    if len(path) < 3:
+        return np.zeros(0)
     return np.linalg.norm(np.gradient(path, times, axis=0), axis=1)
 
 
+STILL = 1e-9   # m/s: a hand slower than this all along did not move (numerical noise of a resting arm)
+
+
 def sparc(speed: np.ndarray, fs: float, pad_level: int = 4, fc: float = 10.0, amp_th: float = 0.05) -> float:
-    """Spectral arc length of a speed profile sampled at fs Hz (the authors' reference algorithm)."""
+    """Spectral arc length of a speed profile sampled at fs Hz (the authors' reference algorithm); NaN
+    for a hand that did not move (its spectrum is noise)."""
     speed = np.asarray(speed, float)
-    if len(speed) < 3 or not np.any(speed > 0):
+    if len(speed) < 3 or not np.all(np.isfinite(speed)) or not np.any(speed > STILL):
         return float("nan")
     nfft = int(2 ** (np.ceil(np.log2(len(speed))) + pad_level))
     f = np.arange(0, fs, fs / nfft)

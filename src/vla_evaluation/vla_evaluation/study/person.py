@@ -1,0 +1,137 @@
+"""A real participant's trial: a person drives, the experimenter starts and ends each trial.
+
+The person's input reaches the controller as any `joy` does: the operator station's page (the address
+is printed when the graph starts) or a joystick's `joy_node` started beside the graph. The study
+publishes nothing on `joy` for a person; it only watches what the person sends, to count their inputs
+as the simulated participant counts its own (a new deflection from rest or the other way, a press of
+the end-effector's mode button, a reversal of the stick).
+
+The experimenter, at the study's terminal:
+- confirms that the participant is ready once the scene is reset (on the simulated robot the runner
+  resets it through `~/reset`; the trial's clock starts at the confirmation);
+- ends the trial when the participant says done (Enter), or the protocol's time limit ends it.
+Both are calls on an :class:`Experimenter`, so that a test (or another front end) can play the part.
+"""
+from __future__ import annotations
+
+import select
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol as TypingProtocol
+
+DEFLECTED = 0.1   # |axis| above this counts as a deflection (a joystick's typical 0.05-0.1 deadband)
+
+
+class Experimenter(TypingProtocol):
+    def confirm(self, text: str) -> None:
+        """Block until the experimenter confirms `text`."""
+
+    def wait_done(self, text: str, ended: Callable[[], bool]) -> bool:
+        """Block until the experimenter says the participant is done (True) or `ended()` (False)."""
+
+
+class TerminalExperimenter:
+    """The experimenter at the study's terminal: Enter confirms, Enter ends the trial."""
+
+    def __init__(self, stream=None, poll_s: float = 0.1) -> None:
+        self.stream, self.poll_s = stream if stream is not None else sys.stdin, poll_s
+
+    def confirm(self, text: str) -> None:
+        print(f"\n{text} [Enter]", flush=True)
+        self.stream.readline()
+
+    def wait_done(self, text: str, ended: Callable[[], bool]) -> bool:
+        """Enter, or the time limit; polls stdin so that no reader is left waiting after the trial
+        (it would swallow the next confirmation)."""
+        print(f"{text} [Enter]", flush=True)
+        while not ended():
+            ready, _, _ = select.select([self.stream], [], [], self.poll_s)
+            if ready:
+                self.stream.readline()
+                return True
+        return False
+
+
+@dataclass
+class InputTally:
+    """A person's inputs, counted from the `joy` they send: the fields the study's rows take from the
+    simulated participant (`trial_row`). What a person does not show (their lapses) is None."""
+
+    axis: int = 0
+    mode_button: int = 0
+    n_inputs: int = 0
+    n_switches: int = 0
+    switch_s: float | None = None
+    reversals: int = 0
+    lapses: int | None = None
+    sticks: list[float] = field(default_factory=list)
+    _sign: int = 0
+    _pressed: bool = False
+
+    def on_joy(self, axes, buttons) -> None:
+        a = float(axes[self.axis]) if len(axes) > self.axis else 0.0
+        sign = 0 if abs(a) <= DEFLECTED else (1 if a > 0 else -1)
+        if sign and sign != self._sign:
+            self.n_inputs += 1              # from rest, or the other way
+            if self._sign:
+                self.reversals += 1
+        self._sign = sign
+        pressed = len(buttons) > self.mode_button >= 0 and bool(buttons[self.mode_button])
+        if pressed and not self._pressed:
+            self.n_inputs += 1              # the end-effector's mode button
+        self._pressed = pressed
+        self.sticks.append(a)
+
+    def on_mode(self, changed: bool) -> None:
+        """The controller's end-effector axis changed: one mode switch (however many presses)."""
+        self.n_switches += int(changed)
+
+
+class PersonDriver:
+    """The trial of a person: the study watches; it ends at the experimenter's word or the time limit.
+    Duck-types graph_backend's TrialDriver (tick, finished, t_start, t_end, t_done, sticks, op)."""
+
+    def __init__(self, tally: InputTally, t_start: float, time_limit: float) -> None:
+        self.op = tally
+        self.t_start, self.time_limit = t_start, time_limit
+        self.t_done: float | None = None
+        self.t_end: float | None = None
+        self.finished = threading.Event()
+        self._said_done = threading.Event()
+        self._ee_axis: str | None = None
+
+    @property
+    def sticks(self) -> list[float]:
+        return self.op.sticks
+
+    def said_done(self) -> None:
+        self._said_done.set()
+
+    def tick(self, obs) -> None:
+        if self.finished.is_set():
+            return
+        t = obs.now() - self.t_start
+        with obs.cond:
+            ctrl = obs.ctrl
+        if ctrl is not None and ctrl.ee_axis:
+            self.op.on_mode(self._ee_axis is not None and ctrl.ee_axis != self._ee_axis)
+            self._ee_axis = ctrl.ee_axis
+        if self._said_done.is_set() or t >= self.time_limit:
+            if self._said_done.is_set():
+                self.t_done = t
+            self.t_end = min(t, self.time_limit)
+            with obs.cond:
+                self.finished.set()
+                obs.cond.notify_all()
+
+
+def run_person_trial(driver: PersonDriver, experimenter: Experimenter, text: str,
+                     wall_limit: float) -> None:
+    """The experimenter's side of a trial: Enter when the participant says done (in this thread);
+    returns once the trial has ended either way (or `wall_limit` wall s passed)."""
+    deadline = time.monotonic() + wall_limit
+    if experimenter.wait_done(text, lambda: driver.finished.is_set() or time.monotonic() > deadline):
+        driver.said_done()

@@ -199,3 +199,33 @@ def test_trained_detector_context_is_standardised_as_configured(scale):
     want = np.maximum(xy.std(0), 0.02) if scale is None else [scale, scale]
     assert std == pytest.approx(want)
     assert res.config["hyper_parameters"]["position_scale"] == scale
+
+
+def test_training_windows_do_not_span_a_grasp():
+    """A pick-and-place demo moves joint 1 up to the grasp, dwells while the hand closes, then
+    joint 2: no training pair may lead from before the grasp to after it (the decoder then cut the
+    corner and turned towards the carry short of the grasp point). Demos without hand events keep
+    their windows whole."""
+    from types import SimpleNamespace
+
+    from vla_latent_training.inputs import DemoInput, hand_cuts
+    from vla_latent_training.pairs import make_pairs as paper_pairs
+    from vla_latent_training.train import build_pairs
+
+    t = np.arange(40) * 0.1
+    q = np.zeros((40, 7))
+    q[:20, 0] = np.linspace(0.0, 0.5, 20)
+    q[20:, 0] = 0.5
+    q[25:, 1] = np.linspace(0.0, 0.4, 15)
+    demo = SimpleNamespace(t=t, q=q, grasp_events=[(0.0, 1, ""), (1.93, 2, ""), (2.9, 3, "can")])
+    assert hand_cuts(demo) == (20,)
+    item = DemoInput("can/pick_place_west", "can", q, "bag", cuts=hand_cuts(demo))
+    cfg = TrainConfig(sigma=0.0, reverse_pairs=False)
+    pairs = build_pairs([item], cfg, paper_pairs, np.random.default_rng(0))
+    spans = (np.abs(pairs.a[:, 0]) > 1e-9) & (np.abs(pairs.a[:, 1]) > 1e-9)
+    assert not spans.any()
+    assert pairs.per_demo == [len(pairs.q)] and len(pairs.q) > 0
+    whole = build_pairs([item], replace(cfg, hand_segments=False), paper_pairs, np.random.default_rng(0))
+    assert whole.n_forward == sum(40 - w for w in range(1, 11))
+    assert ((np.abs(whole.a[:, 0]) > 1e-9) & (np.abs(whole.a[:, 1]) > 1e-9)).any()  # as before
+    assert hand_cuts(SimpleNamespace(t=t, q=q, grasp_events=[])) == ()

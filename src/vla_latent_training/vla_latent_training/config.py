@@ -35,6 +35,8 @@ class TrainConfig:
     seed: int = 0
     zero_weight: float = 10.0
     reverse_pairs: bool = True
+    # training windows never span a hand motion (a grasp, an open): see inputs.hand_cuts
+    hand_segments: bool = True
     bounded_latent: bool = True
     normalise: bool = True
     feature_dim: int = CNN_FEATURE_DIM
@@ -52,7 +54,7 @@ class TrainConfig:
         """Exactly the paper's public code: unbounded latent, raw units, no z = 0 term."""
         kw = dict(
             zero_weight=0.0, reverse_pairs=False, bounded_latent=False, normalise=False, paper_exact=True,
-            hidden=30,
+            hidden=30, hand_segments=False,
         )
         kw.update(overrides)
         return cls(**kw)
@@ -77,6 +79,7 @@ class TrainConfig:
             ("tanh latent", self.bounded_latent),
             ("normalised", self.normalise),
             ("reversed pairs", self.reverse_pairs),
+            ("hand-split windows", self.hand_segments),
         )
         return "improved: " + ", ".join(name for name, enabled in on if enabled)
 

@@ -24,6 +24,9 @@ class DemoInput:
     det: Detection | None = None
     image_size: tuple[int, int] | None = None
     image: np.ndarray | None = None  # preprocessed (3, h, w) float32
+    # samples of q where the hand starts to close or open (tasks with the hand): training windows
+    # do not span them (see hand_cuts)
+    cuts: tuple[int, ...] = ()
 
 
 class SkipError(Exception):
@@ -50,7 +53,8 @@ def prepare_demos(
     for demo in demos:
         path = str(getattr(demo, "bag_path", "") or demo.task)
         try:
-            item = DemoInput(task=demo.task, class_id=demo.object_class, q=_trajectory(demo), bag_path=path)
+            item = DemoInput(task=demo.task, class_id=demo.object_class, q=_trajectory(demo), bag_path=path,
+                             cuts=hand_cuts(demo))
             if encoder == "detector":
                 item.det, item.image_size = _detection(demo, classes, detector)
             else:
@@ -60,6 +64,25 @@ def prepare_demos(
             continue
         kept.append(item)
     return kept, skipped
+
+
+# GripperStatus states that start a hand motion (vla_interfaces: MOVING = 1 opens or moves, GRASPING = 2)
+HAND_MOTION_STATES = (1, 2)
+
+
+def hand_cuts(demo) -> tuple[int, ...]:
+    """The samples of the demo's trajectory at which the hand starts a motion (a grasp, an open).
+
+    A window across one pairs states before the grasp with where the arm is after it, so the decoder
+    learns to cut the corner: from 5 pick-and-place demonstrations its path turned up towards the
+    carry 1-3 cm short of and above the grasp point, outside the hand's window. Cut there, the
+    approach's pairs all lead to the grasp point, and the carry starts from it."""
+    t = np.asarray(getattr(demo, "t", ()), dtype=np.float64)
+    events = getattr(demo, "grasp_events", None) or ()
+    if len(t) < 3:
+        return ()
+    cuts = {int(np.searchsorted(t, when)) for when, state, _held in events if state in HAND_MOTION_STATES}
+    return tuple(sorted(c for c in cuts if 0 < c < len(t) - 1))
 
 
 def _trajectory(demo) -> np.ndarray:

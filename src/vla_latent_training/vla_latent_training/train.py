@@ -87,21 +87,32 @@ class PairSet:
 
 
 class _PairDemo:
-    """The minimal Demo view make_pairs needs."""
+    """The minimal Demo view make_pairs needs: one stretch of a demo's trajectory."""
 
-    def __init__(self, item: DemoInput):
-        self.task, self.object_class, self.q = item.task, item.class_id, item.q
-        self.t = np.arange(len(item.q)) * 0.1
+    def __init__(self, item: DemoInput, q: np.ndarray):
+        self.task, self.object_class, self.q = item.task, item.class_id, q
+        self.t = np.arange(len(q)) * 0.1
+
+
+def segments(item: DemoInput, cfg: TrainConfig) -> list[np.ndarray]:
+    """The stretches of a demo's trajectory that windows may span: split at its hand motions
+    (``cfg.hand_segments``; each cut sample ends one stretch and starts the next), else whole."""
+    bounds = [0, *(item.cuts if cfg.hand_segments else ()), len(item.q) - 1]
+    return [item.q[a:b + 1] for a, b in zip(bounds, bounds[1:]) if b > a]
 
 
 def build_pairs(items: Sequence[DemoInput], cfg: TrainConfig, pairs_fn: Callable,
                 rng: np.random.Generator) -> PairSet:
-    """The demos' pairs (``pairs_fn``, the paper's windows), then their reverses when configured."""
+    """The demos' pairs (``pairs_fn``, the paper's windows, within each segment), then their
+    reverses when configured."""
     qs, acts, demo_of = [], [], []
     for i, item in enumerate(items):
-        qn, a = pairs_fn(_PairDemo(item), rng, windows=cfg.windows, sigma=cfg.sigma)
-        qs.append(np.asarray(qn, np.float64))
-        acts.append(np.asarray(a, np.float64))
+        made = [pairs_fn(_PairDemo(item, q), rng, windows=cfg.windows, sigma=cfg.sigma)
+                for q in segments(item, cfg)]
+        qn = np.concatenate([np.asarray(m[0], np.float64).reshape(-1, item.q.shape[1]) for m in made])
+        a = np.concatenate([np.asarray(m[1], np.float64).reshape(-1, item.q.shape[1]) for m in made])
+        qs.append(qn)
+        acts.append(a)
         demo_of.append(np.full(len(qn), i))
     q, a, d = np.concatenate(qs), np.concatenate(acts), np.concatenate(demo_of)
     n_forward = len(q)

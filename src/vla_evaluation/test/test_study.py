@@ -277,8 +277,9 @@ def _bag_joy(bag: Path) -> list:
 
 def test_the_study_graph_leaves_the_idle_oracle_out(tmp_path):
     """The participant drives: the study's launch starts no sim_teleoperator (an idle one followed
-    joint_states and loaded each model change), and only the controller is given the models."""
-    from vla_evaluation.graph import CONTROLLER, LAUNCH_FILE, TELEOP
+    joint_states and loaded each model change), only the controller is given the models, and the
+    camera renders only as often as the latch after a reset needs."""
+    from vla_evaluation.graph import CONTROLLER, LAUNCH_FILE, TELEOP, GraphConfig
     from vla_evaluation.study.cli import SHIPPED
     from vla_evaluation.study.graph_backend import study_graph_config
     from vla_launch.plan import find_launch_file
@@ -287,6 +288,9 @@ def test_the_study_graph_leaves_the_idle_oracle_out(tmp_path):
 
     cfg = study_graph_config(load_protocol(SHIPPED), tmp_path)
     assert TELEOP not in cfg.node_parameters() and cfg.model_nodes() == (CONTROLLER,)
+    # the camera only serves the latch after a reset: slower than the evaluation's (rendering is CPU)
+    evaluation = GraphConfig(model_path="", detector_model="")
+    assert 0 < cfg.launch_arguments()["camera_rate"] < evaluation.camera_rate
     args = {k: argument_text(v) for k, v in cfg.launch_arguments().items()}
     _plan, specs = load_launch(find_launch_file(*LAUNCH_FILE), args, str(tmp_path))
     labels = " ".join(s.label for s in specs)

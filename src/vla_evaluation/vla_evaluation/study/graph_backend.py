@@ -55,6 +55,10 @@ from vla_interfaces.srv import StartEpisode
 RECORDER = "recorder"
 AXIS, EE_MODE_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 4  # the stick as the controller is set up for it
 SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to settle (as the physics backend)
+# The camera (sim Hz): a trial needs a frame only to latch the context after the reset (the participant
+# sees the scene's ground truth); at the evaluation's 5 Hz rendering and detecting the frames nobody
+# reads took ~0.2 of the graph's ~0.7 cores (py-spy and /proc at load ~24). 2 Hz: a frame within 0.5 s.
+CAMERA_RATE = 2.0
 
 
 class TrialDriver:
@@ -159,7 +163,7 @@ def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0,
         model_path=str(latent_model_dir("default")), detector_model=str(detector_model_path()),
         # the controller commands at its shipped 100 Hz (the bridge's 0.1 s watchdog then survives a
         # stalled period); the participant's stick comes at the protocol's rate
-        real_time_factor=real_time_factor, rate=100.0,
+        real_time_factor=real_time_factor, rate=100.0, camera_rate=CAMERA_RATE,
         settings=TeleopSettings(rate=float(p.rate), time_limit=float(p.time_limit)),
         log_dir=Path(out) / "logs", record_dir=Path(out) / "bags", teleoperator=False,
         operator_port=operator_port,
@@ -301,7 +305,7 @@ class GraphBackend:
         clock.mark("score")  # with the bag's closing
         # where the trial's wall time went, and the simulation's pace while the participant drove
         rtf = driver.t_end / max(clock.phases["trial"], 1e-3)
-        row.update(wall_phases=clock.phases, trial_rtf=round(rtf, 2))
+        row.update(wall_phases=clock.phases, trial_rtf=round(rtf, 2), camera_rate=ev.config.camera_rate)
         return row, arrays
 
     def _start_bag(self, trial) -> Callable[[], StartEpisode.Response]:

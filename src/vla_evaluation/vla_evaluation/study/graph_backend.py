@@ -56,8 +56,9 @@ RECORDER = "recorder"
 AXIS, EE_MODE_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 4  # the stick as the controller is set up for it
 SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to settle (as the physics backend)
 # The camera (sim Hz): a trial needs a frame only to latch the context after the reset (the participant
-# sees the scene's ground truth); at the evaluation's 5 Hz rendering and detecting the frames nobody
-# reads took ~0.2 of the graph's ~0.7 cores (py-spy and /proc at load ~24). 2 Hz: a frame within 0.5 s.
+# sees the scene's ground truth). A 640x480 frame costs ~17 ms of CPU to render and ~8 ms to detect
+# (measured in-process), so 5 Hz (the evaluation's) spent ~0.12 CPU s per simulated s of the graph's
+# ~0.65 on frames nobody reads; 2 Hz spends ~0.05, and a frame comes within 0.5 sim s of a request.
 CAMERA_RATE = 2.0
 
 

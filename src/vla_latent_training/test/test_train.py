@@ -204,9 +204,8 @@ def test_trained_detector_context_is_standardised_as_configured(scale):
 def test_training_windows_do_not_span_a_grasp():
     """A pick-and-place demo moves joint 1 up to the grasp, dwells while the hand closes, then
     joint 2: no training pair may lead from before the grasp to after it (the decoder then cut the
-    corner and turned towards the carry short of the grasp point), and none starts in the dwell
-    (zero actions there held the grasped object in place for every latent). Demos without hand
-    events keep their windows whole."""
+    corner and turned towards the carry short of the grasp point). Demos without hand events keep
+    their windows whole."""
     from types import SimpleNamespace
 
     from vla_latent_training.inputs import DemoInput, hand_cuts
@@ -215,8 +214,8 @@ def test_training_windows_do_not_span_a_grasp():
 
     t = np.arange(40) * 0.1
     q = np.zeros((40, 7))
-    q[:21, 0] = np.linspace(0.0, 0.5, 21)   # arrives at the grasp (sample 20), waits 0.5 s
-    q[21:, 0] = 0.5
+    q[:20, 0] = np.linspace(0.0, 0.5, 20)
+    q[20:, 0] = 0.5
     q[25:, 1] = np.linspace(0.0, 0.4, 15)
     demo = SimpleNamespace(t=t, q=q, grasp_events=[(0.0, 1, ""), (1.93, 2, ""), (2.9, 3, "can")])
     assert hand_cuts(demo) == (20,)
@@ -225,8 +224,6 @@ def test_training_windows_do_not_span_a_grasp():
     pairs = build_pairs([item], cfg, paper_pairs, np.random.default_rng(0))
     spans = (np.abs(pairs.a[:, 0]) > 1e-9) & (np.abs(pairs.a[:, 1]) > 1e-9)
     assert not spans.any()
-    # nor does one teach "stay" at the grasp point while the fingers close: every pair moves the arm
-    assert np.all(np.linalg.norm(pairs.a, axis=1) > 1e-9)
     assert pairs.per_demo == [len(pairs.q)] and len(pairs.q) > 0
     whole = build_pairs([item], replace(cfg, hand_segments=False), paper_pairs, np.random.default_rng(0))
     assert whole.n_forward == sum(40 - w for w in range(1, 11))

@@ -94,26 +94,11 @@ class _PairDemo:
         self.t = np.arange(len(q)) * 0.1
 
 
-# rad: the arm counts as still at a stretch's start while it is this close to where the stretch began
-STILL_RAD = 2e-3
-
-
 def segments(item: DemoInput, cfg: TrainConfig) -> list[np.ndarray]:
     """The stretches of a demo's trajectory that windows may span: split at its hand motions
-    (``cfg.hand_segments``; each cut sample ends one stretch and starts the next), else whole.
-
-    A stretch that starts at a hand motion starts where the arm moves again: the arm waits there
-    while the fingers close (1.4 s, longer than the longest window), and those pairs taught "stay"
-    at the grasp point for every latent, a trap the user could not steer the held object out of."""
+    (``cfg.hand_segments``; each cut sample ends one stretch and starts the next), else whole."""
     bounds = [0, *(item.cuts if cfg.hand_segments else ()), len(item.q) - 1]
-    out = []
-    for k, (a, b) in enumerate(zip(bounds, bounds[1:])):
-        if k > 0:
-            moved = np.flatnonzero(np.linalg.norm(item.q[a:b + 1] - item.q[a], axis=1) > STILL_RAD)
-            a = a + max(int(moved[0]) - 1, 0) if len(moved) else b
-        if b > a:
-            out.append(item.q[a:b + 1])
-    return out
+    return [item.q[a:b + 1] for a, b in zip(bounds, bounds[1:]) if b > a]
 
 
 def build_pairs(items: Sequence[DemoInput], cfg: TrainConfig, pairs_fn: Callable,

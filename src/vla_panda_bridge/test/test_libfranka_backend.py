@@ -152,7 +152,8 @@ def test_the_robots_external_torque_slows_motion_into_it_before_the_collision_re
     and acts below the collision thresholds the robot was configured with (upper_torque_thresholds:
     20 Nm on joint 2; tau_max is 87 Nm, so fractions of it would come after the reflex)."""
     host = NodeHost()
-    backend = host.backend = LibfrankaBackend(host)
+    clock = [1000.0]        # the backend's clock: one control period per robot state, however slow the test
+    backend = host.backend = LibfrankaBackend(host, clock=lambda: clock[0])
     cycle = 0
 
     def drive(cmd, ticks, tau_ext=None):
@@ -161,7 +162,7 @@ def test_the_robots_external_torque_slows_motion_into_it_before_the_collision_re
             cycle += 1
             loop_writes(backend, cycle, tau_ext=tau_ext)
             host.filter.submit(cmd, backend.now())
-            backend._t0 -= 0.001                            # one control period due (more if late)
+            clock[0] += 0.001                               # one control period due
             backend._tick()
         return backend.process.slots.read_command()[CMD_VALUES:].copy()
 

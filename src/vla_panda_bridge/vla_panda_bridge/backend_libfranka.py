@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -64,9 +65,12 @@ class LibfrankaBackend(BackendBase):
     kind = "libfranka"
     capabilities = frozenset({TEACHING})
 
-    def __init__(self, host: Host):
+    def __init__(self, host: Host, clock: Callable[[], float] = time.monotonic):
+        """`clock`: monotonic seconds, the control periods and the robot's silence are counted on (a
+        test's clock: what is due then never depends on how fast the machine runs the test)."""
         p = host.params
         self._host = host
+        self._clock = clock
         self._dt = 1.0 / p["control_rate"]
         # joint_states: every k-th robot state (1 kHz), published in batches at up to state_rate.
         self._states_every = max(1, round(1000.0 / p["state_rate"]))
@@ -78,7 +82,7 @@ class LibfrankaBackend(BackendBase):
         if p["realtime_config"] == "ignore":
             host.get_logger().warn("realtime_config 'ignore': the loop runs without a real-time kernel "
                                    "(fine for franka-sim and tests; on a real arm expect lost cycles)")
-        self.process = LoopProcess(self.settings, loop_prefix=p["loop_prefix"])
+        self.process = LoopProcess(self.settings, loop_prefix=p["loop_prefix"], clock=clock)
         # The Franka Hand: libfranka's Gripper in a process of its own (its calls block, holding the
         # GIL), behind the node's gripper layer; connects (and reconnects) by itself, LOST until then.
         self.hand = (HandProcess(p["robot_ip"], host.spec.hand.max_width, p["driver"], p["loop_prefix"])
@@ -91,12 +95,12 @@ class LibfrankaBackend(BackendBase):
         self._reported_text, self._reported_at = "", -math.inf
         self._ticks = 0                                 # control periods done (by the wall clock)
         self._state_tick = self._watch_tick = 0
-        self._t0 = time.monotonic()
+        self._t0 = self._clock()
 
     # ---------------------------------------------------------------------------------- protocol
     def start(self, host: Host) -> None:
         self.process.start()
-        self._t0 = time.monotonic()
+        self._t0 = self._clock()
         host.create_wall_timer(self._dt, self._tick)
 
     def _tick(self) -> None:
@@ -104,7 +108,7 @@ class LibfrankaBackend(BackendBase):
         per step: a timer that runs late on a loaded machine would slow its ramps and its braking
         down, so it catches up, at most MAX_CATCH_UP periods at once), then the robot states that
         arrived since (a batch when late) and, at 100 Hz, the loop's status."""
-        due = int((time.monotonic() - self._t0) / self._dt) - self._ticks
+        due = int((self._clock() - self._t0) / self._dt) - self._ticks
         for _ in range(min(due, MAX_CATCH_UP)):
             self._host.control_step()
         self._ticks += max(due, 0)
@@ -129,7 +133,7 @@ class LibfrankaBackend(BackendBase):
         if not st.text:
             return                                      # its text is not written yet
         text = f"libfranka {st.name}: {st.text}"
-        now = time.monotonic()
+        now = self._clock()
         if st.code == self._reported:
             if st.code in (LoopStatus.CONNECTING, LoopStatus.DISCONNECTED) and text != self._reported_text \
                     and now - self._reported_at >= RETRY_LOG_PERIOD:
@@ -150,7 +154,7 @@ class LibfrankaBackend(BackendBase):
         return self._status
 
     def now(self) -> float:
-        return time.monotonic()
+        return self._clock()
 
     def now_ns(self) -> int:
         return self._host.get_clock().now().nanoseconds

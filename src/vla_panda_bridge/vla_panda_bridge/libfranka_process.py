@@ -22,7 +22,7 @@ import shlex
 import subprocess
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -89,8 +89,11 @@ class LoopProcess:
     """One libfranka loop process and its slots; see the module docstring."""
 
     def __init__(self, settings: LoopSettings, loop_prefix: str | Sequence[str] = "",
-                 stuck_timeout: float = 3.0, python: str = sys.executable):
+                 stuck_timeout: float = 3.0, python: str = sys.executable,
+                 clock: Callable[[], float] = time.monotonic):
+        """`clock`: monotonic seconds, how long the robot has been silent is measured on (a test's)."""
         self.settings = settings
+        self._clock = clock
         self._prefix = shlex.split(loop_prefix) if isinstance(loop_prefix, str) else list(loop_prefix)
         self._python = python
         self.stuck_timeout = stuck_timeout
@@ -106,7 +109,7 @@ class LoopProcess:
         self._history_cycle = 0
         self._cycle_seen_at = -math.inf
         self._seq = -1.0
-        self._seq_seen_at = time.monotonic()
+        self._seq_seen_at = self._clock()
         self._state: StateView | None = None
         self._texts: dict[str, str] = {}
         self._closed = False
@@ -122,7 +125,7 @@ class LoopProcess:
         # not reach it, even while it is still importing; the bridge stops it through the shutdown
         # flag after braking, and it stops the arm and exits by itself if the bridge is gone.
         self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True)
-        self._seq_seen_at = time.monotonic()
+        self._seq_seen_at = self._clock()
 
     @property
     def pid(self) -> int | None:
@@ -132,7 +135,7 @@ class LoopProcess:
         """Supervise the loop process; returns a note when something happened to it, else ""."""
         if self._proc is None or self._closed:
             return ""
-        now = time.monotonic()
+        now = self._clock()
         code = self._proc.poll()
         if code is None:
             self._watch_progress(now)
@@ -176,6 +179,7 @@ class LoopProcess:
         measures the latency to the first robot command with it, once per distinct value. Returns
         its sequence number."""
         self.commands_sent += 1
+        # the loop process's own clock (time.monotonic there too), not the injected one
         return self.slots.write_command(values, time.monotonic() if arrived is None else arrived)
 
     def set_estop(self, active: bool) -> None:
@@ -215,7 +219,7 @@ class LoopProcess:
         if s.pid == 0:
             return None                                  # no loop process has written yet
         self._state = s
-        now = time.monotonic()
+        now = self._clock()
         if s.cycle != self._last_cycle:
             self._last_cycle = s.cycle
             self._cycle_seen_at = now
@@ -280,7 +284,7 @@ class LoopProcess:
 
     def status(self) -> LibfrankaStatus:
         s = self._read()
-        silent = time.monotonic() - self._cycle_seen_at
+        silent = self._clock() - self._cycle_seen_at
         if s is None:
             return LibfrankaStatus(LoopStatus.CONNECTING, "loop process starting",
                                    0, "", -1, 0.0, math.inf, False, False, 0, 0, 0, 0, 0, math.nan,

@@ -89,3 +89,17 @@ def test_the_stick_rests_while_the_hand_closes_and_steers_again_once_it_holds():
     assert b.holds_still(OPEN)                                              # not yet closing
     assert b.holds_still(BUSY)                                              # closing
     assert not b.holds_still(CLOSED)                                        # holding: carry on
+
+
+def test_releases_once_the_carried_object_is_over_its_target_and_low():
+    """Carrying: a person puts the object down once they see it over its target (within 3 cm) with
+    the hand low (at most 3 cm above the demonstrator's release), even where the learned path comes
+    no nearer the release point, and not while the object is still off the target or high."""
+    b = GraspButton(hand_phases(PLAN))
+    b.step(0.0, np.array(TCP[1]), OPEN)                     # grasp at once
+    assert b.phase == 1
+    low = np.array(TCP[4]) + [0.0, 0.02, 0.02]              # 2 cm beside, 2 cm above the release point
+    high = np.array(TCP[4]) + [0.0, 0.0, 0.05]
+    assert not b.step(1.0, low, CLOSED, to_target=0.045)    # object 4.5 cm off: carry on
+    assert not b.step(1.1, high, CLOSED, to_target=0.01)    # over it, 5 cm up: lower it first
+    assert b.step(1.2, low, CLOSED, to_target=0.025) and b.phase == 2

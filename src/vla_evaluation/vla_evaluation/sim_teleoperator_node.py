@@ -32,6 +32,7 @@ from vla_common.robot import DQ_MAX, JOINT_NAMES
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
+from vla_common.tasks import place_target
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import ContextError
 from vla_latent_controller.model import LatentModel
@@ -146,6 +147,7 @@ class SimTeleoperatorNode(Node):
 
         self.q: np.ndarray | None = None
         self.objects: dict[str, ObjectPose] = {}
+        self._spec, self._place_from = None, None     # the episode's task and its object's start
         self.ctrl: ControllerStatus | None = None
         self.ctrl_time: Time | None = None
         self.bridge_code: int | None = None   # the bridge's latest SafetyStatus code
@@ -337,6 +339,7 @@ class SimTeleoperatorNode(Node):
                                  p["max_joint_speed"], DQ_MAX)
         plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
                          np.random.default_rng(int(p["plan_seed"])), self.catalogue)
+        self._spec, self._place_from = spec, self.objects[spec.object_class]
         self._command, self._plan, self.grasp, self._hand_seen = command, plan, None, None
         self._episode_limit = float(p["time_limit"])
         if spec.kind in HAND_KINDS:
@@ -368,10 +371,19 @@ class SimTeleoperatorNode(Node):
         phase = self.grasp.phase
         failed, self._hand_failed = self._hand_failed, False
         self._hand_seen = hand_seen(self.hand.state, self.hand.width)
-        self._press = self.grasp.step(t, self.kin.fk(self.q)[0], self._hand_seen, failed)
+        self._press = self.grasp.step(t, self.kin.fk(self.q)[0], self._hand_seen, failed, self._to_target())
         if self.grasp.phase != phase:
             self.tele = self._phase_teleoperator(t)
             self.get_logger().info(f"{self.task}: hand phase {self.grasp.phase} ({self.grasp.current.want})")
+
+    def _to_target(self) -> float:
+        """A pick-and-place: how far (m) the object is from where it is to be put down, as a person
+        sees it (scene/objects); inf for other tasks."""
+        spec, start = self._spec, self._place_from
+        obj = self.objects.get(spec.object_class) if spec is not None else None
+        if spec is None or start is None or spec.kind != "pick_place" or obj is None:
+            return float("inf")
+        return float(np.linalg.norm(np.array([obj.x, obj.y]) - place_target(spec, start)))
 
     def _finish(self, state: int, reason: str) -> None:
         if self.state in ACTIVE:

@@ -503,6 +503,28 @@ def test_clicking_another_box_relatches_the_controller(graph, page):
     assert wait_page(h, page, f"document.getElementById('target').textContent.includes('{labels[other]}')")
 
 
+def test_next_axis_in_end_effector_mode_switches_the_controllers_axis(graph, page):
+    """The end-effector baseline from the page: its mode button appears in that mode only, a click is
+    one press of the controller's ee_mode_button, and the status says the axis in words."""
+    from vla_interfaces.srv import SetMode
+
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    set_mode = obs.create_client(SetMode, "controller_node/set_mode")
+    assert js(page, "document.getElementById('ee-next').hidden")          # latent: no mode button
+    assert h.call(set_mode, SetMode.Request(mode="end_effector"), 20.0).success
+    try:
+        assert wait_page(h, page, "!document.getElementById('ee-next').hidden"
+                                  " && document.getElementById('s-mode').textContent.includes('along x')")
+        assert h.spin_until(lambda: obs.ctrl.ee_axis == "x", 10.0), obs.ctrl
+        page.driver.find_element(By.ID, "ee-next").click()
+        assert h.spin_until(lambda: obs.ctrl.ee_axis == "y", 10.0), obs.ctrl          # one press, one step
+        assert wait_page(h, page, "document.getElementById('s-mode').textContent.includes('along y')")
+    finally:
+        assert h.call(set_mode, SetMode.Request(mode="latent"), 20.0).success
+    assert wait_page(h, page, "document.getElementById('ee-next').hidden")
+
+
 def test_estop_button_and_shortcut_latch_the_bridge_and_release_does_not_move(graph, page):
     h, obs, url, _ = graph
     ready(h, obs, page, url)

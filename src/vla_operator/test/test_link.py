@@ -120,6 +120,14 @@ def test_one_driver_watchers_may_only_estop():
     assert link.driver() is w
 
 
+def test_the_end_effector_mode_button_is_the_drivers_only():
+    link, cid = driving()
+    w = link.connect(10.0)
+    assert link.on_message(cid, msg(type="ee_next"), 10.1).request == {"type": "ee_next"}
+    assert link.on_message(w.cid, msg(type="ee_next"), 10.1).error   # a watcher cannot change the axis
+    assert link.counters.forbidden == 1
+
+
 def test_a_watcher_takes_control_only_confirmed_and_with_the_driver_at_rest():
     """Take control: never while the driver's input moves the arm, never without confirm: true; then a
     zero at once, the old driver watches, and the new driver moves only after a neutral input."""

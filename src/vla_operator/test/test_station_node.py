@@ -23,6 +23,7 @@ def station(tmp_path):
                      Parameter("controller", value="no_such_controller_for_this_test"),
                      *(Parameter(k, value=v) for k, v in params.items())]
         return h.add(StationNode(context=h.context, parameter_overrides=overrides)), path
+    make.harness = h
     yield make
     h.shutdown()
 
@@ -63,3 +64,26 @@ def test_refusals_change_nothing(station):
         reply = save(node, values)
         assert not reply["ok"] and words in reply["message"], reply
     assert not path.exists() and node.settings == defaults()
+
+
+def test_next_axis_presses_the_controllers_mode_button_in_the_joy(station):
+    """The page's "next axis" is the controller's own ee_mode_button, held for MODE_PRESS_S as a finger
+    would; refused in words while the controller's button is not known (no controller here)."""
+    from sensor_msgs.msg import Joy
+
+    node, _ = station()
+    replies = []
+    node._request({"type": "ee_next"}, replies.append)
+    assert not replies[-1]["ok"] and "ee_mode_button" in replies[-1]["message"]
+    seen = []
+    node.create_subscription(Joy, "joy", seen.append, 50)
+    assert station.harness.spin_until(lambda: node.joy_pub.get_subscription_count() > 0, 10.0)
+    node._ee_button = 5                      # as read from the controller's parameter
+    node._request({"type": "ee_next"}, replies.append)
+    assert replies[-1]["ok"]
+    assert station.harness.spin_until(lambda: bool(seen), 10.0)
+    assert len(seen[0].buttons) >= 6 and list(seen[0].buttons).count(1) == 1 and seen[0].buttons[5] == 1
+    assert seen[0].axes[0] == 0.0            # nobody drives: the stick stays at rest
+    node._mode_until = 0.0                   # the press is over: the next Joy releases it
+    node._publish_axis(0.0)
+    assert station.harness.spin_until(lambda: len(seen) >= 2, 10.0) and not any(seen[-1].buttons)

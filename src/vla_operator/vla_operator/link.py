@@ -26,6 +26,7 @@ REQUESTS = {
     "release_estop": "release it (the driver, with confirm: true)",
     "select": "latch an object: by class, index or pixel",
     "gripper": "toggle the hand",
+    "ee_next": "the end-effector baseline's next axis (the controller's mode button)",
     "redetect": "drop the latched object and latch the next detection",
     "teaching": "teaching mode on or off",
     "episode": "start (with a task), stop or discard a recording",

@@ -32,6 +32,9 @@ NODE_NAME = "operator_station"
 # Only the newest frame kept (reliable, as the camera): a station that fell behind shows the latest
 # frame and never works through a backlog (IMAGE_QOS keeps 30, for the detector and the recorder).
 LATEST_IMAGE_QOS = image_qos(depth=1)
+# The end-effector baseline's mode button, pressed from the page: held in the Joy this long, as a finger
+# on a joystick button (the controller acts on the press's rising edge, debounced by its ee_debounce)
+MODE_PRESS_S = 0.1
 
 PARAMETERS = ParameterTable([
     Param("bind", "127.0.0.1", "address the page is served on; anything but loopback needs the token"),
@@ -100,6 +103,8 @@ class StationNode(Node):
         self.ctrl_set = self.create_client(SetParameters, f"{c}/set_parameters")
         self.ctrl_get = self.create_client(GetParameters, f"{c}/get_parameters")
         self._deadband_timer = self.create_timer(1.0, self._sync_deadband)
+        self._ee_button = -1          # the controller's ee_mode_button, read once it is up
+        self._mode_until = -1.0       # monotonic s: the mode button is held in the Joy until then
         self._dets: dict = {"boxes": [], "size": [0, 0]}
         self.station = Station(
             Path(get_package_share_directory("vla_operator")) / "web", p["bind"], p["port"], token,
@@ -122,8 +127,25 @@ class StationNode(Node):
         msg.header.stamp = self.get_clock().now().to_msg()
         msg.header.frame_id = ""  # a Joy has no geometry: no TF frame (test_frames)
         msg.axes = [float(axis) * float(self.settings.get("speed_scale", 1.0)), 0.0]
-        msg.buttons = [0, 0, 0, 0]
+        buttons = [0] * max(4, self._ee_button + 1)
+        if self._ee_button >= 0 and time.monotonic() < self._mode_until:
+            buttons[self._ee_button] = 1
+        msg.buttons = buttons
         self.joy_pub.publish(msg)
+
+    def _press_mode_button(self, reply) -> None:
+        """The page's "next axis": the controller's own mode button, pressed in the Joy (so the
+        controller's rule and debounce apply, as to a joystick's press)."""
+        if self._ee_button < 0:
+            reply({"what": "next axis", "ok": False, "message":
+                   f"{self.p['controller']} has no end-effector mode button (ee_mode_button is -1, or it "
+                   "has not answered yet)"})
+            return
+        with self.station.lock:
+            now = time.monotonic()
+            self._mode_until = now + MODE_PRESS_S
+            self._publish_axis(self.station.link.value(now))
+        reply({"what": "next axis", "ok": True, "message": "the mode button was pressed"})
 
     def _tick(self) -> None:
         now = time.monotonic()
@@ -141,6 +163,8 @@ class StationNode(Node):
             self._call("teaching", SetBool.Request(data=msg["on"]), kind, reply)
         elif kind == "gripper":
             self._call("gripper", GripperCommand.Request(command=GripperCommand.Request.TOGGLE), kind, reply)
+        elif kind == "ee_next":
+            self._press_mode_button(reply)
         elif kind == "select":
             req = SelectTarget.Request(by=msg["by"], class_id=str(msg.get("class_id", "")),
                                        index=int(msg.get("index", -1)), x=float(msg.get("x", 0.0)),
@@ -167,10 +191,17 @@ class StationNode(Node):
 
     # ------------------------------------------------------------------ caregiver settings
     def _sync_deadband(self) -> None:
-        """Once the controller is up: give it the saved deadband, or show the one it has."""
+        """Once the controller is up: give it the saved deadband, or show the one it has; and learn
+        which button is its end-effector mode button (the page's "next axis" presses it)."""
         if not (self.ctrl_set.service_is_ready() and self.ctrl_get.service_is_ready()):
             return
         self._deadband_timer.cancel()
+
+        def button(f) -> None:
+            values = f.result().values if f.exception() is None else []
+            if values and values[0].type == Parameter.Type.INTEGER.value:
+                self._ee_button = int(values[0].integer_value)
+        self.ctrl_get.call_async(GetParameters.Request(names=["ee_mode_button"])).add_done_callback(button)
         if self.settings["deadband"] is not None:
             self._set_deadband(self.settings["deadband"], lambda ok, why: None if ok else self._problem(
                 f"the saved deadband was refused by {self.p['controller']}: {why}"))
@@ -273,7 +304,8 @@ class StationNode(Node):
     def _on_ctrl(self, m: ControllerStatus) -> None:
         code = int(m.code)
         self._state(controller={"code": code, "words": controller_words(code), "reason": m.reason,
-                                "mode": m.mode, "latched_class": m.latched_class, "latched_by": m.latched_by,
+                                "mode": m.mode, "ee_axis": m.ee_axis,
+                                "latched_class": m.latched_class, "latched_by": m.latched_by,
                                 "latched_x": m.latched_x, "latched_y": m.latched_y})
 
     def _on_safety(self, m: SafetyStatus) -> None:

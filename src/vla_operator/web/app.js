@@ -62,7 +62,9 @@ function showState(s) {
   const c = s.controller, f = s.safety;
   if (c) {
     $('s-controller').textContent = c.words + (c.reason ? ` (${c.reason})` : '');
-    $('s-mode').textContent = c.mode;
+    const ee = c.mode === 'end_effector';
+    $('s-mode').textContent = ee && c.ee_axis ? `end-effector, moving along ${c.ee_axis}` : c.mode;
+    $('ee-next').hidden = !ee;   // the end-effector baseline's mode button
     state.latched = c.latched_class ? c : null;
     $('target').textContent = c.latched_class ? `Latched: ${c.latched_class} (chosen by ${c.latched_by})`
                                               : 'No object latched';
@@ -190,11 +192,12 @@ for (const [id, dir] of [['forward', 1], ['back', -1]]) {
   el.addEventListener('keyup', (e) => { if (e.key === ' ' || e.key === 'Enter') release(dir); });
 }
 $('gripper').onclick = () => link.send({ type: 'gripper' });
+$('ee-next').onclick = () => link.send({ type: 'ee_next' });
 
 // keys: the caregiver's mapping (settings.keys: forward, back, stop; a dual switch types two of them).
 // Forward and back work anywhere on the page but in a form field; a stop key works everywhere, except a
 // letter or digit typed into a field. Space is the single switch when scanning is chosen.
-const SCAN = ['forward', 'back', 'next', 'gripper', 'take-control'];
+const SCAN = ['forward', 'back', 'next', 'gripper', 'ee-next', 'take-control'];
 function scanList() {   // the open dialog's buttons, else the scanned controls that are shown
   const dialog = document.querySelector('dialog[open]');
   if (dialog) return [...dialog.querySelectorAll('button')].map((b) => b.id);

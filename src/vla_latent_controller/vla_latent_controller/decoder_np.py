@@ -22,7 +22,8 @@ import numpy as np
 
 # The latent whose chord gives the command's direction, as a fraction of the stick's latent (1: the raw
 # action, the paper's command). Held-stick holds in physics mode on development layouts (400000...) did
-# the task in about the same number from 0.5 to 0.8 (docs/history/controller.md, 2026-12-03).
+# the four base tasks in 38, 37 and 39 of 40 at 0.5, 0.65 and 0.8, 34 at 0.9 (docs/history/controller.md,
+# 2026-12-03); 0.8 was faster and is not yet measured through the graph.
 PATH_FRACTION = 0.65
 
 

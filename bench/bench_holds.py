@@ -4,7 +4,8 @@ Prints per task: holds, reflexes, task done, worst measured |dq|/dq_max; then th
 graph does not finish (a timeout on a loaded machine) counts as a failed hold, is listed, and the run
 goes on with a restarted graph.
 
-    python bench/bench_holds.py [--n 50] [--seconds 6] [--stick 1] [--tasks base] [--log-dir DIR]
+    python bench/bench_holds.py [--n 50] [--seconds 6] [--stick 1] [--path-fraction 0.65] [--tasks base]
+                                [--log-dir DIR]
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ import time
 from vla_evaluation.evaluate_cli import task_list
 from vla_evaluation.graph import GraphConfig
 from vla_evaluation.holds import FRESH_SEED, hold_config, run_holds
+from vla_evaluation.kinematic import TeleopSettings
 from vla_evaluation.resources import detector_model_path, latent_model_dir
 
 
@@ -23,6 +25,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--n", type=int, default=50, help="holds per task")
     p.add_argument("--seconds", type=float, default=6.0, help="length of each hold (sim s)")
     p.add_argument("--stick", type=float, default=1.0, help="the held stick value")
+    p.add_argument("--path-fraction", type=float, default=TeleopSettings.path_fraction,
+                   help="the controller's path_fraction (default: its default, %(default)s)")
     p.add_argument("--tasks", default="base", help="base, unseen, all or comma-separated task names")
     p.add_argument("--first-seed", type=int, default=FRESH_SEED)
     p.add_argument("--model", default="default", help="shipped latent model name or a directory")
@@ -32,11 +36,12 @@ def main(argv: list[str] | None = None) -> int:
                         "gaps of 0.25 simulated s stop the arm until neutral (default: %(default)s)")
     a = p.parse_args(argv)
     cfg = hold_config(str(latent_model_dir(a.model)), str(detector_model_path()), a.seconds, a.stick,
-                      log_dir=a.log_dir, real_time_factor=a.real_time_factor)
+                      a.path_fraction, log_dir=a.log_dir, real_time_factor=a.real_time_factor)
     t0 = time.monotonic()
     tallies = run_holds(cfg, task_list(a.tasks), a.n, a.first_seed)
     wall = time.monotonic() - t0
-    print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task, real-time factor "
+    print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task, path_fraction "
+          f"{a.path_fraction:g}, real-time factor "
           f"{a.real_time_factor:g} ({wall:.0f} s wall)")
     for t in tallies.values():
         print(t.line())

@@ -114,7 +114,8 @@ class GraphConfig:
         teleoperator's stick mapping is the controller's, so that it predicts what the controller does."""
         s = self.settings
         stick = {"deadband": float(s.deadband), "axis_scale": float(s.axis_scale),
-                 "action_scale": float(s.action_scale), "max_joint_speed": float(s.max_joint_speed)}
+                 "action_scale": float(s.action_scale), "max_joint_speed": float(s.max_joint_speed),
+                 "path_fraction": float(s.path_fraction)}
         params = {
             CONTROLLER: {"goal_selection": s.goal_selection, "joy_timeout": float(self.joy_timeout), **stick},
             TELEOP: {"horizon": float(s.horizon), "n_candidates": int(s.n_candidates),

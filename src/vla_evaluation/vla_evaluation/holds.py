@@ -66,11 +66,12 @@ class HoldTally:
 
 
 def hold_config(model_path: str, detector_model: str, seconds: float = 6.0, stick: float = 1.0,
-                **kw) -> GraphConfig:
-    """The graph's configuration for holds of `seconds` at `stick`."""
+                path_fraction: float = TeleopSettings.path_fraction, **kw) -> GraphConfig:
+    """The graph's configuration for holds of `seconds` at `stick` (the controller's `path_fraction`)."""
     return GraphConfig(model_path=model_path, detector_model=detector_model,
                        settings=TeleopSettings(rate=100.0, time_limit=float(seconds), switch_time=0.0,
-                                                     hold=float(stick)), **kw)
+                                               hold=float(stick), path_fraction=float(path_fraction)),
+                       **kw)
 
 
 def run_holds(config: GraphConfig, tasks: Sequence[str], n: int, first_seed: int = FRESH_SEED,

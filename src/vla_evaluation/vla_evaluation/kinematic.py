@@ -55,6 +55,7 @@ class TeleopSettings:
     axis_scale: float = _CONTROLLER.axis_scale
     action_scale: float = _CONTROLLER.action_scale
     max_joint_speed: float = _CONTROLLER.max_joint_speed
+    path_fraction: float = _CONTROLLER.path_fraction
     goal_selection: str = _CONTROLLER.goal_selection
     dq_max: tuple | None = tuple(float(v) for v in DQ_MAX)  # the controller node's per-joint limit
     path_every: int = 2  # keep every n-th TCP position for plots
@@ -171,7 +172,8 @@ def layout_command(model, layout: Layout, settings: TeleopSettings) -> tuple[Sti
     detected class. ContextError / ValueError when there is no context (the controller would wait)."""
     context, gain_class, detected = layout_context(model, layout, settings.goal_selection)
     command = StickToCommand(model, context, gain_class, settings.deadband, settings.axis_scale,
-                             settings.action_scale, settings.max_joint_speed, settings.dq_max)
+                             settings.action_scale, settings.max_joint_speed, settings.dq_max,
+                             settings.path_fraction)
     return command, detected
 
 

@@ -20,7 +20,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from vla_latent_controller.teleop import stick_to_unit
+from vla_latent_controller.teleop import TeleopParams, stick_to_unit
 
 # (axes (N,), q (7,)) -> (N, 7) joint velocities (rad/s) the controller would command for each axis.
 AxisCommandFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
@@ -215,14 +215,16 @@ class StickToCommand:
 
     Mirrors the controller's latent path (`teleop.TeleopCore`): stick clipped to [-1, 1]; within the
     deadband exactly zero, outside it rescaled so +-1 is still reached, times axis_scale (clipped);
-    z = gain(latched class) * u; command = action_scale * the NumPy decoder's velocity(z, s) with the
-    episode's context latched; the whole vector scaled down to the max_joint_speed norm (the paper's
-    1.5 rad/s) and to per-joint dq_max when given. A test checks it against the controller core.
+    z = gain(latched class) * u; command = action_scale * the NumPy decoder's velocity(z, s,
+    path_fraction) with the episode's context latched; the whole vector scaled down to the
+    max_joint_speed norm (the paper's 1.5 rad/s) and to per-joint dq_max when given. A test checks it
+    against the controller core.
     """
 
     def __init__(self, model, context: np.ndarray, class_id: str | None = None, deadband: float = 0.1,
                  axis_scale: float = 1.0, action_scale: float = 1.0, max_joint_speed: float = 1.5,
-                 dq_max: Sequence[float] | None = None) -> None:
+                 dq_max: Sequence[float] | None = None,
+                 path_fraction: float = TeleopParams.path_fraction) -> None:
         if not 0.0 <= deadband < 1.0:
             raise ValueError(f"deadband must be in [0, 1), got {deadband}")
         self.model = model
@@ -234,6 +236,7 @@ class StickToCommand:
         self.action_scale = float(action_scale)
         self.max_joint_speed = float(max_joint_speed)
         self.dq_max = None if dq_max is None else np.asarray(dq_max, dtype=float)
+        self.path_fraction = float(path_fraction)
 
     def stick(self, axes: np.ndarray) -> np.ndarray:
         """Stick values after deadband, rescaling and axis_scale, in [-1, 1] (the controller's own
@@ -242,7 +245,7 @@ class StickToCommand:
 
     def __call__(self, axes: np.ndarray, q: np.ndarray) -> np.ndarray:
         u = self.stick(axes)
-        cmd = self.action_scale * self.decoder.velocity_batch(q, u * self.gain)
+        cmd = self.action_scale * self.decoder.velocity_batch(q, u * self.gain, self.path_fraction)
         cmd[u == 0.0] = 0.0  # the controller's deadband gives exactly zero
         scale = np.ones(len(cmd))
         if self.max_joint_speed > 0:

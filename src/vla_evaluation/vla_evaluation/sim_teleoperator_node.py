@@ -90,6 +90,8 @@ PARAMETERS = ParameterTable([
     Param("action_scale", _CONTROLLER.action_scale,
           "the controller's action_scale (decoder output -> rad/s)", range=(0.0, 100.0),
           dynamic=True),
+    Param("path_fraction", _CONTROLLER.path_fraction, "the controller's path_fraction",
+          range=(0.01, 1.0), dynamic=True),
     Param("max_joint_speed", _CONTROLLER.max_joint_speed,
           "the controller's joint-speed norm clamp (rad/s)", range=(0.01, 5.0),
           dynamic=True),
@@ -336,7 +338,7 @@ class SimTeleoperatorNode(Node):
         det = Detection(cls, 1.0, float(ctrl.latched_x), float(ctrl.latched_y)) if cls else None
         context = self.model.context(det=det, image_size=(1, 1), image=self.image, class_id=cls)
         command = StickToCommand(self.model, context, cls, p["deadband"], p["axis_scale"], p["action_scale"],
-                                 p["max_joint_speed"], DQ_MAX)
+                                 p["max_joint_speed"], DQ_MAX, p["path_fraction"])
         plan = plan_task(self.kin, spec, self.objects[spec.object_class], self.q,
                          np.random.default_rng(int(p["plan_seed"])), self.catalogue)
         self._spec, self._place_from = spec, self.objects[spec.object_class]

@@ -567,22 +567,25 @@ def test_a_pick_not_in_view_waits_with_a_reason(random_model_dir):
 
 
 def test_the_command_has_the_chords_speed_and_the_paths_direction(random_model_dir):
-    """decoder.velocity (issue 20): the speed of the chord at z, the direction of the chord at
-    PATH_FRACTION x z; batch and single agree; 1 is the raw action; the core commands it."""
-    from vla_latent_controller.decoder_np import PATH_FRACTION
-
+    """path_fraction (issue 20): the speed of the chord at z, the direction of the chord at
+    path_fraction x z; batch and single agree; 1 (the default) is the raw action."""
     core = make_core(random_model_dir, action_scale=1.0, max_joint_speed=0.0)
     feed(core, 0.0, axis=1.0)
+    raw = core.step(0.0)[0].copy()
+    PATH_FRACTION = core.params.path_fraction = 0.65
     cmd = core.step(0.0)[0].copy()
     dec, z = core.model.decoder, core.status.z
     q = np.asarray(core._js.positions, dtype=float)
     chord, path = dec.decode(q, z).copy(), dec.decode(q, PATH_FRACTION * z).copy()
     assert 0.0 < PATH_FRACTION < 1.0 and not np.allclose(chord / np.linalg.norm(chord),
                                                          path / np.linalg.norm(path))
+    np.testing.assert_array_equal(raw, chord)
     assert np.linalg.norm(cmd) == pytest.approx(np.linalg.norm(chord))
     np.testing.assert_allclose(cmd / np.linalg.norm(cmd), path / np.linalg.norm(path), atol=1e-12)
     zs = np.array([-z, 0.3 * z, z])
-    batch = dec.velocity_batch(q, zs)
+    batch = dec.velocity_batch(q, zs, PATH_FRACTION)
     for i, zi in enumerate(zs):
-        np.testing.assert_allclose(batch[i], dec.velocity(q, zi), atol=1e-12)
+        np.testing.assert_allclose(batch[i], dec.velocity(q, zi, PATH_FRACTION), atol=1e-12)
+    core.params.path_fraction = 0.0
+    assert core.step(0.0)[1].code == Code.MODEL_ERROR  # refused: (0, 1]
     np.testing.assert_array_equal(dec.velocity(q, z, 1.0), chord)

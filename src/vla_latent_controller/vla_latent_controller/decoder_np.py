@@ -10,8 +10,9 @@ pairs take w = 1..10 samples, up to 1 s), and the stick's full extent is the lat
 chords (the 95th percentile of |z|). Commanded as a velocity, a 1 s chord aims where the demonstration
 will be a second later: a held full stick cut the demonstrations' corners, turned toward the push 15-20
 cm up and slid over the loaf instead of pushing it (issue 20). So the command keeps the chord's speed at
-z, the demonstrated speed, and takes its direction from the chord at ``PATH_FRACTION`` x z, a shorter
-window that follows the demonstrated path.
+z, the demonstrated speed, and can take its direction from the chord at a fraction of z, a shorter
+window that follows the demonstrated path. The controller's ``path_fraction`` (``TeleopParams``) says
+which; 1 is the paper's command, the raw action.
 """
 
 from __future__ import annotations
@@ -19,12 +20,6 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import numpy as np
-
-# The latent whose chord gives the command's direction, as a fraction of the stick's latent (1: the raw
-# action, the paper's command). Held-stick holds in physics mode on development layouts (400000...) did
-# the four base tasks in 38, 37 and 39 of 40 at 0.5, 0.65 and 0.8, 34 at 0.9 (docs/history/controller.md,
-# 2026-12-03); 0.8 was faster and is not yet measured through the graph.
-PATH_FRACTION = 0.65
 
 
 class LatentDecoder:
@@ -87,7 +82,7 @@ class LatentDecoder:
         out += self._c3
         return out
 
-    def velocity(self, q: np.ndarray, z: float, path_fraction: float = PATH_FRACTION) -> np.ndarray:
+    def velocity(self, q: np.ndarray, z: float, path_fraction: float) -> np.ndarray:
         """The command (n,) for latent ``z`` at ``q`` (a new array): the speed of the chord at z in the
         direction of the chord at ``path_fraction`` x z (see the module docstring)."""
         chord = self.decode(q, z).copy()
@@ -99,8 +94,7 @@ class LatentDecoder:
             return np.zeros_like(chord)
         return path * (float(np.linalg.norm(chord)) / norm)  # a NaN stays NaN: the core refuses it
 
-    def velocity_batch(self, q: np.ndarray, zs: np.ndarray,
-                       path_fraction: float = PATH_FRACTION) -> np.ndarray:
+    def velocity_batch(self, q: np.ndarray, zs: np.ndarray, path_fraction: float) -> np.ndarray:
         """:meth:`velocity` for N latents (N, n), e.g. a simulated teleoperator's grid."""
         zs = np.asarray(zs, np.float64).reshape(-1)
         chord = self.decode_batch(q, zs)

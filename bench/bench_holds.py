@@ -26,7 +26,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=6.0, help="length of each hold (sim s)")
     p.add_argument("--stick", type=float, default=1.0, help="the held stick value")
     p.add_argument("--path-fraction", type=float, default=TeleopSettings.path_fraction,
-                   help="the controller's path_fraction (default: its default, %(default)s)")
+                   help="the controller's path_fraction (default: %(default)s, the model's calibrated one)")
     p.add_argument("--tasks", default="base", help="base, unseen, all or comma-separated task names")
     p.add_argument("--first-seed", type=int, default=FRESH_SEED)
     p.add_argument("--model", default="default", help="shipped latent model name or a directory")

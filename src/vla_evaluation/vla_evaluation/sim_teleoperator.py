@@ -236,7 +236,7 @@ class StickToCommand:
         self.action_scale = float(action_scale)
         self.max_joint_speed = float(max_joint_speed)
         self.dq_max = None if dq_max is None else np.asarray(dq_max, dtype=float)
-        self.path_fraction = float(path_fraction)
+        self.path_fraction = model.path_fraction(float(path_fraction))   # 0: the model's, as the controller
 
     def stick(self, axes: np.ndarray) -> np.ndarray:
         """Stick values after deadband, rescaling and axis_scale, in [-1, 1] (the controller's own

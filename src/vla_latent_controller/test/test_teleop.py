@@ -568,9 +568,11 @@ def test_a_pick_not_in_view_waits_with_a_reason(random_model_dir):
 
 def test_the_command_has_the_chords_speed_and_the_paths_direction(random_model_dir):
     """path_fraction (issue 20): the speed of the chord at z, the direction of the chord at
-    path_fraction x z; batch and single agree; 1 (the default) is the raw action."""
+    path_fraction x z; batch and single agree; 1 is the raw action, 0 (the default) the model's
+    calibrated one, 1 for a model without one."""
     core = make_core(random_model_dir, action_scale=1.0, max_joint_speed=0.0)
     feed(core, 0.0, axis=1.0)
+    assert core.params.path_fraction == 0.0 and core.model.path_fraction() == 1.0
     raw = core.step(0.0)[0].copy()
     PATH_FRACTION = core.params.path_fraction = 0.65
     cmd = core.step(0.0)[0].copy()
@@ -586,6 +588,10 @@ def test_the_command_has_the_chords_speed_and_the_paths_direction(random_model_d
     batch = dec.velocity_batch(q, zs, PATH_FRACTION)
     for i, zi in enumerate(zs):
         np.testing.assert_allclose(batch[i], dec.velocity(q, zi, PATH_FRACTION), atol=1e-12)
+    # 0: the model's calibrated fraction (its latent.path_fraction)
     core.params.path_fraction = 0.0
-    assert core.step(0.0)[1].code == Code.MODEL_ERROR  # refused: (0, 1]
+    core.model.config["latent"]["path_fraction"] = PATH_FRACTION
+    np.testing.assert_allclose(core.step(0.0)[0], cmd, atol=1e-12)
+    core.params.path_fraction = 1.5
+    assert core.step(0.0)[1].code == Code.MODEL_ERROR  # refused: [0, 1]
     np.testing.assert_array_equal(dec.velocity(q, z, 1.0), chord)

@@ -107,6 +107,10 @@ def _check_normalisation(norm: object, joints: list[str], k: int, where: str) ->
 def _check_latent(lat: object, where: str) -> None:
     _require(isinstance(lat, dict), f"{where}: 'latent' must be an object")
     assert isinstance(lat, dict)
+    if "path_fraction" in lat:   # the command's path fraction calibrated for this model (teleop.py)
+        pf = lat["path_fraction"]
+        _require(_is_number(pf) and 0 < pf <= 1,
+                 f"{where}: latent.path_fraction must be a number in (0, 1], got {pf!r}")
     most = GAIN_MAX_BOUNDED if lat.get("bounded", False) else GAIN_MAX_UNBOUNDED
     gains = lat.get("gain", {})
     _require(isinstance(gains, dict), f"{where}: latent.gain must map class names to numbers")

@@ -88,8 +88,8 @@ PARAMETERS = ParameterTable([
     _core("max_joint_speed", "joint-velocity norm clamp (rad/s), direction kept; paper: 1.5",
           range=(0.0, 5.0), dynamic=True),
     _core("path_fraction", "the command's direction is the decoder's chord at this fraction of the "
-          "latent, its speed the chord's at the latent; 1: the paper's command", range=(0.01, 1.0),
-          dynamic=True),
+          "latent, its speed the chord's at the latent; 1: the paper's command; 0: the model's calibrated "
+          "one (latent.path_fraction; 1 when it has none)", range=(0.0, 1.0), dynamic=True),
     _core("joint_states_timeout", "no joint_states for this long (s) -> zero command",
           range=(0.01, 10.0), dynamic=True),
     Param("joint_map", [], "robot joints that stand for the model's: 'robot_joint:model_joint' entries, "

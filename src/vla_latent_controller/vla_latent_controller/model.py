@@ -52,6 +52,15 @@ class LatentModel:
     def needs_class(self) -> bool:
         return self.encoder in ("detector", "localization")
 
+    def path_fraction(self, override: float = 0.0) -> float:
+        """The command's path fraction (decoder_np.LatentDecoder.velocity): `override` when set (> 0),
+        else this model's calibrated latent.path_fraction, else 1 (the paper's command). Measured per
+        model because it depends on its demonstrations: 0.65 lets a held stick follow the base tasks'
+        corners with `default`, the cereal-box models miss their pushes with it (issue 20)."""
+        if override > 0.0:
+            return float(override)
+        return float(self.config["latent"].get("path_fraction", 1.0))
+
     def gain(self, class_id: str | None) -> float:
         """Latent per unit of stick for this goal class (sign: + does the task)."""
         lat = self.config["latent"]

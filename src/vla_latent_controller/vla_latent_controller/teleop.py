@@ -63,10 +63,11 @@ class TeleopParams:
     action_scale: float = 1.0
     max_joint_speed: float = 1.5
     # The latent whose chord gives the command's direction, as a fraction of the stick's (the speed stays
-    # the chord's at the stick's latent; decoder_np.LatentDecoder.velocity). 1: the paper's command. A
-    # held full stick with the shipped `default` model did its base tasks far more often at 0.65 (issue
-    # 20; docs/history/controller.md), but the cereal-box models failed the demo's layouts with it.
-    path_fraction: float = 1.0
+    # the chord's at the stick's latent; decoder_np.LatentDecoder.velocity). 0: the model's own
+    # (its calibrated latent.path_fraction, 1 (the paper's command) when it has none; model.path_fraction).
+    # A held full stick with the shipped `default` model did its base tasks far more often at 0.65
+    # (issue 20; docs/history/controller.md), the cereal-box models failed the demo's layouts with it.
+    path_fraction: float = 0.0
     redetect_button: int = -1
     grasp_button: int = -1   # a press toggles the hand (grasp / open): the node asks the bridge
     ee_mode_button: int = 0
@@ -87,8 +88,8 @@ class TeleopParams:
             return f"mode {self.mode!r} is not one of {MODES}"
         if not 0.0 <= self.deadband < 1.0:
             return f"deadband {self.deadband} must be in [0, 1)"
-        if not 0.0 < self.path_fraction <= 1.0:
-            return f"path_fraction {self.path_fraction} must be in (0, 1]"
+        if not 0.0 <= self.path_fraction <= 1.0:
+            return f"path_fraction {self.path_fraction} must be in [0, 1] (0: the model's)"
         if (
             self.goal_selection not in GOAL_SELECTIONS
             and classes is not None
@@ -449,7 +450,8 @@ class TeleopCore:
         """(latent z, joint velocities in the active joints' order) for stick value u."""
         if self.mode == "latent":
             z = u * self.latched.gain
-            return z, self.model.decoder.velocity(q, z, self.params.path_fraction) * self.params.action_scale
+            fraction = self.model.path_fraction(self.params.path_fraction)   # 0: the model's calibrated one
+            return z, self.model.decoder.velocity(q, z, fraction) * self.params.action_scale
         return u, self.ee.command(q, u)
 
     def stick_code(self, now: float) -> Code | None:

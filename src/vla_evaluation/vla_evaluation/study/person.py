@@ -22,7 +22,10 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol as TypingProtocol
 
-DEFLECTED = 0.1   # |axis| above this counts as a deflection (a joystick's typical 0.05-0.1 deadband)
+from vla_latent_controller.teleop import TeleopParams
+
+# |axis| above this counts as a deflection: the controller's deadband (declared there)
+DEFLECTED = TeleopParams().deadband
 
 
 class Experimenter(TypingProtocol):

@@ -2,10 +2,11 @@
 
 The bridge (backend:=libfranka driver:=pylibfranka) runs in this process as it would in its own, with
 its 1 kHz loop in a child process joined to franka-sim's private network namespace; the arm follows
-a smooth joint-velocity sine published here. With `--graph` (the default) the rest of the teleop
-graph runs beside it as separate processes on the same cores: camera_node (a 640x480 image at 30 Hz),
-detector_node (ONNX) on it, controller_node (shipped model, joystick sine from here; its commands
-go to a side topic so the arm's motion stays the bench's).
+a smooth joint-velocity sine published here, with exact zeros for 50 ms every 2 s (an operator's
+return to neutral, which re-arms the bridge after a stale-input stop). With `--graph` (the default) the
+rest of the teleop graph runs beside it as separate processes on the same cores: camera_node (a 640x480
+image at 30 Hz), detector_node (ONNX) on it, controller_node (shipped model, joystick sine from here;
+its commands go to a side topic so the arm's motion stays the bench's).
 
 Figures:
 1. the loop's cycle: period between robot states (median, p99, max) and the loop's own work per
@@ -52,6 +53,7 @@ sys.path.insert(0, os.path.join(REPO, "test"))     # franka_sim_server: test sup
 from franka_sim_server import FrankaSimServer, Netns, unavailable  # noqa: E402
 
 IMAGE = os.path.join(REPO, "docs", "scene.png")        # a 640x480 view of the simulated scene
+NEUTRAL_S = 0.05   # s of exact zero commands every 2 s (the sine's common zero crossing)
 
 
 def _graph(fr3: bool) -> list[subprocess.Popen]:
@@ -133,7 +135,9 @@ def run(seconds: float, graph: bool, priority: int) -> dict:
         t = max(time.monotonic() - t0[0], 0.0)
         w = 2 * math.pi * 0.25
         cmd = [0.0] * 7
-        cmd[0], cmd[3], cmd[6] = 0.3 * math.sin(w * t), 0.2 * math.sin(w * t), 0.4 * math.sin(2 * w * t)
+        if t % 2.0 > NEUTRAL_S:   # exact zeros near each common zero crossing: the operator's neutral,
+            # which re-arms the bridge after a stop (a stale-input stop stays stopped until a neutral)
+            cmd[0], cmd[3], cmd[6] = 0.3 * math.sin(w * t), 0.2 * math.sin(w * t), 0.4 * math.sin(2 * w * t)
         cmd_pub.publish(Float64MultiArray(data=cmd))
         joy_pub.publish(Joy(axes=[0.8 * math.sin(w * t), 0.0], buttons=[0, 0, 0, 0]))
     io.create_timer(0.01, publish)                 # 100 Hz, as the controller publishes

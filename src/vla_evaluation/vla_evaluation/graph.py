@@ -149,9 +149,10 @@ def image_to_rgb(msg: Image) -> np.ndarray | None:
 class GraphObserver:
     """The orchestrator's ROS side: subscriptions, service clients and the latest values seen."""
 
-    def __init__(self, ctx, keep_frames: bool) -> None:
+    def __init__(self, ctx, keep_frames: bool, use_sim_time: bool = True) -> None:
+        """`use_sim_time`: follow /clock (a simulated graph); False on a real robot's graph."""
         self.node = Node("vla_evaluation", context=ctx,
-                         parameter_overrides=[Parameter("use_sim_time", Parameter.Type.BOOL, True)])
+                         parameter_overrides=[Parameter("use_sim_time", Parameter.Type.BOOL, use_sim_time)])
         self.cond = threading.Condition()
         self.q = None
         self.dq = None

@@ -4,6 +4,7 @@
     vla_evaluation study --protocol my.yaml --out out/study    # another protocol
     vla_evaluation study --analyse-only --out out/study        # figures and tables from what ran
     vla_evaluation study --protocol my.yaml --check            # validate, print the sessions, run nothing
+    vla_evaluation study --protocol my.yaml --participants P01 --robot real   # attach to the robot's graph
 Run it again with the same --out to resume; a different protocol in that --out is refused.
 """
 from __future__ import annotations
@@ -13,7 +14,13 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from vla_evaluation.study.protocol import PAPER, ProtocolError, load_protocol, parse_participants
+from vla_evaluation.study.protocol import (
+    PAPER,
+    ProtocolError,
+    load_protocol,
+    parse_participants,
+    robot_refusal,
+)
 
 SHIPPED = PAPER.with_name("shipped.yaml")
 
@@ -31,6 +38,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--backend", choices=("graph", "physics"), default=None,
                    help="graph: the launched graph, the stick as Joy, a bag per trial (the file's default); "
                         "physics: the same participant in one process (faster, no bags)")
+    p.add_argument("--robot", choices=("sim", "real"), default=None,
+                   help="sim: launch the simulated Panda, reset by ~/reset (the file's default); real: "
+                        "attach to the robot's graph already running on this ROS_DOMAIN_ID, the experimenter "
+                        "places the object before each trial and scores it after (persons only)")
+    p.add_argument("--use-sim-time", action="store_true",
+                   help="with --robot real: the attached graph is a simulated one (a rehearsal on the MuJoCo "
+                        "bridge) whose nodes follow /clock")
     p.add_argument("--analyse-only", action="store_true", help="only the figures and tables")
     p.add_argument("--check", action="store_true",
                    help="validate the protocol and print each participant's session; run and write nothing")
@@ -48,7 +62,8 @@ def run(args) -> int:
         return 2
     if args.participants:
         try:
-            proto = dataclasses.replace(proto, participants=parse_participants(args.participants))
+            proto = dataclasses.replace(proto, participants=parse_participants(args.participants),
+                                        origin={**proto.origin, "participants": "--participants"})
         except ValueError as e:
             print(f"--participants: {e}", file=sys.stderr)
             return 2
@@ -57,23 +72,44 @@ def run(args) -> int:
     if args.time_limit is not None:
         proto = dataclasses.replace(proto, time_limit=args.time_limit)
     if args.backend is not None:
-        proto = dataclasses.replace(proto, backend=args.backend)
+        proto = dataclasses.replace(proto, backend=args.backend,
+                                    origin={**proto.origin, "backend": "--backend"})
+    if args.robot is not None:
+        proto = dataclasses.replace(proto, robot=args.robot, origin={**proto.origin, "robot": "--robot"})
+    if why := robot_refusal(proto):
+        print(f"protocol refused:\n{why}", file=sys.stderr)
+        return 2
     if args.check:
         from vla_evaluation.study.runner import trial_plan
 
         plan = trial_plan(proto)
+        if proto.robot == "real":
+            import math
+
+            from vla_common.catalogue import load_catalogue
+            from vla_common.kinematics import PandaKinematics
+
+            from vla_evaluation.study.person import start_point
+
+            cat, kin = load_catalogue(""), PandaKinematics()
         print(f"{proto.source}: valid; {len(proto.participants)} participants, {len(plan)} trials "
               f"({sum(t.phase == 'practice' for t in plan)} practice)")
         for who in proto.participants:
             print(f"\n{who}:")
             for t in (t for t in plan if t.participant == who):
+                where = ""
+                if proto.robot == "real":   # the experimenter's sheet: where the object goes
+                    goal, _seed = start_point(t, cat, kin)
+                    where = (f", place at x {goal.x:.3f} m, y {goal.y:.3f} m, "
+                             f"yaw {math.degrees(goal.yaw):.0f} deg")
                 print(f"  {t.order + 1:3d}. {t.strategy:20s} {t.setting:6s} {t.task:30s} {t.phase:8s} "
-                      f"trial {t.trial + 1}, placement seed {t.layout_seed}")
+                      f"trial {t.trial + 1}, placement seed {t.layout_seed}{where}")
         return 0
     if not args.analyse_only:
         from vla_evaluation.study.runner import run_study
 
-        run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit)
+        run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
+                  use_sim_time=args.use_sim_time)
     from vla_evaluation.study.analysis import analyse
 
     for line in analyse(args.out, args.figures or args.out):

@@ -113,8 +113,9 @@ class TrialDriver:
 class StudyObserver(GraphObserver):
     """The evaluation's observer plus the participant's stick (`joy`) and the recorder's services."""
 
-    def __init__(self, ctx, keep_frames: bool, rate: float, persons: bool = False) -> None:
-        super().__init__(ctx, keep_frames)
+    def __init__(self, ctx, keep_frames: bool, rate: float, persons: bool = False,
+                 use_sim_time: bool = True) -> None:
+        super().__init__(ctx, keep_frames, use_sim_time)
         n = self.node
         self.joy_pub = n.create_publisher(Joy, "joy", 10)
         if persons:   # what a person sends (the station, a joystick), counted by their trial's driver

@@ -11,9 +11,15 @@ The experimenter, at the study's terminal:
   resets it through `~/reset`; the trial's clock starts at the confirmation);
 - ends the trial when the participant says done (Enter), or the protocol's time limit ends it.
 Both are calls on an :class:`Experimenter`, so that a test (or another front end) can play the part.
+
+On the real robot (protocol `robot: real`, study/robot_backend.py) the experimenter also places the
+object by hand at the trial's start point (said in words and in metres in the robot's base frame) and
+confirms, and, after the trial, scores it: success y/n and, optionally, the object's displacement as
+measured on the table (`Experimenter.score`): without a simulation nothing else measures the object.
 """
 from __future__ import annotations
 
+import math
 import select
 import sys
 import threading
@@ -22,6 +28,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol as TypingProtocol
 
+import numpy as np
 from vla_latent_controller.teleop import TeleopParams
 
 # |axis| above this counts as a deflection: the controller's deadband (declared there)
@@ -34,6 +41,49 @@ class Experimenter(TypingProtocol):
 
     def wait_done(self, text: str, ended: Callable[[], bool]) -> bool:
         """Block until the experimenter says the participant is done (True) or `ended()` (False)."""
+
+    def score(self, text: str) -> TrialScore:
+        """The experimenter's judgement of a trial on the real robot (asked once the arm is stopped)."""
+
+
+MAX_DISPLACEMENT_CM = 200.0  # beyond the table: a typing error
+
+
+@dataclass(frozen=True)
+class TrialScore:
+    """The experimenter's score of a real-robot trial: success, and the object's displacement from its
+    start point as measured by hand (m; None: not measured)."""
+
+    success: bool
+    displacement_m: float | None = None
+
+
+def parse_success(text: str) -> bool | None:
+    """y/yes -> True, n/no -> False, anything else None (asked again)."""
+    t = text.strip().lower()
+    return True if t in ("y", "yes") else False if t in ("n", "no") else None
+
+
+def parse_displacement_cm(text: str) -> tuple[bool, float | None]:
+    """(valid, metres): empty -> (True, None) (not measured); a number of cm in 0..MAX_DISPLACEMENT_CM
+    -> (True, m); anything else (False, None)."""
+    t = text.strip().replace(",", ".")
+    if not t:
+        return True, None
+    try:
+        cm = float(t)
+    except ValueError:
+        return False, None
+    if not (0.0 <= cm <= MAX_DISPLACEMENT_CM):   # NaN fails both comparisons
+        return False, None
+    return True, round(cm / 100.0, 4)
+
+
+def placement_words(x: float, y: float) -> str:
+    """A point of the robot's base frame (x forward, y to the robot's left) in words, in cm."""
+    side = "on the base's axis" if abs(y) < 0.005 else (
+        f"{abs(y) * 100:.0f} cm to the robot's {'left' if y > 0 else 'right'}")
+    return f"{x * 100:.0f} cm in front of the robot's base, {side}"
 
 
 class TerminalExperimenter:
@@ -56,6 +106,26 @@ class TerminalExperimenter:
                 self.stream.readline()
                 return True
         return False
+
+    def _ask(self, question: str) -> str:
+        print(question, end="", flush=True)
+        line = self.stream.readline()
+        if not line:   # stdin closed: no answer will ever come
+            raise EOFError("the terminal closed while the experimenter was asked to score a trial")
+        return line
+
+    def score(self, text: str) -> TrialScore:
+        """Success y/n (asked until answered), then the measured displacement in cm (Enter: not measured;
+        asked again until a number from 0 to MAX_DISPLACEMENT_CM)."""
+        print(f"\n{text}", flush=True)
+        while (ok := parse_success(self._ask("  Success? [y/n] "))) is None:
+            print("  please answer y or n")
+        while True:
+            valid, disp = parse_displacement_cm(self._ask(
+                "  The object's displacement from its start point, measured, in cm [Enter: not measured] "))
+            if valid:
+                return TrialScore(ok, disp)
+            print(f"  please give a number of cm from 0 to {MAX_DISPLACEMENT_CM:g}, or only Enter")
 
 
 @dataclass
@@ -138,3 +208,35 @@ def run_person_trial(driver: PersonDriver, experimenter: Experimenter, text: str
     deadline = time.monotonic() + wall_limit
     if experimenter.wait_done(text, lambda: driver.finished.is_set() or time.monotonic() > deadline):
         driver.said_done()
+
+
+def start_point(trial, catalogue, kin):
+    """The trial's start point (an ObjectPose in the robot's base frame) and the layout seed it came
+    from: the placement the simulated study resets to for the same trial (practice: the fixed reset
+    point `practice.reset_seed`; test trials: a seeded new placement)."""
+    from vla_common.robot import READY_POSE
+    from vla_common.tasks import parse_task
+
+    from vla_evaluation.kinematic import plannable_layout
+
+    spec = parse_task(trial.task, catalogue)
+    _objects, goal, _wps, used = plannable_layout(kin, spec, spec.object_class, int(trial.layout_seed),
+                                                  np.asarray(READY_POSE), 1, catalogue=catalogue)
+    return goal, used
+
+
+def placement_text(trial, goal, q_now: np.ndarray) -> str:
+    """What the experimenter is told before a trial: the trial, where the object goes, the arm's state."""
+    from vla_common.robot import READY_POSE
+
+    far = float(np.max(np.abs(np.asarray(q_now) - np.asarray(READY_POSE))))
+    name = goal.class_id.replace("_", " ")
+    return (f"Trial {trial.order + 1} of {trial.participant}: {trial.task} with {trial.strategy} "
+            f"({trial.phase}, trial {trial.trial + 1}).\n"
+            f"  Place the {name} at x = {goal.x:.3f} m, y = {goal.y:.3f} m in the robot's base frame "
+            f"({placement_words(goal.x, goal.y)}), turned {math.degrees(goal.yaw):.0f} deg about the "
+            "vertical.\n"
+            f"  The arm is stopped (e-stop latched by the study); its joints are within {far:.2f} rad of the "
+            f"start (ready) pose.\n"
+            "  Confirm when the object is placed and the participant is ready: the arm moves again "
+            "once the stick has been at neutral")

@@ -19,12 +19,15 @@ DEFAULT_MODELS = {"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_so
                                   "Near": "cereal_box_push_south_east", "Far": "cereal_box_circle"}}
 KEYS = {"study", "participants", "population_seed", "strategies", "settings", "trials", "practice",
         "counterbalance", "time_limit", "rate", "models", "backend", "end_effector_axes",
-        "end_effector_debounce"}
+        "end_effector_debounce", "robot"}
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 PAPER = Path(__file__).with_name("protocols") / "paper.yaml"
 # graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
 # physics: the same participant and scoring with the graph's computations in one process (fast sweeps)
 BACKENDS = ("graph", "physics")
+# sim: the runner launches the simulated Panda and resets its scene by ~/reset; real: it attaches to the
+# graph the lab started (the robot's launch) and the experimenter places the object and scores the trial
+ROBOTS = ("sim", "real")
 
 
 class ProtocolError(ValueError):
@@ -53,11 +56,36 @@ class Protocol:
     # what the end-effector mode button cycles (the controller's ee_axes); the participant needs x, y, z
     end_effector_axes: tuple[str, ...] = EE_AXES
     end_effector_debounce: float = 0.25  # s between mode presses (the controller's ee_debounce)
+    robot: str = "sim"
     source: str = ""
+    # where a value came from, for messages: "file:line" of its key, or the command-line flag
+    origin: dict[str, str] = field(default_factory=dict)
 
     def digest(self) -> str:
-        d = {k: v for k, v in self.__dict__.items() if k not in ("source", "participants")}
+        # robot "sim" is left out: study folders made before the key existed resume as they were
+        d = {k: v for k, v in self.__dict__.items() if k not in ("source", "participants", "origin")
+             and not (k == "robot" and v == "sim")}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def robot_refusal(p: Protocol) -> str | None:
+    """Why this protocol cannot run (None: it can): simulated participants see the simulator's ground
+    truth and publish a stick themselves; on the real robot only persons drive, and only through the
+    launched graph. The message names where each value came from (file:line, or the flag)."""
+    if p.robot != "real":
+        return None
+    robot_at = p.origin.get("robot", p.source or "the protocol")
+    sims = [w for w in p.participants if w.startswith("sim:")]
+    if sims:
+        at = p.origin.get("participants", p.source or "the protocol")
+        shown = ", ".join(sims[:3]) + (", ..." if len(sims) > 3 else "")
+        return (f"{at}: simulated participants ({shown}) cannot run on the real robot ({robot_at}: "
+                "robot: real): they read the simulator's object poses and drive without a person; give "
+                "real participant ids (P01,P02) or use robot: sim")
+    if p.backend != "graph":
+        at = p.origin.get("backend", p.source or "the protocol")
+        return f"{at}: the {p.backend} backend has no robot; the real robot ({robot_at}) needs backend: graph"
+    return None
 
 
 def _line(node) -> int:
@@ -182,6 +210,7 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
     rate = get("rate", 20.0, (int, float), lambda v: None if 5 <= v <= 200 else "must be 5..200 Hz")
     backend = get("backend", "graph", str,
                   lambda v: None if v in BACKENDS else f"one of {', '.join(BACKENDS)}")
+    robot = get("robot", "sim", str, lambda v: None if v in ROBOTS else f"one of {', '.join(ROBOTS)}")
     ee_axes = EE_AXES
     if "end_effector_axes" in nodes:
         av = _scalar(nodes["end_effector_axes"])
@@ -211,6 +240,8 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
                 err(line_key, f"strategy {s!r} has no model for setting {setting!r} (give it under models)")
             elif model_exists is not None and not model_exists(m):
                 err(line_key, f"strategy {s!r}, setting {setting!r}: model {m!r} is not installed")
+    # robot_refusal() is asked after the command line's overrides (--participants may replace sim:N)
+    origin = {k: f"{where}:{_line(nodes[k])}" for k in ("participants", "robot", "backend") if k in nodes}
     if errors:
         raise ProtocolError(errors)
     return Protocol(name=str(_scalar(nodes.get("study")) or path.stem), participants=participants,
@@ -218,7 +249,7 @@ def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protoc
                     settings=settings, trials=int(trials), practice_trials=int(practice["trials"]),
                     practice_seed=int(practice["reset_seed"]), counterbalance=cb, time_limit=float(tl),
                     rate=float(rate), models=models, backend=backend, end_effector_axes=ee_axes,
-                    end_effector_debounce=float(ee_debounce), source=where)
+                    end_effector_debounce=float(ee_debounce), robot=robot, source=where, origin=origin)
 
 
 def latin_square(n: int) -> list[list[int]]:

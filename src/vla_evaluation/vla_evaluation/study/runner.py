@@ -37,7 +37,7 @@ from vla_evaluation.study.participant import (
     population,
 )
 from vla_evaluation.study.person import Experimenter, InputTally, TerminalExperimenter
-from vla_evaluation.study.protocol import STRATEGIES, Protocol, latin_square
+from vla_evaluation.study.protocol import STRATEGIES, Protocol, latin_square, robot_refusal
 from vla_evaluation.study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
 
 LIKERT = ("The strategy was easy to use", "The strategy was helpful", "The strategy was intuitive",
@@ -119,7 +119,8 @@ class StudyStore:
             meta.write_text(json.dumps({"protocol": protocol.source, "protocol_digest": digest,
                                         "name": protocol.name, "simulated": any(
                                             w.startswith("sim:") for w in protocol.participants),
-                                        "backend": protocol.backend}, indent=1) + "\n")
+                                        "backend": protocol.backend, "robot": protocol.robot},
+                                       indent=1) + "\n")
         self.done = self._read()
 
     def _read(self) -> dict[str, dict]:
@@ -326,10 +327,14 @@ def trial_row(op: HumanOperator | InputTally, path: np.ndarray, times: np.ndarra
 
 def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], None] = print,
               ask: Callable[[str], str] = input, limit: int | None = None,
-              experimenter: Experimenter | None = None) -> StudyStore:
+              experimenter: Experimenter | None = None, use_sim_time: bool = False) -> StudyStore:
     """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials.
     Real participants (ids without `sim:`) drive the launched graph themselves, with the experimenter at
-    this terminal (`experimenter`: another front end, or a test's)."""
+    this terminal (`experimenter`: another front end, or a test's). With `robot: real` the runner
+    attaches to the lab's running graph instead (study/robot_backend.py; `use_sim_time`: that graph is
+    a simulated one, for a rehearsal or a test)."""
+    if why := robot_refusal(protocol):  # before anything is made or run
+        raise SystemExit(f"protocol refused: {why}")
     real = [w for w in protocol.participants if not w.startswith("sim:")]
     if real and protocol.backend != "graph" and backend is None:  # refused before anything is made or run
         raise SystemExit(f"real participants ({', '.join(real)}) drive the launched graph: the "
@@ -345,8 +350,13 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
     if own:
         if real and experimenter is None:
             experimenter = TerminalExperimenter()
-        backend = (PhysicsBackend(protocol) if protocol.backend == "physics" else
-                   _graph_backend(protocol, out, log, experimenter if real else None))
+        if protocol.robot == "real":
+            from vla_evaluation.study.robot_backend import RobotBackend
+
+            backend = RobotBackend(protocol, out, log, experimenter=experimenter, use_sim_time=use_sim_time)
+        else:
+            backend = (PhysicsBackend(protocol) if protocol.backend == "physics" else
+                       _graph_backend(protocol, out, log, experimenter if real else None))
     try:
         _run_trials(protocol, store, todo, backend, log, ask, limit, out)
     finally:

@@ -1,0 +1,205 @@
+"""The study on a real robot (issue 24, `robot: real`): the runner attaches to a graph it did not start,
+the experimenter places the object before each trial (the arm stopped by the bridge's e-stop) and
+scores it after, no `~/reset` is ever called, the runner measures what joint_states show, and a study
+interrupted at the terminal resumes without losing or duplicating a trial. The graph here is the
+shipped MuJoCo one (demo.launch.yaml, no oracle, no recorder), started apart from the runner as a lab
+starts its robot's launch; the experimenter and the participant are scripted."""
+from __future__ import annotations
+
+import json
+import os
+import threading
+
+import pytest
+from vla_evaluation.study.cli import add_arguments
+from vla_evaluation.study.cli import run as cli_run
+from vla_evaluation.study.person import TerminalExperimenter, TrialScore, parse_displacement_cm
+from vla_evaluation.study.protocol import load_protocol, robot_refusal
+
+ROBOT = """study: robot
+participants: P01
+strategies: [end-effector]
+settings:
+  base: bread/push_east
+trials: 2
+practice: {trials: 1, reset_seed: 7}
+time_limit: 12
+rate: 20
+end_effector_axes: ["x", "y", "z"]
+robot: real
+"""
+
+
+def _cli(argv: list[str]) -> int:
+    import argparse
+
+    p = argparse.ArgumentParser()
+    add_arguments(p)
+    return cli_run(p.parse_args(argv))
+
+
+def test_a_simulated_participant_on_the_real_robot_is_refused_at_its_line(tmp_path, capsys):
+    f = tmp_path / "robot.yaml"
+    f.write_text(ROBOT.replace("participants: P01", "participants: sim:3"))
+    why = robot_refusal(load_protocol(f))
+    assert why.startswith(f"{f}:2: simulated participants (sim:1, sim:2, sim:3) cannot run on the real robot "
+                          f"({f}:11: robot: real)"), why
+    assert _cli(["--protocol", str(f), "--check"]) == 2
+    assert f"{f}:2: simulated participants" in capsys.readouterr().err
+    # the flag says where it came from when the flag set it; real ids on the command line are accepted
+    f.write_text(ROBOT.replace("robot: real\n", ""))
+    assert robot_refusal(load_protocol(f)) is None
+    assert _cli(["--protocol", str(f), "--participants", "sim:2", "--robot", "real", "--check"]) == 2
+    assert "--participants: simulated participants (sim:1, sim:2) cannot run on the real robot (--robot: " \
+        in capsys.readouterr().err
+    f.write_text(ROBOT.replace("participants: P01", "participants: sim:3"))
+    assert _cli(["--protocol", str(f), "--participants", "P07", "--check"]) == 0
+    out = capsys.readouterr().out
+    assert "P07:" in out and out.count("place at x ") == 3          # the experimenter's sheet: where
+    f.write_text(ROBOT + "backend: physics\n")
+    assert robot_refusal(load_protocol(f)).startswith(f"{f}:12: the physics backend has no robot")
+    f.write_text(ROBOT.replace("robot: real", "robot: hardware"))
+    with pytest.raises(Exception, match=r"robot.yaml:11: robot: one of sim, real"):
+        load_protocol(f)
+
+
+def test_a_simulated_study_keeps_its_digest():
+    """Folders made before `robot` existed resume: robot: sim leaves the digest as it was (the shipped
+    protocol's digest as the runner computed it before the key, at 95a1f1a)."""
+    import dataclasses
+
+    from vla_evaluation.study.protocol import PAPER
+
+    p = load_protocol(PAPER.with_name("shipped.yaml"))
+    assert p.robot == "sim" and p.digest() == "b385362ff4d71028"
+    assert dataclasses.replace(p, robot="real").digest() != p.digest()
+
+
+def test_the_experimenter_scores_at_the_terminal_and_nonsense_is_asked_again(capsys):
+    assert parse_displacement_cm("") == (True, None)
+    assert parse_displacement_cm("12,5") == (True, 0.125)
+    for bad in ("-1", "nan", "250", "ten"):
+        assert parse_displacement_cm(bad) == (False, None), bad
+    r, w = os.pipe()
+    with os.fdopen(r) as stream, os.fdopen(w, "w") as writer:
+        writer.write("maybe\ny\n-3\n14\nn\n\n")
+        writer.flush()
+        ex = TerminalExperimenter(stream)
+        assert ex.score("Trial 1") == TrialScore(True, 0.14)
+        assert ex.score("Trial 2") == TrialScore(False, None)
+    out = capsys.readouterr().out
+    assert "please answer y or n" in out and "please give a number of cm" in out
+
+
+class ScriptedLab:
+    """The experimenter and the participant. On each placement prompt the experimenter checks that the
+    arm is stopped (the bridge's e-stop latched), 'places' the object (a simulated scene cannot be
+    touched: the test only records the prompt) and confirms, unless told to press Ctrl-C there; the
+    participant then pushes the stick (back to neutral while told to) until `drive_s` simulated s,
+    says done; the experimenter scores from `scores`."""
+
+    def __init__(self, drive_s: float, scores: list[TrialScore], interrupt_at: int | None = None) -> None:
+        self.drive_s, self.scores, self.interrupt_at = drive_s, list(scores), interrupt_at
+        self.backend = None
+        self.placed: list[str] = []
+        self.estop_at_placement: list[bool] = []
+        self.scored: list[str] = []
+        self._stop = threading.Event()
+        self._t0 = 0.0
+
+    def confirm(self, text: str) -> None:
+        obs = self.backend.ev.obs
+        with obs.cond:
+            latched = obs.cond.wait_for(lambda: obs.safety is not None and obs.safety.estop_active, 10.0)
+        self.estop_at_placement.append(bool(latched))
+        self.placed.append(text)
+        if self.interrupt_at is not None and len(self.placed) == self.interrupt_at:
+            raise KeyboardInterrupt   # the experimenter's Ctrl-C at the prompt
+        self._t0 = obs.now()
+        self._stop.clear()
+        threading.Thread(target=self._person, daemon=True).start()
+
+    def _person(self) -> None:
+        from vla_interfaces.msg import ControllerStatus, SafetyStatus
+
+        obs = self.backend.ev.obs
+        while not self._stop.wait(0.02):        # a joystick's 50 Hz
+            with obs.cond:
+                ctrl, safety = obs.ctrl, obs.safety
+            told = ((ctrl is not None and ctrl.code == ControllerStatus.AWAITING_NEUTRAL)
+                    or (safety is not None and safety.code == SafetyStatus.AWAITING_ZERO))
+            obs.publish_stick(0.0 if told else 1.0)
+
+    def wait_done(self, text: str, ended) -> bool:
+        obs = self.backend.ev.obs
+        with obs.cond:
+            said = obs.cond.wait_for(lambda: ended() or obs.now() - self._t0 >= self.drive_s, 120.0)
+        self._stop.set()
+        obs.publish_stick(0.0)
+        return bool(said) and not ended()
+
+    def score(self, text: str) -> TrialScore:
+        self.scored.append(text)
+        return self.scores.pop(0)
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.timeout(900)
+def test_a_real_robot_study_attaches_asks_the_experimenter_and_resumes(tmp_path):
+    from vla_evaluation.study.robot_backend import RobotBackend
+    from vla_evaluation.study.runner import run_study, trial_plan
+    from vla_launch.session import LaunchSession
+
+    f = tmp_path / "robot.yaml"
+    f.write_text(ROBOT)
+    proto, out = load_protocol(f), tmp_path / "study"
+    plan = trial_plan(proto)
+    assert len(plan) == 3                                     # practice at the reset point, 2 test trials
+    # the lab's graph, started apart from the runner (here the simulated Panda; no oracle, no recorder)
+    graph = LaunchSession("vla_evaluation", "demo.launch.yaml",
+                          {"use_teleoperator": False, "camera_rate": 2.0, "state_rate": 100.0,
+                           "real_time_factor": 1.0}, log_path=tmp_path / "graph.log")
+    graph.start()
+    first = ScriptedLab(2.0, [TrialScore(True, 0.15)], interrupt_at=2)
+    second = ScriptedLab(2.0, [TrialScore(False, None), TrialScore(True, 0.12)])
+    try:
+        for lab in (first, second):
+            backend = RobotBackend(proto, out, experimenter=lab, use_sim_time=True, startup_timeout=180.0,
+                                   state_rate=100.0)
+            lab.backend = backend
+            try:
+                run_study(proto, out, backend=backend, experimenter=lab, ask=lambda q: "5")
+            except KeyboardInterrupt:
+                assert lab is first
+            finally:
+                backend.close()
+            graph.check()                                     # the lab's graph is still up
+    finally:
+        graph.stop()
+    rows = [json.loads(x) for x in (out / "trials.jsonl").read_text().splitlines()]
+    assert [r["key"] for r in rows] == [t.key for t in plan]   # each trial once, in order: none lost
+    # asked to place and confirm before every trial (twice for the interrupted one), the arm stopped
+    assert len(first.placed) == 2 and len(second.placed) == 2
+    assert all(first.estop_at_placement + second.estop_at_placement)
+    for text in first.placed + second.placed:
+        assert "Place the bread at x = " in text and "m in the robot's base frame" in text, text
+        assert "cm in front of the robot's base" in text and "e-stop latched" in text, text
+    assert first.placed[1] == second.placed[0]                # the interrupted trial, asked again
+    assert len(first.scored) + len(second.scored) == 3
+    # the experimenter's score, the runner's measurements
+    assert [(r["success"], r["object_displacement_m"]) for r in rows] == [(True, 0.15), (False, None),
+                                                                          (True, 0.12)]
+    for r in rows:
+        assert r["robot"] == "real" and r["scored_by"] == "experimenter" and not r["simulated"], r
+        assert r["participant_done"] and 0.5 <= r["duration_s"] < 12, r   # at "done", not the limit
+        assert r["path_length_m"] > 0.02 and r["n_inputs"] >= 1 and r["sparc"] is not None, r
+        assert r["ldlj"] is not None and r["lapses"] is None, r
+        assert (out / r["bag"] / "metadata.yaml").exists(), r["bag"]
+    # no ~/reset: the bridge logs every reset it serves ("reset: <objects>")
+    bridge_lines = [x for x in (tmp_path / "graph.log").read_text().splitlines() if "panda_bridge" in x]
+    assert bridge_lines and not [x for x in bridge_lines if "reset:" in x or "reset refused" in x]
+    assert sum("e-stop latched" in x for x in bridge_lines) >= 3
+    likert = [json.loads(x) for x in (out / "likert.jsonl").read_text().splitlines()]
+    assert [(x["participant"], x["strategy"]) for x in likert] == [("P01", "end-effector")]
+

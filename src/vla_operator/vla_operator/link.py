@@ -10,7 +10,10 @@ Every rule here exists because an operator interface got it wrong (FACTS.md sect
 - one client drives; the others watch and may only press the e-stop; a new driver starts at neutral,
   so a reload never re-sends motion; a watcher takes control only deliberately (``claim`` with
   ``confirm: true``) and only while the driver's input is at rest (see ``Link._claim``);
-- malformed, oversized, unknown or forbidden messages are dropped and counted; none moves the arm.
+- malformed, oversized, unknown or forbidden messages are dropped and counted; none moves the arm;
+- answers to the questionnaire come only from the driving page, for the questionnaire that waits, with
+  a whole number on its scale for every statement asked and no other (:mod:`.questionnaire`); an
+  answered questionnaire takes no second answer.
 """
 from __future__ import annotations
 
@@ -19,6 +22,8 @@ import json
 import math
 from dataclasses import dataclass, field
 from urllib.parse import urlsplit
+
+from vla_operator.questionnaire import Questionnaire, answers_problem, ordered
 
 # What a page may ask for; everything but "input" and "heartbeat" becomes a request to a node.
 REQUESTS = {
@@ -31,6 +36,7 @@ REQUESTS = {
     "teaching": "teaching mode on or off",
     "episode": "start (with a task), stop or discard a recording",
     "settings": "caregiver settings (speed scale, deadband, action mode, key map)",
+    "answers": "the answers to the questionnaire that waits (the driver)",
 }
 KINDS = {"input", "heartbeat", "hidden", "claim", *REQUESTS}
 WATCHER_MAY = {"heartbeat", "estop", "claim", "hidden"}
@@ -90,6 +96,7 @@ class Link:
     counters: Counters = field(default_factory=Counters)
     axis: float = 0.0                # the latest accepted input, in [-1, 1]
     axis_t: float = -math.inf        # when it arrived (server clock)
+    questionnaire: Questionnaire | None = None   # the one that waits for the driver's answers
     last_publish: float = -math.inf
     _next_id: int = 0
 
@@ -170,8 +177,21 @@ class Link:
         problem = check_request(msg)
         if problem:
             return self._drop("malformed", problem)
+        if kind == "answers":
+            return self._answers(msg)
         self.counters.accepted += 1
         return Verdict(request=msg)
+
+    def _answers(self, msg: dict) -> Verdict:
+        """The driver's answers: checked against the questionnaire that waits (the page is untrusted);
+        once accepted it waits no more, so a second send (a replay, a double click) is stale."""
+        q = self.questionnaire
+        problem = answers_problem(q, msg)
+        if problem:
+            return self._drop(*problem)
+        self.questionnaire = None
+        self.counters.accepted += 1
+        return Verdict(request={"type": "answers", "id": q.qid, "answers": ordered(q, msg["answers"])})
 
     def _input(self, c: Client, msg: dict, now: float) -> Verdict:
         seq, t, axis = msg.get("seq"), msg.get("t"), msg.get("axis")

@@ -1,6 +1,7 @@
 """operator_station: the thin ROS wrapper around the station's server (:mod:`.server`) and link rules
 (:mod:`.link`). It publishes sensor_msgs/Joy stamped here on arrival, relays the nodes' status to the
-pages in words, and turns the pages' requests into the nodes' own services."""
+pages in words, turns the pages' requests into the nodes' own services, and serves the questionnaire
+action (``~/questionnaire``: the page shows it, the driving page answers it)."""
 from __future__ import annotations
 
 import secrets
@@ -12,6 +13,7 @@ from pathlib import Path
 from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
 from rcl_interfaces.srv import GetParameters, SetParameters
+from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, Joy
@@ -20,11 +22,13 @@ from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import SENSOR_QOS, image_qos
 
+from vla_interfaces.action import Questionnaire as QuestionnaireAction
 from vla_interfaces.msg import ControllerStatus, DetectionArray, GripperStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import GripperCommand, SelectTarget, StartEpisode
 from vla_operator import settings as cfg
 from vla_operator.frames import FrameEncoder
 from vla_operator.link import LOOPBACK, LinkParams
+from vla_operator.questionnaire import Questionnaire, goal_refusal
 from vla_operator.server import Station
 from vla_operator.words import controller_words, safety_words
 
@@ -83,7 +87,7 @@ class StationNode(Node):
         self.status_pub = self.create_publisher(DiagnosticStatus, "~/status", 10)
         b, c, r = p["bridge"], p["controller"], p["recorder"]
         self.state: dict = {"tasks": list(p["tasks"]), "settings": self.settings,
-                            "settings_problem": self.settings_problem}
+                            "settings_problem": self.settings_problem, "questionnaire": None}
         self.create_subscription(Image, "camera/image_raw", self._on_image, LATEST_IMAGE_QOS)
         self.create_subscription(DetectionArray, "detections", self._on_dets, SENSOR_QOS)
         self.create_subscription(ControllerStatus, f"{c}/status", self._on_ctrl, 10)
@@ -114,6 +118,7 @@ class StationNode(Node):
         self.address = self.station.start()
         self.station.set_state(self.state)   # the settings (key map) even before any node's status
         self.frames = FrameEncoder(self.station.set_frame, p["jpeg_quality"])
+        self._init_questionnaire()
         self.create_timer(1.0 / p["rate"], self._tick)
         self.create_timer(1.0, self._publish_status)
         # printed, not only logged: the launch shows it to the person who starts the graph
@@ -178,6 +183,8 @@ class StationNode(Node):
             self._call(action, req, f"episode {action}", reply)
         elif kind == "settings":
             self._apply_settings(msg["values"], reply)
+        elif kind == "answers":
+            self._answered(msg, reply)
 
     def _call(self, name: str, req, what: str, reply) -> None:
         client = self.clients_[name]
@@ -320,7 +327,124 @@ class StationNode(Node):
         self._state(recorder={"recording": bool(m.recording), "task": m.task, "episode": int(m.episode_index),
                               "error": m.last_error})
 
+    # ------------------------------------------------------------------ the questionnaire (an action)
+    # A person takes minutes to answer: an action, not a service (the client waits without blocking
+    # this node, may cancel, and is told whether a page can answer). One waits at a time. Its goal
+    # handle is finished on the executor: answers (from the server's thread) and cancels are handed
+    # over through a guard condition, and the goal is executed only then, with the outcome ready.
+    def _init_questionnaire(self) -> None:
+        self._q_lock = threading.Lock()
+        self._q_waiting = None           # (goal handle, Questionnaire) shown on the pages
+        self._q_outcomes: dict = {}      # goal id -> (kind, answers, message): to finish on the executor
+        self._q_ready: list = []         # goal handles whose outcome is ready
+        self._q_seen = None              # (pages, driver) in the last feedback
+        self._q_next = 0
+        self._q_wake = self.create_guard_condition(self._q_finish)
+        self.q_server = ActionServer(
+            self, QuestionnaireAction, "~/questionnaire", execute_callback=self._q_execute,
+            goal_callback=self._q_goal, handle_accepted_callback=self._q_accepted,
+            cancel_callback=self._q_cancel)
+
+    def _q_goal(self, goal) -> GoalResponse:
+        why = goal_refusal(goal.title, goal.statements, goal.scale_min, goal.scale_max, goal.min_label,
+                           goal.max_label)
+        if why:
+            self.get_logger().error(f"questionnaire refused: {why}")
+            return GoalResponse.REJECT
+        return GoalResponse.ACCEPT
+
+    def _q_accepted(self, handle) -> None:
+        """Shown when a page drives (it answers); else aborted at once with the reason, so the client
+        can ask elsewhere (the study's terminal)."""
+        g = handle.request
+        with self.station.lock, self._q_lock:
+            busy, driver = self._q_waiting is not None, self.station.link.driver()
+            if not busy and driver is not None:
+                self._q_next += 1
+                q = Questionnaire(self._q_next, g.title, tuple(g.statements), int(g.scale_min),
+                                  int(g.scale_max), g.min_label, g.max_label)
+                self._q_waiting = (handle, q)
+                self.station.link.questionnaire = q
+        if busy or driver is None:
+            why = ("another questionnaire is waiting on the station" if busy else
+                   f"no page drives the operator station (open {self.address})")
+            self._q_outcomes[bytes(handle.goal_id.uuid)] = ("aborted", [], why)
+            handle.execute()
+            return
+        self.get_logger().info(f"questionnaire {q.qid} shown: {len(q.statements)} statements")
+        self._q_seen = None
+        self._q_feedback()
+        self._state(questionnaire=q.to_page())
+
+    def _answered(self, msg: dict, reply) -> None:
+        """The driver's answers, checked by the link against the questionnaire that waits."""
+        with self._q_lock:
+            waiting = self._q_waiting
+            if waiting is None or waiting[1].qid != msg["id"]:
+                waiting = None
+            else:
+                self._q_waiting = None
+                self._q_outcomes[bytes(waiting[0].goal_id.uuid)] = (
+                    "answered", msg["answers"], "answered on the operator station's page")
+                self._q_ready.append(waiting[0])
+        if waiting is None:   # withdrawn between the link's check and here
+            reply({"what": "questionnaire", "ok": False, "message": "the questionnaire was withdrawn"})
+            return
+        self._q_wake.trigger()
+        self._state(questionnaire=None)
+        reply({"what": "questionnaire", "ok": True, "message": "your answers were sent"})
+
+    def _q_cancel(self, handle) -> CancelResponse:
+        """The client withdraws it (the study stopped, or it asks at the terminal now): the pages hide
+        it. Refused once the answers are in (they are the result)."""
+        with self.station.lock, self._q_lock:
+            waiting = self._q_waiting
+            if waiting is None or waiting[0].goal_id != handle.goal_id:
+                return CancelResponse.REJECT
+            self._q_waiting = None
+            if self.station.link.questionnaire is waiting[1]:
+                self.station.link.questionnaire = None
+            self._q_outcomes[bytes(handle.goal_id.uuid)] = ("canceled", [], "withdrawn by the client")
+            self._q_ready.append(handle)
+        self._q_wake.trigger()
+        self._state(questionnaire=None)
+        return CancelResponse.ACCEPT
+
+    def _q_finish(self) -> None:
+        """On the executor: execute the goals whose outcome is ready (answered or canceled)."""
+        with self._q_lock:
+            ready, self._q_ready = self._q_ready, []
+        for handle in ready:
+            handle.execute()
+
+    def _q_execute(self, handle):
+        kind, answers, message = self._q_outcomes.pop(bytes(handle.goal_id.uuid),
+                                                      ("aborted", [], "no outcome"))
+        if kind == "answered":
+            handle.succeed()
+        elif handle.is_cancel_requested:
+            handle.canceled()
+        else:
+            handle.abort()
+        self.get_logger().info(f"questionnaire {kind}: {message}")
+        return QuestionnaireAction.Result(answered=kind == "answered", answers=list(answers), message=message)
+
+    def _q_feedback(self) -> None:
+        """The pages open and whether one drives (it can answer), when that changes."""
+        with self.station.lock:
+            pages = len(self.station.link.clients)
+            driver = self.station.link.driver() is not None
+        with self._q_lock:
+            waiting = self._q_waiting
+        if waiting is None or self._q_seen == (pages, driver):
+            return
+        self._q_seen = (pages, driver)
+        text = (f"shown on {pages} page(s); the driving page answers" if driver else
+                f"{pages} page(s) open, none drives: nobody can answer")
+        waiting[0].publish_feedback(QuestionnaireAction.Feedback(pages=pages, driver=driver, text=text))
+
     def _publish_status(self) -> None:
+        self._q_feedback()
         with self.station.lock:
             counters = self.station.link.counters.as_dict()
             pages = len(self.station.link.clients)

@@ -143,30 +143,24 @@ class ScriptedLab:
         return self.scores.pop(0)
 
 
-@pytest.mark.slow
-@pytest.mark.ros
-@pytest.mark.timeout(900)
-def test_a_real_robot_study_attaches_asks_the_experimenter_and_resumes(tmp_path):
+def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, fr3: bool = False) -> None:
+    """The protocol's 3 trials on the started `graph` (a LaunchSession), Ctrl-C at the second placement,
+    resumed by a second runner; checks what the issue asks of a real-robot study."""
+    from vla_evaluation.study.analysis import analyse
     from vla_evaluation.study.robot_backend import RobotBackend
     from vla_evaluation.study.runner import run_study, trial_plan
-    from vla_launch.session import LaunchSession
 
     f = tmp_path / "robot.yaml"
     f.write_text(ROBOT)
     proto, out = load_protocol(f), tmp_path / "study"
     plan = trial_plan(proto)
     assert len(plan) == 3                                     # practice at the reset point, 2 test trials
-    # the lab's graph, started apart from the runner (here the simulated Panda; no oracle, no recorder)
-    graph = LaunchSession("vla_evaluation", "demo.launch.yaml",
-                          {"use_teleoperator": False, "camera_rate": 2.0, "state_rate": 100.0,
-                           "real_time_factor": 1.0}, log_path=tmp_path / "graph.log")
-    graph.start()
     first = ScriptedLab(2.0, [TrialScore(True, 0.15)], interrupt_at=2)
     second = ScriptedLab(2.0, [TrialScore(False, None), TrialScore(True, 0.12)])
     try:
         for lab in (first, second):
-            backend = RobotBackend(proto, out, experimenter=lab, use_sim_time=True, startup_timeout=180.0,
-                                   state_rate=100.0)
+            backend = RobotBackend(proto, out, experimenter=lab, use_sim_time=use_sim_time,
+                                   startup_timeout=180.0, state_rate=state_rate)
             lab.backend = backend
             try:
                 run_study(proto, out, backend=backend, experimenter=lab, ask=lambda q: "5")
@@ -196,10 +190,59 @@ def test_a_real_robot_study_attaches_asks_the_experimenter_and_resumes(tmp_path)
         assert r["path_length_m"] > 0.02 and r["n_inputs"] >= 1 and r["sparc"] is not None, r
         assert r["ldlj"] is not None and r["lapses"] is None, r
         assert (out / r["bag"] / "metadata.yaml").exists(), r["bag"]
-    # no ~/reset: the bridge logs every reset it serves ("reset: <objects>")
-    bridge_lines = [x for x in (tmp_path / "graph.log").read_text().splitlines() if "panda_bridge" in x]
+    # no ~/reset: the bridge logs every reset it serves ("reset: <objects>") or refuses
+    bridge_lines = [x for x in graph.log_path.read_text().splitlines() if "panda_bridge" in x]
     assert bridge_lines and not [x for x in bridge_lines if "reset:" in x or "reset refused" in x]
     assert sum("e-stop latched" in x for x in bridge_lines) >= 3
     likert = [json.loads(x) for x in (out / "likert.jsonl").read_text().splitlines()]
     assert [(x["participant"], x["strategy"]) for x in likert] == [("P01", "end-effector")]
+    table = "\n".join(analyse(out, out))
+    assert "simulated participants" not in (out / "study_tables.md").read_text(), table
 
+
+@pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.timeout(900)
+def test_a_real_robot_study_attaches_to_the_launched_mujoco_graph(tmp_path):
+    from vla_launch.session import LaunchSession
+
+    # the lab's graph, started apart from the runner (here the simulated Panda; no oracle, no recorder)
+    graph = LaunchSession("vla_evaluation", "demo.launch.yaml",
+                          {"use_teleoperator": False, "camera_rate": 2.0, "state_rate": 100.0,
+                           "real_time_factor": 1.0}, log_path=tmp_path / "graph.log")
+    graph.start()
+    _study_on(graph, tmp_path, use_sim_time=True, state_rate=100.0)
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.timeout(900)
+def test_a_real_robot_study_on_the_libfranka_bridge_against_franka_sim(tmp_path):
+    """The bridge with backend libfranka (pylibfranka) against franka-sim, a simulated FR3 speaking the
+    FCI protocol (software we did not write), and the controller with the FR3 joint map, started apart
+    from the runner as a lab's robot PC runs them; wall-clock time, as on the robot."""
+    from franka_sim_server import running
+    from vla_launch.launcher import ProcessSpec
+    from vla_launch.run import find_executable
+    from vla_launch.session import LaunchSession
+
+    with running(priority=50) as sim:
+        bridge = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
+                  "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()),
+                  "loop_priority": 50, "control_rate": 250, "robot_model": "fr3",
+                  "acceleration_scale": 0.4999, "jerk_scale": 0.4999}
+        jmap = "[" + ", ".join(f"'fr3_joint{i}:panda_joint{i}'" for i in range(1, 8)) + "]"
+
+        def cmd(pkg: str, exe: str, params: dict) -> list[str]:
+            out = [find_executable(pkg, exe), "--ros-args"]
+            for k, v in params.items():
+                out += ["-p", f"{k}:={v}"]
+            return out
+
+        graph = LaunchSession.of_processes(
+            [ProcessSpec("panda_bridge", cmd("vla_panda_bridge", "panda_bridge", bridge)),
+             ProcessSpec("controller_node", cmd("vla_latent_controller", "controller_node",
+                                                {"joy_timeout": 0.5, "joint_map": jmap}))],
+            log_path=tmp_path / "graph.log")
+        graph.start()
+        _study_on(graph, tmp_path, use_sim_time=False, state_rate=200.0, fr3=True)

@@ -152,10 +152,13 @@ def analyse(out: Path, figures: Path) -> list[str]:
               "|---|---|---|---|---|---|---|---|"]
     for s in strategies:
         sr = [r for r in rows if r["strategy"] == s]
-        share = sum(r.get("mode_switch_s", 0) for r in sr) / max(1e-9, sum(r["duration_s"] for r in sr))
+        # a person's switching time is not seen (the row's mode_switch_s is None): no share for them
+        timed = [r for r in sr if r.get("mode_switch_s") is not None]
+        switching = sum(r["mode_switch_s"] for r in timed)
+        share = f"{100 * switching / max(1e-9, sum(r['duration_s'] for r in timed)):.1f} %" if timed else "–"
         lines.append(f"| {s} | {cell('time_s', s)} | {cell('sparc', s)} | {cell('ldlj', s)} | "
                      f"{cell('path_length_m', s)} | {cell('n_inputs', s, fmt='{:.1f}')} | "
-                     f"{cell('mode_switches', s, fmt='{:.1f}')} | {100 * share:.1f} % |")
+                     f"{cell('mode_switches', s, fmt='{:.1f}')} | {share} |")
     lines += ["", "time: to success (the time limit for a failure). SPARC, LDLJ: closer to 0 is smoother. "
               "Switching share: mode-switch time (decisions and presses) over execution time; Herlant et "
               "al. 2016 measured 17.4 %.", ""]

@@ -855,3 +855,121 @@ def test_keyboard_only_reaches_every_control_in_order(graph, page):
                 "gripper", "task", "ep-start", "ep-stop", "ep-discard", "teaching"]
     seen = [k for k in order if k in expected]
     assert seen == expected, order
+
+
+# ---------------------------------------------------------------------- the study's questionnaire
+Q_SHOWN = ("window.station.quest.shown && !document.getElementById('questionnaire').hidden"
+           " && !document.getElementById('q-form').hidden")
+Q_STATUS = "document.getElementById('q-status').textContent"
+
+
+class Asked:
+    """The study runner's side (vla_evaluation.study.questionnaire) in a thread: the station's action
+    with the paper's statements, the terminal as the fallback; `row` is what likert.jsonl gets."""
+
+    def __init__(self, node):
+        import threading
+
+        from vla_evaluation.study.questionnaire import StationQuestionnaire, likert_row
+        from vla_evaluation.study.runner import LIKERT
+        self.logs, self.terminal_asked, self.row = [], False, None
+
+        def terminal():
+            self.terminal_asked = True
+            return {}
+        station = StationQuestionnaire(node, log=self.logs.append)
+        self.thread = threading.Thread(target=lambda: setattr(self, "row", likert_row(
+            "P01", "latent-YOLO", LIKERT, terminal, station, self.logs.append)), daemon=True)
+        self.thread.start()
+
+
+def test_the_questionnaire_is_answered_by_keyboard_and_the_study_gets_the_row(graph, page):
+    """Issue 24: the study's questionnaire on the driving page, answered with the keyboard only (Tab,
+    arrows, Enter): it passes axe-core with 44 px targets, a reload shows it again and sends nothing,
+    Esc in it still latches the e-stop, keys in it do not drive, a send with an answer missing is
+    refused on the page, and the runner gets the row likert.jsonl takes; a resend is refused."""
+    from vla_evaluation.study.runner import LIKERT
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    d = page.driver
+    asked = Asked(obs)
+    assert wait_page(h, page, Q_SHOWN), js(page, "document.body.innerText")
+    assert d.switch_to.active_element.get_attribute("id") == "q-h"      # focus moved to it
+    assert js(page, "window.station.quest.shown.statements") == list(LIKERT)
+    assert axe_violations(page) == [] and small_targets(page) == []
+    d.refresh()                                                            # a reload shows it again
+    assert wait_page(h, page, "window.station && window.station.driver && " + Q_SHOWN)
+    assert not js(page, "document.querySelector('#q-items input:checked')")   # empty, nothing sent
+    assert asked.thread.is_alive() and asked.row is None
+    # Esc from inside the questionnaire is STOP, and the questionnaire stays
+    ActionChains(d).send_keys(Keys.TAB).perform()                          # heading -> statement 1
+    assert d.switch_to.active_element.get_attribute("name") == "q-0"
+    n_latched = len(obs.latched)
+    ActionChains(d).send_keys(Keys.ESCAPE).perform()
+    assert h.spin_until(lambda: len(obs.latched) > n_latched, 5.0)
+    d.find_element(By.ID, "release").click()
+    d.find_element(By.ID, "release-confirm").click()
+    assert h.spin_until(lambda: not obs.estop(), 5.0) and js(page, Q_SHOWN)
+    want = [7, 6, 5, 4, 3, 2]
+    d.execute_script("document.getElementById('q-h').focus()")
+    n = len(obs.cmd_log)
+    for i, v in enumerate(want[:-1]):                                     # the last one left out
+        ActionChains(d).send_keys(Keys.TAB).perform()
+        el = d.switch_to.active_element
+        assert el.get_attribute("name") == f"q-{i}", el.get_attribute("outerHTML")
+        ActionChains(d).send_keys(Keys.SPACE).perform()                   # 1 (strongly disagree)
+        for _ in range(v - 1):
+            ActionChains(d).send_keys(Keys.ARROW_RIGHT).perform()         # 2, 3, ...: arrows in a group
+    assert not nonzero_since(obs, n), "the arrows in the questionnaire drove the arm"
+    ActionChains(d).send_keys(Keys.TAB).send_keys(Keys.TAB).perform()     # past statement 6, to Send
+    assert d.switch_to.active_element.get_attribute("id") == "q-submit"
+    ActionChains(d).send_keys(Keys.ENTER).perform()                       # refused on the page
+    assert wait_page(h, page, f"{Q_STATUS}.startsWith('Not sent: statement 6 needs an answer')")
+    assert d.switch_to.active_element.get_attribute("name") == "q-5"      # where the answer is missing
+    ActionChains(d).send_keys(Keys.SPACE).send_keys(Keys.ARROW_RIGHT).perform()
+    ActionChains(d).send_keys(Keys.TAB).perform()
+    assert d.switch_to.active_element.get_attribute("id") == "q-submit"
+    ActionChains(d).send_keys(Keys.ENTER).perform()
+    assert h.spin_until(lambda: not asked.thread.is_alive(), 20.0), asked.logs
+    assert not asked.terminal_asked, asked.logs
+    assert asked.row == {"participant": "P01", "strategy": "latent-YOLO", "answers": dict(zip(LIKERT, want))}
+    assert wait_page(h, page, f"{Q_STATUS} === 'Thank you: your answers were sent.'")
+    assert js(page, "document.getElementById('questionnaire').hidden")
+    d.execute_script("window.stationRequest({type: 'answers', id: window.station.quest.sent,"
+                     " answers: arguments[0]}, 'answers')", dict(zip(LIKERT, want)))   # sent again
+    assert wait_page(h, page, "(window.station.refused || '').includes('is not waiting')")
+
+
+def test_the_questionnaire_is_answered_with_a_single_switch(graph, page, settings_restored):
+    """Scanning: the highlight steps through the statements and "Send answers"; a press on a statement
+    steps through its numbers from 1, a press on a number chooses it and moves on to the next."""
+    from vla_evaluation.study.runner import LIKERT
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    apply_settings(h, page, input_device="switch1", scan_period=2.0)
+    d = page.driver
+    asked = Asked(obs)
+    assert wait_page(h, page, Q_SHOWN)
+    scanned = "document.getElementById('{}').classList.contains('scan')"
+    for i in range(len(LIKERT)):
+        for _ in range(6):     # the highlight may have moved on before the switch closed: wait for it again
+            if js(page, f"!!document.querySelector('input[name=\"q-{i}\"]:checked')"):
+                break
+            target = f"q-{i}-1" if js(page, "window.station.quest.group") == i else f"q-{i}"
+            assert wait_page(h, page, scanned.format(target), 30.0)
+            key(d, Keys.SPACE, True)
+            key(d, Keys.SPACE, False)
+        else:
+            pytest.fail(f"the switch did not answer statement {i + 1}")
+    chosen = js(page, "[...document.querySelectorAll('#q-items input:checked')].map(e => +e.value)")
+    assert len(chosen) == len(LIKERT)
+    for _ in range(6):
+        if not asked.thread.is_alive():
+            break
+        assert wait_page(h, page, scanned.format("q-submit") + " || !window.station.quest.shown", 30.0)
+        key(d, Keys.SPACE, True)
+        key(d, Keys.SPACE, False)
+        h.spin_until(lambda: not asked.thread.is_alive(), 3.0)
+    assert h.spin_until(lambda: not asked.thread.is_alive(), 20.0), asked.logs
+    assert asked.row == {"participant": "P01", "strategy": "latent-YOLO",
+                         "answers": dict(zip(LIKERT, chosen))}

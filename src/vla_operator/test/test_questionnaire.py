@@ -93,6 +93,7 @@ def test_oversized_answers_are_dropped_before_parsing():
     (["a"], 1, 1, "a", "b", "2 to 11 points"),
     (["a"], 7, 1, "a", "b", "2 to 11 points"),
     (["a"], 1, 7, "", "b", "both ends of the scale need words"),
+    ([f"{i} " + "x" * 200 for i in range(10)], 1, 7, "a", "b", "would not fit in one message"),
 ])
 def test_a_questionnaire_that_cannot_be_shown_is_refused(statements, smin, smax, lo, hi, words):
     assert words in goal_refusal("t", statements, smin, smax, lo, hi)

@@ -10,6 +10,7 @@ number for every statement asked, no other.
 """
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 MAX_STATEMENTS = 20
@@ -36,8 +37,9 @@ class Questionnaire:
 
 
 def goal_refusal(title: str, statements, scale_min: int, scale_max: int, min_label: str,
-                 max_label: str) -> str | None:
-    """Why a questionnaire cannot be shown, or None (the action's goal is then accepted)."""
+                 max_label: str, max_message_bytes: int = 2048) -> str | None:
+    """Why a questionnaire cannot be shown, or None (the action's goal is then accepted). The page's
+    answer (keyed by the statements) must fit in one message of the link's `max_message_bytes`."""
     statements = list(statements)
     if not 1 <= len(statements) <= MAX_STATEMENTS:
         return f"a questionnaire has 1 to {MAX_STATEMENTS} statements, not {len(statements)}"
@@ -52,6 +54,10 @@ def goal_refusal(title: str, statements, scale_min: int, scale_max: int, min_lab
         return f"both ends of the scale need words (1 to {MAX_LABEL_CHARS} characters)"
     if len(title) > MAX_TITLE_CHARS:
         return f"the title has at most {MAX_TITLE_CHARS} characters"
+    answer = {"type": "answers", "id": 2**53, "answers": {s: -128 for s in statements}}   # the longest
+    if len(json.dumps(answer, ensure_ascii=False).encode()) > max_message_bytes:
+        return (f"the answers to these statements would not fit in one message of the page "
+                f"({max_message_bytes} bytes): fewer or shorter statements")
     return None
 
 

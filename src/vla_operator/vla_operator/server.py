@@ -13,7 +13,7 @@ from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
-from vla_operator.link import Link, LinkParams, handshake_refusal, token_refusal
+from vla_operator.link import Link, LinkParams, handshake_refusal, parse, token_refusal
 
 
 class Station:
@@ -179,13 +179,19 @@ class Station:
                 if verdict.from_neutral:
                     self.publish_axis(0.0)
                 self.publish_axis(self.link.value(now))
-        if verdict.error:
-            self._send(cid, {"type": "refused", "reason": verdict.error})
+        if verdict.error:   # with the refused message's type, when it had one (the page shows it there)
+            self._send(cid, {"type": "refused", "reason": verdict.error, "what": self._kind(data)})
         if verdict.request is not None:
             if verdict.request["type"] == "claim":
                 self._broadcast_roles(taken_from=verdict.request["taken_from"])
             else:
                 self.request(verdict.request, lambda reply: self.reply(cid, reply))
+
+    def _kind(self, data: str | bytes) -> str:
+        if len(data) > self.link.params.max_message_bytes:
+            return ""
+        msg = parse(data)
+        return msg["type"] if isinstance(msg, dict) and len(msg["type"]) <= 32 else ""
 
     def _broadcast_roles(self, taken_from: int | None = None) -> None:
         """Every page's role; the page that drove before a watcher took control is told so."""

@@ -153,6 +153,7 @@ class StationNode(Node):
         reply({"what": "next axis", "ok": True, "message": "the mode button was pressed"})
 
     def _tick(self) -> None:
+        self._q_finish()
         now = time.monotonic()
         with self.station.lock:   # read and published together: a release's zero is never followed by
             went_silent = self.station.link.tick(now)      # the held value read just before it
@@ -331,7 +332,8 @@ class StationNode(Node):
     # A person takes minutes to answer: an action, not a service (the client waits without blocking
     # this node, may cancel, and is told whether a page can answer). One waits at a time. Its goal
     # handle is finished on the executor: answers (from the server's thread) and cancels are handed
-    # over through a guard condition, and the goal is executed only then, with the outcome ready.
+    # over to the node's Joy timer (`rate` Hz; rclpy's EventsExecutor has no guard conditions), and
+    # the goal is executed only then, with the outcome ready.
     def _init_questionnaire(self) -> None:
         self._q_lock = threading.Lock()
         self._q_waiting = None           # (goal handle, Questionnaire) shown on the pages
@@ -339,7 +341,6 @@ class StationNode(Node):
         self._q_ready: list = []         # goal handles whose outcome is ready
         self._q_seen = None              # (pages, driver) in the last feedback
         self._q_next = 0
-        self._q_wake = self.create_guard_condition(self._q_finish)
         self.q_server = ActionServer(
             self, QuestionnaireAction, "~/questionnaire", execute_callback=self._q_execute,
             goal_callback=self._q_goal, handle_accepted_callback=self._q_accepted,
@@ -347,7 +348,7 @@ class StationNode(Node):
 
     def _q_goal(self, goal) -> GoalResponse:
         why = goal_refusal(goal.title, goal.statements, goal.scale_min, goal.scale_max, goal.min_label,
-                           goal.max_label)
+                           goal.max_label, self.station.link.params.max_message_bytes)
         if why:
             self.get_logger().error(f"questionnaire refused: {why}")
             return GoalResponse.REJECT
@@ -390,7 +391,6 @@ class StationNode(Node):
         if waiting is None:   # withdrawn between the link's check and here
             reply({"what": "questionnaire", "ok": False, "message": "the questionnaire was withdrawn"})
             return
-        self._q_wake.trigger()
         self._state(questionnaire=None)
         reply({"what": "questionnaire", "ok": True, "message": "your answers were sent"})
 
@@ -406,12 +406,14 @@ class StationNode(Node):
                 self.station.link.questionnaire = None
             self._q_outcomes[bytes(handle.goal_id.uuid)] = ("canceled", [], "withdrawn by the client")
             self._q_ready.append(handle)
-        self._q_wake.trigger()
         self._state(questionnaire=None)
         return CancelResponse.ACCEPT
 
     def _q_finish(self) -> None:
-        """On the executor: execute the goals whose outcome is ready (answered or canceled)."""
+        """On the executor (the Joy timer): execute the goals whose outcome is ready (answered or
+        canceled)."""
+        if not self._q_ready:
+            return
         with self._q_lock:
             ready, self._q_ready = self._q_ready, []
         for handle in ready:

@@ -1,5 +1,6 @@
 // The operator station's page: live view with boxes to choose from, driving by buttons, keys, switches
-// or a gamepad, the e-stop, status in words, episodes and the caregiver's settings.
+// or a gamepad, the e-stop, status in words, episodes, the caregiver's settings and the study's
+// questionnaire.
 import { Link } from './link.js';
 
 const $ = (id) => document.getElementById(id);
@@ -20,6 +21,7 @@ const link = new Link(onMessage, onFrame, (up) => {
 function onMessage(m) {
   if (m.type === 'hello' || m.type === 'role') setRole(m);
   else if (m.type === 'state') showState(m);
+  else if (m.type === 'reply' && m.what === 'questionnaire') questReply(m);
   else if (m.type === 'reply' && m.what === 'settings') {
     $('set-message').textContent = m.ok ? `Settings ${m.message}` : `Not saved: ${m.message}`;
   }
@@ -28,7 +30,10 @@ function onMessage(m) {
     if (m.what === 'estop' && m.ok) state.estopLatency = performance.now() - state.estopSent;
     say(`${m.what}: ${m.ok ? 'done' : 'refused'}${m.message ? ' – ' + m.message : ''}`);
   }
-  else if (m.type === 'refused') { state.refused = m.reason; say(`Refused: ${m.reason}`); }
+  else if (m.type === 'refused') {
+    state.refused = m.reason; say(`Refused: ${m.reason}`);
+    if (m.what === 'answers') questReply({ ok: false, message: m.reason });
+  }
 }
 
 // One station drives; a watcher may take control (a confirmed dialog; the station refuses while the
@@ -53,6 +58,7 @@ function setRole(m) {
   if (was && !driver && m.taken) say('Another station took control: this station now watches');
   if (!was && driver && state.claimed) say('This station drives now: let go of the input, then drive');
   state.claimed = false;
+  questAnswerable();
 }
 $('take-control').onclick = () => $('take-dialog').showModal();
 $('take-cancel').onclick = () => $('take-dialog').close();
@@ -81,6 +87,7 @@ function showState(s) {
   }
   if (s.settings && JSON.stringify(s.settings) !== state.settingsJson) showSettings(s.settings);
   if (s.settings_problem !== undefined) $('set-problem').textContent = s.settings_problem;
+  if (s.questionnaire !== undefined) showQuestionnaire(s.questionnaire);
 }
 
 // The station's settings (the robot PC's file): the fields are filled only when they change there, so
@@ -198,10 +205,10 @@ $('ee-next').onclick = () => link.send({ type: 'ee_next' });
 // Forward and back work anywhere on the page but in a form field; a stop key works everywhere, except a
 // letter or digit typed into a field. Space is the single switch when scanning is chosen.
 const SCAN = ['forward', 'back', 'next', 'gripper', 'ee-next', 'take-control'];
-function scanList() {   // the open dialog's buttons, else the scanned controls that are shown
+function scanList() {   // the open dialog's buttons, else the questionnaire, else the scanned controls shown
   const dialog = document.querySelector('dialog[open]');
   if (dialog) return [...dialog.querySelectorAll('button')].map((b) => b.id);
-  return SCAN.filter((id) => !$(id).hidden);
+  return questScan() || SCAN.filter((id) => !$(id).hidden);
 }
 function scanning() { return state.settings.input_device === 'switch1'; }
 function keyAction(e) {
@@ -213,6 +220,7 @@ addEventListener('keydown', (e) => {
   if (act === 'stop' && !(inField && e.key.length === 1)) { e.preventDefault(); estop(); return; }
   if (inField || e.repeat) return;
   if (scanning() && e.key === ' ') { e.preventDefault(); const id = state.scanIds[state.scan];
+    if (questSwitch(id)) return;
     if (id === 'forward' || id === 'back') press(id === 'forward' ? 1 : -1); else if (id) $(id).click(); return; }
   if (act) { e.preventDefault(); press(act === 'forward' ? 1 : -1); }
 });
@@ -222,15 +230,23 @@ addEventListener('keyup', (e) => {
   if (act === 'forward' || act === 'back') release(act === 'forward' ? 1 : -1);
 });
 function scanStep() {       // single-switch scanning: the highlight steps every scan_period while nothing is held
-  setTimeout(scanStep, 1000 * (state.settings.scan_period ?? SCAN_S));
+  armScan();
   if (!scanning()) { if (state.scan >= 0) { document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan')); state.scan = -1; } return; }
   if (state.held) return;
-  document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan'));
-  const ids = scanList();
+  let ids = scanList();
   if (ids.join() !== state.scanIds.join()) { state.scanIds = ids; state.scan = -1; }
-  state.scan = (state.scan + 1) % ids.length; $(ids[state.scan]).classList.add('scan');
+  if (quest.group >= 0 && state.scan + 1 >= ids.length) {   // a round of a statement's numbers without a
+    const i = quest.group; quest.group = -1; ids = scanList(); scanTo(ids, i); return;   // choice: back to it
+  }
+  scanTo(ids, (state.scan + 1) % ids.length);
 }
-setTimeout(scanStep, 1000 * SCAN_S);
+function scanTo(ids, i) {   // highlight ids[i] now (a switch's choice moves it at once)
+  document.querySelectorAll('.scan').forEach((e) => e.classList.remove('scan'));
+  state.scanIds = ids; state.scan = i;
+  if (ids[i]) $(ids[i]).classList.add('scan');
+}
+function armScan() { clearTimeout(state.scanTimer); state.scanTimer = setTimeout(scanStep, 1000 * (state.settings.scan_period ?? SCAN_S)); }
+armScan();
 function pollGamepad() {   // the Gamepad API: the first connected pad's left stick (up = toward the task)
   // Only a change of the stick drives (the buttons and keys keep working); a pad that goes away, or a
   // device that is no longer the gamepad, stops what the stick was doing.
@@ -252,6 +268,100 @@ function pollGamepad() {   // the Gamepad API: the first connected pad's left st
   requestAnimationFrame(pollGamepad);
 }
 requestAnimationFrame(pollGamepad);
+
+// ------------------------------------------------------------------ the questionnaire
+// The study's questionnaire (the station's ~/questionnaire action), shown while it waits, answered by
+// the driving page: one radio group (fieldset and legend) per statement, numbers with words for the
+// ends. It is a part of the page, not a modal dialog: STOP and its key work as ever. Nothing is kept in
+// the browser: a reload shows it again, empty, and only "Send answers" sends (the station checks the
+// answers and refuses a second send). With a single switch the highlight steps through the statements
+// and "Send answers"; a press on a statement steps through its numbers, a press on a number chooses it.
+const quest = { shown: null, sent: null, group: -1 };
+state.quest = quest;   // read by the browser tests
+function showQuestionnaire(q) {
+  const had = quest.shown;
+  if (!q) {
+    if (!had) return;
+    quest.shown = null; quest.group = -1; $('questionnaire').hidden = true;
+    $('q-status').textContent = quest.sent === had.id ? 'Thank you: your answers were sent.'
+                                                      : 'The questionnaire was withdrawn.';
+    return;
+  }
+  if (had && had.id === q.id) return;
+  quest.shown = q; quest.sent = null; quest.group = -1;
+  $('q-title').textContent = q.title;
+  $('q-scale').textContent = `For each statement choose a number from ${q.min} (${q.min_label}) to ${q.max}`
+    + ` (${q.max_label}). Every statement needs an answer.`;
+  const items = q.statements.map((text, i) => {
+    const fs = document.createElement('fieldset'); fs.id = `q-${i}`;
+    const legend = document.createElement('legend'); legend.textContent = `${i + 1}. ${text}`;
+    const row = document.createElement('div'); row.className = 'q-scale';
+    for (let v = q.min; v <= q.max; v++) {
+      const label = document.createElement('label'), input = document.createElement('input');
+      label.id = `q-${i}-${v}`; input.type = 'radio'; input.name = `q-${i}`; input.value = String(v);
+      const num = document.createElement('span'); num.textContent = String(v);
+      label.append(input, num);
+      const words = v === q.min ? q.min_label : v === q.max ? q.max_label : '';
+      if (words) { const w = document.createElement('span'); w.className = 'q-words'; w.textContent = ` ${words}`; label.append(w); }
+      row.append(label);
+    }
+    fs.append(legend, row);
+    return fs;
+  });
+  $('q-items').replaceChildren(...items);
+  $('questionnaire').hidden = false;
+  questAnswerable();
+  $('q-status').textContent = state.driver ? `A questionnaire is waiting: ${q.statements.length} statements.`
+                                           : 'A questionnaire is waiting on the driving station.';
+  if (state.driver && $('settings').hidden && !document.querySelector('dialog[open]')) $('q-h').focus();
+}
+function questAnswerable() {   // only the driving page answers; the others say so
+  const answer = !!quest.shown && state.driver;
+  $('q-form').hidden = !answer; $('q-watch').hidden = answer || !quest.shown;
+}
+function questScan() {
+  if (!quest.shown || $('q-form').hidden || !$('settings').hidden) return null;
+  if (quest.group >= 0) {
+    return [...$(`q-${quest.group}`).querySelectorAll('label')].map((l) => l.id);
+  }
+  return [...quest.shown.statements.map((_, i) => `q-${i}`), 'q-submit'];
+}
+function questSwitch(id) {      // a single switch's press on the questionnaire's highlight
+  const group = /^q-(\d+)$/.exec(id || ''), option = /^q-(\d+)-(\d+)$/.exec(id || '');
+  if (group) { quest.group = +group[1]; scanTo(questScan(), 0); armScan(); return true; }
+  if (option) {
+    const input = $(id).querySelector('input');
+    input.checked = true; input.dispatchEvent(new Event('change', { bubbles: true }));
+    quest.group = -1;
+    const ids = questScan(); scanTo(ids, Math.min(+option[1] + 1, ids.length - 1)); armScan();
+    return true;
+  }
+  return false;
+}
+$('q-form').addEventListener('submit', (e) => {
+  e.preventDefault();
+  const q = quest.shown;
+  if (!q || !state.driver) return;
+  const answers = {};
+  let missing = -1;
+  q.statements.forEach((text, i) => {
+    const checked = document.querySelector(`input[name="q-${i}"]:checked`);
+    if (checked) answers[text] = Number(checked.value); else if (missing < 0) missing = i;
+  });
+  if (missing >= 0) {
+    $('q-status').textContent = `Not sent: statement ${missing + 1} needs an answer (${q.statements[missing]}).`;
+    if (!scanning()) document.querySelector(`input[name="q-${missing}"]`).focus();
+    return;
+  }
+  quest.sent = q.id;
+  $('q-status').textContent = 'Sending your answers…';
+  link.send({ type: 'answers', id: q.id, answers });
+});
+function questReply(m) {
+  if (m.ok) return;   // the station hides the questionnaire: "thank you" then
+  quest.sent = null;
+  $('q-status').textContent = `Not sent: ${m.message}`;
+}
 
 // ------------------------------------------------------------------ stop
 function estop() { state.estopSent = performance.now(); state.estopLatency = null; stopDriving(); link.send({ type: 'estop' }); say('STOP sent'); }

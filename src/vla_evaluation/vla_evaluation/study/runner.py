@@ -393,7 +393,14 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
         last_of_strategy = not any(t.participant == who and t.strategy == trial.strategy
                                    for t in todo[n + 1:])
         if last_of_strategy and not who.startswith("sim:") and (who, trial.strategy) not in asked:
-            store.record_likert(ask_likert(who, trial.strategy, ask))
+            # on the operator station's page when the study runs with it, else (or when it does not
+            # answer) on the terminal: the same row (study/questionnaire.py)
+            from functools import partial
+
+            from vla_evaluation.study.questionnaire import likert_row, station_for
+
+            terminal, station = partial(ask_likert, who, trial.strategy, ask), station_for(backend, log)
+            store.record_likert(likert_row(who, trial.strategy, LIKERT, terminal, station, log))
 
 
 def _likert_rows(out: Path) -> list[dict]:

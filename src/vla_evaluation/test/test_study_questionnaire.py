@@ -1,0 +1,140 @@
+"""The questionnaire after each strategy (issue 24): on the operator station when the study runs with
+it, else on the terminal, the same row in likert.jsonl either way; when the station does not answer
+the runner says why and asks on the terminal, so no answers are lost. The station's page in a real
+browser is test/test_operator_station.py's."""
+from __future__ import annotations
+
+import json
+import threading
+
+import numpy as np
+import pytest
+from vla_evaluation.study.protocol import load_protocol
+from vla_evaluation.study.questionnaire import StationQuestionnaire, check_answers, likert_row
+from vla_evaluation.study.runner import LIKERT, run_study
+
+TWO_STRATEGIES = """study: questionnaire
+participants: P01
+strategies: [latent-YOLO, end-effector]
+settings:
+  Seen: cereal_box/push_south
+trials: 1
+practice: {trials: 0, reset_seed: 7}
+time_limit: 5
+rate: 20
+"""
+
+
+class FakeStation:
+    """The station's asker: answers from a list, or None with a reason (it did not answer)."""
+
+    def __init__(self, outcomes):
+        self.outcomes, self.asked = list(outcomes), []
+
+    def ask(self, title, statements):
+        self.asked.append((title, list(statements)))
+        return self.outcomes.pop(0)
+
+
+class FakeBackend:
+    """Trials without a graph; the station is its `questionnaire` (station_for takes it)."""
+
+    def __init__(self, station=None):
+        if station is not None:
+            self.questionnaire = station
+
+    def run(self, trial, params, operator_seed):
+        return ({"success": True, "time_s": 1.0, "path_length_m": 0.1, "mode_switches": 0, "sparc": None},
+                {"t": np.zeros(1, np.float32)})
+
+
+def study(tmp_path, backend, answers=()):
+    f = tmp_path / "q.yaml"
+    f.write_text(TWO_STRATEGIES)
+    out, logs, typed = tmp_path / "study", [], iter(answers)
+    run_study(load_protocol(f), out, backend=backend, log=logs.append, ask=lambda q: next(typed))
+    rows = [json.loads(x) for x in (out / "likert.jsonl").read_text().splitlines()]
+    return rows, logs, out
+
+
+def test_the_station_answers_and_the_row_is_the_terminals(tmp_path):
+    station = FakeStation([([7, 6, 5, 4, 3, 2], ""), ([1, 2, 3, 4, 5, 6], "")])
+    rows, logs, _ = study(tmp_path, FakeBackend(station))   # the terminal is never asked (no answers)
+    assert [t for t, _ in station.asked] == ["About the strategy you just used: latent-YOLO",
+                                             "About the strategy you just used: end-effector"]
+    assert all(s == list(LIKERT) for _, s in station.asked)
+    assert rows == [
+        {"participant": "P01", "strategy": "latent-YOLO", "answers": dict(zip(LIKERT, [7, 6, 5, 4, 3, 2]))},
+        {"participant": "P01", "strategy": "end-effector", "answers": dict(zip(LIKERT, [1, 2, 3, 4, 5, 6]))}]
+    assert any("answered on the operator station" in x for x in logs)
+
+
+def test_when_the_station_does_not_answer_it_says_so_and_the_terminal_asks(tmp_path):
+    station = FakeStation([(None, "no page drives the operator station (open http://127.0.0.1:8080/)"),
+                           ([4, 4, 4, 4, 4, 4], "")])
+    rows, logs, out = study(tmp_path, FakeBackend(station), answers=["9", "5"] + ["3"] * (len(LIKERT) - 1))
+    assert rows[0] == {"participant": "P01", "strategy": "latent-YOLO",
+                       "answers": {q: (5 if i == 0 else 3) for i, q in enumerate(LIKERT)}}
+    assert rows[1] == {"participant": "P01", "strategy": "end-effector", "answers": dict.fromkeys(LIKERT, 4)}
+    said = [x for x in logs if "did not take the questionnaire" in x]
+    assert len(said) == 1 and "no page drives the operator station" in said[0] and "terminal" in said[0]
+    # resumed: what was asked is not asked again (every trial is recorded: nothing runs, nothing is asked)
+    again = FakeStation([])
+    run_study(load_protocol(tmp_path / "q.yaml"), out, backend=FakeBackend(again), log=logs.append,
+              ask=lambda q: pytest.fail(q))
+    assert again.asked == [] and len((out / "likert.jsonl").read_text().splitlines()) == 2
+
+
+def test_without_a_station_the_terminal_asks(tmp_path):
+    rows, _, _ = study(tmp_path, FakeBackend(), answers=["2"] * len(LIKERT) * 2)
+    assert [r["strategy"] for r in rows] == ["latent-YOLO", "end-effector"]
+    assert rows[0]["answers"] == dict.fromkeys(LIKERT, 2)
+
+
+def test_a_station_result_that_is_not_an_answer_on_the_scale_is_refused():
+    assert check_answers([1, 7, 3], 3) is None
+    assert "2 answers to 3 statements" in check_answers([1, 7], 3)
+    assert "whole number from 1 to 7" in check_answers([1, 8, 3], 3)
+    assert "whole number from 1 to 7" in check_answers([0, 1, 3], 3)
+
+
+def test_likert_row_falls_back_to_the_terminal_with_the_reason():
+    logs = []
+    row = likert_row("P02", "end-effector", LIKERT, lambda: {"from": "terminal"},
+                     FakeStation([(None, "its action operator_station/questionnaire is not available")]),
+                     logs.append)
+    assert row == {"from": "terminal"}
+    assert "is not available" in logs[-1] and "asking on the terminal" in logs[-1]
+
+
+@pytest.mark.ros
+def test_a_page_that_goes_away_gives_the_questionnaire_back_to_the_terminal(tmp_path):
+    """The real action against the station node in process: a driving page (a link client) takes the
+    questionnaire; it goes away and none comes back for page_gone_s: the client cancels (the station
+    withdraws it from the pages) and says why."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from vla_common.ros.testing import RosHarness
+    from vla_operator.station_node import StationNode
+
+    h = RosHarness()
+    try:
+        station = h.add(StationNode(context=h.context, parameter_overrides=[
+            Parameter("port", value=0), Parameter("settings_file", value=str(tmp_path / "s.json")),
+            Parameter("controller", value="no_such_controller_for_this_test")]))
+        client = h.add(Node("study_questionnaire_test", context=h.context))
+        page = station.station.link.connect(0.0).cid
+        asker = StationQuestionnaire(client, page_gone_s=0.5, log=lambda s: None)
+        out = {}
+        t = threading.Thread(target=lambda: out.update(r=asker.ask("About it", LIKERT)), daemon=True)
+        t.start()
+        assert h.spin_until(lambda: station.state["questionnaire"] is not None, 20.0)
+        with station.station.lock:
+            station.station.link.disconnect(page)             # the page closed
+        assert h.spin_until(lambda: not t.is_alive(), 20.0)
+        answers, why = out["r"]
+        assert answers is None and "no page drives the station for 0.5 s" in why, why
+        assert h.spin_until(lambda: station.state["questionnaire"] is None, 5.0)   # withdrawn
+        assert station.station.link.questionnaire is None
+    finally:
+        h.shutdown()

@@ -88,6 +88,10 @@ def analyse(out: Path, figures: Path) -> list[str]:
             "physics": "on the physics backend (the graph's computations in one process)"}
     backends = sorted({r.get("backend", "physics") for r in rows})
     lines += ["Trials ran " + " and ".join(ways.get(b, b) for b in backends) + ".", ""]
+    if any(r.get("robot") == "real" for r in rows):
+        lines += ["On the real robot (`robot: real`): the experimenter placed each object at its start "
+                  "point and scored success (and, where measured, the object's displacement); time, path, "
+                  "smoothness, inputs and mode switches were measured from joint_states.", ""]
 
     # ---- Figure 4: success per strategy and setting
     fig, ax = plt.subplots(figsize=(7, 3.6))

@@ -29,8 +29,10 @@ lets go of the graph, and the e-stop stays latched when the study ends (release 
 """
 from __future__ import annotations
 
+import math
 import os
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -70,12 +72,34 @@ WHERE = "docs/study-participants.md, 'On a real robot'"
 
 class RobotObserver(StudyObserver):
     """The study's observer on a robot's graph: an FR3's joint names (fr3_joint1..7) read as the
-    Panda's, as the controller's joint_map does; its kinematics are the Panda's."""
+    Panda's, as the controller's joint_map does; its kinematics are the Panda's. While `hold` is set
+    (between trials: the experimenter's hands may be at the table) an e-stop released by anyone else
+    (the station's page, a service call) is latched again at once."""
+
+    RELATCH_S = 0.5  # wall s between two re-latch requests
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **kwargs)
+        self.hold = False
+        self.estop_cli = None
+        self.relatched = 0
+        self._relatch_t = -math.inf
 
     def _joints(self, msg) -> None:
         if msg.name and msg.name[0].startswith("fr3_joint"):
             msg.name = [n.replace("fr3_joint", "panda_joint", 1) for n in msg.name]
         super()._joints(msg)
+
+    def _safety(self, msg) -> None:
+        super()._safety(msg)
+        if self.hold and not msg.estop_active and self.estop_cli is not None:
+            now = time.monotonic()
+            if now - self._relatch_t >= self.RELATCH_S:
+                self._relatch_t = now
+                self.relatched += 1
+                self.estop_cli.call_async(SetBool.Request(data=True))   # no wait: this is the executor
+                self.node.get_logger().warn("the e-stop was released between trials: latched again "
+                                            "(the study releases it at the experimenter's confirmation)")
 
 
 def recorder_command(out_dir: Path, use_sim_time: bool) -> list[str]:
@@ -229,6 +253,7 @@ class RobotBackend(GraphBackend):
 
     def _estop(self, on: bool) -> None:
         obs = self.ev.obs
+        obs.hold = bool(on)   # before a release: the hold must not latch what the study releases
         res = obs.call(obs.estop_cli, SetBool.Request(data=bool(on)), 10.0,
                        "latch the e-stop" if on else "release the e-stop")
         if not res.success:
@@ -306,7 +331,7 @@ class RobotBackend(GraphBackend):
         clock.mark("bag_stop")
         how = "the participant said done" if driver.t_done is not None else "the time limit"
         score = self.experimenter.score(
-            f"Trial {trial.key} ended at {how} after {driver.t_end:.1f} s; the arm is stopped. Score it.")
+            f"Trial {trial.key} ended after {driver.t_end:.1f} s ({how}); the arm is stopped. Score it.")
         clock.mark("score")
         keep = np.asarray(monitor.path_t) <= driver.t_end + 1e-9
         path = np.asarray(monitor.path)[keep[: len(monitor.path)]] if monitor.path else np.zeros((0, 3))

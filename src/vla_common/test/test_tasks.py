@@ -216,3 +216,26 @@ def test_spread_layouts_put_few_shot_demonstrations_at_the_regions_corners_and_c
     assert np.all(pts.max(0) - pts.min(0) >= 0.75 * span)      # the demos cover the region
     with pytest.raises(ValueError, match="hand"):
         task_layout("bread/push_east", np.random.default_rng(0), spread=0)
+
+
+def test_a_spread_margin_puts_the_corner_demonstrations_outside_the_region():
+    """With a margin the spread points are the same fractions of the region grown by it: the corner
+    demonstrations stand outside where layouts are drawn (a fresh layout inside their hull), the
+    centre stays; 0 is the region itself; a negative or non-finite margin is refused."""
+    from vla_common.tasks import SPREAD_JITTER, SPREAD_POINTS, grasp_centre_region
+
+    spec = default_catalogue().task("glass_bottle/pick_place_west")
+    lo, hi = grasp_centre_region(spec)
+    margin = 0.06
+    pts = np.array([task_layout(spec, np.random.default_rng(k), spread=k, spread_margin=margin)[0].xy
+                    for k in range(5)])
+    want = (lo - margin) + np.array(SPREAD_POINTS) * (hi - lo + 2 * margin)
+    assert np.all(np.abs(pts - want) <= SPREAD_JITTER + 1e-9)
+    corners = pts[:4]
+    assert np.all((corners.min(0) < lo) & (corners.max(0) > hi))   # beyond the region on every side
+    assert np.allclose(pts[4], (lo + hi) / 2, atol=SPREAD_JITTER)
+    same = [task_layout(spec, np.random.default_rng(k), spread=k, spread_margin=0.0)[0].xy for k in range(5)]
+    assert np.allclose(same, [task_layout(spec, np.random.default_rng(k), spread=k)[0].xy for k in range(5)])
+    for bad in (-0.01, float("nan")):
+        with pytest.raises(ValueError, match="spread_margin"):
+            task_layout(spec, np.random.default_rng(0), spread=0, spread_margin=bad)

@@ -136,6 +136,10 @@ GRASP_REGION_Y = (-0.22, 0.22)
 # Fractions of the region (x, y), and the jitter around each point.
 SPREAD_POINTS = ((0.1, 0.1), (0.9, 0.1), (0.1, 0.9), (0.9, 0.9), (0.5, 0.5))
 SPREAD_JITTER = 0.01  # m
+# The spread points are fractions of the region grown by this margin (m) on every side; > 0 puts the
+# corner demonstrations outside the region where layouts are drawn (demonstrate beyond the operating
+# envelope, so that a fresh layout lies inside the demonstrated hull). 0: the region itself.
+SPREAD_MARGIN = 0.0
 # Circles are done above the object; its centre must leave room for the loop.
 CIRCLE_REGION_X = (0.40, 0.55)
 CIRCLE_REGION_Y = (-0.15, 0.15)
@@ -159,15 +163,18 @@ def grasp_centre_region(spec: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
 
 def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int | None = None,
                 max_tries: int = 500, catalogue: Catalogue | None = None,
-                spread: int | None = None) -> list[ObjectPose]:
+                spread: int | None = None, spread_margin: float = SPREAD_MARGIN) -> list[ObjectPose]:
     """A random layout for one episode of `task`: the task's object (first in the list) where the
     push (or circle) is reachable, plus 0..3 other objects of the catalogue kept out of the pushing
     corridor. `spread` (tasks with the hand): the object near SPREAD_POINTS[spread % 5] of its
-    region instead of anywhere in it (the spread-th demonstration of a few)."""
+    region grown by `spread_margin` (m) on every side instead of anywhere in the region (the
+    spread-th demonstration of a few)."""
     cat = catalogue or default_catalogue()
     spec = parse_task(task, catalogue)
     if spread is not None and not spec.uses_hand:
         raise ValueError(f"spread layouts are for tasks with the hand, not {spec.name}")
+    if not (math.isfinite(spread_margin) and spread_margin >= 0.0):
+        raise ValueError(f"spread_margin must be a finite margin >= 0 m, got {spread_margin}")
     n = int(rng.integers(1, 4)) if n_objects is None else int(n_objects)
     if not 1 <= n <= min(4, len(cat.classes)):
         raise ValueError(f"n_objects must be 1..{min(4, len(cat.classes))}, got {n}")
@@ -180,6 +187,7 @@ def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int |
             break
         if spec.uses_hand and spread is not None:
             lo, hi = grasp_centre_region(spec)
+            lo, hi = lo - spread_margin, hi + spread_margin
             frac = np.array(SPREAD_POINTS[int(spread) % len(SPREAD_POINTS)])
             c = np.clip(lo + frac * (hi - lo) + rng.uniform(-SPREAD_JITTER, SPREAD_JITTER, 2), lo, hi)
             corridor = (c, c + spec.direction_vector * spec.distance) if spec.kind == "pick_place" else None

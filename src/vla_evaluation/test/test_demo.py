@@ -162,3 +162,22 @@ def test_few_shot_hand_demonstrations_are_generated_at_spread_layouts(monkeypatc
     assert len(cmds) == 1 and ("--spread" in cmds[0]) == spread
     args = build_parser().parse_args(["generate", "--task", task, "--spread"])
     assert args.spread
+
+
+def test_generate_spread_margin_is_an_option_of_spread(capsys):
+    """`generate --spread --spread-margin M` reaches the generation's config; without --spread, or
+    negative, it is refused (exit 2) before any graph starts."""
+    from vla_common.tasks import SPREAD_MARGIN
+
+    from vla_evaluation import generate
+
+    parser = build_parser()
+    args = parser.parse_args(["generate", "--task", "glass_bottle/pick_place_west", "--spread"])
+    assert args.spread_margin == SPREAD_MARGIN
+    args = parser.parse_args(["generate", "--task", "glass_bottle/pick_place_west", "--spread",
+                              "--spread-margin", "0.06"])
+    assert args.spread_margin == 0.06
+    for extra in (["--spread-margin", "0.06"], ["--spread", "--spread-margin", "-0.01"]):
+        args = parser.parse_args(["generate", "--task", "glass_bottle/pick_place_west", *extra])
+        assert generate.run(args) == 2
+        assert "--spread-margin" in capsys.readouterr().out

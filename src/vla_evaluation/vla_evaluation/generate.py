@@ -43,7 +43,7 @@ from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES
 from vla_common.ros.convert import reset_request
 from vla_common.ros.domain import graph_on_domain
-from vla_common.tasks import task_layout, task_success
+from vla_common.tasks import SPREAD_MARGIN, task_layout, task_success
 from vla_demo_recorder.dataset import DemoError, load_demo
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
@@ -105,6 +105,7 @@ class GenerateConfig:
     # tasks with the hand: the k-th episode's object near the k-th spread point of its region
     # (vla_common.tasks.SPREAD_POINTS: corners and centre, as a teacher places it) instead of anywhere
     spread: bool = False
+    spread_margin: float = SPREAD_MARGIN  # m: the spread points on the region grown by this (tasks.py)
 
     def launch_arguments(self) -> dict[str, object]:
         """record.launch.yaml's arguments."""
@@ -443,7 +444,8 @@ def _plan_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episo
     """A layout and start pose (the episode's variation), reset, and a plan from the measured scene; a
     layout the planner cannot do is re-drawn (counted in the report, never recorded)."""
     for attempt in range(cfg.max_plan_tries):
-        layout = task_layout(spec, rng, catalogue=catalogue, spread=rec.spread_point)
+        layout = task_layout(spec, rng, catalogue=catalogue, spread=rec.spread_point,
+                             spread_margin=cfg.spread_margin)
         q0 = random_start_pose(rng)
         start = _reset_scene(demo, spec, layout, q0, alive)
         try:
@@ -555,6 +557,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spread", action="store_true",
                    help="tasks with the hand: episode k's object near the k-th of the region's corners and "
                         "centre (few-shot demonstrations a fresh layout lies between)")
+    p.add_argument("--spread-margin", type=float, default=SPREAD_MARGIN, metavar="M",
+                   help="with --spread: the corners on the region grown by M metres on every side, so "
+                        "that fresh layouts lie inside the demonstrated hull (default: %(default)s)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -562,6 +567,10 @@ def run(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, _raise_interrupt)
     try:
         tasks = parse_tasks(args.task, args.tasks_file, load_catalogue(args.catalogue))
+        if args.spread_margin != SPREAD_MARGIN and not args.spread:
+            raise ValueError("--spread-margin places the spread points: it needs --spread")
+        if not (math.isfinite(args.spread_margin) and args.spread_margin >= 0.0):
+            raise ValueError(f"--spread-margin must be a margin >= 0 m, got {args.spread_margin}")
     except (ValueError, OSError) as err:
         print(f"error: {err}")
         return 2
@@ -569,7 +578,7 @@ def run(args: argparse.Namespace) -> int:
                          real_time_factor=args.real_time_factor, camera_rate=args.camera_rate,
                          image_every_n=args.image_every_n, keep_failed=not args.delete_failed,
                          detector_model=args.detector_model, log_dir=args.log_dir, catalogue=args.catalogue,
-                         spread=args.spread)
+                         spread=args.spread, spread_margin=args.spread_margin)
     try:
         records = run_generation(cfg)
     except GenerateError as err:

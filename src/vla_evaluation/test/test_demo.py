@@ -181,3 +181,18 @@ def test_generate_spread_margin_is_an_option_of_spread(capsys):
         args = parser.parse_args(["generate", "--task", "glass_bottle/pick_place_west", *extra])
         assert generate.run(args) == 2
         assert "--spread-margin" in capsys.readouterr().out
+
+
+def test_evaluate_path_fraction_reaches_the_settings():
+    """`evaluate --path-fraction F` is the controller's path_fraction in the settings (the graph's
+    parameter and the teleoperator's mirror); its default is the controller's (0: the model's own);
+    outside [0, 1] argparse refuses it."""
+    from vla_evaluation.evaluate_cli import settings_from
+    from vla_evaluation.kinematic import TeleopSettings
+
+    parser = build_parser()
+    assert settings_from(parser.parse_args(["evaluate"])).path_fraction == TeleopSettings().path_fraction
+    assert settings_from(parser.parse_args(["evaluate", "--path-fraction", "0.8"])).path_fraction == 0.8
+    for bad in ("1.5", "-0.1"):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["evaluate", "--path-fraction", bad])

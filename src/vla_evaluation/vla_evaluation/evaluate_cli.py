@@ -43,6 +43,14 @@ def task_list(spec: str, catalogue: Catalogue | None = None) -> list[str]:
     return out
 
 
+def _fraction(text: str) -> float:
+    """An argparse type: a number in [0, 1]."""
+    value = float(text)
+    if not 0.0 <= value <= 1.0:
+        raise argparse.ArgumentTypeError(f"{text} is not in [0, 1]")
+    return value
+
+
 def add_teleop_arguments(p: argparse.ArgumentParser, rate: float, horizon: float = DEFAULT_HORIZON) -> None:
     d = TeleopSettings()  # the defaults, declared there once
     g = p.add_argument_group("simulated teleoperator and controller")
@@ -59,12 +67,16 @@ def add_teleop_arguments(p: argparse.ArgumentParser, rate: float, horizon: float
     g.add_argument("--action-scale", type=float, default=d.action_scale, help="controller action_scale")
     g.add_argument("--max-joint-speed", type=float, default=d.max_joint_speed,
                    help="controller norm clamp (rad/s)")
+    g.add_argument("--path-fraction", type=_fraction, default=d.path_fraction,
+                   help="controller path_fraction in [0, 1] (default %(default)s: the model's calibrated "
+                        "latent.path_fraction, 1 when it has none)")
 
 
 def settings_from(args) -> TeleopSettings:
     return TeleopSettings(rate=args.rate, horizon=args.horizon, n_candidates=args.candidates,
                           switch_time=args.switch_time, time_limit=args.time_limit,
-                          action_scale=args.action_scale, max_joint_speed=args.max_joint_speed)
+                          action_scale=args.action_scale, max_joint_speed=args.max_joint_speed,
+                          path_fraction=args.path_fraction)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

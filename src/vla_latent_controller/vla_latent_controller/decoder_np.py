@@ -88,11 +88,7 @@ class LatentDecoder:
         chord = self.decode(q, z).copy()
         if path_fraction == 1.0:
             return chord
-        path = self.decode(q, path_fraction * z)
-        norm = float(np.linalg.norm(path))
-        if norm == 0.0:
-            return np.zeros_like(chord)
-        return path * (float(np.linalg.norm(chord)) / norm)  # a NaN stays NaN: the core refuses it
+        return _with_speed_of(self.decode(q, path_fraction * z), chord)
 
     def velocity_batch(self, q: np.ndarray, zs: np.ndarray, path_fraction: float) -> np.ndarray:
         """:meth:`velocity` for N latents (N, n), e.g. a simulated teleoperator's grid."""
@@ -100,10 +96,7 @@ class LatentDecoder:
         chord = self.decode_batch(q, zs)
         if path_fraction == 1.0:
             return chord
-        path = self.decode_batch(q, path_fraction * zs)
-        speed = np.linalg.norm(chord, axis=1, keepdims=True)
-        norm = np.linalg.norm(path, axis=1, keepdims=True)
-        return np.divide(path * speed, norm, out=np.zeros_like(path), where=norm != 0.0)  # NaN stays
+        return _with_speed_of(self.decode_batch(q, path_fraction * zs), chord)
 
     def decode_batch(self, q: np.ndarray, zs: np.ndarray) -> np.ndarray:
         """Actions (N, n) for one state ``q`` and N latents (e.g. a simulated teleoperator's z grid)."""
@@ -112,3 +105,11 @@ class LatentDecoder:
         H = np.tanh(X @ self._A1.T + self._c1)
         H = np.tanh(H @ self._W2.T + self._b2)
         return H @ self._A3.T + self._c3
+
+
+def _with_speed_of(path: np.ndarray, chord: np.ndarray) -> np.ndarray:
+    """``path``'s direction at ``chord``'s speed, per row (a new array): the rule of :meth:`velocity`.
+    A zero path gives zero; a NaN stays NaN (the controller core refuses it)."""
+    speed = np.linalg.norm(chord, axis=-1, keepdims=True)
+    norm = np.linalg.norm(path, axis=-1, keepdims=True)
+    return np.divide(path * speed, norm, out=np.zeros_like(path), where=norm != 0.0)

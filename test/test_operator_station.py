@@ -861,6 +861,7 @@ def test_keyboard_only_reaches_every_control_in_order(graph, page):
 Q_SHOWN = ("window.station.quest.shown && !document.getElementById('questionnaire').hidden"
            " && !document.getElementById('q-form').hidden")
 Q_STATUS = "document.getElementById('q-status').textContent"
+Q_SCREENSHOT = SCREENSHOT.with_name("questionnaire.png")
 
 
 class Asked:
@@ -897,6 +898,10 @@ def test_the_questionnaire_is_answered_by_keyboard_and_the_study_gets_the_row(gr
     assert d.switch_to.active_element.get_attribute("id") == "q-h"      # focus moved to it
     assert js(page, "window.station.quest.shown.statements") == list(LIKERT)
     assert axe_violations(page) == [] and small_targets(page) == []
+    if os.environ.get("VLA_UPDATE_SCREENSHOT") == "1" or not Q_SCREENSHOT.exists():
+        d.execute_script("document.getElementById('q-0-6').querySelector('input').checked = true;")
+        d.save_screenshot(str(Q_SCREENSHOT))
+        d.execute_script("document.getElementById('q-0-6').querySelector('input').checked = false;")
     d.refresh()                                                            # a reload shows it again
     assert wait_page(h, page, "window.station && window.station.driver && " + Q_SHOWN)
     assert not js(page, "document.querySelector('#q-items input:checked')")   # empty, nothing sent

@@ -10,7 +10,7 @@ import threading
 import numpy as np
 import pytest
 from vla_evaluation.study.protocol import load_protocol
-from vla_evaluation.study.questionnaire import StationQuestionnaire, check_answers, likert_row
+from vla_evaluation.study.questionnaire import StationQuestionnaire, check_answers, likert_row, station_for
 from vla_evaluation.study.runner import LIKERT, run_study
 
 TWO_STRATEGIES = """study: questionnaire
@@ -136,5 +136,31 @@ def test_a_page_that_goes_away_gives_the_questionnaire_back_to_the_terminal(tmp_
         assert answers is None and "no page drives the station for 0.5 s" in why, why
         assert h.spin_until(lambda: station.state["questionnaire"] is None, 5.0)   # withdrawn
         assert station.station.link.questionnaire is None
+        assert h.spin_until(lambda: not station._q_ready and not station._q_outcomes, 5.0)   # goal ended
+    finally:
+        h.shutdown()
+
+
+@pytest.mark.ros
+def test_a_graph_backend_gets_the_stations_client_on_its_observers_node_once():
+    """The launched graph's backend (GraphBackend: ev.obs.node) and the robot's (RobotBackend, the same);
+    a backend without a ROS node (physics) gets none: the terminal."""
+    from types import SimpleNamespace
+
+    from vla_common.ros.testing import RosHarness
+
+    h = RosHarness()
+    try:
+        from rclpy.node import Node
+        node = h.add(Node("station_for_test", context=h.context))
+        class Backend:
+            ev = SimpleNamespace(obs=SimpleNamespace(node=node))
+        backend = Backend()
+        asker = station_for(backend)
+        assert isinstance(asker, StationQuestionnaire) and asker.action == "operator_station/questionnaire"
+        assert station_for(backend) is asker
+        assert station_for(SimpleNamespace()) is None
+        own = FakeStation([])
+        assert station_for(SimpleNamespace(questionnaire=own, ev=backend.ev)) is own
     finally:
         h.shutdown()

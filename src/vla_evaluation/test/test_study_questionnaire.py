@@ -85,6 +85,41 @@ def test_when_the_station_does_not_answer_it_says_so_and_the_terminal_asks(tmp_p
     assert again.asked == [] and len((out / "likert.jsonl").read_text().splitlines()) == 2
 
 
+class Interrupted(FakeStation):
+    """Answers the first `n` questionnaires, then Ctrl-C while the page waits."""
+
+    def __init__(self, n=0):
+        super().__init__([([1] * len(LIKERT), "")] * n)
+
+    def ask(self, title, statements):
+        if not self.outcomes:
+            self.asked.append((title, list(statements)))
+            raise KeyboardInterrupt
+        return super().ask(title, statements)
+
+
+@pytest.mark.parametrize("answered", [0, 1])
+def test_a_questionnaire_a_stop_left_unanswered_is_asked_when_the_study_resumes(tmp_path, answered):
+    """Stopped while the page waited (Ctrl-C) after the first strategy: the resumed study asks it
+    first, on the station. Stopped in the last strategy's: no trial is left, nothing is launched, and
+    the terminal asks it (backend None: as `vla_evaluation study` resumes)."""
+    f = tmp_path / "q.yaml"
+    f.write_text(TWO_STRATEGIES)
+    out, logs = tmp_path / "study", []
+    with pytest.raises(KeyboardInterrupt):
+        run_study(load_protocol(f), out, backend=FakeBackend(Interrupted(answered)), log=logs.append,
+                  ask=lambda q: pytest.fail(q))
+    station, typed = FakeStation([([2] * len(LIKERT), "")] * 2), iter(["7"] * len(LIKERT))
+    run_study(load_protocol(f), out, backend=None if answered else FakeBackend(station), log=logs.append,
+              ask=lambda q: next(typed))
+    rows = [json.loads(x) for x in (out / "likert.jsonl").read_text().splitlines()]
+    first = "end-effector" if answered else "latent-YOLO"
+    assert any(f"strategy {first} was not answered before the study stopped: asking it now" in x
+               for x in logs), logs
+    assert [(r["strategy"], r["answers"][LIKERT[0]]) for r in rows] == (
+        [("latent-YOLO", 1), ("end-effector", 7)] if answered else [("latent-YOLO", 2), ("end-effector", 2)])
+
+
 def test_without_a_station_the_terminal_asks(tmp_path):
     rows, _, _ = study(tmp_path, FakeBackend(), answers=["2"] * len(LIKERT) * 2)
     assert [r["strategy"] for r in rows] == ["latent-YOLO", "end-effector"]

@@ -345,6 +345,7 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
     log(f"[study] {len(plan)} trials in the protocol, {len(plan) - len(todo)} already recorded in {out}, "
         f"{len(todo)} to run")
     if not todo:
+        _ask_left_over(store, todo, backend, log, ask, out)   # on the terminal: nothing is launched
         return store
     own = backend is None
     if own:
@@ -375,6 +376,7 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
                 out: Path) -> None:
     params = participant_params(protocol)
     asked = {(r["participant"], r["strategy"]) for r in _likert_rows(out)}
+    _ask_left_over(store, todo, backend, log, ask, out)
     for n, trial in enumerate(todo):
         if limit is not None and n >= limit:
             break
@@ -393,14 +395,31 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
         last_of_strategy = not any(t.participant == who and t.strategy == trial.strategy
                                    for t in todo[n + 1:])
         if last_of_strategy and not who.startswith("sim:") and (who, trial.strategy) not in asked:
-            # on the operator station's page when the study runs with it, else (or when it does not
-            # answer) on the terminal: the same row (study/questionnaire.py)
-            from functools import partial
+            _likert(store, who, trial.strategy, backend, log, ask)
 
-            from vla_evaluation.study.questionnaire import likert_row, station_for
 
-            terminal, station = partial(ask_likert, who, trial.strategy, ask), station_for(backend, log)
-            store.record_likert(likert_row(who, trial.strategy, LIKERT, terminal, station, log))
+def _likert(store: StudyStore, who: str, strategy: str, backend, log, ask) -> None:
+    """The questionnaire after a strategy: on the operator station's page when the study runs with it,
+    else (or when it does not answer) on the terminal: the same row (study/questionnaire.py)."""
+    from functools import partial
+
+    from vla_evaluation.study.questionnaire import likert_row, station_for
+
+    terminal, station = partial(ask_likert, who, strategy, ask), station_for(backend, log)
+    store.record_likert(likert_row(who, strategy, LIKERT, terminal, station, log))
+
+
+def _ask_left_over(store: StudyStore, todo: list[Trial], backend, log, ask, out: Path) -> None:
+    """A questionnaire that a stop left unanswered (the study stopped after a strategy's last trial,
+    before or while it was asked: Ctrl-C while the page waited) is asked when the study resumes."""
+    asked = {(r["participant"], r["strategy"]) for r in _likert_rows(out)}
+    left = {(t.participant, t.strategy) for t in todo}
+    done = dict.fromkeys((r["participant"], r["strategy"]) for r in store.done.values()
+                         if not r["participant"].startswith("sim:"))
+    for who, strategy in (k for k in done if k not in asked and k not in left):
+        log(f"[study] the questionnaire for {who}, strategy {strategy} was not answered before the study "
+            "stopped: asking it now")
+        _likert(store, who, strategy, backend, log, ask)
 
 
 def _likert_rows(out: Path) -> list[dict]:

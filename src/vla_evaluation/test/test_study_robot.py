@@ -153,20 +153,22 @@ class ScriptedLab:
         return self.scores.pop(0)
 
 
-def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float) -> None:
-    """The protocol's 3 trials on the started `graph` (a LaunchSession), Ctrl-C at the second placement,
+def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, protocol: str = ROBOT) -> None:
+    """The protocol's trials on the started `graph` (a LaunchSession), Ctrl-C at the second placement,
     resumed by a second runner; checks what the issue asks of a real-robot study."""
     from vla_evaluation.study.analysis import analyse
     from vla_evaluation.study.robot_backend import RobotBackend
     from vla_evaluation.study.runner import run_study, trial_plan
 
     f = tmp_path / "robot.yaml"
-    f.write_text(ROBOT)
+    f.write_text(protocol)
     proto, out = load_protocol(f), tmp_path / "study"
     plan = trial_plan(proto)
-    assert len(plan) == 3                                     # practice at the reset point, 2 test trials
-    first = ScriptedLab(2.0, [TrialScore(True, 0.15)], interrupt_at=2)
-    second = ScriptedLab(2.0, [TrialScore(False, None), TrialScore(True, 0.12)])
+    assert len(plan) >= 3 and plan[0].phase == "practice"    # practice at the reset point, then tests
+    scores = [TrialScore(True, 0.15), TrialScore(False, None), TrialScore(True, 0.12),
+              TrialScore(False, 0.0)][:len(plan)]
+    first = ScriptedLab(2.0, scores[:1], interrupt_at=2)
+    second = ScriptedLab(2.0, scores[1:])
     try:
         for lab in (first, second):
             backend = RobotBackend(proto, out, experimenter=lab, use_sim_time=use_sim_time,
@@ -184,29 +186,30 @@ def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float) -> None:
     rows = [json.loads(x) for x in (out / "trials.jsonl").read_text().splitlines()]
     assert [r["key"] for r in rows] == [t.key for t in plan]   # each trial once, in order: none lost
     # asked to place and confirm before every trial (twice for the interrupted one), the arm stopped
-    assert len(first.placed) == 2 and len(second.placed) == 2
+    assert len(first.placed) == 2 and len(second.placed) == len(plan) - 1
     assert all(first.estop_at_placement + second.estop_at_placement)
     assert first.relatched                                    # a release between trials is undone at once
     for text in first.placed + second.placed:
         assert "Place the bread at x = " in text and "m in the robot's base frame" in text, text
         assert "cm in front of the robot's base" in text and "e-stop latched" in text, text
     assert first.placed[1] == second.placed[0]                # the interrupted trial, asked again
-    assert len(first.scored) + len(second.scored) == 3
+    assert len(first.scored) + len(second.scored) == len(plan)
     # the experimenter's score, the runner's measurements
-    assert [(r["success"], r["object_displacement_m"]) for r in rows] == [(True, 0.15), (False, None),
-                                                                          (True, 0.12)]
+    assert [(r["success"], r["object_displacement_m"]) for r in rows] == [(x.success, x.displacement_m)
+                                                                          for x in scores]
     for r in rows:
         assert r["robot"] == "real" and r["scored_by"] == "experimenter" and not r["simulated"], r
         assert r["participant_done"] and 0.5 <= r["duration_s"] < 12, r   # at "done", not the limit
         assert r["path_length_m"] > 0.02 and r["n_inputs"] >= 1 and r["sparc"] is not None, r
         assert r["ldlj"] is not None and r["lapses"] is None, r
+        assert r["note"] == "", r                             # latent actions: the context was latched
         assert (out / r["bag"] / "metadata.yaml").exists(), r["bag"]
     # no ~/reset: the bridge logs every reset it serves ("reset: <objects>") or refuses
     bridge_lines = [x for x in graph.log_path.read_text().splitlines() if "panda_bridge" in x]
     assert bridge_lines and not [x for x in bridge_lines if "reset:" in x or "reset refused" in x]
-    assert sum("e-stop latched" in x for x in bridge_lines) >= 3
+    assert sum("e-stop latched" in x for x in bridge_lines) >= len(plan)
     likert = [json.loads(x) for x in (out / "likert.jsonl").read_text().splitlines()]
-    assert [(x["participant"], x["strategy"]) for x in likert] == [("P01", "end-effector")]
+    assert sorted(x["strategy"] for x in likert) == sorted(proto.strategies)
     table = "\n".join(analyse(out, out))
     assert "simulated participants" not in table and "the experimenter placed each object" in table, table
 
@@ -222,7 +225,10 @@ def test_a_real_robot_study_attaches_to_the_launched_mujoco_graph(tmp_path):
                           {"use_teleoperator": False, "camera_rate": 2.0, "state_rate": 100.0,
                            "real_time_factor": 1.0}, log_path=tmp_path / "graph.log")
     graph.start()
-    _study_on(graph, tmp_path, use_sim_time=True, state_rate=100.0)
+    # both kinds of strategy: latent actions latch the detection of the scene as it is (no reset)
+    protocol = ROBOT.replace("strategies: [end-effector]", "strategies: [latent-YOLO, end-effector]")
+    _study_on(graph, tmp_path, use_sim_time=True, state_rate=100.0,
+              protocol=protocol.replace("trials: 2\n", "trials: 1\n"))
 
 
 @pytest.mark.slow

@@ -233,7 +233,9 @@ def placement_text(trial, goal, q_now: np.ndarray) -> str:
     name = goal.class_id.replace("_", " ")
     return (f"Trial {trial.order + 1} of {trial.participant}: {trial.task} with {trial.strategy} "
             f"({trial.phase}, trial {trial.trial + 1}).\n"
-            f"  Place the {name} at x = {goal.x:.3f} m, y = {goal.y:.3f} m in the robot's base frame "
+            + ("  Practice: this task's fixed reset point (the same for each of its practice trials).\n"
+               if trial.phase == "practice" else "  A new start point for this test trial.\n")
+            + f"  Place the {name} at x = {goal.x:.3f} m, y = {goal.y:.3f} m in the robot's base frame "
             f"({placement_words(goal.x, goal.y)}), turned {math.degrees(goal.yaw):.0f} deg about the "
             "vertical.\n"
             f"  The arm is stopped (e-stop latched by the study); its joints are within {far:.2f} rad of the "

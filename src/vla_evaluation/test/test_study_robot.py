@@ -180,6 +180,7 @@ def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, protocol: 
                 assert lab is first
             finally:
                 backend.close()
+                lab.relatches = backend.ev.obs.relatched
             graph.check()                                     # the lab's graph is still up
     finally:
         graph.stop()
@@ -189,6 +190,7 @@ def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, protocol: 
     assert len(first.placed) == 2 and len(second.placed) == len(plan) - 1
     assert all(first.estop_at_placement + second.estop_at_placement)
     assert first.relatched                                    # a release between trials is undone at once
+    assert second.relatches == 0                              # and only a release: the trials' own are not
     for text in first.placed + second.placed:
         assert "Place the bread at x = " in text and "m in the robot's base frame" in text, text
         assert "cm in front of the robot's base" in text and "e-stop latched" in text, text

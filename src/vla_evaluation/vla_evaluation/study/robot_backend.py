@@ -81,9 +81,14 @@ class RobotObserver(StudyObserver):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.hold = False
+        self.hold_since = math.inf   # the node's clock when the hold began
         self.estop_cli = None
         self.relatched = 0
         self._relatch_t = -math.inf
+
+    def set_hold(self, on: bool) -> None:
+        self.hold_since = self.now() if on else math.inf
+        self.hold = bool(on)
 
     def _joints(self, msg) -> None:
         if msg.name and msg.name[0].startswith("fr3_joint"):
@@ -92,7 +97,9 @@ class RobotObserver(StudyObserver):
 
     def _safety(self, msg) -> None:
         super()._safety(msg)
-        if self.hold and not msg.estop_active and self.estop_cli is not None:
+        stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+        # a status stamped before the hold began (the trial's, still in flight) is no release
+        if self.hold and not msg.estop_active and stamp > self.hold_since and self.estop_cli is not None:
             now = time.monotonic()
             if now - self._relatch_t >= self.RELATCH_S:
                 self._relatch_t = now
@@ -252,13 +259,18 @@ class RobotBackend(GraphBackend):
             "the lab's operator station or joystick")
 
     def _estop(self, on: bool) -> None:
+        """Latch (then hold: a release by anyone else is latched again) or release the bridge's e-stop.
+        The hold starts once the bridge has answered: statuses it sent before are not releases."""
         obs = self.ev.obs
-        obs.hold = bool(on)   # before a release: the hold must not latch what the study releases
+        if not on:
+            obs.set_hold(False)   # first: the hold must not latch what the study releases
         res = obs.call(obs.estop_cli, SetBool.Request(data=bool(on)), 10.0,
                        "latch the e-stop" if on else "release the e-stop")
         if not res.success:
             raise GraphError(f"the bridge refused to {'latch' if on else 'release'} its e-stop: "
                              f"{res.message}")
+        if on:
+            obs.set_hold(True)
 
     def close(self) -> None:
         """Latch the e-stop (it stays latched), then let go of the graph; the lab's graph keeps running."""

@@ -369,7 +369,8 @@ class StationNode(Node):
         if busy or driver is None:
             why = ("another questionnaire is waiting on the station" if busy else
                    f"no page drives the operator station (open {self.address})")
-            self._q_outcomes[bytes(handle.goal_id.uuid)] = ("aborted", [], why)
+            with self._q_lock:
+                self._q_outcomes[bytes(handle.goal_id.uuid)] = ("aborted", [], why)
             handle.execute()
             return
         self.get_logger().info(f"questionnaire {q.qid} shown: {len(q.statements)} statements")
@@ -420,8 +421,9 @@ class StationNode(Node):
             handle.execute()
 
     def _q_execute(self, handle):
-        kind, answers, message = self._q_outcomes.pop(bytes(handle.goal_id.uuid),
-                                                      ("aborted", [], "no outcome"))
+        with self._q_lock:
+            kind, answers, message = self._q_outcomes.pop(bytes(handle.goal_id.uuid),
+                                                          ("aborted", [], "no outcome"))
         if kind == "answered":
             handle.succeed()
         elif handle.is_cancel_requested:

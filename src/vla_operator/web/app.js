@@ -353,6 +353,10 @@ $('q-form').addEventListener('submit', (e) => {
     if (!scanning()) document.querySelector(`input[name="q-${missing}"]`).focus();
     return;
   }
+  if (!link.ws || link.ws.readyState !== WebSocket.OPEN) {   // kept on the page: send again once connected
+    $('q-status').textContent = 'Not sent: not connected to the robot. Your answers stay here; send them again when connected.';
+    return;
+  }
   quest.sent = q.id;
   $('q-status').textContent = 'Sending your answers…';
   link.send({ type: 'answers', id: q.id, answers });

@@ -89,10 +89,11 @@ class StationQuestionnaire:
         except BaseException:
             handle.cancel_goal_async()   # the page hides it; the study stops as before
             raise
-        if why:
+        if why:   # withdrawn; answers that came in meanwhile are still the result
             cancel = handle.cancel_goal_async()
             _wait(cancel, self.server_wait_s)
-            return None, why
+            if not (_wait(result, self.server_wait_s) and result.result().result.answered):
+                return None, why
         r = result.result()
         if r.status != GoalStatus.STATUS_SUCCEEDED or not r.result.answered:
             return None, r.result.message or f"the goal ended with status {r.status}"

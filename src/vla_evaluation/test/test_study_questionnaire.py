@@ -199,3 +199,82 @@ def test_a_graph_backend_gets_the_stations_client_on_its_observers_node_once():
         assert station_for(SimpleNamespace(questionnaire=own, ev=backend.ev)) is own
     finally:
         h.shutdown()
+
+
+class PageOnTheStation:
+    """The participant's page without a browser (websocket-client): it connects first (so it drives),
+    and answers the questionnaire as soon as the station shows one; every message it got is kept."""
+
+    def __init__(self, address: str, answers: list[int]):
+        from urllib.parse import urlsplit
+
+        import websocket  # websocket-client (a selenium dependency)
+
+        u = urlsplit(address)
+        self.ws = websocket.create_connection(f"ws://{u.netloc}/ws", origin=f"http://{u.netloc}", timeout=60)
+        self.answers, self.got, self.sent = answers, [], None
+        self.thread = threading.Thread(target=self._run, daemon=True)
+        self.thread.start()
+
+    def _run(self) -> None:
+        import websocket
+
+        while True:
+            try:
+                raw = self.ws.recv()
+            except (websocket.WebSocketException, OSError):
+                return
+            if not isinstance(raw, str):
+                continue   # a frame's JPEG
+            m = json.loads(raw)
+            if m["type"] == "frame":
+                continue
+            self.got.append(m)
+            q = m.get("questionnaire") if m["type"] == "state" else None
+            if q and self.sent != q["id"]:
+                self.sent = q["id"]
+                self.ws.send(json.dumps({"type": "answers", "id": q["id"],
+                                         "answers": dict(zip(q["statements"], self.answers))}))
+
+    def close(self) -> None:
+        self.ws.close()
+
+
+class SaysDoneAtOnce:
+    """The experimenter: the participant is ready, and says done at once (nothing needs to move)."""
+
+    def confirm(self, text: str) -> None:
+        pass
+
+    def wait_done(self, text: str, ended) -> bool:
+        return True
+
+
+@pytest.mark.slow
+@pytest.mark.ros
+@pytest.mark.timeout(900)
+def test_through_the_launched_graph_the_participants_page_answers_and_the_terminal_is_not_asked(tmp_path):
+    """The study's own graph (GraphBackend with a real participant: the station starts with it): after
+    the strategy's trial the runner's questionnaire reaches the page through the station's action on
+    the graph's EventsExecutor, the page's answers come back as the likert.jsonl row."""
+    from vla_evaluation.study.graph_backend import GraphBackend
+
+    f = tmp_path / "one.yaml"
+    f.write_text(TWO_STRATEGIES.replace("[latent-YOLO, end-effector]", "[end-effector]"))
+    proto, out = load_protocol(f), tmp_path / "study"
+    backend = GraphBackend(proto, out, experimenter=SaysDoneAtOnce(), operator_port=0)
+    page, logs = None, []
+    try:
+        assert backend.station.startswith("http://127.0.0.1:")
+        page = PageOnTheStation(backend.station, [3, 4, 5, 6, 7, 1])
+        run_study(proto, out, backend=backend, log=logs.append, ask=lambda q: pytest.fail(f"terminal: {q}"))
+    finally:
+        if page is not None:
+            page.close()
+        backend.close()
+    rows = [json.loads(x) for x in (out / "likert.jsonl").read_text().splitlines()]
+    assert rows == [{"participant": "P01", "strategy": "end-effector",
+                     "answers": dict(zip(LIKERT, [3, 4, 5, 6, 7, 1]))}], logs
+    assert any("answered on the operator station" in x for x in logs)
+    replies = [m for m in page.got if m["type"] == "reply" and m["what"] == "questionnaire"]
+    assert replies and replies[0]["ok"]

@@ -46,6 +46,11 @@ def test_a_simulated_participant_on_the_real_robot_is_refused_at_its_line(tmp_pa
                           f"({f}:11: robot: real)"), why
     assert _cli(["--protocol", str(f), "--check"]) == 2
     assert f"{f}:2: simulated participants" in capsys.readouterr().err
+    from vla_evaluation.study.runner import run_study
+
+    with pytest.raises(SystemExit, match=r"robot.yaml:2: simulated participants"):
+        run_study(load_protocol(f), tmp_path / "never")        # the API refuses it too, before anything
+    assert not (tmp_path / "never").exists()
     # the flag says where it came from when the flag set it; real ids on the command line are accepted
     f.write_text(ROBOT.replace("robot: real\n", ""))
     assert robot_refusal(load_protocol(f)) is None

@@ -158,7 +158,8 @@ class ScriptedLab:
         return self.scores.pop(0)
 
 
-def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, protocol: str = ROBOT) -> None:
+def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, protocol: str = ROBOT,
+              robot_model: str = "panda") -> None:
     """The protocol's trials on the started `graph` (a LaunchSession), Ctrl-C at the second placement,
     resumed by a second runner; checks what the issue asks of a real-robot study."""
     from vla_evaluation.study.analysis import analyse
@@ -199,13 +200,17 @@ def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, protocol: 
     for text in first.placed + second.placed:
         assert "Place the bread at x = " in text and "m in the robot's base frame" in text, text
         assert "cm in front of the robot's base" in text and "e-stop latched" in text, text
-    assert first.placed[1] == second.placed[0]                # the interrupted trial, asked again
+    def where(text: str) -> list[str]:                         # the trial and the point (not the arm's line)
+        return [x for x in text.splitlines() if "The arm is stopped" not in x]
+
+    assert where(first.placed[1]) == where(second.placed[0])  # the interrupted trial, asked again
     assert len(first.scored) + len(second.scored) == len(plan)
     # the experimenter's score, the runner's measurements
     assert [(r["success"], r["object_displacement_m"]) for r in rows] == [(x.success, x.displacement_m)
                                                                           for x in scores]
     for r in rows:
         assert r["robot"] == "real" and r["scored_by"] == "experimenter" and not r["simulated"], r
+        assert r["robot_model"] == robot_model and r["limit_violations"] == 0, r   # its own limit table
         assert r["participant_done"] and 0.5 <= r["duration_s"] < 12, r   # at "done", not the limit
         assert r["path_length_m"] > 0.02 and r["n_inputs"] >= 1 and r["sparc"] is not None, r
         assert r["ldlj"] is not None and r["lapses"] is None, r
@@ -269,4 +274,4 @@ def test_a_real_robot_study_on_the_libfranka_bridge_against_franka_sim(tmp_path)
                                                 {"joy_timeout": 0.5, "joint_map": jmap}))],
             log_path=tmp_path / "graph.log")
         graph.start()
-        _study_on(graph, tmp_path, use_sim_time=False, state_rate=200.0)
+        _study_on(graph, tmp_path, use_sim_time=False, state_rate=200.0, robot_model="fr3")

@@ -61,13 +61,16 @@ class SuccessTracker:
 
 
 class LimitMonitor:
-    """Counts joint-state samples outside the Panda's position range or over its speed limits.
+    """Counts joint-state samples outside the robot's position range or over its speed limits (the
+    Panda's; `spec`: another robot's table, e.g. vla_common.robot.FR3).
 
     Tolerances absorb the simulator's servo overshoot and float noise; anything beyond is a real
     violation that the safety layer should have prevented.
     """
 
-    def __init__(self, position_tol: float = 1e-3, velocity_tol: float = 0.02) -> None:
+    def __init__(self, position_tol: float = 1e-3, velocity_tol: float = 0.02, spec=None) -> None:
+        self.q_min, self.q_max, self.dq_max = ((Q_MIN, Q_MAX, DQ_MAX) if spec is None else
+                                               (spec.q_min, spec.q_max, spec.dq_max))
         self.position_tol = position_tol
         self.velocity_tol = velocity_tol
         self.samples = 0
@@ -80,10 +83,10 @@ class LimitMonitor:
         if q.shape != (7,):
             return
         self.samples += 1
-        if np.any(q < Q_MIN - self.position_tol) or np.any(q > Q_MAX + self.position_tol):
+        if np.any(q < self.q_min - self.position_tol) or np.any(q > self.q_max + self.position_tol):
             self.position_violations += 1
         if dq is not None and len(dq) == 7:
-            ratio = float(np.max(np.abs(np.asarray(dq, dtype=float)) / DQ_MAX))
+            ratio = float(np.max(np.abs(np.asarray(dq, dtype=float)) / self.dq_max))
             self.max_speed_ratio = max(self.max_speed_ratio, ratio)
             if ratio > 1.0 + self.velocity_tol:
                 self.velocity_violations += 1

@@ -41,10 +41,12 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import SetBool
+from vla_common.robot import ROBOTS
 from vla_launch.launcher import ProcessSpec
 from vla_launch.session import LaunchError, LaunchSession
 
 from vla_evaluation.graph import BRIDGE, CONTROLLER, EpisodeMonitor, GraphConfig, GraphError, GraphEvaluator
+from vla_evaluation.metrics import LimitMonitor
 from vla_evaluation.study.graph_backend import (
     AXIS,
     EE_MODE_BUTTON,
@@ -80,6 +82,7 @@ class RobotObserver(StudyObserver):
 
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
+        self.robot_model = "panda"   # "fr3" once an FR3's joint_states arrive
         self.hold = False
         self.hold_since = math.inf   # the node's clock when the hold began
         self.estop_cli = None
@@ -92,6 +95,7 @@ class RobotObserver(StudyObserver):
 
     def _joints(self, msg) -> None:
         if msg.name and msg.name[0].startswith("fr3_joint"):
+            self.robot_model = "fr3"
             msg.name = [n.replace("fr3_joint", "panda_joint", 1) for n in msg.name]
         super()._joints(msg)
 
@@ -317,6 +321,7 @@ class RobotBackend(GraphBackend):
         with obs.cond:
             q_start = obs.q.copy()
         monitor = EpisodeMonitor(spec, goal, self.kin, max(1, round(ev.config.state_rate / 20.0)), False)
+        monitor.limits = LimitMonitor(spec=ROBOTS[obs.robot_model])   # the arm's own limit table
         wall_limit = p.time_limit * 4 + 60
         driver = PersonDriver(InputTally(AXIS, EE_MODE_BUTTON), obs.now(), float(p.time_limit))
         self._estop(False)  # the arm moves once the stick has been at neutral, as the participant drives
@@ -359,7 +364,8 @@ class RobotBackend(GraphBackend):
                                 start=goal, note=note)
         lim = monitor.limits
         row.update(row_bag)
-        row.update(robot="real", scored_by="experimenter", object_start_source="placed by the experimenter",
+        row.update(robot="real", robot_model=obs.robot_model, scored_by="experimenter",
+                   object_start_source="placed by the experimenter",
                    object_displacement_m=score.displacement_m,
                    final_state_error=None if fse is None else round(float(fse), 4),
                    arm_start_q=[round(float(v), 4) for v in q_start], placement_seed=int(used_seed),

@@ -55,8 +55,9 @@ def test_a_simulated_participant_on_the_real_robot_is_refused_at_its_line(tmp_pa
     f.write_text(ROBOT.replace("robot: real\n", ""))
     assert robot_refusal(load_protocol(f)) is None
     assert _cli(["--protocol", str(f), "--participants", "sim:2", "--robot", "real", "--check"]) == 2
-    assert "--participants: simulated participants (sim:1, sim:2) cannot run on the real robot (--robot: " \
-        in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert ("--participants: simulated participants (sim:1, sim:2) cannot run on the real robot "
+            "(--robot real)") in err
     f.write_text(ROBOT.replace("participants: P01", "participants: sim:3"))
     assert _cli(["--protocol", str(f), "--participants", "P07", "--check"]) == 0
     out = capsys.readouterr().out

@@ -79,8 +79,9 @@ def robot_refusal(p: Protocol) -> str | None:
     if sims:
         at = p.origin.get("participants", p.source or "the protocol")
         shown = ", ".join(sims[:3]) + (", ..." if len(sims) > 3 else "")
-        return (f"{at}: simulated participants ({shown}) cannot run on the real robot ({robot_at}: "
-                "robot: real): they read the simulator's object poses and drive without a person; give "
+        said = f"{robot_at} real" if robot_at.startswith("--") else f"{robot_at}: robot: real"
+        return (f"{at}: simulated participants ({shown}) cannot run on the real robot ({said}): "
+                "they read the simulator's object poses and drive without a person; give "
                 "real participant ids (P01,P02) or use robot: sim")
     if p.backend != "graph":
         at = p.origin.get("backend", p.source or "the protocol")

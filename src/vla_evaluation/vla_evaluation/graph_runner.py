@@ -33,6 +33,59 @@ class HasNode(Protocol):
 N = TypeVar("N", bound=HasNode)
 
 
+class NodeSpinner(Generic[N]):
+    """This process's own node in a private rclpy context on `domain`, spun in a thread of its own.
+    `close()` tears it down in one order (the spinner stops, so no callback runs on a node being
+    destroyed; the node; the context) and is idempotent. GraphRunner uses it beside the launch it
+    starts; a study attached to a graph someone else started uses it alone."""
+
+    def __init__(self, domain: int) -> None:
+        self.domain = domain
+        self.ctx: Context | None = None
+        self.executor: SingleThreadedExecutor | None = None
+        self.owner: N | None = None
+        self._stop = threading.Event()
+        self._spinner: threading.Thread | None = None
+
+    def start(self, make: Callable[[Context], N]) -> N:
+        """Create `make(context)`'s node in a new context on the domain and spin it (torn down again if
+        anything fails)."""
+        try:
+            self.ctx = Context()
+            rclpy.init(context=self.ctx, domain_id=self.domain,
+                       signal_handler_options=SignalHandlerOptions.NO)
+            self.owner = make(self.ctx)
+            self.executor = SingleThreadedExecutor(context=self.ctx)
+            self.executor.add_node(self.owner.node)
+            self._spinner = threading.Thread(target=self._spin, daemon=True)
+            self._spinner.start()
+        except BaseException:
+            self.close()
+            raise
+        return self.owner
+
+    def _spin(self) -> None:
+        try:
+            while not self._stop.is_set() and self.ctx is not None and self.ctx.ok():
+                self.executor.spin_once(timeout_sec=0.1)
+        except ExternalShutdownException:
+            pass
+
+    def close(self) -> None:
+        self._stop.set()
+        if self._spinner is not None:
+            self._spinner.join(10.0)
+            self._spinner = None
+        if self.ctx is not None:
+            ctx, self.ctx = self.ctx, None
+            if self.executor is not None:
+                self.executor.shutdown(timeout_sec=10.0)
+            if self.owner is not None:
+                self.owner.node.destroy_node()
+            if ctx.ok():
+                rclpy.shutdown(context=ctx)
+
+
 class GraphRunner(Generic[N]):
     """`start(make)` launches, joins the domain and spins `make(context)`'s node; `alive()` raises
     `error` when a launched process has ended; `close()` tears down (idempotent)."""
@@ -49,11 +102,7 @@ class GraphRunner(Generic[N]):
         self.env.update(PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
         self.domain = int(self.env["ROS_DOMAIN_ID"])
         self.session: LaunchSession | None = None
-        self.ctx: Context | None = None
-        self.executor: SingleThreadedExecutor | None = None
-        self.owner: N | None = None
-        self._stop = threading.Event()
-        self._spinner: threading.Thread | None = None
+        self.side: NodeSpinner[N] = NodeSpinner(self.domain)
         self._saved_env: dict[str, str | None] = {}
 
     def start(self, make: Callable[[Context], N]) -> N:
@@ -64,28 +113,18 @@ class GraphRunner(Generic[N]):
         self.session = LaunchSession(*self.launch, self.arguments, env=self.env, log_path=self.log_path)
         try:
             self.session.start()
-            self.ctx = Context()
-            rclpy.init(context=self.ctx, domain_id=self.domain,
-                       signal_handler_options=SignalHandlerOptions.NO)
-            self.owner = make(self.ctx)
-            self.executor = SingleThreadedExecutor(context=self.ctx)
-            self.executor.add_node(self.owner.node)
-            self._spinner = threading.Thread(target=self._spin, daemon=True)
-            self._spinner.start()
+            owner = self.side.start(make)
         except LaunchError as e:
             self.close()
             raise self.error(str(e)) from None
         except BaseException:
             self.close()
             raise
-        return self.owner
+        return owner
 
-    def _spin(self) -> None:
-        try:
-            while not self._stop.is_set() and self.ctx is not None and self.ctx.ok():
-                self.executor.spin_once(timeout_sec=0.1)
-        except ExternalShutdownException:
-            pass
+    @property
+    def owner(self) -> N | None:
+        return self.side.owner
 
     def alive(self) -> None:
         """`error` with the ended process's last output lines when a process of the launch has ended."""
@@ -100,18 +139,7 @@ class GraphRunner(Generic[N]):
 
     def close(self, log: Callable[[str], None] = print) -> int | None:
         """Our side first, then the launch; returns the launch's exit code (None if it never started)."""
-        self._stop.set()
-        if self._spinner is not None:
-            self._spinner.join(10.0)
-            self._spinner = None
-        if self.ctx is not None:
-            ctx, self.ctx = self.ctx, None
-            if self.executor is not None:
-                self.executor.shutdown(timeout_sec=10.0)
-            if self.owner is not None:
-                self.owner.node.destroy_node()
-            if ctx.ok():
-                rclpy.shutdown(context=ctx)
+        self.side.close()
         rc = None
         if self.session is not None:
             session, self.session = self.session, None

@@ -31,21 +31,17 @@ from __future__ import annotations
 
 import math
 import os
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
-import rclpy
-from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
-from rclpy.signals import SignalHandlerOptions
 from std_srvs.srv import SetBool
 from vla_common.robot import ROBOTS
 from vla_launch.launcher import ProcessSpec
 from vla_launch.session import LaunchError, LaunchSession
 
 from vla_evaluation.graph import BRIDGE, CONTROLLER, EpisodeMonitor, GraphConfig, GraphError, GraphEvaluator
+from vla_evaluation.graph_runner import NodeSpinner
 from vla_evaluation.metrics import LimitMonitor
 from vla_evaluation.study.graph_backend import (
     AXIS,
@@ -136,35 +132,22 @@ class AttachedGraph(GraphEvaluator):
         super().__init__(config, log, observer)
         self.record_dir, self.use_sim_time = Path(record_dir), use_sim_time
         self.domain = int(os.environ.get("ROS_DOMAIN_ID") or 0)
-        self.ctx: Context | None = None
-        self.executor: SingleThreadedExecutor | None = None
+        self.side = NodeSpinner(self.domain)
         self.recorder: LaunchSession | None = None
-        self._stop = threading.Event()
-        self._spinner: threading.Thread | None = None
 
     def start(self) -> None:
+        def make(ctx):
+            obs = self.observer(ctx, False)
+            obs.estop_cli = obs.node.create_client(SetBool, f"{BRIDGE}/estop")
+            return obs
+
         try:
-            self.ctx = Context()
-            rclpy.init(context=self.ctx, domain_id=self.domain,
-                       signal_handler_options=SignalHandlerOptions.NO)
-            self.obs = self.observer(self.ctx, False)
-            self.obs.estop_cli = self.obs.node.create_client(SetBool, f"{BRIDGE}/estop")
-            self.executor = SingleThreadedExecutor(context=self.ctx)
-            self.executor.add_node(self.obs.node)
-            self._spinner = threading.Thread(target=self._spin, daemon=True)
-            self._spinner.start()
+            self.obs = self.side.start(make)
             self._wait_ready()
             self.configure()
         except BaseException:
             self.close()
             raise
-
-    def _spin(self) -> None:
-        try:
-            while not self._stop.is_set() and self.ctx is not None and self.ctx.ok():
-                self.executor.spin_once(timeout_sec=0.1)
-        except ExternalShutdownException:
-            pass
 
     def _wait_ready(self) -> None:
         obs, t = self.obs, self.config.startup_timeout
@@ -206,18 +189,7 @@ class AttachedGraph(GraphEvaluator):
                 raise GraphError(f"the study's recorder ended: {e}") from None
 
     def close(self) -> None:
-        self._stop.set()
-        if self._spinner is not None:
-            self._spinner.join(10.0)
-            self._spinner = None
-        if self.ctx is not None:
-            ctx, self.ctx = self.ctx, None
-            if self.executor is not None:
-                self.executor.shutdown(timeout_sec=10.0)
-            if self.obs is not None:
-                self.obs.node.destroy_node()
-            if ctx.ok():
-                rclpy.shutdown(context=ctx)
+        self.side.close()
         if self.recorder is not None:
             recorder, self.recorder = self.recorder, None
             try:
@@ -279,7 +251,7 @@ class RobotBackend(GraphBackend):
     def close(self) -> None:
         """Latch the e-stop (it stays latched), then let go of the graph; the lab's graph keeps running."""
         try:
-            if self.ev.obs is not None and self.ev.ctx is not None:
+            if self.ev.obs is not None and self.ev.side.ctx is not None:
                 self._estop(True)
                 self.log("[study] the e-stop stays latched: release it at the station or with "
                          f"ros2 service call /{BRIDGE}/estop std_srvs/srv/SetBool \"{{data: false}}\"")

@@ -4,10 +4,10 @@ trial's start and ends it at the participant's "done", and the questionnaire fol
 from __future__ import annotations
 
 import json
-import threading
 from pathlib import Path
 
 import pytest
+from scripted_person import ScriptedPerson
 from vla_evaluation.study.person import InputTally, TerminalExperimenter
 
 PERSON = """study: person
@@ -49,43 +49,21 @@ def test_the_terminal_experimenter_ends_a_trial_at_enter_or_the_limit(tmp_path):
         ex.confirm("ready?")                                       # the next Enter is still there for this
 
 
-class ScriptedSession:
+class ScriptedSession(ScriptedPerson):
     """The experimenter and the person: the person pushes the stick from the confirmation until they
     have driven `drive_s` simulated seconds, then says done; the experimenter presses Enter."""
 
     def __init__(self, drive_s: float) -> None:
-        self.drive_s, self.backend = drive_s, None
+        super().__init__(drive_s)
         self.prompts: list[str] = []
-        self._stop = threading.Event()
-        self._t0 = None
 
     def confirm(self, text: str) -> None:
         self.prompts.append(text)
-        obs = self.backend.ev.obs
-        self._t0 = obs.now()
-        self._stop.clear()
-        threading.Thread(target=self._person, daemon=True).start()
-
-    def _person(self) -> None:
-        """Pushes, and lets go while the station says "return the stick to neutral" (as a person does)."""
-        from vla_interfaces.msg import ControllerStatus, SafetyStatus
-
-        obs = self.backend.ev.obs
-        while not self._stop.wait(0.02):        # a joystick's 50 Hz
-            with obs.cond:
-                ctrl, safety = obs.ctrl, obs.safety
-            told = ((ctrl is not None and ctrl.code == ControllerStatus.AWAITING_NEUTRAL)
-                    or (safety is not None and safety.code == SafetyStatus.AWAITING_ZERO))
-            obs.publish_stick(0.0 if told else 1.0)
+        self.start_driving()
 
     def wait_done(self, text: str, ended) -> bool:
         self.prompts.append(text)
-        obs = self.backend.ev.obs
-        with obs.cond:
-            said = obs.cond.wait_for(lambda: ended() or obs.now() - self._t0 >= self.drive_s, 300.0)
-        self._stop.set()
-        obs.publish_stick(0.0)                   # the person lets go
-        return bool(said) and not ended()
+        return self.drive_until_done(ended, 300.0)
 
 
 @pytest.mark.slow

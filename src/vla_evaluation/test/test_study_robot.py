@@ -8,9 +8,9 @@ from __future__ import annotations
 
 import json
 import os
-import threading
 
 import pytest
+from scripted_person import ScriptedPerson
 from vla_evaluation.study.cli import add_arguments
 from vla_evaluation.study.cli import run as cli_run
 from vla_evaluation.study.person import TerminalExperimenter, TrialScore, parse_displacement_cm
@@ -97,7 +97,7 @@ def test_the_experimenter_scores_at_the_terminal_and_nonsense_is_asked_again(cap
     assert "please answer y or n" in out and "please give a number of cm" in out
 
 
-class ScriptedLab:
+class ScriptedLab(ScriptedPerson):
     """The experimenter and the participant. On each placement prompt the experimenter checks that the
     arm is stopped (the bridge's e-stop latched), 'places' the object (a simulated scene cannot be
     touched: the test only records the prompt) and confirms, unless told to press Ctrl-C there; the
@@ -105,14 +105,12 @@ class ScriptedLab:
     says done; the experimenter scores from `scores`."""
 
     def __init__(self, drive_s: float, scores: list[TrialScore], interrupt_at: int | None = None) -> None:
-        self.drive_s, self.scores, self.interrupt_at = drive_s, list(scores), interrupt_at
-        self.backend = None
+        super().__init__(drive_s)
+        self.scores, self.interrupt_at = list(scores), interrupt_at
         self.placed: list[str] = []
         self.estop_at_placement: list[bool] = []
         self.scored: list[str] = []
         self.relatched = None
-        self._stop = threading.Event()
-        self._t0 = 0.0
 
     def confirm(self, text: str) -> None:
         obs = self.backend.ev.obs
@@ -131,28 +129,10 @@ class ScriptedLab:
         self.placed.append(text)
         if self.interrupt_at is not None and len(self.placed) == self.interrupt_at:
             raise KeyboardInterrupt   # the experimenter's Ctrl-C at the prompt
-        self._t0 = obs.now()
-        self._stop.clear()
-        threading.Thread(target=self._person, daemon=True).start()
-
-    def _person(self) -> None:
-        from vla_interfaces.msg import ControllerStatus, SafetyStatus
-
-        obs = self.backend.ev.obs
-        while not self._stop.wait(0.02):        # a joystick's 50 Hz
-            with obs.cond:
-                ctrl, safety = obs.ctrl, obs.safety
-            told = ((ctrl is not None and ctrl.code == ControllerStatus.AWAITING_NEUTRAL)
-                    or (safety is not None and safety.code == SafetyStatus.AWAITING_ZERO))
-            obs.publish_stick(0.0 if told else 1.0)
+        self.start_driving()
 
     def wait_done(self, text: str, ended) -> bool:
-        obs = self.backend.ev.obs
-        with obs.cond:
-            said = obs.cond.wait_for(lambda: ended() or obs.now() - self._t0 >= self.drive_s, 120.0)
-        self._stop.set()
-        obs.publish_stick(0.0)
-        return bool(said) and not ended()
+        return self.drive_until_done(ended, 120.0)
 
     def score(self, text: str) -> TrialScore:
         self.scored.append(text)

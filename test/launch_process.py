@@ -112,18 +112,20 @@ class Observer(Node):
         return self.q is not None and self.detections is not None and self.ctrl is not None
 
 
-def thread_nices(executable: str) -> dict[int, int]:
-    """{thread id: nice value} of the running node process whose executable is named so (one only)."""
+def thread_nices(executable: str, parent: int) -> dict[int, int]:
+    """{thread id: nice value} of the node process whose executable is named so, started by the
+    process `parent` (the launch: another graph on the machine runs its own nodes of that name)."""
     pids = []
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
             try:
                 args = (d / "cmdline").read_bytes().split(b"\0")
-            except OSError:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
                 continue
-            if any(Path(a.decode(errors="replace")).name == executable for a in args[:2]):
+            if ppid == parent and any(Path(a.decode(errors="replace")).name == executable for a in args[:2]):
                 pids.append(d)
-    assert len(pids) == 1, f"{len(pids)} processes run {executable}"
+    assert len(pids) == 1, f"{len(pids)} processes of {parent} run {executable}"
     nices = {}
     for t in (pids[0] / "task").iterdir():
         try:

@@ -96,9 +96,10 @@ def test_teleop_launch_moves_the_arm_the_way_the_stick_commands(ros, tmp_path):
         # perception yields the CPU to input and control (vla_common.priority): every detector thread
         # runs at background priority, the controller's and the bridge's main threads do not
         base = thread_nice()
-        assert set(thread_nices("detector_node").values()) == {min(MAX_NICE, base + BACKGROUND_NICE)}
+        detector = thread_nices("detector_node", run.proc.pid)
+        assert set(detector.values()) == {min(MAX_NICE, base + BACKGROUND_NICE)}
         for node in ("controller_node", "panda_bridge"):
-            nices = thread_nices(node)
+            nices = thread_nices(node, run.proc.pid)
             assert nices[min(nices)] == base, (node, nices)   # its first thread: the executor's
         reset_to_one_object(ros, obs)
         obs.safety.clear()

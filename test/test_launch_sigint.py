@@ -28,6 +28,10 @@ def test_teleop_launch_stops_on_sigint_without_escalating_five_times(tmp_path):
                                "use_sim_time:=true", log_path=tmp_path / f"launch{i}.log") as run:
                 obs = h.add(Observer(h.context, f"test_observer_{i}"))
                 assert h.spin_until(obs.graph_up, 90.0), run.text()[-3000:]
+                # Our node goes before the graph does: Fast DDS 2.14 deadlocked (once, in CI) when this
+                # process deleted a writer while another of its participants removed the stopped
+                # graph's (lock order writer -> PDP against PDP -> writer; eProsima/Fast-DDS #6193)
+                h.shutdown()
                 rc = run.stop()
                 out = run.text()
                 assert rc == 0, out[-3000:]

@@ -45,6 +45,9 @@ class RosHarness:
         return future.result()
 
     def shutdown(self) -> None:
+        """Destroy the nodes and end the context; a second call does nothing."""
+        if not self.context.ok():
+            return
         for node in self.nodes:
             self.executor.remove_node(node)
             node.destroy_node()

@@ -26,10 +26,10 @@ SHIPPED = PAPER.with_name("shipped.yaml")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--protocol", type=Path, default=SHIPPED,
-                   help=f"protocol YAML (default: {SHIPPED.name}, the paper's procedure with the shipped "
-                        "models; "
-                        f"{PAPER.name} also has latent-localization)")
+    p.add_argument("--protocol", type=Path, default=PAPER,
+                   help=f"protocol YAML (default: {PAPER.name}, the paper's procedure: latent-YOLO, "
+                        f"latent-localization and the end-effector baseline; {SHIPPED.name}: the first and "
+                        "the last)")
     p.add_argument("--participants", default=None, help="sim:N or comma-separated ids (overrides the file)")
     p.add_argument("--out", type=Path, default=Path("out/study"), help="study folder (resumed if it exists)")
     p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")

@@ -38,6 +38,7 @@ from vla_evaluation.study.participant import (
 )
 from vla_evaluation.study.person import Experimenter, InputTally, TerminalExperimenter
 from vla_evaluation.study.protocol import STRATEGIES, Protocol, latin_square, robot_refusal
+from vla_evaluation.study.questionnaire import LABELS, SCALE
 from vla_evaluation.study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
 
 LIKERT = ("The strategy was easy to use", "The strategy was helpful", "The strategy was intuitive",
@@ -160,17 +161,19 @@ class StudyStore:
 
 
 def ask_likert(participant: str, strategy: str, ask: Callable[[str], str] = input) -> dict:
-    """The questionnaire on the terminal: 1 (strongly disagree) .. 7 (strongly agree) per statement."""
+    """The questionnaire on the terminal: one whole number on the scale per statement (the scale and
+    its words are the station's, :mod:`.questionnaire`)."""
+    lo, hi = SCALE
     answers = {}
     print(f"\nQuestionnaire for {participant}, strategy {strategy} "
-          "(1 = strongly disagree, 7 = strongly agree)")
+          f"({lo} = {LABELS[0]}, {hi} = {LABELS[1]})")
     for q in LIKERT:
         while True:
             a = ask(f"  {q}: ").strip()
-            if a.isdigit() and 1 <= int(a) <= 7:
+            if a.isdigit() and lo <= int(a) <= hi:
                 answers[q] = int(a)
                 break
-            print("  please answer with a whole number from 1 to 7")
+            print(f"  please answer with a whole number from {lo} to {hi}")
     return {"participant": participant, "strategy": strategy, "answers": answers}
 
 

@@ -278,3 +278,28 @@ def test_through_the_launched_graph_the_participants_page_answers_and_the_termin
     assert any("answered on the operator station" in x for x in logs)
     replies = [m for m in page.got if m["type"] == "reply" and m["what"] == "questionnaire"]
     assert replies and replies[0]["ok"]
+
+
+def test_the_terminal_questionnaire_keeps_to_the_scale(capsys):
+    from vla_evaluation.study.runner import LIKERT, ask_likert
+
+    replies = iter(["8", "x", "0"] + ["4"] * len(LIKERT))
+    row = ask_likert("P01", "latent-YOLO", lambda _prompt: next(replies))
+    assert row["answers"] == {q: 4 for q in LIKERT}
+    out = capsys.readouterr().out
+    assert "1 = strongly disagree, 7 = strongly agree" in out
+    assert out.count("please answer with a whole number from 1 to 7") == 3
+
+
+def test_the_studys_default_protocol_is_the_papers_three_strategies():
+    import argparse
+
+    from vla_evaluation.study.cli import add_arguments
+    from vla_evaluation.study.protocol import PAPER, load_protocol
+
+    ap = argparse.ArgumentParser()
+    add_arguments(ap)
+    args = ap.parse_args(["--participants", "sim:9"])
+    assert args.protocol == PAPER
+    strategies = set(load_protocol(args.protocol).strategies)
+    assert strategies == {"latent-YOLO", "latent-localization", "end-effector"}

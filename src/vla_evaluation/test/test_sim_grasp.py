@@ -7,7 +7,16 @@ from vla_common.catalogue import default_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import PANDA
-from vla_evaluation.sim_grasp import BUSY, CLOSED, OPEN, GraspButton, hand_phases, hand_seen
+from vla_evaluation.sim_grasp import (
+    BUSY,
+    CLOSED,
+    FINE_RANGE,
+    OPEN,
+    SETTLE_TIME,
+    GraspButton,
+    hand_phases,
+    hand_seen,
+)
 from vla_sim.planner import plan_task
 
 from vla_interfaces.msg import GripperStatus
@@ -103,3 +112,26 @@ def test_releases_once_the_carried_object_is_over_its_target_and_low():
     assert not b.step(1.0, low, CLOSED, to_target=0.045)    # object 4.5 cm off: carry on
     assert not b.step(1.1, high, CLOSED, to_target=0.01)    # over it, 5 cm up: lower it first
     assert b.step(1.2, low, CLOSED, to_target=0.025) and b.phase == 2
+
+
+def test_the_grasp_button_asks_for_fine_alignment_where_the_path_settles_and_never_presses_there():
+    near = np.array(TCP[1]) + np.array([0.0, 0.03, 0.0])     # 3 cm off, and stuck there
+    b = GraspButton(hand_phases(PLAN), fine=True)
+    ts = np.arange(0.0, 3.0, 0.1)
+    assert not any(b.step(t, near, OPEN) for t in ts)       # the settle rule's press is off
+    assert b.wants_fine(ts[-1], near, OPEN) and b.phase == 0
+    assert not b.wants_fine(ts[-1], near, CLOSED)           # the hand not as the phase wants
+    far = np.array(TCP[1]) + np.array([0.0, FINE_RANGE + 0.01, 0.0])
+    b2 = GraspButton(hand_phases(PLAN), fine=True)
+    for t in ts:
+        b2.step(t, far, OPEN)
+    assert not b2.wants_fine(ts[-1], far, OPEN)             # too far: steer the latent on
+    assert b.step(3.5, np.array(TCP[1]) + 0.002, OPEN) and b.phase == 1   # aligned: grasp
+    assert not GraspButton(hand_phases(PLAN)).wants_fine(SETTLE_TIME + 1, near, OPEN)  # fine off
+
+
+def test_over_the_target_during_alignment_releases():
+    b = GraspButton(hand_phases(PLAN), fine=True)
+    b.step(0.0, np.array(TCP[1]), OPEN)
+    assert b.phase == 1
+    assert b.step(5.0, np.array(TCP[4]) + [0.02, 0.0, 0.0], CLOSED, to_target=0.02) and b.phase == 2

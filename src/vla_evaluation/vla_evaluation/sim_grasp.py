@@ -38,6 +38,11 @@ MIN_INTERVAL = 0.5        # s between presses (the bridge refuses presses < 0.2 
 # carried bottles 2.6-3.0 cm from the target, 1.6-2.9 cm up, until the time limit (issue 23).
 PLACE_PRESS_RADIUS = 0.03
 PLACE_PRESS_HEIGHT = 0.03
+# m: with fine alignment (sim_fine), a person who sees the latent's path stop this close to where the
+# phase ends (no 2 mm of progress for SETTLE_TIME) switches to end-effector mode to finish the way;
+# farther, they keep steering the latent. The learned approach from 5 demonstrations stops 2-8 cm
+# from a new object's grasp point (issue 23; docs/history.md), the carry 6-9 cm from its target.
+FINE_RANGE = 0.10
 
 # the hand as a person sees it, from GripperStatus.state
 OPEN, CLOSED, BUSY = "open", "closed", "busy"
@@ -88,10 +93,14 @@ def hand_seen(state: int, width: float, open_width: float = 0.07) -> str:
 class GraspButton:
     """Decides, step by step, the phase and whether to press the grasp button now."""
 
-    def __init__(self, phases: list[HandPhase], min_interval: float = MIN_INTERVAL) -> None:
+    def __init__(self, phases: list[HandPhase], min_interval: float = MIN_INTERVAL,
+                 fine: bool = False) -> None:
         if not phases:
             raise ValueError("a grasp button needs at least one phase")
         self.phases = phases
+        # True: where the latent's path settles short, the user aligns in end-effector mode
+        # (wants_fine) instead of pressing there (the settle rule)
+        self.fine = bool(fine)
         self.phase = 0
         self.min_interval = float(min_interval)
         self.presses = 0
@@ -138,6 +147,17 @@ class GraspButton:
         return (phase.want == CLOSED and to_target <= PLACE_PRESS_RADIUS
                 and tcp[2] - phase.end_tcp[2] <= PLACE_PRESS_HEIGHT)
 
+    def wants_fine(self, t: float, tcp: np.ndarray, hand: str) -> bool:
+        """With fine alignment: the hand is as the phase wants, the phase has an end point, and the
+        latent's path has stopped getting closer to it within FINE_RANGE (the user switches to
+        end-effector mode; the node keeps it so until the phase ends)."""
+        phase = self.current
+        tcp = np.asarray(tcp, dtype=float)
+        if not self.fine or phase.end_tcp is None or hand != phase.want or not np.all(np.isfinite(tcp)):
+            return False
+        d = float(np.linalg.norm(tcp - phase.end_tcp))
+        return PRESS_TOLERANCE < d <= FINE_RANGE and t - self._best_time >= SETTLE_TIME
+
     def _enter(self, phase: int, t: float) -> None:
         self.phase, self.phase_started = phase, t
         self._best, self._best_time = np.inf, t
@@ -148,4 +168,4 @@ class GraspButton:
             self._best, self._best_time = d, t
         if d <= PRESS_TOLERANCE:
             return True
-        return d <= SETTLE_TOLERANCE and t - self._best_time >= SETTLE_TIME
+        return not self.fine and d <= SETTLE_TOLERANCE and t - self._best_time >= SETTLE_TIME

@@ -40,6 +40,7 @@ from vla_latent_controller.teleop import TeleopParams
 from vla_sim.planner import plan_task
 
 from vla_evaluation.resources import latent_model_dir
+from vla_evaluation.sim_fine import FineAlign
 from vla_evaluation.sim_grasp import GraspButton, hand_phases, hand_seen
 from vla_evaluation.sim_teleoperator import (
     DEFAULT_CANDIDATES,
@@ -52,7 +53,7 @@ from vla_evaluation.sim_teleoperator import (
     teleop_waypoints,
 )
 from vla_interfaces.msg import ControllerStatus, GripperStatus, SafetyStatus, SceneObjectArray, TeleopStatus
-from vla_interfaces.srv import StartEpisode
+from vla_interfaces.srv import SetMode, StartEpisode
 
 NODE_NAME = "sim_teleoperator"
 ACTIVE = (TeleopStatus.RUNNING, TeleopStatus.WAITING)
@@ -83,6 +84,14 @@ PARAMETERS = ParameterTable([
           "button pressed to toggle the hand in tasks with the hand (the controller's "
           "grasp_button; -1: none, those tasks then fail)", range=(-1, 31), dynamic=True),
     Param("num_buttons", 4, "length of Joy.buttons", range=(0, 32), dynamic=True),
+    Param("fine_align", True, "tasks with the hand: where the latent's path stops short of the grasp or "
+          "place point, switch the controller to end-effector mode and align the hand one axis at a "
+          "time, as a person does (sim_fine); false: press where the path settles", dynamic=True),
+    Param("ee_mode_button", _CONTROLLER.ee_mode_button,
+          "the controller's ee_mode_button, pressed to choose the end-effector axis", range=(0, 31),
+          dynamic=True),
+    Param("set_mode_service", "controller_node/set_mode",
+          "the controller's ~/set_mode service (vla_interfaces/SetMode), for fine alignment"),
     Param("deadband", _CONTROLLER.deadband,
           "the controller's stick deadband", range=(0.0, 0.9), dynamic=True),
     Param("axis_scale", _CONTROLLER.axis_scale,
@@ -174,6 +183,12 @@ class SimTeleoperatorNode(Node):
         self._phase_t0 = 0.0
         self._episode_limit = float(self.p["time_limit"])   # the running episode's (s)
         self._press = False
+        self._fine: FineAlign | None = None          # aligning in end-effector mode (sim_fine)
+        self._axis_press = False                     # press ee_mode_button in the next Joy
+        self._mode_client = self.create_client(SetMode, self.p["set_mode_service"])
+        self._mode_call = None                       # a set_mode request in flight
+        self._mode_asked = -math.inf                 # when (s, node clock) it was sent
+        self._switched = False                       # this node put the controller in end-effector mode
         self._update_image_subscription()
         self.create_service(StartEpisode, "~/start_episode", self._srv_start)
         self.create_service(Trigger, "~/stop", self._srv_stop)
@@ -344,8 +359,9 @@ class SimTeleoperatorNode(Node):
         self._spec, self._place_from = spec, self.objects[spec.object_class]
         self._command, self._plan, self.grasp, self._hand_seen = command, plan, None, None
         self._episode_limit = float(p["time_limit"])
+        self._fine = None
         if spec.kind in HAND_KINDS:
-            self.grasp = GraspButton(hand_phases(plan))
+            self.grasp = GraspButton(hand_phases(plan), fine=bool(p["fine_align"]))
             return self._phase_teleoperator(0.0), cls
         schedule = WaypointSchedule(teleop_waypoints(plan), float(p["switch_time"]), float(p["time_limit"]))
         tele = SimTeleoperator(command, schedule, float(p["horizon"]), int(p["n_candidates"]),
@@ -373,10 +389,17 @@ class SimTeleoperatorNode(Node):
         phase = self.grasp.phase
         failed, self._hand_failed = self._hand_failed, False
         self._hand_seen = hand_seen(self.hand.state, self.hand.width)
-        self._press = self.grasp.step(t, self.kin.fk(self.q)[0], self._hand_seen, failed, self._to_target())
+        tcp = self.kin.fk(self.q)[0]
+        self._press = self.grasp.step(t, tcp, self._hand_seen, failed, self._to_target())
         if self.grasp.phase != phase:
+            self._fine = None   # back to the latent for the next phase
             self.tele = self._phase_teleoperator(t)
             self.get_logger().info(f"{self.task}: hand phase {self.grasp.phase} ({self.grasp.current.want})")
+        elif self._fine is None and self.grasp.wants_fine(t, tcp, self._hand_seen):
+            self._fine = FineAlign(self.grasp.current.end_tcp, tcp, float(self.p["deadband"]))
+            self.get_logger().info(f"{self.task}: the latent stopped "
+                                   f"{100 * np.linalg.norm(tcp - self.grasp.current.end_tcp):.1f} cm short; "
+                                   "aligning in end-effector mode")
 
     def _to_target(self) -> float:
         """A pick-and-place: how far (m) the object is from where it is to be put down, as a person
@@ -390,6 +413,9 @@ class SimTeleoperatorNode(Node):
     def _finish(self, state: int, reason: str) -> None:
         if self.state in ACTIVE:
             self._publish_joy(0.0)  # release the stick
+        self._fine = None
+        if self._switched:
+            self._in_mode("latent")   # the controller as the episode found it
         self.state = state
         self.reason = reason
         self._publish_status()
@@ -410,9 +436,33 @@ class SimTeleoperatorNode(Node):
             if step.done:
                 self._finish(TeleopStatus.DONE, "time limit")
                 return
-            self._publish_joy(0.0 if self._asked_for_neutral() or self._waits_for_hand() else step.axis)
+            axis = step.axis
+            want = "end_effector" if self._fine is not None else ("latent" if self._switched else None)
+            if want is not None and not self._in_mode(want):
+                axis = 0.0    # a person switching modes has the hand off the stick
+            elif self._fine is not None:
+                fine = self._fine.step(t, self.kin.fk(q)[0], self.ctrl.ee_axis)
+                axis, self._axis_press = fine.axis_value, fine.press_axis_button
+            self._publish_joy(0.0 if self._asked_for_neutral() or self._waits_for_hand() else axis)
         if self._ticks % self._status_every == 0:
             self._publish_status()
+
+    def _in_mode(self, mode: str) -> bool:
+        """Whether the controller is in `mode` (its status); if not, ask it to switch (at most one request
+        in flight, one a second). Only modes this node chose: after end-effector mode, latent again."""
+        if self.ctrl is not None and self.ctrl.mode == mode:
+            self._switched = mode != "latent"
+            return True
+        self._switched = True
+        now = self.get_clock().now().nanoseconds * 1e-9
+        if (self._mode_call is None or self._mode_call.done()) and now - self._mode_asked >= 1.0:
+            self._mode_asked = now
+            if self._mode_client.service_is_ready():
+                self._mode_call = self._mode_client.call_async(SetMode.Request(mode=mode))
+            else:
+                self.get_logger().warn(f"no {self._mode_client.srv_name} service: "
+                                       f"cannot switch to {mode} mode")
+        return False
 
     def _waits_for_hand(self) -> bool:
         """Tasks with the hand: the stick rests while the hand closes or opens (GraspButton.holds_still)."""
@@ -441,7 +491,11 @@ class SimTeleoperatorNode(Node):
         grasp = int(self.p["grasp_button"])
         if 0 <= grasp < len(buttons):
             buttons[grasp] = 1 if self._press and self.state == TeleopStatus.RUNNING else 0
-        self._press = False
+        mode_button = int(self.p["ee_mode_button"])
+        if self._axis_press and self.state == TeleopStatus.RUNNING:
+            buttons += [0] * (mode_button + 1 - len(buttons))
+            buttons[mode_button] = 1
+        self._press = self._axis_press = False
         msg.axes, msg.buttons = axes, buttons
         self.joy_pub.publish(msg)
 

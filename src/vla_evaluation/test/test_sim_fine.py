@@ -1,6 +1,8 @@
 """The simulated operator's fine alignment: where the latent's path stops short, the hand reaches the
 point in end-effector mode, over the object first when it is beside it, one axis at a time, slowing
 as it arrives; the axis button is pressed until the controller shows the wanted axis, never a flood."""
+import math
+
 import numpy as np
 import pytest
 from vla_evaluation.sim_fine import (
@@ -74,7 +76,7 @@ def test_presses_the_axis_button_until_the_wanted_axis_never_faster_than_the_int
     fine = FineAlign([0.5, 0.0, 0.2], [0.5, 0.0, 0.1])    # only z to move (above: no clearance)
     steps = [fine.step(t, np.array([0.5, 0.0, 0.1]), "x") for t in np.arange(0.0, 2.0, 0.01)]
     presses = [s for s in steps if s.press_axis_button]
-    assert len(presses) == int(2.0 / PRESS_INTERVAL)
+    assert len(presses) == math.ceil(2.0 / PRESS_INTERVAL - 1e-9)   # one at 0, then every interval
     assert all(s.axis_value == 0.0 for s in steps)       # the stick rests on the wrong axis
     s = fine.step(2.0, np.array([0.5, 0.0, 0.1]), "z")
     assert s.axis_value > 0 and not s.press_axis_button

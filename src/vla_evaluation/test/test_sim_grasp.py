@@ -135,3 +135,27 @@ def test_over_the_target_during_alignment_releases():
     b.step(0.0, np.array(TCP[1]), OPEN)
     assert b.phase == 1
     assert b.step(5.0, np.array(TCP[4]) + [0.02, 0.0, 0.0], CLOSED, to_target=0.02) and b.phase == 2
+
+
+def test_the_approach_end_point_moves_with_the_object_and_the_carry_one_does_not():
+    b = GraspButton(hand_phases(PLAN), fine=True)
+    b.object_shift = np.array([0.02, 0.0, 0.0])              # a finger nudged the bottle 2 cm
+    assert np.allclose(b.end_point(), np.array(TCP[1]) + [0.02, 0.0, 0.0])
+    assert not b.step(0.0, np.array(TCP[1]), OPEN)           # the old grasp point: nothing there now
+    assert b.step(0.5, np.array(TCP[1]) + [0.02, 0.0, 0.0], OPEN) and b.phase == 1
+    assert np.allclose(b.end_point(), TCP[4])                # carrying: the target does not move
+
+
+def test_while_aligning_the_user_finishes_the_alignment_before_releasing():
+    near = np.array(TCP[4]) + [0.0, -0.025, 0.0]             # 2.5 cm short of the release point, low
+    b = GraspButton(hand_phases(PLAN), fine=True)
+    b.step(0.0, np.array(TCP[1]), OPEN)
+    assert b.step(0.6, near, CLOSED, to_target=0.025) and b.phase == 2   # not aligning: over it, release
+    b2 = GraspButton(hand_phases(PLAN), fine=True)
+    b2.step(0.0, np.array(TCP[1]), OPEN)
+    ts = np.arange(0.1, 1.5, 0.1)
+    for t in ts:
+        b2.step(t, near + [0.0, -0.05, 0.0], CLOSED, to_target=0.075)   # 7.5 cm short and stuck
+    assert b2.wants_fine(ts[-1], near + [0.0, -0.05, 0.0], CLOSED) and b2.fining
+    assert not b2.step(2.0, near, CLOSED, to_target=0.025) and b2.phase == 1   # aligning: not yet
+    assert b2.step(3.0, np.array(TCP[4]), CLOSED, to_target=0.0) and b2.phase == 2

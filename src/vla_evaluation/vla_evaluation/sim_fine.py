@@ -22,12 +22,12 @@ from dataclasses import dataclass
 import numpy as np
 
 TOLERANCE = 0.0025      # m per axis: 4.3 mm at most in all three, within the grasp press's 5 mm
-RAMP = 0.05             # m: the stick is at `max_speed` from this far, and in proportion below it
+RAMP = 0.04             # m: the stick is at MAX_SPEED from this far, and in proportion below it
 MIN_SPEED = 0.05        # of full stick speed: the slowest push that still moves the hand
-MAX_SPEED = 0.5         # of full stick speed (0.1 m/s at the controller's 0.2 m/s)
+MAX_SPEED = 0.75        # of full stick speed (0.15 m/s at the controller's 0.2 m/s)
 CLEARANCE = 0.06        # m above the point: over the object's top before moving sideways
 BESIDE = 0.015          # m off in x-y: the hand is beside the object, not over it
-PRESS_INTERVAL = 0.5    # s between presses of the axis button (the controller's debounce is 0.25 s)
+PRESS_INTERVAL = 0.3    # s between presses of the axis button (the controller's debounce: 0.25 s)
 AXES = ("x", "y", "z")
 
 

@@ -43,6 +43,7 @@ PLACE_PRESS_HEIGHT = 0.03
 # farther, they keep steering the latent. The learned approach from 5 demonstrations stops 2-8 cm
 # from a new object's grasp point (issue 23; docs/history.md), the carry 6-9 cm from its target.
 FINE_RANGE = 0.10
+FINE_SETTLE_TIME = 1.0   # s without 2 mm of progress before switching (a person sees the arm stop)
 
 # the hand as a person sees it, from GripperStatus.state
 OPEN, CLOSED, BUSY = "open", "closed", "busy"
@@ -101,6 +102,10 @@ class GraspButton:
         # True: where the latent's path settles short, the user aligns in end-effector mode
         # (wants_fine) instead of pressing there (the settle rule)
         self.fine = bool(fine)
+        self.fining = False             # aligning now (until the phase ends)
+        # m: how far the object has moved since the plan (a person sees it where it is): the approach's
+        # end point moves with it (a finger that nudged the bottle moved the grasp point too)
+        self.object_shift = np.zeros(3)
         self.phase = 0
         self.min_interval = float(min_interval)
         self.presses = 0
@@ -125,7 +130,7 @@ class GraspButton:
             self._enter(self.phase - 1, t)
         phase = self.current
         if phase.end_tcp is not None and hand == phase.want and (
-                self._arrived(t, tcp, phase.end_tcp) or self._over_target(tcp, phase, to_target)):
+                self._arrived(t, tcp, self.end_point()) or self._over_target(tcp, phase, to_target)):
             self._enter(self.phase + 1, t)
             phase = self.current
         if hand == BUSY or hand == phase.want or t - self.last_press < self.min_interval:
@@ -141,26 +146,37 @@ class GraspButton:
         phase's waypoints dragged the fingers away from the object while they closed."""
         return hand == BUSY or hand != self.current.want
 
-    @staticmethod
-    def _over_target(tcp: np.ndarray, phase: HandPhase, to_target: float) -> bool:
-        """Carrying (the phase wants the hand closed): the object over its target and low."""
-        return (phase.want == CLOSED and to_target <= PLACE_PRESS_RADIUS
+    def end_point(self) -> np.ndarray | None:
+        """Where the current phase ends (TCP, m): the plan's, moved with the object while the hand is
+        open (approaching it); None in the last phase."""
+        phase = self.current
+        if phase.end_tcp is None:
+            return None
+        return phase.end_tcp + self.object_shift if phase.want == OPEN else phase.end_tcp
+
+    def _over_target(self, tcp: np.ndarray, phase: HandPhase, to_target: float) -> bool:
+        """Carrying (the phase wants the hand closed): the object over its target and low. While
+        aligning, the user finishes the alignment (at the demonstrator's release point) instead."""
+        return (phase.want == CLOSED and not self.fining and to_target <= PLACE_PRESS_RADIUS
                 and tcp[2] - phase.end_tcp[2] <= PLACE_PRESS_HEIGHT)
 
     def wants_fine(self, t: float, tcp: np.ndarray, hand: str) -> bool:
         """With fine alignment: the hand is as the phase wants, the phase has an end point, and the
         latent's path has stopped getting closer to it within FINE_RANGE (the user switches to
-        end-effector mode; the node keeps it so until the phase ends)."""
-        phase = self.current
+        end-effector mode until the phase ends: `fining`)."""
+        phase, end = self.current, self.end_point()
         tcp = np.asarray(tcp, dtype=float)
-        if not self.fine or phase.end_tcp is None or hand != phase.want or not np.all(np.isfinite(tcp)):
+        if not self.fine or end is None or hand != phase.want or not np.all(np.isfinite(tcp)):
             return False
-        d = float(np.linalg.norm(tcp - phase.end_tcp))
-        return PRESS_TOLERANCE < d <= FINE_RANGE and t - self._best_time >= SETTLE_TIME
+        d = float(np.linalg.norm(tcp - end))
+        if self.fining or (PRESS_TOLERANCE < d <= FINE_RANGE and t - self._best_time >= FINE_SETTLE_TIME):
+            self.fining = True
+        return self.fining
 
     def _enter(self, phase: int, t: float) -> None:
         self.phase, self.phase_started = phase, t
         self._best, self._best_time = np.inf, t
+        self.fining = False
 
     def _arrived(self, t: float, tcp: np.ndarray, goal: np.ndarray) -> bool:
         d = float(np.linalg.norm(tcp - goal))

@@ -57,6 +57,7 @@ from vla_interfaces.srv import SetMode, StartEpisode
 
 NODE_NAME = "sim_teleoperator"
 ACTIVE = (TeleopStatus.RUNNING, TeleopStatus.WAITING)
+RETARGET = 0.005   # m: the object moved this far while aligning: align again on where it is now
 TRIGGERS = ("timer", "joint_states")
 
 
@@ -390,16 +391,31 @@ class SimTeleoperatorNode(Node):
         failed, self._hand_failed = self._hand_failed, False
         self._hand_seen = hand_seen(self.hand.state, self.hand.width)
         tcp = self.kin.fk(self.q)[0]
+        self.grasp.object_shift = self._object_shift()
         self._press = self.grasp.step(t, tcp, self._hand_seen, failed, self._to_target())
         if self.grasp.phase != phase:
             self._fine = None   # back to the latent for the next phase
             self.tele = self._phase_teleoperator(t)
             self.get_logger().info(f"{self.task}: hand phase {self.grasp.phase} ({self.grasp.current.want})")
-        elif self._fine is None and self.grasp.wants_fine(t, tcp, self._hand_seen):
-            self._fine = FineAlign(self.grasp.current.end_tcp, tcp, float(self.p["deadband"]))
-            self.get_logger().info(f"{self.task}: the latent stopped "
-                                   f"{100 * np.linalg.norm(tcp - self.grasp.current.end_tcp):.1f} cm short; "
-                                   "aligning in end-effector mode")
+        elif self.grasp.wants_fine(t, tcp, self._hand_seen):
+            end = self.grasp.end_point()
+            if self._fine is None:
+                short = 100 * np.linalg.norm(tcp - end)
+                self.get_logger().info(f"{self.task}: the latent stopped {short:.1f} cm short; aligning in "
+                                       "end-effector mode")
+            elif np.linalg.norm(end - self._fine.goal) > RETARGET:
+                self.get_logger().info(f"{self.task}: the object moved; aligning on where it is now")
+            else:
+                return
+            self._fine = FineAlign(end, tcp, float(self.p["deadband"]))
+
+    def _object_shift(self) -> np.ndarray:
+        """How far (m, x and y) the task's object has moved since the episode planned its waypoints."""
+        spec, start = self._spec, self._place_from
+        obj = self.objects.get(spec.object_class) if spec is not None else None
+        if start is None or obj is None:
+            return np.zeros(3)
+        return np.array([obj.x - start.x, obj.y - start.y, 0.0])
 
     def _to_target(self) -> float:
         """A pick-and-place: how far (m) the object is from where it is to be put down, as a person

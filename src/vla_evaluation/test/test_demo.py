@@ -2,6 +2,7 @@
 import numpy as np
 import pytest
 from vla_evaluation.cli import build_parser
+from vla_evaluation.evaluate_cli import task_list
 from vla_evaluation.graph import EpisodeRecord
 from vla_evaluation.metrics import EpisodeResult
 
@@ -11,7 +12,8 @@ from vla_evaluation import demo
 def test_cli_has_the_subcommands_with_defaults():
     p = build_parser()
     a = p.parse_args(["demo"])
-    assert str(a.out) == "out/demo" and a.tasks == "all" and a.layouts == 1 and a.rate == 100.0
+    assert str(a.out) == "out/demo" and a.tasks == demo.DEMO_TASKS and a.layouts == 1 and a.rate == 100.0
+    assert "glass_bottle/pick_place_west" in task_list(a.tasks)   # the main job has a pick-and-place
     assert a.horizon == demo.DEMO_HORIZON == 2.0  # the demo's look-ahead; the evaluation keeps 1 s
     e = p.parse_args(["evaluate", "--mode", "graph", "--layouts", "20"])
     assert e.mode == "graph" and e.layouts == 20 and e.horizon == 1.0

@@ -7,7 +7,8 @@ from ament_index_python.packages import PackageNotFoundError, get_package_share_
 from vla_detector.inference import default_model_path
 
 PACKAGE = "vla_latent_controller"
-SOURCE_MODELS = Path(__file__).resolve().parents[2] / "models"
+# the controller package's models/ in the source tree (installed to share/vla_latent_controller/models)
+SOURCE_MODELS = Path(__file__).resolve().parents[2] / PACKAGE / "models"
 
 
 def latent_model_dir(name: str = "default") -> Path:

@@ -198,3 +198,17 @@ def test_evaluate_path_fraction_reaches_the_settings():
     for bad in ("1.5", "-0.1"):
         with pytest.raises(SystemExit):
             parser.parse_args(["evaluate", "--path-fraction", bad])
+
+
+def test_evaluate_latent_only_reaches_the_teleoperators_parameters():
+    """`evaluate --latent-only` turns the simulated user's fine alignment off (the A/B of issue 23);
+    by default it is on, in the settings and in the parameters the graph sets on the teleoperator."""
+    from vla_evaluation.evaluate_cli import settings_from
+    from vla_evaluation.graph import TELEOP, GraphConfig
+
+    parser = build_parser()
+    for argv, want in ((["evaluate"], True), (["evaluate", "--latent-only"], False)):
+        s = settings_from(parser.parse_args(argv))
+        assert s.fine_align is want
+        params = GraphConfig("model", "detector.onnx", settings=s).node_parameters()
+        assert params[TELEOP]["fine_align"] is want

@@ -70,13 +70,16 @@ def add_teleop_arguments(p: argparse.ArgumentParser, rate: float, horizon: float
     g.add_argument("--path-fraction", type=_fraction, default=d.path_fraction,
                    help="controller path_fraction in [0, 1] (default %(default)s: the model's calibrated "
                         "latent.path_fraction, 1 when it has none)")
+    g.add_argument("--latent-only", action="store_true",
+                   help="graph, tasks with the hand: the user never switches to end-effector mode to align "
+                        "the hand where the latent stops short (presses where the path settles)")
 
 
 def settings_from(args) -> TeleopSettings:
     return TeleopSettings(rate=args.rate, horizon=args.horizon, n_candidates=args.candidates,
                           switch_time=args.switch_time, time_limit=args.time_limit,
                           action_scale=args.action_scale, max_joint_speed=args.max_joint_speed,
-                          path_fraction=args.path_fraction)
+                          path_fraction=args.path_fraction, fine_align=not args.latent_only)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -120,7 +120,8 @@ class GraphConfig:
             CONTROLLER: {"goal_selection": s.goal_selection, "joy_timeout": float(self.joy_timeout), **stick},
             TELEOP: {"horizon": float(s.horizon), "n_candidates": int(s.n_candidates),
                      "switch_time": float(s.switch_time), "time_limit": float(s.time_limit),
-                     "max_stick_rate": float(s.max_stick_rate), "hold": float(s.hold), **stick},
+                     "max_stick_rate": float(s.max_stick_rate), "hold": float(s.hold),
+                     "fine_align": bool(s.fine_align), **stick},
         }
         for node, extra in self.extra_params.items():
             params.setdefault(node, {}).update(extra)

@@ -61,6 +61,8 @@ class TeleopSettings:
     path_every: int = 2  # keep every n-th TCP position for plots
     max_stick_rate: float = 0.0  # stick units per second; 0: unlimited (the paper)
     hold: float = 0.0  # the graph's teleoperator holds the stick at this value (0: steers)
+    # the graph's teleoperator, tasks with the hand: end-effector mode where the latent stops short
+    fine_align: bool = True
 
 
 @dataclass

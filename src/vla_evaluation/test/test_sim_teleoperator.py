@@ -456,3 +456,100 @@ def test_hold_keeps_the_stick_at_one_value_until_the_time_limit():
     assert tele.act(0.5, np.full(7, np.nan)).axis == 0.0        # bad joint state: hands off
     with pytest.raises(ValueError):
         SimTeleoperator(deadband_linear(np.ones(7)), schedule, hold=1.5)
+
+
+@pytest.mark.ros
+def test_where_the_latent_stops_short_the_node_aligns_in_end_effector_mode_then_goes_back(ros, tmp_path):
+    """A pick-and-place whose arm stops 3 cm beside the grasp point: after a second without progress
+    the user asks the controller for end-effector mode (~/set_mode), presses the axis button until
+    the controller's status shows the axis it wants (up first: the hand is beside the bottle), pushes
+    the stick that way, and at the end of the episode puts the controller back in latent mode."""
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from rclpy.qos import qos_profile_sensor_data
+    from sensor_msgs.msg import JointState, Joy
+    from vla_common.catalogue import default_catalogue
+    from vla_common.kinematics import PandaKinematics
+    from vla_common.tasks import task_layout
+    from vla_evaluation.sim_grasp import hand_phases
+    from vla_evaluation.sim_teleoperator_node import SimTeleoperatorNode
+    from vla_sim.planner import plan_task
+
+    from vla_interfaces.msg import (
+        ControllerStatus,
+        GripperStatus,
+        SceneObject,
+        SceneObjectArray,
+        TeleopStatus,
+    )
+    from vla_interfaces.srv import SetMode, StartEpisode
+
+    ctx, ex, nodes = ros
+    random_model(tmp_path / "m")
+    task = "glass_bottle/pick_place_west"
+    goal = task_layout(task, np.random.default_rng(3), n_objects=1)[0]
+    kin = PandaKinematics()
+    plan = plan_task(kin, default_catalogue().task(task), goal, Q0, np.random.default_rng(0))
+    grasp = hand_phases(plan)[0].waypoint_indices[-1]
+    q_near = np.array(plan.waypoints[grasp], float)
+    q_near[0] += 0.06                                   # the base turned: ~3 cm beside the grasp point
+    assert 0.02 < np.linalg.norm(kin.fk(q_near)[0] - kin.fk(plan.waypoints[grasp])[0]) < 0.05
+
+    P = Parameter
+    tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[
+        P("model_path", value=str(tmp_path / "m")), P("rate", value=50.0), P("time_limit", value=6.0),
+        P("start_timeout", value=2.0)])
+    peer = Node("peer", context=ctx)
+    nodes += [tele, peer]
+    ex.add_node(tele)
+    ex.add_node(peer)
+    ctrl = {"mode": "latent", "axis": 0, "requests": [], "prev": 0}
+    cycle = ("x", "y", "z", "roll", "pitch", "yaw")
+
+    def set_mode(req, res):
+        ctrl["requests"].append(req.mode)
+        ctrl["mode"], res.success = req.mode, True
+        return res
+
+    joys = []
+
+    def on_joy(msg):
+        joys.append((ctrl["mode"], cycle[ctrl["axis"]], msg))
+        pressed = len(msg.buttons) > 0 and msg.buttons[0] == 1
+        if pressed and not ctrl["prev"] and ctrl["mode"] == "end_effector":
+            ctrl["axis"] = (ctrl["axis"] + 1) % len(cycle)
+        ctrl["prev"] = pressed
+
+    peer.create_service(SetMode, "controller_node/set_mode", set_mode)
+    peer.create_subscription(Joy, "joy", on_joy, 50)
+    statuses = []
+    peer.create_subscription(TeleopStatus, "sim_teleoperator/status", statuses.append, 10)
+    js_pub = peer.create_publisher(JointState, "joint_states", qos_profile_sensor_data)
+    obj_pub = peer.create_publisher(SceneObjectArray, "scene/objects", 10)
+    ctrl_pub = peer.create_publisher(ControllerStatus, "controller_node/status", 10)
+    hand_pub = peer.create_publisher(GripperStatus, "gripper/status", 10)
+
+    def feed():
+        js_pub.publish(JointState(name=[f"panda_joint{i}" for i in range(1, 8)], position=q_near.tolist()))
+        obj_pub.publish(SceneObjectArray(objects=[SceneObject(class_id="glass_bottle", x=goal.x, y=goal.y,
+                                                              yaw=goal.yaw)]))
+        ctrl_pub.publish(ControllerStatus(latched_class="glass_bottle", latched_x=0.5, latched_y=0.6,
+                                          mode=ctrl["mode"], ee_axis=cycle[ctrl["axis"]]))
+        hand_pub.publish(GripperStatus(state=GripperStatus.IDLE, width=0.08))   # open, as the phase wants
+
+    peer.create_timer(0.02, feed)
+    start = peer.create_client(StartEpisode, "sim_teleoperator/start_episode")
+    assert start.wait_for_service(timeout_sec=5.0)
+    fut = start.call_async(StartEpisode.Request(task=task))
+    assert _spin_until(ex, fut.done, 5.0) and fut.result().success
+    assert _spin_until(ex, lambda: any(s.state == TeleopStatus.DONE for s in statuses), 20.0)
+    assert _spin_until(ex, lambda: ctrl["mode"] == "latent", 5.0)     # as the episode found it
+
+    assert ctrl["requests"][0] == "end_effector" and ctrl["requests"][-1] == "latent"
+    ee = [(axis, j) for mode, axis, j in joys if mode == "end_effector"]
+    presses = [j for _, j in ee if j.buttons[0] == 1]
+    assert 1 <= len(presses) <= 3                        # x -> y -> z: two presses (one more at most)
+    up = [j.axes[0] for axis, j in ee if axis == "z"]
+    assert up and max(up) > 0.1                          # past the deadband, up over the bottle first
+    assert all(j.axes[0] == 0.0 for axis, j in ee if axis != "z")   # the stick rests on the wrong axis
+    assert joys[-1][2].axes[0] == 0.0

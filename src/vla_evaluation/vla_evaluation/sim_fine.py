@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from vla_latent_controller.teleop import unit_to_stick
 
 TOLERANCE = 0.0025      # m per axis: 4.3 mm at most in all three, within the grasp press's 5 mm
 RAMP = 0.04             # m: the stick is at MAX_SPEED from this far, and in proportion below it
@@ -46,7 +47,7 @@ def stick_for(error: float, deadband: float) -> float:
     """The stick value a person pushes for `error` (m) left on an axis: proportional within RAMP,
     between MIN_SPEED and MAX_SPEED of full speed, past the controller's deadband."""
     speed = float(np.clip(abs(error) / RAMP * MAX_SPEED, MIN_SPEED, MAX_SPEED))
-    return float(np.sign(error)) * (deadband + speed * (1.0 - deadband))
+    return unit_to_stick(float(np.sign(error)) * speed, deadband)
 
 
 class FineAlign:

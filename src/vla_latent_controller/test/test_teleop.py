@@ -8,7 +8,7 @@ from vla_common.detection import Detection
 from vla_latent_controller.artifacts import load_model, save_model
 from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
-from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams, stick_to_unit
+from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams, stick_to_unit, unit_to_stick
 from vla_latent_controller.testing import READY, write_random_model
 
 from vla_interfaces.msg import ControllerStatus
@@ -310,6 +310,14 @@ def test_stick_to_unit_vectorised_matches_scalar():
     assert all(
         stick_to_unit(float(v), 0.1, 2.0) == pytest.approx(min(1, max(-1, 2 * x))) for v, x in zip(s, u)
     )
+
+
+def test_unit_to_stick_inverts_the_stick_mapping_and_stays_past_the_deadband():
+    for db in (0.0, 0.1, 0.3):
+        for u in (-1.0, -0.4, -0.01, 0.01, 0.25, 1.0):
+            s = unit_to_stick(u, db)
+            assert abs(s) > db and stick_to_unit(s, db) == pytest.approx(u)
+        assert unit_to_stick(0.0, db) == 0.0 and unit_to_stick(3.0, db) == 1.0
 
 
 def test_malformed_detection_and_joy(random_model_dir):

@@ -136,6 +136,13 @@ def stick_to_unit(stick, deadband: float, axis_scale: float = 1.0):
     return float(u) if u.ndim == 0 else u
 
 
+def unit_to_stick(unit: float, deadband: float) -> float:
+    """The stick value that stick_to_unit maps to ``unit`` ∈ [-1, 1] (axis_scale 1): 0 stays 0, anything
+    else lies past the deadband. A simulated operator who wants a share of full speed pushes this."""
+    u = float(np.clip(unit, -1.0, 1.0))
+    return 0.0 if u == 0.0 else float(np.sign(u)) * (deadband + abs(u) * (1.0 - deadband))
+
+
 def _pressed_now(buttons: Sequence[int], prev: Sequence[int], i: int) -> bool:
     """Button i went from not pressed to pressed (value 1) between two joy messages."""
     return 0 <= i < len(buttons) and buttons[i] == 1 and not (i < len(prev) and prev[i] == 1)

@@ -161,6 +161,12 @@ def grasp_centre_region(spec: TaskSpec) -> tuple[np.ndarray, np.ndarray]:
     return lo, hi
 
 
+def check_spread_margin(margin: float) -> None:
+    """ValueError unless `margin` is a finite margin >= 0 m (the spread points' region grown by it)."""
+    if not (math.isfinite(margin) and margin >= 0.0):
+        raise ValueError(f"spread_margin must be a finite margin >= 0 m, got {margin}")
+
+
 def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int | None = None,
                 max_tries: int = 500, catalogue: Catalogue | None = None,
                 spread: int | None = None, spread_margin: float = SPREAD_MARGIN) -> list[ObjectPose]:
@@ -173,8 +179,7 @@ def task_layout(task: TaskSpec | str, rng: np.random.Generator, n_objects: int |
     spec = parse_task(task, catalogue)
     if spread is not None and not spec.uses_hand:
         raise ValueError(f"spread layouts are for tasks with the hand, not {spec.name}")
-    if not (math.isfinite(spread_margin) and spread_margin >= 0.0):
-        raise ValueError(f"spread_margin must be a finite margin >= 0 m, got {spread_margin}")
+    check_spread_margin(spread_margin)
     n = int(rng.integers(1, 4)) if n_objects is None else int(n_objects)
     if not 1 <= n <= min(4, len(cat.classes)):
         raise ValueError(f"n_objects must be 1..{min(4, len(cat.classes))}, got {n}")

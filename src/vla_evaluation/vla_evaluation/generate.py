@@ -43,7 +43,7 @@ from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES
 from vla_common.ros.convert import reset_request
 from vla_common.ros.domain import graph_on_domain
-from vla_common.tasks import SPREAD_MARGIN, task_layout, task_success
+from vla_common.tasks import SPREAD_MARGIN, check_spread_margin, task_layout, task_success
 from vla_demo_recorder.dataset import DemoError, load_demo
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
@@ -569,8 +569,10 @@ def run(args: argparse.Namespace) -> int:
         tasks = parse_tasks(args.task, args.tasks_file, load_catalogue(args.catalogue))
         if args.spread_margin != SPREAD_MARGIN and not args.spread:
             raise ValueError("--spread-margin places the spread points: it needs --spread")
-        if not (math.isfinite(args.spread_margin) and args.spread_margin >= 0.0):
-            raise ValueError(f"--spread-margin must be a margin >= 0 m, got {args.spread_margin}")
+        try:
+            check_spread_margin(args.spread_margin)
+        except ValueError as e:
+            raise ValueError(f"--spread-margin: {e}") from None
     except (ValueError, OSError) as err:
         print(f"error: {err}")
         return 2

@@ -66,6 +66,33 @@ class ScriptedSession(ScriptedPerson):
         return self.drive_until_done(ended, 300.0)
 
 
+def test_the_station_address_is_waited_for_not_read_once(tmp_path):
+    """The operator station prints its address after the graph's other nodes answer: the study waits
+    for the line (checking the launch is alive meanwhile) instead of reading the log once; a line that
+    never comes gives '' after the graph's start-up time."""
+    from types import SimpleNamespace
+
+    from vla_evaluation.study.graph_backend import GraphBackend
+
+    log = tmp_path / "graph.log"
+    log.write_text("[graph] up\n")
+    checks = []
+
+    def alive():                     # the station's line appears while the launch is being checked
+        checks.append(1)
+        if len(checks) == 2:
+            log.write_text(log.read_text() + "[operator_station] the operator station is at "
+                           "http://127.0.0.1:8123/\n")
+
+    backend = GraphBackend.__new__(GraphBackend)
+    backend.ev = SimpleNamespace(runner=SimpleNamespace(session=SimpleNamespace(log_path=log)),
+                                 config=SimpleNamespace(startup_timeout=30.0), alive=alive)
+    assert backend._station_address(poll_s=0.0) == "http://127.0.0.1:8123/" and len(checks) == 2
+    log.write_text("[graph] up\n")
+    backend.ev.config.startup_timeout = 0.0
+    assert backend._station_address(poll_s=0.0) == ""
+
+
 @pytest.mark.slow
 @pytest.mark.ros
 @pytest.mark.timeout(900)

@@ -213,10 +213,22 @@ class GraphBackend:
         self.catalogue = self.ev.catalogue
         self.station = ""
         if persons:
-            found = re.search(r"operator station is at (\S+)", self.ev.runner.session.log_path.read_text())
-            self.station = found.group(1) if found else ""
+            self.station = self._station_address()
             log(f"[study] the participant drives from the operator station at {self.station or '(not found)'}"
                 " (or a joystick's joy_node)")
+
+    def _station_address(self, poll_s: float = 0.1) -> str:
+        """The operator station's address, from the line it prints once it serves the page; the graph's
+        other nodes answer before it (CI once read the log too early: '(not found)'), so wait for it
+        within the graph's start-up time, and stop at once if a process of the launch ends."""
+        log_path = self.ev.runner.session.log_path
+        deadline = time.monotonic() + self.ev.config.startup_timeout
+        while True:
+            found = re.search(r"operator station is at (\S+)", log_path.read_text())
+            if found or time.monotonic() > deadline:
+                return found.group(1) if found else ""
+            self.ev.alive()
+            time.sleep(poll_s)
 
     def close(self) -> None:
         self.ev.close()

@@ -224,6 +224,8 @@ class PageOnTheStation:
                 raw = self.ws.recv()
             except (websocket.WebSocketException, OSError):
                 return
+            if raw == "":
+                return     # websocket-client's answer to the station's close frame
             if not isinstance(raw, str):
                 continue   # a frame's JPEG
             m = json.loads(raw)

@@ -41,7 +41,7 @@ SHAPING = {SafetyStatus.OK, SafetyStatus.VELOCITY_SCALED, SafetyStatus.ACCELERAT
 
 @pytest.fixture
 def ros():
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     yield h
     h.shutdown()
 

@@ -40,7 +40,7 @@ def test_parameter_files_reach_namespaced_and_renamed_nodes(tmp_path):
       namespace: robot2
       param: [{{from: "{shipped_detector_config()}"}}]
 """)
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     try:
         with LaunchProcess(str(launch), log_path=tmp_path / "launch.log") as run:
             node = h.add(Node("test_parameters", context=h.context))

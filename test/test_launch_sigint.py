@@ -22,7 +22,7 @@ NODES = {"panda_bridge", "detector_node", "controller_node"}
 def test_teleop_launch_stops_on_sigint_without_escalating_five_times(tmp_path):
     times = []
     for i in range(5):
-        h = RosHarness()
+        h = RosHarness(other_processes=True)
         try:
             with LaunchProcess("--sigterm-timeout", "2", "vla_bringup", "teleop.launch.yaml",
                                "use_sim_time:=true", log_path=tmp_path / f"launch{i}.log") as run:

@@ -161,7 +161,7 @@ def graph(tmp_path_factory, station_files):
     browser_needed()
     log = tmp_path_factory.mktemp("operator") / "launch.log"
     token_file, settings_file = station_files
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     with LaunchProcess("vla_bringup", "teleop.launch.yaml", "use_operator_station:=true",
                        "operator_port:=0", "operator_bind:=127.0.0.1", f"operator_token_file:={token_file}",
                        f"operator_settings_file:={settings_file}", log_path=log) as run:

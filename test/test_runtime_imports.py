@@ -159,7 +159,7 @@ def _observe(procs: LaunchSession, timeout: float) -> dict[str, bool]:
             seen[label] = seen[label] or bool(ok(msg))
         return callback
 
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     try:
         n = h.add(Node("runtime_imports_observer", context=h.context))
         frames = mark("camera_node", lambda m: m.frames_published > 0)

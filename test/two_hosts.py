@@ -149,7 +149,7 @@ def probe(timeout: float, move: float, stick: float) -> dict:
 
     from vla_interfaces.msg import ControllerStatus, DetectionArray, SafetyStatus
 
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     node = h.add(Node("two_hosts_probe", context=h.context))
     seen = {"info": set(), "dets": 0, "matched": 0, "classes": set(), "q": None, "ctrl": None,
             "safety": None, "latched": set()}
@@ -221,7 +221,7 @@ def image_pub(rate: float, seconds: float) -> dict:
     from sensor_msgs.msg import Image
     from vla_common.ros.testing import RosHarness
 
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     node = h.add(Node("image_pub", context=h.context))
     pub = node.create_publisher(Image, "image", QoSProfile(depth=5, reliability=ReliabilityPolicy.RELIABLE))
     msg = Image(height=480, width=640, encoding="rgb8", step=640 * 3, data=bytes(IMAGE_BYTES))
@@ -251,7 +251,7 @@ def image_sub(reliable: bool, quiet: float = 3.0, timeout: float = 120.0) -> dic
     from sensor_msgs.msg import Image
     from vla_common.ros.testing import RosHarness
 
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     node = h.add(Node("image_sub", context=h.context))
     rel = ReliabilityPolicy.RELIABLE if reliable else ReliabilityPolicy.BEST_EFFORT
     got = {"n": 0, "last": None}

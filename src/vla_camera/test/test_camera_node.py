@@ -248,7 +248,7 @@ def test_full_size_frames_reach_a_best_effort_subscriber_in_another_process(tmp_
         [_exe(), "--ros-args", "-p", f"source:={tmp_path}", "-p", "loop:=true", "-p", "fps:=30.0"],
         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env,
     )
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     try:
         node = h.add(rclpy.create_node("camera_transport_listener", context=h.context))
         stamps, statuses = [], []

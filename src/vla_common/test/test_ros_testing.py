@@ -16,3 +16,27 @@ def test_shutdown_twice_is_harmless():
     h.shutdown()
     assert not h.context.ok()
     h.shutdown()          # before: rclpy.shutdown raised on the context already shut down
+
+
+def test_a_harness_sees_only_its_own_nodes_unless_it_talks_to_other_processes():
+    """Two harnesses for other processes discover each other; the in-process one sees neither and is
+    seen by neither (so a participant an earlier test left behind cannot reach it), and the variable
+    it set for its init is back as it was for the processes a test starts."""
+    import os
+
+    import rclpy
+    from vla_common.ros.domain import DISCOVERY_VARIABLE
+
+    before = os.environ.get(DISCOVERY_VARIABLE)
+    alone, one, two = RosHarness(), RosHarness(other_processes=True), RosHarness(other_processes=True)
+    try:
+        assert os.environ.get(DISCOVERY_VARIABLE) == before
+        a = alone.add(rclpy.create_node("harness_alone", context=alone.context))
+        b = one.add(rclpy.create_node("harness_one", context=one.context))
+        two.add(rclpy.create_node("harness_two", context=two.context))
+        assert one.spin_until(lambda: "harness_two" in b.get_node_names(), 20.0)
+        assert "harness_alone" not in b.get_node_names()
+        assert a.get_node_names() == ["harness_alone"]
+    finally:
+        for h in (alone, one, two):
+            h.shutdown()

@@ -1,4 +1,5 @@
-"""Fixtures of the recorder tests: a private rclpy context, hand-made bag helpers on sys.path."""
+"""Fixtures of the recorder tests: a private rclpy context (`ros`: its own nodes only;
+`ros_processes`: also the recorder processes a test starts), hand-made bag helpers on sys.path."""
 import sys
 from pathlib import Path
 
@@ -11,5 +12,12 @@ sys.path.insert(0, str(Path(__file__).parent))
 @pytest.fixture
 def ros():
     harness = RosHarness()
+    yield harness
+    harness.shutdown()
+
+
+@pytest.fixture
+def ros_processes():
+    harness = RosHarness(other_processes=True)
     yield harness
     harness.shutdown()

@@ -189,7 +189,7 @@ def _installed(exe: str) -> str:
         missing("SETUP", f"{exe}: {err} (run make setup)")
 
 
-def test_sigkill_mid_episode_then_recover(ros, tmp_path):
+def test_sigkill_mid_episode_then_recover(ros_processes, tmp_path):
     """A recorder killed with SIGKILL leaves a bag that `recover` makes readable: everything that was
     published before the last flush is there."""
     exe = _installed("recorder")
@@ -198,13 +198,13 @@ def test_sigkill_mid_episode_then_recover(ros, tmp_path):
          "-p", "flush_period_s:=0.2", "-p", "topic_poll_period_s:=0.1"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
-        c = Client(ros, prefix="/killme")
+        c = Client(ros_processes, prefix="/killme")
         c.wait_subscribed(c.js)
         res = c.start("glass_bottle/push_west")
         assert res.success, res.message
         c.publish_joints(300)
-        assert ros.spin_until(lambda: any(s.messages_written >= 300 for s in c.status), 15)
-        ros.spin_for(1.0)  # > flush period: all 300 are in complete chunks on disk
+        assert ros_processes.spin_until(lambda: any(s.messages_written >= 300 for s in c.status), 15)
+        ros_processes.spin_for(1.0)  # > flush period: all 300 are in complete chunks on disk
         proc.send_signal(signal.SIGKILL)
         proc.wait(10)
     finally:
@@ -228,7 +228,7 @@ def test_sigkill_mid_episode_then_recover(ros, tmp_path):
 
 
 @pytest.mark.parametrize("sim_time", ["false", "true"])
-def test_sigint_mid_episode_closes_the_bag_and_exits_0(ros, tmp_path, sim_time):
+def test_sigint_mid_episode_closes_the_bag_and_exits_0(ros_processes, tmp_path, sim_time):
     """run_node's main: SIGINT closes the open episode as `interrupted` and exits 0, also with
     use_sim_time and no /clock (no timer of the node ever fires then)."""
     exe = _installed("recorder")
@@ -237,7 +237,7 @@ def test_sigint_mid_episode_closes_the_bag_and_exits_0(ros, tmp_path, sim_time):
          "-p", "topic_poll_period_s:=0.1", "-p", f"use_sim_time:={sim_time}"],
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        c = Client(ros, prefix="/sigint")
+        c = Client(ros_processes, prefix="/sigint")
         res = c.start("bread/push_east")
         assert res.success, res.message
         out = _interrupt(proc, 30)
@@ -263,7 +263,7 @@ def _reap(proc: subprocess.Popen) -> None:
         proc.wait()
 
 
-def test_sigint_while_busy_writing_camera_frames_closes_the_bag_and_exits_0(ros, tmp_path):
+def test_sigint_while_busy_writing_camera_frames_closes_the_bag_and_exits_0(ros_processes, tmp_path):
     """Ctrl-C while the writer thread is behind on full camera frames (fsync on, the default): the
     episode is closed as `interrupted` and the process exits 0. Under load the close took up to
     3.3 s and run_node's 3 s watchdog ended the recorder with exit code 1, bag left 'recording'
@@ -275,15 +275,15 @@ def test_sigint_while_busy_writing_camera_frames_closes_the_bag_and_exits_0(ros,
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     frame = Image(height=480, width=640, encoding="rgb8", step=1920, data=bytes(640 * 480 * 3))
     try:
-        c = Client(ros, prefix="/busy")
+        c = Client(ros_processes, prefix="/busy")
         c.wait_subscribed(c.img)
         res = c.start("bread/push_east")
         assert res.success, res.message
         for _ in range(3):
             for _ in range(20):
                 c.img.publish(frame)
-            ros.spin_for(0.05)
-        assert ros.spin_until(lambda: any(s.messages_written for s in c.status), 30)
+            ros_processes.spin_for(0.05)
+        assert ros_processes.spin_until(lambda: any(s.messages_written for s in c.status), 30)
         for _ in range(40):  # more frames on their way as the signal comes
             c.img.publish(frame)
         out = _interrupt(proc, 60)
@@ -313,7 +313,7 @@ def test_an_unexpected_error_in_a_service_is_replied_not_fatal(ros, tmp_path, mo
     assert c.start().success and c.stop().success  # the node lives on
 
 
-def test_recorder_processes_racing_on_one_folder_all_start(ros, tmp_path):
+def test_recorder_processes_racing_on_one_folder_all_start(ros_processes, tmp_path):
     """Several recorder processes on one output_dir, episodes started at the same moment: none dies,
     each gets its own folder and index."""
     exe = _installed("recorder")
@@ -321,11 +321,11 @@ def test_recorder_processes_racing_on_one_folder_all_start(ros, tmp_path):
     procs = [subprocess.Popen([exe, "--ros-args", "-r", f"__node:=race{i}", "-p", f"output_dir:={tmp_path}"],
                               stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True) for i in range(n)]
     try:
-        node = ros.add(Node("race_client", context=ros.context))
+        node = ros_processes.add(Node("race_client", context=ros_processes.context))
         clients = [node.create_client(StartEpisode, f"/race{i}/start_episode") for i in range(n)]
         assert all(cl.wait_for_service(timeout_sec=60) for cl in clients)
         futures = [cl.call_async(StartEpisode.Request(task="bread/push_east")) for cl in clients]
-        assert ros.spin_until(lambda: all(f.done() for f in futures), 60)
+        assert ros_processes.spin_until(lambda: all(f.done() for f in futures), 60)
         results = [f.result() for f in futures]
         assert all(r.success for r in results), [r.message for r in results]
         assert sorted(Path(r.bag_path).name[:6] for r in results) == [f"ep{i:04d}" for i in range(1, n + 1)]

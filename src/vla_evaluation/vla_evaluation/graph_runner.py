@@ -19,11 +19,11 @@ from rclpy.context import Context
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
-from vla_common.ros.domain import DomainError, isolated_env
+from vla_common.ros.domain import DISCOVERY_VARIABLE, DomainError, isolated_env
 from vla_launch.session import LaunchError, LaunchSession
 
 # Read by rmw when our context starts: set for the runner's lifetime, then restored.
-_CONTEXT_ENV = ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")
+_CONTEXT_ENV = ("ROS_DOMAIN_ID", DISCOVERY_VARIABLE)
 
 
 class HasNode(Protocol):

@@ -369,7 +369,7 @@ def test_process_exits_non_zero_when_its_model_does_not_load(tmp_path):
 
 def _start_and_wait(exe: str, model_dir, *args: str):
     """Start the node process and a probe that subscribes to its command; return when it is up."""
-    probe = RosHarness()
+    probe = RosHarness(other_processes=True)
     node = probe.add(rclpy.create_node("signal_probe", context=probe.context))
     cmds = []
     node.create_subscription(Float64MultiArray, "joint_velocity_cmd", lambda m: cmds.append(list(m.data)), 10)

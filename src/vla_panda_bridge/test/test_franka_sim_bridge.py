@@ -353,7 +353,7 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
     with open(log, "w") as err:
         proc = subprocess.Popen([sys.executable, exe, "--ros-args", *args], stdout=err, stderr=err,
                                 start_new_session=True)
-    h = RosHarness()
+    h = RosHarness(other_processes=True)
     try:
         io = h.add(rclpy.create_node("franka_sim_sigint_io", context=h.context))
         states: list[JointState] = []

@@ -15,6 +15,7 @@ from collections.abc import Callable, MutableMapping
 # Fast DDS allows 0..232 (its port arithmetic); keep clear of 0 (the default) and the well-known low ids.
 DOMAINS = range(30, 233)
 DISCOVERY = "LOCALHOST"
+DISCOVERY_VARIABLE = "ROS_AUTOMATIC_DISCOVERY_RANGE"   # rcl reads it when a context is initialised
 
 
 class DomainError(RuntimeError):
@@ -56,7 +57,7 @@ def isolate(env: MutableMapping[str, str] | None = None, domain: int | None = No
         domain = int(env["ROS_DOMAIN_ID"])
     domain = pick_domain(domain, busy=busy)
     env["ROS_DOMAIN_ID"] = str(domain)
-    env["ROS_AUTOMATIC_DISCOVERY_RANGE"] = DISCOVERY
+    env[DISCOVERY_VARIABLE] = DISCOVERY
     env.pop("ROS_STATIC_PEERS", None)
     return domain
 

@@ -1,8 +1,16 @@
 """The in-process test harness of every package's node tests: a private rclpy context (so tests never
-share one), one executor, and spin-until helpers that wait for a condition instead of sleeping."""
+share one), one executor, and spin-until helpers that wait for a condition instead of sleeping.
+
+A harness sees only its own nodes unless the test talks to processes it started (`other_processes`).
+Fast DDS keeps a participant that an earlier test deleted, sometimes half torn down, until its 20 s
+lease runs out, and rmw_fastrtps calls a service available only when the name has as many request
+readers as reply writers: a stale `panda_bridge` with a reader and no writer made the next test's
+`panda_bridge/change_state` "not available" (6 runs in 37 of the bridge tests, and once in CI).
+"""
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 
@@ -10,13 +18,19 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
+from vla_common.ros.domain import DISCOVERY_VARIABLE
+
 
 class RosHarness:
-    """A private rclpy context with one executor; nodes added with `add`."""
+    """A private rclpy context with one executor; nodes added with `add`. `other_processes`: discover
+    the run's domain as the environment says (for node processes and launches the test starts)."""
 
-    def __init__(self) -> None:
+    def __init__(self, other_processes: bool = False) -> None:
         self.context = Context()
-        rclpy.init(context=self.context)
+        if other_processes:
+            rclpy.init(context=self.context)
+        else:
+            _init_discovering_nothing_else(self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes = []
 
@@ -53,3 +67,17 @@ class RosHarness:
             node.destroy_node()
         self.executor.shutdown()
         rclpy.shutdown(context=self.context)
+
+
+def _init_discovering_nothing_else(context: Context) -> None:
+    """rclpy.init with discovery OFF (this context's nodes only): rcl reads the variable during init,
+    so the environment that child processes inherit is put back at once."""
+    before = os.environ.get(DISCOVERY_VARIABLE)
+    os.environ[DISCOVERY_VARIABLE] = "OFF"
+    try:
+        rclpy.init(context=context)
+    finally:
+        if before is None:
+            os.environ.pop(DISCOVERY_VARIABLE, None)
+        else:
+            os.environ[DISCOVERY_VARIABLE] = before

@@ -37,6 +37,7 @@ def test_the_stick_moves_the_simulated_fr3_through_the_latent_controller(sim):
         bridge_params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
                          "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()),
                          "loop_priority": RT_PRIORITY, "control_rate": 250,
+                         "gripper": False,                     # the server runs --no-gripper
                          # the FCI's FR3 table (10 rad/s^2, 5000 rad/s^3) inside the Panda's
                          "acceleration_scale": 0.4999, "jerk_scale": 0.4999}
         controller_params = {"joy_timeout": 0.5}        # this test's publisher may lag on a loaded machine

@@ -171,7 +171,7 @@ def test_franka_sim_bridge_through_the_lifecycle():
         try:
             m = Managed(h, backend="libfranka", robot_ip="127.0.0.1", driver="pylibfranka",
                         realtime_config="ignore", loop_prefix=" ".join(sim.netns.prefix()),
-                        loop_priority=50, control_rate=250, robot_model="fr3",
+                        loop_priority=50, control_rate=250, robot_model="fr3", gripper=False,
                         acceleration_scale=0.4999, jerk_scale=0.4999, command_timeout=0.5)
             drive_through_the_lifecycle(m)
         finally:

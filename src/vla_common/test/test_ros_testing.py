@@ -40,3 +40,31 @@ def test_a_harness_sees_only_its_own_nodes_unless_it_talks_to_other_processes():
     finally:
         for h in (alone, one, two):
             h.shutdown()
+
+
+def test_discovered_by_is_true_once_the_other_participant_answers_and_false_for_nobody():
+    """The answering node spins in its own thread, as a process of its own would."""
+    import threading
+
+    import rclpy
+
+    one, two = RosHarness(other_processes=True), RosHarness(other_processes=True)
+    stop = threading.Event()
+
+    def serve() -> None:
+        while not stop.is_set():
+            two.executor.spin_once(timeout_sec=0.05)
+
+    try:
+        asking = one.add(rclpy.create_node("harness_asking", context=one.context))
+        two.add(rclpy.create_node("harness_answering", context=two.context))
+        server = threading.Thread(target=serve, daemon=True)
+        server.start()
+        assert one.discovered_by(asking, "/harness_answering", 20.0)
+        assert not one.discovered_by(asking, "/harness_nobody", 1.0)
+        stop.set()
+        server.join()
+    finally:
+        stop.set()
+        for h in (one, two):
+            h.shutdown()

@@ -45,6 +45,10 @@ class Client:
         self.status: list[RecorderStatus] = []
         self.node.create_subscription(RecorderStatus, f"{prefix}/status", self.status.append, 10)
 
+    def wait_discovered(self, node: str) -> None:
+        """The recorder process `node` has discovered this client (its answers would be lost before)."""
+        assert self.ros.discovered_by(self.node, node), f"{node} did not discover the test's client"
+
     def wait_subscribed(self, *pubs):
         assert self.ros.spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs), 15)
 
@@ -199,6 +203,7 @@ def test_sigkill_mid_episode_then_recover(ros_processes, tmp_path):
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
     try:
         c = Client(ros_processes, prefix="/killme")
+        c.wait_discovered("/killme")
         c.wait_subscribed(c.js)
         res = c.start("glass_bottle/push_west")
         assert res.success, res.message
@@ -238,6 +243,7 @@ def test_sigint_mid_episode_closes_the_bag_and_exits_0(ros_processes, tmp_path, 
         stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         c = Client(ros_processes, prefix="/sigint")
+        c.wait_discovered("/sigint")
         res = c.start("bread/push_east")
         assert res.success, res.message
         out = _interrupt(proc, 30)
@@ -276,6 +282,7 @@ def test_sigint_while_busy_writing_camera_frames_closes_the_bag_and_exits_0(ros_
     frame = Image(height=480, width=640, encoding="rgb8", step=1920, data=bytes(640 * 480 * 3))
     try:
         c = Client(ros_processes, prefix="/busy")
+        c.wait_discovered("/busy")
         c.wait_subscribed(c.img)
         res = c.start("bread/push_east")
         assert res.success, res.message
@@ -324,6 +331,7 @@ def test_recorder_processes_racing_on_one_folder_all_start(ros_processes, tmp_pa
         node = ros_processes.add(Node("race_client", context=ros_processes.context))
         clients = [node.create_client(StartEpisode, f"/race{i}/start_episode") for i in range(n)]
         assert all(cl.wait_for_service(timeout_sec=60) for cl in clients)
+        assert all(ros_processes.discovered_by(node, f"/race{i}", 60.0) for i in range(n))
         futures = [cl.call_async(StartEpisode.Request(task="bread/push_east")) for cl in clients]
         assert ros_processes.spin_until(lambda: all(f.done() for f in futures), 60)
         results = [f.result() for f in futures]

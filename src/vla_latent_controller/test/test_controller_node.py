@@ -378,12 +378,9 @@ def _start_and_wait(exe: str, model_dir, *args: str):
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=os.environ.copy(),
     )
     up = probe.spin_until(lambda: node.count_publishers("joint_velocity_cmd") > 0, timeout=30)
-    if up:  # discovery both ways, so the zero command on shutdown reaches the probe: a service round
-        # trip to the node (its executor answers even without /clock) proves it has discovered us
-        from rcl_interfaces.srv import GetParameters
-
-        client = node.create_client(GetParameters, "controller_node/get_parameters")
-        probe.call(client, GetParameters.Request(names=["rate"]), timeout=30.0)
+    # discovery both ways, so the zero command on shutdown reaches the probe: an answer of the node's
+    # parameter service (its executor answers even without /clock) proves it has discovered us
+    up = up and probe.discovered_by(node, "/controller_node")
     return proc, probe, cmds, up
 
 

@@ -46,6 +46,7 @@ def test_parameter_files_reach_namespaced_and_renamed_nodes(tmp_path):
             node = h.add(Node("test_parameters", context=h.context))
             for name, want in (("/robot1/front_detector", 0.6), ("/robot2/detector_node", shipped)):
                 cli = node.create_client(GetParameters, f"{name}/get_parameters")
+                assert h.discovered_by(node, name, 90.0), (name, run.text()[-2000:])
                 res = h.call(cli, GetParameters.Request(names=["score_threshold"]), timeout=90.0)
                 assert res.values[0].double_value == pytest.approx(want), (name, run.text()[-2000:])
             assert run.stop() == 0, run.text()[-2000:]

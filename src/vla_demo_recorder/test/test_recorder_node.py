@@ -346,6 +346,31 @@ def test_recorder_processes_racing_on_one_folder_all_start(ros_processes, tmp_pa
     assert [p.returncode for p in procs] == [0] * n, outputs
 
 
+def test_the_command_line_starts_and_stops_an_episode_of_a_recorder_just_started(tmp_path):
+    """`vla_demo_recorder start`, then `stop`, each a process of its own right after the recorder's
+    start: both answers come back (a recorder drops its answer to a client it has not discovered yet),
+    and the episode's bag is closed."""
+    exe = _installed("recorder")
+    proc = subprocess.Popen([exe, "--ros-args", "-r", "__node:=cli_rec", "-p", f"output_dir:={tmp_path}"],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    cli = [sys.executable, "-m", "vla_demo_recorder.cli"]
+    try:
+        start = subprocess.run([*cli, "start", "--node", "/cli_rec", "--task", "bread/push_east",
+                                "--timeout", "60"], capture_output=True, text=True, timeout=120)
+        assert start.returncode == 0, start.stdout + start.stderr
+        stop = subprocess.run([*cli, "stop", "--node", "/cli_rec", "--timeout", "60"],
+                              capture_output=True, text=True, timeout=120)
+        assert stop.returncode == 0, stop.stdout + stop.stderr
+    finally:
+        if proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+        output = proc.communicate(timeout=30)[0]
+    assert proc.returncode == 0, output
+    bags = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert len(bags) == 1 and has_footer(find_mcap(bags[0])), bags
+    assert EpisodeInfo.from_custom_data(read_metadata_yaml(bags[0])["custom_data"]).outcome == "kept"
+
+
 def _set(node, name, value) -> tuple[bool, str]:
     result = node.set_parameters([Parameter(name, value=value)])[0]
     return result.successful, result.reason

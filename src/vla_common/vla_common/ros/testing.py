@@ -18,6 +18,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
+from vla_common.ros.discovery import discovered_by
 from vla_common.ros.domain import DISCOVERY_VARIABLE
 
 
@@ -59,27 +60,9 @@ class RosHarness:
         return future.result()
 
     def discovered_by(self, node, remote: str, timeout: float = 30.0) -> bool:
-        """True once the node `remote` (a process the test started) has discovered `node`'s endpoints:
-        an answer of its parameter service came back. wait_for_service says only that this side sees
-        the server; a server that has not yet matched a client's reply reader drops its answer
-        (rmw_fastrtps), and the call waits in vain. Endpoints are announced in the order they were
-        made, so call this after making the clients it is for. Each try is a new request, 0.5 s apart."""
-        from rcl_interfaces.srv import GetParameters
-
-        client = node.create_client(GetParameters, f"{remote}/get_parameters")
-        deadline = time.monotonic() + timeout
-        try:
-            while time.monotonic() < deadline:
-                if not client.service_is_ready():
-                    self.executor.spin_once(timeout_sec=0.05)
-                    continue
-                future = client.call_async(GetParameters.Request())
-                if self.spin_until(future.done, min(0.5, max(0.0, deadline - time.monotonic()))):
-                    return True
-                client.remove_pending_request(future)
-            return False
-        finally:
-            node.destroy_client(client)
+        """True once the node `remote` (in a process the test started) has discovered `node`'s
+        endpoints: see `vla_common.ros.discovery`. Call it after making the clients it is for."""
+        return discovered_by(node, remote, self.spin_until, timeout)
 
     def shutdown(self) -> None:
         """Destroy the nodes and end the context; a second call does nothing."""

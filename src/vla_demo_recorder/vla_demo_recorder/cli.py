@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import argparse
 import sys
-import time
 from pathlib import Path
 
 import rclpy
 from rclpy.node import Node
 from std_srvs.srv import Trigger
 from vla_common.ros.discovery import discovered_by
+from vla_common.ros.spin import spin_until
 
 from vla_demo_recorder.bag_writer import BagError, EpisodeInfo, read_metadata_yaml
 from vla_demo_recorder.recover import recover
@@ -58,23 +58,20 @@ def _cmd_info(args: argparse.Namespace) -> int:
     return status
 
 
-def _spin_until(node: Node, condition, seconds: float) -> bool:
-    end = time.monotonic() + seconds
-    while not condition() and time.monotonic() < end:
-        rclpy.spin_once(node, timeout_sec=0.05)
-    return condition()
-
-
 def _cmd_episode(args: argparse.Namespace) -> int:
     """Call the recorder node's services (this workspace has no ros2cli)."""
     rclpy.init()
     node = Node("vla_demo_recorder_cli")
     try:
         base = args.node.rstrip("/")
+
+        def spin_once(seconds: float) -> None:
+            rclpy.spin_once(node, timeout_sec=seconds)
+
         if args.command == "status":
             got: list[RecorderStatus] = []
             node.create_subscription(RecorderStatus, f"{base}/status", got.append, 10)
-            if not _spin_until(node, lambda: bool(got), args.timeout):
+            if not spin_until(spin_once, lambda: bool(got), args.timeout):
                 print(f"error: no {base}/status within {args.timeout} s", file=sys.stderr)
                 return 1
             st = got[-1]
@@ -93,7 +90,7 @@ def _cmd_episode(args: argparse.Namespace) -> int:
             print(f"error: service {client.srv_name} not available", file=sys.stderr)
             return 1
         # This process is new: the recorder would drop its answer to a client it has not yet discovered
-        if not discovered_by(node, base, lambda done, s: _spin_until(node, done, s), args.timeout):
+        if not discovered_by(node, base, spin_once, args.timeout):
             print(f"error: {base} did not answer within {args.timeout} s", file=sys.stderr)
             return 1
         future = client.call_async(request)

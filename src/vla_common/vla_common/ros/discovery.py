@@ -11,24 +11,25 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+from vla_common.ros.spin import spin_until
+
 # s between fresh requests: an unanswered one may have been dropped, not delayed
 RETRY_S = 0.5
 
 
-def discovered_by(node, remote: str, spin_until: Callable[[Callable[[], bool], float], bool],
-                  timeout: float) -> bool:
+def discovered_by(node, remote: str, spin_once: Callable[[float], object], timeout: float) -> bool:
     """True once the node named `remote` (its full name, such as /recorder) answers a parameter
-    request of `node` within `timeout`; `spin_until(condition, seconds)` spins `node` meanwhile."""
+    request of `node` within `timeout`; `spin_once(seconds)` spins `node` meanwhile."""
     from rcl_interfaces.srv import GetParameters
 
     client = node.create_client(GetParameters, f"{remote.rstrip('/')}/get_parameters")
     deadline = time.monotonic() + timeout
     try:
         while (left := deadline - time.monotonic()) > 0:
-            if not spin_until(client.service_is_ready, left):
+            if not spin_until(spin_once, client.service_is_ready, left):
                 return False
             future = client.call_async(GetParameters.Request())
-            if spin_until(future.done, min(RETRY_S, max(0.0, deadline - time.monotonic()))):
+            if spin_until(spin_once, future.done, min(RETRY_S, max(0.0, deadline - time.monotonic()))):
                 return True
             client.remove_pending_request(future)
         return False

@@ -11,7 +11,6 @@ readers as reply writers: a stale `panda_bridge` with a reader and no writer mad
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Callable
 
 import rclpy
@@ -20,6 +19,7 @@ from rclpy.executors import SingleThreadedExecutor
 
 from vla_common.ros.discovery import discovered_by
 from vla_common.ros.domain import DISCOVERY_VARIABLE
+from vla_common.ros.spin import spin_until
 
 
 class RosHarness:
@@ -41,17 +41,10 @@ class RosHarness:
         return node
 
     def spin_until(self, condition: Callable[[], bool], timeout: float = 10.0) -> bool:
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            if condition():
-                return True
-            self.executor.spin_once(timeout_sec=0.02)
-        return condition()
+        return spin_until(self._spin_once, condition, timeout)
 
     def spin_for(self, seconds: float) -> None:
-        deadline = time.monotonic() + seconds
-        while time.monotonic() < deadline:
-            self.executor.spin_once(timeout_sec=0.02)
+        spin_until(self._spin_once, lambda: False, seconds)
 
     def call(self, client, request, timeout: float = 20.0):
         assert client.wait_for_service(timeout_sec=timeout), f"service {client.srv_name} not available"
@@ -62,7 +55,10 @@ class RosHarness:
     def discovered_by(self, node, remote: str, timeout: float = 30.0) -> bool:
         """True once the node `remote` (in a process the test started) has discovered `node`'s
         endpoints: see `vla_common.ros.discovery`. Call it after making the clients it is for."""
-        return discovered_by(node, remote, self.spin_until, timeout)
+        return discovered_by(node, remote, self._spin_once, timeout)
+
+    def _spin_once(self, seconds: float) -> None:
+        self.executor.spin_once(timeout_sec=seconds)
 
     def shutdown(self) -> None:
         """Destroy the nodes and end the context; a second call does nothing."""

@@ -87,3 +87,13 @@ def test_next_axis_presses_the_controllers_mode_button_in_the_joy(station):
     node._mode_until = 0.0                   # the press is over: the next Joy releases it
     node._publish_axis(0.0)
     assert station.harness.spin_until(lambda: len(seen) >= 2, 10.0) and not any(seen[-1].buttons)
+
+
+def test_the_address_is_printed_once_with_a_line_that_says_to_wait(station, capfd):
+    """Issue 32: the address was printed twice among the nodes' INFO lines, with nothing saying to wait
+    while the graph starts."""
+    node, _ = station()
+    out = capfd.readouterr()
+    lines = (out.out + out.err).splitlines()
+    assert sum(node.address in line for line in lines) == 1, lines
+    assert any("may take a minute to start" in line for line in lines), lines

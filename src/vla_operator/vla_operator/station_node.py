@@ -63,6 +63,18 @@ PARAMETERS = ParameterTable([
 ])
 
 
+def address_banner(address: str) -> str:
+    """The lines that give the person the page's address, once, set apart from the nodes' log, with
+    what to expect: the rest of the graph may still be starting (the page says so until it answers)."""
+    rule = "[operator_station] " + "-" * 72
+    return "\n".join((
+        rule,
+        f"[operator_station] the operator station is at {address}",
+        "[operator_station] open it in a browser. The rest of the graph may take a minute to start:",
+        "[operator_station] wait until the page no longer says \"Starting\", then drive.",
+        rule))
+
+
 class StationNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
@@ -121,9 +133,8 @@ class StationNode(Node):
         self._init_questionnaire()
         self.create_timer(1.0 / p["rate"], self._tick)
         self.create_timer(1.0, self._publish_status)
-        # printed, not only logged: the launch shows it to the person who starts the graph
-        print(f"[operator_station] the operator station is at {self.address}", flush=True)
-        self.get_logger().info(f"operator station at {self.address}")
+        # printed once, not logged: the person who starts the graph finds it among the nodes' lines
+        print(address_banner(self.address), flush=True)
 
     # ------------------------------------------------------------------ input
     def _publish_axis(self, axis: float) -> None:

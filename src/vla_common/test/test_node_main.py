@@ -78,3 +78,37 @@ def test_a_node_that_declares_a_longer_shutdown_gets_it_and_the_teardown_its_own
     p.send_signal(signal.SIGINT)
     out, err = p.communicate(timeout=30)
     assert p.returncode == 0 and "closed" in out and "Thread" not in err, err
+
+
+TABLE_NODE = textwrap.dedent('''
+    import sys
+    from rclpy.node import Node
+    from vla_common.ros.node_main import run_node
+    from vla_common.ros.parameters import Param, ParameterTable
+
+    TABLE = ParameterTable([Param("rate", 100.0, "rate (Hz)")])
+
+    class N(Node):
+        def __init__(self):
+            super().__init__("n")
+            print("rate", TABLE.declare(self)["rate"], flush=True)
+            self.finished = True
+
+    sys.exit(run_node(N, "n", ["--ros-args", "--params-file", sys.argv[1]]))
+''')
+
+
+@pytest.mark.parametrize("key, code", [("/**", 0), ("/n", 2)])
+def test_run_node_tells_a_shared_section_from_the_nodes_own(tmp_path, key, code):
+    """run_node remembers the command line, so the table knows which section gave a name: under `/**`
+    (shared by several nodes) an unknown one is a warning, under the node's own key a refusal."""
+    path = tmp_path / "params.yaml"
+    path.write_text(f"{key}:\n  ros__parameters:\n    rate: 50\n    camera_fps: 30\n")
+    p = subprocess.run([sys.executable, "-c", TABLE_NODE, str(path)], capture_output=True, text=True,
+                       timeout=60)
+    assert p.returncode == code, p.stderr
+    if code == 0:
+        assert "rate 50.0" in p.stdout
+        assert f"parameter 'camera_fps' given under '/**' in {path} is not a parameter of /n" in p.stderr
+    else:
+        assert "/n has no parameter 'camera_fps'" in p.stderr

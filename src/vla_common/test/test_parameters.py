@@ -4,6 +4,7 @@ import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from vla_common.ros.node_main import ConfigError
+from vla_common.ros.parameter_sources import key_matches, remember
 from vla_common.ros.parameters import Param, ParameterTable
 
 TABLE = ParameterTable([
@@ -74,12 +75,23 @@ def test_run_time_changes_are_applied_or_refused(ctx):
 
 # -- names the node does not declare (issue 20 item 7) ------------------------------------------------
 
-def _node_with_args(tmp_path, args, name="t"):
-    """A node created as `ros2 run` would, with `--ros-args ...` given to rcl (files, -p, remaps)."""
+class Warnings(list):
+    """A logger that keeps its warnings."""
+
+    def warning(self, text):
+        self.append(text)
+
+
+def _node_with_args(tmp_path, args, name="t", warnings=None):
+    """A node created as `ros2 run` would, with `--ros-args ...` given to rcl (files, -p, remaps), its
+    command line remembered as run_node remembers it."""
     context = rclpy.context.Context()
-    rclpy.init(context=context, args=["prog", "--ros-args", *args])
+    argv = ["prog", "--ros-args", *args]
+    rclpy.init(context=context, args=argv)
+    remember(context, argv)
     try:
         node = Node(name, context=context)
+        node.get_logger = lambda: Warnings() if warnings is None else warnings
         try:
             return TABLE.declare(node)
         finally:
@@ -88,16 +100,16 @@ def _node_with_args(tmp_path, args, name="t"):
         rclpy.shutdown(context=context)
 
 
-def _file(tmp_path, key, params):
+def _file(tmp_path, key, params, name="params.yaml"):
     body = "".join(f"    {k}: {v}\n" for k, v in params.items())
-    path = tmp_path / "params.yaml"
+    path = tmp_path / name
     path.write_text(f"{key}:\n  ros__parameters:\n{body}")
     return str(path)
 
 
 @pytest.mark.parametrize("source", ["file", "-p"])
 def test_a_misspelt_parameter_is_refused_naming_the_closest(tmp_path, source):
-    args = (["--params-file", _file(tmp_path, "/**", {"rat": 50.0})] if source == "file"
+    args = (["--params-file", _file(tmp_path, "/t", {"rat": 50.0})] if source == "file"
             else ["-p", "rat:=50.0"])
     with pytest.raises(ConfigError, match=r"/t has no parameter 'rat' \(did you mean 'rate'\?\)"):
         _node_with_args(tmp_path, args)
@@ -139,3 +151,73 @@ def test_an_exception_in_on_change_refuses_the_change_and_the_node_lives(ctx):
                                              "keeps the previous value")
     assert node.get_parameter("mode").value == "latent"
     node.destroy_node()
+
+
+# -- whose section: the node's own refuses, a shared one warns (issue 32 item 10) ---------------------
+
+def test_an_unknown_name_under_a_shared_section_warns_and_the_node_starts(tmp_path):
+    """One `/**` file for several nodes: a name another node declares must not stop this one."""
+    shared = _file(tmp_path, "/**", {"rate": 50, "other_nodes_param": 1, "rat": 2})
+    warnings = Warnings()
+    values = _node_with_args(tmp_path, ["--params-file", shared], warnings=warnings)
+    assert values["rate"] == 50.0
+    assert len(warnings) == 2
+    assert warnings[0].startswith(f"parameter 'other_nodes_param' given under '/**' in {shared} is not a "
+                                  "parameter of /t: ignored")
+    assert "parameter 'rat' given under '/**'" in warnings[1] and "(did you mean 'rate'?)" in warnings[1]
+
+
+@pytest.mark.parametrize("key", ["/**", "/arm/*", "/arm/**"])
+def test_every_wildcard_section_is_shared(tmp_path, key):
+    warnings = Warnings()
+    _node_with_args(tmp_path, ["-r", "__ns:=/arm", "--params-file", _file(tmp_path, key, {"zzz": 1})],
+                    warnings=warnings)
+    assert len(warnings) == 1 and f"under '{key}'" in warnings[0]
+
+
+@pytest.mark.parametrize("own", ["t", "/t", "/**/t", "/*/t"])
+def test_an_unknown_name_under_the_nodes_own_key_is_refused_even_beside_a_shared_one(tmp_path, own):
+    shared = _file(tmp_path, "/**", {"rat": 1}, "shared.yaml")
+    ns = ["-r", "__ns:=/arm"] if own == "/*/t" else []
+    with pytest.raises(ConfigError, match=r"has no parameter 'rat' \(did you mean 'rate'\?\)"):
+        _node_with_args(tmp_path, [*ns, "--params-file", shared, "--params-file",
+                                   _file(tmp_path, own, {"rat": 1}, "own.yaml")])
+
+
+def test_a_parameter_file_with_no_section_for_the_node_warns_naming_the_close_key(tmp_path):
+    """`panda_bridg:` for `panda_bridge`: rcl ignores the file without a word; the node says so."""
+    misspelt = _file(tmp_path, "panda_bridg", {"rate": 50})
+    warnings = Warnings()
+    values = _node_with_args(tmp_path, ["--params-file", misspelt], name="panda_bridge", warnings=warnings)
+    assert values["rate"] == 100.0
+    assert warnings == [f"no section of parameter file {misspelt} applies to /panda_bridge: its keys are "
+                        "'panda_bridg' (did you mean '/panda_bridge' for 'panda_bridg'?); the file is "
+                        "ignored"]
+    # a file for other nodes only is named too, without a guess
+    warnings.clear()
+    _node_with_args(tmp_path, ["--params-file", _file(tmp_path, "/camera", {"fps": 1})], warnings=warnings)
+    assert warnings == [f"no section of parameter file {tmp_path / 'params.yaml'} applies to /t: its keys "
+                        "are '/camera'; the file is ignored"]
+
+
+KEYS = ["/**", "**", "/*", "/arm/*", "/arm/**", "/*/left", "/**/left", "arm/left", "/arm/left", "left",
+        "/left", "/**/arm/left", "/arm/*/left", "/*/*", "/other/left", "/arm/lef", "/arm/left/**"]
+
+
+@pytest.mark.parametrize("fqn", ["/arm/left", "/left", "/a/arm/left"])
+def test_section_keys_match_as_rcl_matches_them(tmp_path, fqn):
+    """Each key, given to rcl with a parameter of its own: what rcl applies is what key_matches says."""
+    keys = [k for k in KEYS if k != "**"]  # rcl's YAML reader refuses a bare ** (an alias)
+    path = tmp_path / "keys.yaml"
+    path.write_text("".join(f"{k}:\n  ros__parameters:\n    p{i}: 1\n" for i, k in enumerate(keys)))
+    ns, _, name = fqn.rpartition("/")
+    context = rclpy.context.Context()
+    rclpy.init(context=context, args=["prog", "--ros-args", "-r", f"__ns:={ns or '/'}", "-r",
+                                      f"__node:={name}", "--params-file", str(path)])
+    try:
+        node = Node("t", context=context)
+        applied = {keys[int(n[1:])] for n in node._parameter_overrides}
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    assert applied == {k for k in keys if key_matches(k, fqn)}

@@ -23,6 +23,8 @@
   against x0.37-0.45, the camera gave the station 20-23 frames/s against 10-13, key press ->
   joint_velocity_cmd median 4.8-6.3 ms against 13-34 ms; the controller used 10.5 % of a core against
   19-21 %. Its timers follow /clock with use_sim_time.
+- The command line is remembered for the parameter table, which tells a file section meant for this
+  node from a shared one (`parameter_sources`).
 - Exit codes: 0 after a signal or when the node sets `finished`; 2 for a refused parameter
   (`ConfigError`, one line on stderr); 1 for any other failure at startup or in a callback (its
   message on stderr, no traceback for a startup error). A second signal during cleanup is ignored.
@@ -43,6 +45,7 @@ from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from vla_common.ros.parameter_sources import remember
 from vla_common.ros.qos import use_large_image_transport
 
 SPIN_SLICE_S = 0.1
@@ -90,7 +93,9 @@ def spin_until_stopped(node: Node, executor, stop: Callable[[], bool]) -> None:
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
     """Create the node with `make_node()`, spin it until a signal, shut it down; return the exit code."""
     use_large_image_transport()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    argv = list(sys.argv if args is None else args)
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    remember(rclpy.utilities.get_default_context(), argv)  # which section gave which parameter
     signals = _Signals()
     node: Node | None = None
     code = 0

@@ -41,6 +41,7 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 
 from vla_common.ros.node_main import ConfigError
+from vla_common.ros.parameter_sources import Sources, arguments_of, closest_key, sources_for
 
 _ARRAY_TYPES = {
     "double_array": (ParameterType.PARAMETER_DOUBLE_ARRAY, Parameter.Type.DOUBLE_ARRAY),
@@ -127,19 +128,37 @@ class ParameterTable:
 
     @staticmethod
     def _refuse_undeclared(node: Node, overrides: dict[str, Parameter]) -> None:
-        """ConfigError for an override that names no parameter of the node (ours, or rclpy's own
-        such as use_sim_time, declared when the node was created)."""
+        """ConfigError for an override meant for this node that names none of its parameters (ours, or
+        rclpy's own such as use_sim_time); a warning for one given only under a shared section (`/**`),
+        which may be another node's, and for a parameter file none of whose sections applies."""
+        fqn = node.get_fully_qualified_name()
+        argv = arguments_of(node.context)
+        sources = sources_for(fqn, argv) if argv is not None else Sources((), ())
+        logger = node.get_logger()
+        for path, keys in sources.unmatched_files:
+            close = closest_key(keys, fqn)
+            hint = f" (did you mean '{fqn}' for '{close}'?)" if close else ""
+            logger.warning(f"no section of parameter file {path} applies to {fqn}: its keys are "
+                           f"{', '.join(repr(k) for k in keys) or 'none'}{hint}; the file is ignored")
         unknown = sorted(n for n in overrides if not node.has_parameter(n))
         if not unknown:
             return
         declared = sorted(node.list_parameters([], 0).names)
-        hints, unmatched = [], False
+        refused = []
         for name in unknown:
-            close = difflib.get_close_matches(name, declared, n=1, cutoff=0.6)
-            hints.append(f"'{name}' (did you mean '{close[0]}'?)" if close else f"'{name}'")
-            unmatched |= not close
+            given = [s for s in sources.sections if name in s.names]
+            if given and all(s.shared for s in given):
+                logger.warning(f"parameter '{name}' given {given[-1].where()} is not a parameter of {fqn}"
+                               f"{_did_you_mean(name, declared)}: ignored (a shared section may name "
+                               "other nodes' parameters)")
+            else:
+                refused.append(name)
+        if not refused:
+            return
+        hints = [f"'{name}'{_did_you_mean(name, declared)}" for name in refused]
+        unmatched = any(not _did_you_mean(name, declared) for name in refused)
         known = f"; its parameters are {', '.join(declared)}" if unmatched else ""
-        raise ConfigError(f"{node.get_fully_qualified_name()} has no parameter {', '.join(hints)} (given in "
+        raise ConfigError(f"{fqn} has no parameter {', '.join(hints)} (given in "
                           f"a parameter file or with -p; refused rather than ignored){known}")
 
     @staticmethod
@@ -177,3 +196,8 @@ class ParameterTable:
             if reason:  # the node refused it; the changes before it in this batch stay applied
                 return SetParametersResult(successful=False, reason=reason)
         return SetParametersResult(successful=True)
+
+
+def _did_you_mean(name: str, declared: list[str]) -> str:
+    close = difflib.get_close_matches(name, declared, n=1, cutoff=0.6)
+    return f" (did you mean '{close[0]}'?)" if close else ""

@@ -26,10 +26,11 @@ from vla_interfaces.action import Questionnaire as QuestionnaireAction
 from vla_interfaces.msg import ControllerStatus, DetectionArray, GripperStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import GripperCommand, SelectTarget, StartEpisode
 from vla_operator import settings as cfg
-from vla_operator.frames import FrameEncoder
+from vla_operator.frames import FrameEncoder, image_problem
 from vla_operator.link import LOOPBACK, LinkParams
 from vla_operator.questionnaire import Questionnaire, goal_refusal
 from vla_operator.server import Station
+from vla_operator.view import CHECK_PERIOD_S, ViewWatch
 from vla_operator.words import controller_words, safety_words
 
 NODE_NAME = "operator_station"
@@ -122,14 +123,16 @@ class StationNode(Node):
         self._ee_button = -1          # the controller's ee_mode_button, read once it is up
         self._mode_until = -1.0       # monotonic s: the mode button is held in the Joy until then
         self._dets: dict = {"boxes": [], "size": [0, 0]}
+        self.view = ViewWatch()       # is the live view live: view_stale and view_age_s in the state
         self.station = Station(
             Path(get_package_share_directory("vla_operator")) / "web", p["bind"], p["port"], token,
             self._publish_axis, self._request,
             LinkParams(stale_after=p["stale_after"], heartbeat_timeout=p["heartbeat_timeout"]),
         )
         self.address = self.station.start()
-        self.station.set_state(self.state)   # the settings (key map) even before any node's status
-        self.frames = FrameEncoder(self.station.set_frame, p["jpeg_quality"])
+        self._state()   # the settings (key map) even before any node's status
+        self.frames = FrameEncoder(self._frame_out, p["jpeg_quality"])
+        self.create_timer(CHECK_PERIOD_S, self._watch_view)
         self._init_questionnaire()
         self.create_timer(1.0 / p["rate"], self._tick)
         self.create_timer(1.0, self._publish_status)
@@ -306,14 +309,28 @@ class StationNode(Node):
 
     # ------------------------------------------------------------------ what the pages see
     def _state(self, **kw) -> None:
-        self.state.update(kw)
+        self.state.update(kw, **self.view.fields())
         self.station.set_state(self.state)
 
+    def _watch_view(self) -> None:
+        """The pages are told at once when the view goes stale or comes back (and, while stale, how old
+        it is, every second)."""
+        if self.view.changed() is not None:
+            self._state()
+
+    def _frame_out(self, jpeg: bytes, meta: dict) -> None:
+        """From the encoder's thread: the pages' next frame; the view is live."""
+        self.station.set_frame(jpeg, meta)
+        self.view.seen()
+
     def _on_image(self, msg: Image) -> None:
-        if not self.station.wants_frames() or msg.encoding not in ("rgb8", "bgr8"):
+        """Any peer may publish here: the encoder checks the image and counts what it cannot show."""
+        if not self.station.wants_frames():   # nobody to show it to; a showable image: the camera lives
+            if image_problem(msg.width, msg.height, msg.encoding, msg.step, len(msg.data)) is None:
+                self.view.seen()
             return
         self.frames.submit(msg.data, msg.width, msg.height, msg.encoding,
-                           {"width": msg.width, "height": msg.height, **self._dets})
+                           {"width": msg.width, "height": msg.height, **self._dets}, step=msg.step)
 
     def _on_dets(self, msg: DetectionArray) -> None:
         self._dets = {"size": [msg.image_width, msg.image_height], "boxes": [
@@ -467,7 +484,9 @@ class StationNode(Node):
         s = DiagnosticStatus(name=NODE_NAME, hardware_id=self.address,
                              message=f"{pages} page(s), {'one drives' if driving else 'nobody drives'}")
         counters.update(frames_received=self.frames.received, frames_encoded=self.frames.encoded,
-                        frames_skipped=self.frames.skipped, frames_sent=self.station.frames_sent)
+                        frames_skipped=self.frames.skipped, frames_refused=self.frames.refused,
+                        frames_failed=self.frames.failed, frames_sent=self.station.frames_sent,
+                        **self.view.fields())
         s.values = [KeyValue(key=k, value=str(v)) for k, v in counters.items()]
         self.status_pub.publish(s)
 

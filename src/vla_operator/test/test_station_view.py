@@ -1,0 +1,56 @@
+"""The live view through the node, a peer's camera topic and a page's socket (issue 32, item 8): an
+empty and a corrupt image leave the view running, and a stopped camera shows as a stale view in the
+state the pages get (``view_stale``, ``view_age_s``; the page's words are the page's own)."""
+import numpy as np
+import pytest
+from rclpy.node import Node
+from sensor_msgs.msg import Image
+from vla_common.ros.qos import IMAGE_QOS
+
+pytestmark = pytest.mark.ros
+
+
+class Camera(Node):
+    """A DDS peer on camera/image_raw: good frames at 20 Hz while ``on``; ``bad`` images go first."""
+
+    def __init__(self, context):
+        super().__init__("test_view_camera", context=context)
+        self.pub = self.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+        self.on, self.bad, self.sent = True, [], 0
+        self.create_timer(0.05, self._tick)
+
+    def _tick(self):
+        if self.bad:
+            self.pub.publish(self.bad.pop(0))
+        elif self.on:
+            img = np.full((48, 64, 3), self.sent % 200, np.uint8)
+            self.pub.publish(Image(height=48, width=64, encoding="rgb8", step=64 * 3, data=img.tobytes()))
+            self.sent += 1
+
+
+def test_bad_images_leave_the_view_running_and_a_stopped_camera_is_stale(station_node, page_class):
+    node = station_node()
+    h = station_node.harness
+    cam = h.add(Camera(h.context))
+    page = page_class(node.address)
+    try:
+        def state(p):
+            s = p.last("state")
+            return s or {}
+        assert h.spin_until(lambda: page.jpegs >= 3 and state(page).get("view_stale") is False, 30.0), \
+            page.got[-3:]
+        n = page.jpegs
+        cam.bad = [Image(height=0, width=0, encoding="rgb8"),                        # empty
+                   Image(height=48, width=64, encoding="rgb8", step=192, data=b"\x01" * 99),   # corrupt
+                   Image(height=48, width=64, encoding="32FC1", step=256, data=b"\0" * 256 * 48)]
+        assert h.spin_until(lambda: not cam.bad and page.jpegs >= n + 5, 30.0)     # frames after them
+        assert node.frames.refused == 3 and node.frames.alive()
+        assert not state(page)["view_stale"]
+        cam.on = False                                                             # the camera stops
+        assert h.spin_until(lambda: state(page).get("view_stale") is True, 30.0)
+        first = next(m for m in page.of("state") if m.get("view_stale") and m["view_age_s"] is not None)
+        assert first["view_age_s"] >= 1.0
+        cam.on = True
+        assert h.spin_until(lambda: state(page).get("view_stale") is False, 30.0)
+    finally:
+        page.close()

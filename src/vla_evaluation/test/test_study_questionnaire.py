@@ -211,7 +211,8 @@ class PageOnTheStation:
         import websocket  # websocket-client (a selenium dependency)
 
         u = urlsplit(address)
-        self.ws = websocket.create_connection(f"ws://{u.netloc}/ws", origin=f"http://{u.netloc}", timeout=60)
+        self.ws = websocket.create_connection(f"ws://{u.netloc}/ws?{u.query}", origin=f"http://{u.netloc}",
+                                              timeout=60)   # the query: the station's token
         self.answers, self.got, self.sent = answers, [], None
         self.thread = threading.Thread(target=self._run, daemon=True)
         self.thread.start()

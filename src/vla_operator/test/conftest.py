@@ -20,9 +20,8 @@ class Page:
         u = urlsplit(address)
         token = parse_qs(u.query).get("token", [""])[0]
         q = "&".join(x for x in (f"token={token}" if token else "", query) if x)
-        headers = [f"Host: {host}"] if host else None
         self.ws = websocket.create_connection(f"ws://{u.netloc}/ws" + (f"?{q}" if q else ""),
-                                              origin=origin or f"http://{u.netloc}", header=headers,
+                                              origin=origin or f"http://{u.netloc}", host=host,
                                               timeout=30, suppress_origin=origin == "")
         self.got: list[dict] = []
         self.jpegs = 0
@@ -101,6 +100,7 @@ def station_node(tmp_path):
     def make(**params):
         overrides = [Parameter("port", value=0),
                      Parameter("settings_file", value=str(tmp_path / "settings.json")),
+                     Parameter("token_file", value=str(tmp_path / "token")),
                      Parameter("controller", value="no_such_controller_for_this_test"),
                      *(Parameter(k, value=v) for k, v in params.items())]
         return h.add(StationNode(context=h.context, parameter_overrides=overrides))

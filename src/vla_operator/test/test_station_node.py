@@ -20,6 +20,7 @@ def station(tmp_path):
         if settings is not None:
             path.write_bytes(settings)
         overrides = [Parameter("port", value=0), Parameter("settings_file", value=str(path)),
+                     Parameter("token_file", value=str(tmp_path / "token")),
                      Parameter("controller", value="no_such_controller_for_this_test"),
                      *(Parameter(k, value=v) for k, v in params.items())]
         return h.add(StationNode(context=h.context, parameter_overrides=overrides)), path

@@ -17,11 +17,9 @@ Every rule here exists because an operator interface got it wrong (FACTS.md sect
 """
 from __future__ import annotations
 
-import hmac
 import json
 import math
 from dataclasses import dataclass, field
-from urllib.parse import urlsplit
 
 from vla_operator.questionnaire import Questionnaire, answers_problem, ordered
 
@@ -301,31 +299,3 @@ def _number(x) -> bool:
 
 def _int(x) -> bool:
     return isinstance(x, int) and not isinstance(x, bool)
-
-
-# ---------------------------------------------------------------------- handshake
-LOOPBACK = ("127.0.0.1", "::1", "localhost")
-
-
-def handshake_refusal(
-    bind: str, token: str, given_token: str, origin: str | None, host: str | None
-) -> str | None:
-    """Why a WebSocket upgrade is refused, or None. The page must come from this server (Origin equals
-    the Host the browser asked for: no other site's page may open the socket), and a server reachable
-    from other machines needs the token."""
-    if not origin or not host:
-        return "missing Origin or Host"
-    o = urlsplit(origin)
-    if o.scheme not in ("http", "https") or o.netloc != host:
-        return f"Origin {origin!r} is not this station"
-    if bind not in LOOPBACK and not token:
-        return "a station reachable from other machines needs a token"
-    return token_refusal(token, given_token)
-
-
-def token_refusal(token: str, given_token: str) -> str | None:
-    """Why a request with ``given_token`` is refused (the page and the WebSocket), or None; compared in
-    constant time. No token configured: nothing to check (a loopback station)."""
-    if token and not hmac.compare_digest(token.encode(), given_token.encode()):
-        return "wrong or missing token: open the address the station printed at its start"
-    return None

@@ -13,15 +13,21 @@ from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
-from vla_operator.link import Link, LinkParams, handshake_refusal, parse, token_refusal
+from vla_operator.access import Access
+from vla_operator.link import Link, LinkParams, parse
 
 
 class Station:
     def __init__(self, web_dir: Path, bind: str, port: int, token: str,
                  publish_axis: Callable[[float], None],
                  request: Callable[[dict, Callable[[dict], None]], None],
-                 params: LinkParams | None = None, clock: Callable[[], float] = time.monotonic):
+                 params: LinkParams | None = None, clock: Callable[[], float] = time.monotonic,
+                 names: tuple[str, ...] = (), request_timeout: float = 10.0):
+        """``names``: the caregiver's names for this station besides its addresses (the Host check);
+        ``request_timeout``: s a connection may take to send a whole request (and stay idle)."""
         self.web_dir, self.bind, self.port, self.token = web_dir, bind, port, token
+        self.names, self.request_timeout = tuple(names), request_timeout
+        self.access = Access(bind, port, token, self.names)
         self.publish_axis, self.request, self.clock = publish_axis, request, clock
         self.link = Link(params or LinkParams())
         self.lock = threading.Lock()          # the link, and the order of what is published from it,
@@ -51,16 +57,19 @@ class Station:
     def _run(self, ready: threading.Event) -> None:
         self._loop = asyncio.new_event_loop()
         asyncio.set_event_loop(self._loop)
-        app = web.Application(client_max_size=4096)
+        app = web.Application(client_max_size=4096, middlewares=[self._host_guard])
         app.router.add_get("/ws", self._ws)
         app.router.add_get("/", self._index)
         app.router.add_get("/static/{name}", self._static)
-        self._runner = web.AppRunner(app, access_log=None)
+        # keepalive_timeout runs from the connection's start until a whole request is in: a half-open
+        # request (headers never finished) is closed after it, as is an idle keep-alive connection
+        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=self.request_timeout)
         try:
             self._loop.run_until_complete(self._runner.setup())
             site = web.TCPSite(self._runner, self.bind, self.port)
             self._loop.run_until_complete(site.start())
             port = self._runner.addresses[0][1]
+            self.access = Access(self.bind, port, self.token, self.names)
             host = f"[{self.bind}]" if ":" in self.bind else self.bind
             self.address = f"http://{host}:{port}/" + (f"?token={self.token}" if self.token else "")
         finally:
@@ -115,13 +124,23 @@ class Station:
             asyncio.run_coroutine_threadsafe(_send_quietly(ws, json.dumps(msg)), loop)
 
     # ------------------------------------------------------------------ HTTP
+    @web.middleware
+    async def _host_guard(self, request: web.Request, handler) -> web.StreamResponse:
+        """Every request, files and the WebSocket alike, must name this station in its Host (DNS
+        rebinding: see :mod:`.access`)."""
+        refusal = self.access.host_refusal(request.headers.get("Host"))
+        if refusal:
+            return web.Response(status=403, text=refusal)
+        return await handler(request)
+
     async def _index(self, request: web.Request) -> web.StreamResponse:
-        refusal = token_refusal(self.token, request.query.get("token", ""))
+        refusal = self.access.page_refusal(request.headers.get("Host"), request.query.get("token", ""))
         if refusal:
             return web.Response(status=403, text=refusal)
         return web.FileResponse(self.web_dir / "index.html", headers={
-            "Cache-Control": "no-store",
-            "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'",
+            "Cache-Control": "no-store", "Referrer-Policy": "no-referrer",
+            "Content-Security-Policy": "default-src 'self'; img-src 'self' blob: data:; connect-src 'self'; "
+                                       "frame-ancestors 'none'",
         })
 
     async def _static(self, request: web.Request) -> web.StreamResponse:
@@ -134,8 +153,8 @@ class Station:
                                 headers={"Content-Type": ctype, "Cache-Control": "no-store"})
 
     async def _ws(self, request: web.Request) -> web.StreamResponse:
-        refusal = handshake_refusal(self.bind, self.token, request.query.get("token", ""),
-                                    request.headers.get("Origin"), request.headers.get("Host"))
+        refusal = self.access.handshake_refusal(request.headers.get("Host"), request.headers.get("Origin"),
+                                                request.query.get("token", ""))
         if refusal:
             return web.Response(status=403, text=refusal)
         ws = web.WebSocketResponse(heartbeat=None, max_msg_size=self.link.params.max_message_bytes * 4)

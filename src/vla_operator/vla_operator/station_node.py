@@ -26,14 +26,16 @@ from vla_interfaces.action import Questionnaire as QuestionnaireAction
 from vla_interfaces.msg import ControllerStatus, DetectionArray, GripperStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import GripperCommand, SelectTarget, StartEpisode
 from vla_operator import settings as cfg
+from vla_operator.access import TokenError, load_token
 from vla_operator.frames import FrameEncoder, image_problem
-from vla_operator.link import LOOPBACK, LinkParams
+from vla_operator.link import LinkParams
 from vla_operator.questionnaire import Questionnaire, goal_refusal
 from vla_operator.server import Station
 from vla_operator.view import CHECK_PERIOD_S, ViewWatch
 from vla_operator.words import controller_words, safety_words
 
 NODE_NAME = "operator_station"
+DEFAULT_TOKEN_FILE = Path("~/.config/vla_operator/token")
 # Only the newest frame kept (reliable, as the camera): a station that fell behind shows the latest
 # frame and never works through a backlog (IMAGE_QOS keeps 30, for the detector and the recorder).
 LATEST_IMAGE_QOS = image_qos(depth=1)
@@ -42,10 +44,12 @@ LATEST_IMAGE_QOS = image_qos(depth=1)
 MODE_PRESS_S = 0.1
 
 PARAMETERS = ParameterTable([
-    Param("bind", "127.0.0.1", "address the page is served on; anything but loopback needs the token"),
+    Param("bind", "127.0.0.1", "address the page is served on (0.0.0.0: every interface)"),
     Param("port", 8080, "TCP port; 0: any free port (the address is logged)", range=(0, 65535)),
-    Param("token_file", "", "file holding the token; empty: a token is generated when bind is not "
-          "loopback (printed at start)"),
+    Param("token_file", "", "file holding the token every page's address carries (on loopback too), "
+          "made with a new random token when missing; empty: ~/.config/vla_operator/token"),
+    Param("hosts", "", "other names of this station that a page's address may use, comma-separated "
+          "(e.g. robot-pc.local); its addresses and localhost always work"),
     Param("rate", 50.0, "Hz: Joy republished at this rate while a page drives (the controller's "
           "joy_timeout is the second line)", range=(20.0, 200.0)),
     Param("stale_after", 0.15, "s: input older than this is dropped, a held one expires",
@@ -80,14 +84,7 @@ class StationNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         self.p = p = PARAMETERS.declare(self, on_change=self._on_change)
-        token = ""
-        if p["token_file"]:
-            try:
-                token = Path(p["token_file"]).read_text().strip()
-            except OSError as e:
-                raise ConfigError(f"token_file {p['token_file']!r}: {e.strerror}") from None
-        elif p["bind"] not in LOOPBACK:
-            token = secrets.token_urlsafe(24)
+        token = self._token()
         self.settings_path = Path(p["settings_file"] or Path.home() / ".config/vla_operator/settings.json")
         self._settings_lock = threading.Lock()   # pages' requests and service answers come from 2 threads
         self.settings, self.settings_problem = cfg.load(
@@ -128,6 +125,7 @@ class StationNode(Node):
             Path(get_package_share_directory("vla_operator")) / "web", p["bind"], p["port"], token,
             self._publish_axis, self._request,
             LinkParams(stale_after=p["stale_after"], heartbeat_timeout=p["heartbeat_timeout"]),
+            names=tuple(n.strip() for n in p["hosts"].split(",") if n.strip()),
         )
         self.address = self.station.start()
         self._state()   # the settings (key map) even before any node's status
@@ -138,6 +136,22 @@ class StationNode(Node):
         self.create_timer(1.0, self._publish_status)
         # printed once, not logged: the person who starts the graph finds it among the nodes' lines
         print(address_banner(self.address), flush=True)
+
+    def _token(self) -> str:
+        """The token every page and socket must carry, loopback included (see access.py): token_file's,
+        or one made there at the first start; without a token_file the default file, or, where that
+        cannot be written, a new one for this run."""
+        path = Path(self.p["token_file"] or DEFAULT_TOKEN_FILE.expanduser())
+        try:
+            token, made = load_token(path)
+        except TokenError as e:
+            if self.p["token_file"]:
+                raise ConfigError(str(e)) from None
+            self.get_logger().warning(f"{e}: a new token for this run only")
+            return secrets.token_urlsafe(24)
+        if made:
+            self.get_logger().info(f"a new token for the station's address was written to {path}")
+        return token
 
     # ------------------------------------------------------------------ input
     def _publish_axis(self, axis: float) -> None:

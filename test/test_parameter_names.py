@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import importlib
 import re
+import shlex
 import subprocess
 import sys
 from importlib.metadata import entry_points
@@ -99,6 +100,29 @@ def test_the_documented_commands_are_found():
 @pytest.mark.parametrize("doc, executable, command, names", RUNS, ids=[f"{r[0]}:{r[1]}" for r in RUNS])
 def test_documented_commands_name_declared_parameters(doc, executable, command, names):
     assert names - NODES[executable] == set(), command
+
+
+def documented_values() -> list[tuple[str, str, list[str]]]:
+    """(doc, command, its `-p` values) of each documented run whose line holds the whole command (a
+    value quoted over several lines, the joint_map example, is not joined here)."""
+    out = []
+    for doc, _, command, _ in RUNS:
+        try:
+            words = shlex.split(command.split("--ros-args", 1)[1], comments=True)
+        except ValueError:
+            continue
+        out.append((doc, command, [v for flag, v in zip(words, words[1:]) if flag == "-p" and ":=" in v]))
+    return out
+
+
+@pytest.mark.parametrize("doc, command, values", documented_values(), ids=lambda v: str(v)[:40])
+def test_documented_parameter_values_are_read_by_rcl(doc, command, values):
+    """Each documented `-p name:=value` is one rcl reads (`-p 'ee_axes:=[x, y, z]'` was not: rcl reads a
+    bare y as true and refuses a list of mixed types)."""
+    import rclpy
+    context = rclpy.context.Context()
+    rclpy.init(context=context, args=["prog", "--ros-args", *[a for v in values for a in ("-p", v)]])
+    rclpy.shutdown(context=context)
 
 
 def test_a_misspelt_parameter_stops_the_real_robot_command_with_the_closest_name(tmp_path):

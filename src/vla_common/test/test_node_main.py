@@ -112,3 +112,17 @@ def test_run_node_tells_a_shared_section_from_the_nodes_own(tmp_path, key, code)
         assert f"parameter 'camera_fps' given under '/**' in {path} is not a parameter of /n" in p.stderr
     else:
         assert "/n has no parameter 'camera_fps'" in p.stderr
+
+
+def test_a_command_line_rcl_cannot_read_exits_2_with_one_line_and_a_hint():
+    """`-p 'ee_axes:=[x, y, z]'`: rcl reads the bare y as a boolean and refuses the mixed list; before,
+    rclpy.init's RCLError came out as a traceback with rcl's source locations."""
+    script = "import sys; from vla_common.ros.node_main import run_node; " \
+             "sys.exit(run_node(None, 'n', ['n', '--ros-args', '-p', 'axes:=[x, y, z]']))"
+    p = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=30)
+    assert p.returncode == 2, p.stderr
+    line = [x for x in p.stderr.splitlines() if x.startswith("n: ")]
+    assert line == ["n: Couldn't parse parameter override rule: '-p axes:=[x, y, z]'. Error: Sequence should "
+                    "be of same type. Value type 'bool' do not belong at line_num 1 (rcl reads a bare y, n, "
+                    "yes, no, on, off, true or false as a boolean: quote such strings in a list, ['x', 'y'])"]
+    assert "Traceback" not in p.stderr

@@ -36,7 +36,7 @@ from vla_interfaces.msg import ControllerStatus, DetectionArray
 from vla_interfaces.srv import GripperCommand, SelectTarget, SetMode
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
-from vla_latent_controller.ee_baseline import check_axes
+from vla_latent_controller.ee_baseline import axes_text, parse_axes
 from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import MODES, NEUTRAL_CODES, Code, Status, TeleopCore, TeleopParams
@@ -61,6 +61,11 @@ def _refusal(parse: Callable[[Any], Any]) -> Callable[[Any], str | None]:
 
 
 _CORE_DEFAULTS = TeleopParams()
+
+
+def _axes_from_list(value: Any) -> Any:
+    """ee_axes given as a list (files written before it was a string; a client's set): its text."""
+    return axes_text(value) if isinstance(value, (list, tuple)) else value
 
 
 def _core(name: str, description: str, **options: Any) -> Param:
@@ -113,9 +118,10 @@ PARAMETERS = ParameterTable([
     _core("ee_mode_button", "button that cycles the end-effector axis x, y, z, roll, pitch, yaw; "
           "-1: none", range=(-1, 63), dynamic=True),
     _core("ee_debounce", "end-effector axis button debounce (s)", range=(0.0, 5.0), dynamic=True),
-    _core("ee_axes", "the axes ee_mode_button cycles, in order (distinct, of x, y, z, roll, "
-          "pitch, yaw); a task with the hand pointing down needs x, y, z", dynamic=True,
-          check=_refusal(check_axes), array="string_array"),
+    Param("ee_axes", axes_text(_CORE_DEFAULTS.ee_axes), "the axes ee_mode_button cycles, in order, "
+          "apart by commas: x,y,z,roll,pitch,yaw or distinct ones of them; a task with the hand pointing "
+          "down needs x,y,z (a list, the older form, is taken as the same)", dynamic=True,
+          check=_refusal(parse_axes), convert=_axes_from_list),
     _core("ee_linear_speed", "end-effector mode: TCP speed at full stick (m/s); paper: 0.5",
           range=(0.0, 1.7), dynamic=True),
     _core("ee_angular_speed", "end-effector mode: rotation speed at full stick (rad/s)",
@@ -123,8 +129,13 @@ PARAMETERS = ParameterTable([
     _core("ee_damping", "damping of the Jacobian pseudo-inverse", range=(0.0, 1.0), dynamic=True),
 ])
 
-# Parameters copied as they are into the core's TeleopParams.
+# Parameters copied into the core's TeleopParams: as they are, or through a conversion of their form.
 _CORE_PARAMS = tuple(name for name in TeleopParams.__dataclass_fields__ if name in PARAMETERS.params)
+_TO_CORE: dict[str, Callable[[Any], Any]] = {"ee_axes": lambda text: list(parse_axes(text))}
+
+
+def _core_value(name: str, value: Any) -> Any:
+    return _TO_CORE[name](value) if name in _TO_CORE else value
 
 
 def goal_refusal(value: str, model: LatentModel | None) -> str | None:
@@ -165,7 +176,8 @@ class ControllerNode(Node):
     def __init__(self, **kwargs):
         super().__init__(NODE_NAME, **kwargs)
         values = PARAMETERS.declare(self, self._on_parameter)
-        self.params = TeleopParams(dq_max=joint_speed_limits(), **{n: values[n] for n in _CORE_PARAMS})
+        self.params = TeleopParams(dq_max=joint_speed_limits(),
+                                   **{n: _core_value(n, values[n]) for n in _CORE_PARAMS})
         self._intrinsics: tuple[float, float, float, float] | None = None
         self._image_size: tuple[int, int] | None = None  # from camera_info, for vision_msgs detections
         self._kin = _panda_kinematics(self.get_logger())
@@ -215,7 +227,7 @@ class ControllerNode(Node):
             if reason:
                 return reason
         if name in _CORE_PARAMS:
-            setattr(self.params, name, value)
+            setattr(self.params, name, _core_value(name, value))
             self.core.sync_params()
         if name == "mode":
             self.core.set_mode(value)

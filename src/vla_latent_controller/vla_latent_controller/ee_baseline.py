@@ -9,6 +9,7 @@ pseudo-inverse of the Jacobian (well-behaved near singularities, unlike the pape
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 
 import numpy as np
@@ -23,6 +24,18 @@ def check_axes(axes: Sequence[str]) -> tuple[str, ...]:
     if not axes or bad or len(set(axes)) != len(axes):
         raise ValueError(f"needs distinct axes from {list(EE_AXES)}, got {list(axes)}")
     return axes
+
+
+def parse_axes(value: str | Sequence[str]) -> tuple[str, ...]:
+    """The axes from their text, names apart by commas and/or spaces ("x,y,z"), or from a list."""
+    items = re.split(r"[\s,]+", value.strip()) if isinstance(value, str) else list(value)
+    return check_axes([a for a in items if a != ""])
+
+
+def axes_text(axes: Sequence[str]) -> str:
+    """The axes as one string, "x,y,z": the parameter's form. A list would not do: `ros2 param dump`
+    writes it unquoted, `[x, y, z]`, and rcl reads a bare y as the boolean true."""
+    return ",".join(str(a) for a in axes)
 
 
 def damped_pinv(J: np.ndarray, damping: float) -> np.ndarray:

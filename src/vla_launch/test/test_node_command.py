@@ -46,6 +46,9 @@ TRICKY = {
     "f_small": 1e-9, "f_neg": -2.5, "b": True, "b_false": False,
     "nested.inner": 3, "l_int": (1, 2), "l_str": ("a", "true"), "l_float": (0.5, 1.0), "l_bool": (True,),
     "s_multi": "line1\nline2",
+    # plain scalars rcl reads as another type than PyYAML does (its booleans y/n, strtod's numbers)
+    "s_y": "y", "s_n": "N", "s_exp": "1e5", "s_inf": "inf", "s_nan": "nan", "s_hex": "0x1A",
+    "l_axes": ("x", "y", "z"),
 }
 
 

@@ -4,7 +4,9 @@
 the layout launch_ros uses. Parameters keep launch_ros's precedence (later entries win): a trailing
 run of scalar-only inline entries becomes `-p name:=value` (rcl applies `-p` after every params file,
 so only a trailing run can use it without changing precedence); every other inline entry is written to
-a temporary params file (lists, or anything followed by a `from:` file).
+a temporary params file (lists, or anything followed by a `from:` file). A string that rcl would read
+as another type (its booleans y and n, strtod's 1e5 or inf) is quoted: PyYAML writes them plain, and
+rcl would read a string "y" as true.
 """
 from __future__ import annotations
 
@@ -19,6 +21,30 @@ import yaml
 from vla_launch.launch_file import ParamDict, ParamFile, ProcessDescription
 from vla_launch.run import RunError, find_executable
 
+_RCL_BOOLS = {"y", "Y", "n", "N"}  # rcl's booleans that PyYAML reads as strings (it has yes, on, ...)
+
+
+def _rcl_reads_otherwise(text: str) -> bool:
+    """Whether rcl reads this plain scalar as a boolean or a number where PyYAML reads a string: rcl's
+    y/n, and what strtol/strtod take (1e5, inf, nan, 0x1A)."""
+    if text in _RCL_BOOLS:
+        return True
+    for parse in (float, lambda t: int(t, 0), float.fromhex):
+        try:
+            parse(text)
+            return True
+        except ValueError:
+            pass
+    return False
+
+
+class _RclDumper(yaml.SafeDumper):
+    """PyYAML's safe dumper, quoting the strings rcl would read as another type."""
+
+
+_RclDumper.add_representer(str, lambda dumper, value: dumper.represent_scalar(
+    "tag:yaml.org,2002:str", value, style="'" if _rcl_reads_otherwise(value) else None))
+
 
 def _scalar_for_cli(value: Any) -> str | None:
     """A YAML scalar that rcl reads back as the same type, or None when a file is needed."""
@@ -28,7 +54,7 @@ def _scalar_for_cli(value: Any) -> str | None:
         return None
     if not isinstance(value, (bool, int, float, str)):
         return None
-    text = yaml.safe_dump(value, default_flow_style=True, width=1 << 30)
+    text = yaml.dump(value, Dumper=_RclDumper, default_flow_style=True, width=1 << 30)
     if text.endswith("\n...\n"):
         text = text[: -len("\n...\n")]
     return text.rstrip("\n")
@@ -38,7 +64,7 @@ def _params_file(values: dict[str, Any], node_key: str, tmpdir: str) -> str:
     fd, path = tempfile.mkstemp(prefix="params_", suffix=".yaml", dir=tmpdir)
     plain = {k: list(v) if isinstance(v, tuple) else v for k, v in values.items()}
     with os.fdopen(fd, "w", encoding="utf-8") as f:
-        yaml.safe_dump({node_key: {"ros__parameters": plain}}, f, default_flow_style=False)
+        yaml.dump({node_key: {"ros__parameters": plain}}, f, Dumper=_RclDumper, default_flow_style=False)
     return path
 
 

@@ -26,13 +26,15 @@
 - The command line is remembered for the parameter table, which tells a file section meant for this
   node from a shared one (`parameter_sources`).
 - Exit codes: 0 after a signal or when the node sets `finished`; 2 for a refused parameter
-  (`ConfigError`, one line on stderr); 1 for any other failure at startup or in a callback (its
-  message on stderr, no traceback for a startup error). A second signal during cleanup is ignored.
+  (`ConfigError`, or a command line or parameter file rcl cannot read: one line on stderr); 1 for any
+  other failure at startup or in a callback (its message on stderr, no traceback for a startup
+  error). A second signal during cleanup is ignored.
 """
 
 from __future__ import annotations
 
 import faulthandler
+import re
 import signal
 import sys
 import traceback
@@ -42,6 +44,7 @@ from typing import Protocol
 import rclpy
 from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
@@ -94,7 +97,11 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     """Create the node with `make_node()`, spin it until a signal, shut it down; return the exit code."""
     use_large_image_transport()
     argv = list(sys.argv if args is None else args)
-    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    try:
+        rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    except _rclpy.RCLError as exc:  # a -p value or a parameter file rcl cannot read: say which, exit 2
+        print(f"{name}: {rcl_argument_error(str(exc))}", file=sys.stderr)
+        return 2
     remember(rclpy.utilities.get_default_context(), argv)  # which section gave which parameter
     signals = _Signals()
     node: Node | None = None
@@ -121,6 +128,16 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         _shutdown(node, name)
         faulthandler.cancel_dump_traceback_later()
     return code
+
+
+def rcl_argument_error(text: str) -> str:
+    """rcl's refusal of the command line in one line, without its source locations; with a hint where
+    it read a bare y, no, on ... as a boolean inside a list of strings."""
+    text = re.sub(r",? at /\S+:\d+", "", text).removeprefix("failed to initialize rcl: ").strip()
+    if "Value type 'bool'" in text or "should be of same type" in text:
+        text += (" (rcl reads a bare y, n, yes, no, on, off, true or false as a boolean: quote such "
+                 "strings in a list, ['x', 'y'])")
+    return text
 
 
 def _watchdog(seconds: float) -> None:

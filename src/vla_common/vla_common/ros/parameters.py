@@ -5,7 +5,8 @@ whether it may change at run time. `ParameterTable.declare(node)`:
 - declares every parameter with its descriptor (ranges as descriptor ranges, so `ros2 param describe`
   shows them and rclpy refuses values outside; choices in `additional_constraints`; read-only where
   the entry is not `dynamic`), so the node loads `/**` YAML files and `-p name:=value` overrides;
-- accepts an integer for a floating-point parameter (`state_rate: 500` in YAML);
+- accepts an integer for a floating-point parameter (`state_rate: 500` in YAML), and a form an entry's
+  `convert` turns into its own (an older file's list for a string), at startup and at run time;
 - refuses to start (`ConfigError`, exit code 2) on a parameter the node does not declare, from a
   parameter file or `-p`, naming the closest declared one: `velocity_scal: 0.3` must not leave
   `velocity_scale` at 1.0 without a word. The names checked are the overrides rcl gave this node
@@ -64,6 +65,7 @@ class Param:
     dynamic: bool = False
     check: Callable[[Any], str | None] | None = None
     array: str | None = None  # "double_array" | "string_array" | "integer_array"
+    convert: Callable[[Any], Any] | None = None  # an older form of the value -> the declared one
 
     def descriptor(self) -> ParameterDescriptor:
         d = ParameterDescriptor(description=self.description, read_only=not self.dynamic)
@@ -78,6 +80,17 @@ class Param:
         if self.array is not None:
             d.type = _ARRAY_TYPES[self.array][0]
         return d
+
+    def coerced(self, given: Parameter) -> Parameter:
+        """`given` as this parameter's type where it has a form that converts: an integer for a
+        double, or what `convert` turns into the declared form; otherwise `given` itself."""
+        if isinstance(self.default, float) and given.type_ == Parameter.Type.INTEGER:
+            return Parameter(self.name, Parameter.Type.DOUBLE, float(given.value))
+        if self.convert is not None and given.type_ != Parameter.Type.NOT_SET:
+            value = self.convert(given.value)
+            if value is not given.value:
+                return Parameter(self.name, value=value)
+        return given
 
     def refusal(self, value: Any) -> str | None:
         """Why `value` is refused, or None (the range is rclpy's to check)."""
@@ -110,9 +123,8 @@ class ParameterTable:
         overrides = getattr(node, "_parameter_overrides", {})
         values: dict[str, Any] = {}
         for p in self.params.values():
-            given = overrides.get(p.name)
-            if isinstance(p.default, float) and given is not None and given.type_ == Parameter.Type.INTEGER:
-                overrides[p.name] = Parameter(p.name, Parameter.Type.DOUBLE, float(given.value))
+            if p.name in overrides:
+                overrides[p.name] = p.coerced(overrides[p.name])
             try:
                 value = self._declare_one(node, p)
             except Exception as exc:  # out of range or of the wrong type: refuse clearly
@@ -123,8 +135,12 @@ class ParameterTable:
             values[p.name] = value
         self._refuse_undeclared(node, overrides)
         logger = node.get_logger()
+        node.add_pre_set_parameters_callback(self._coerced)
         node.add_on_set_parameters_callback(lambda changes: self._on_set(changes, on_change, logger))
         return values
+
+    def _coerced(self, changes: list[Parameter]) -> list[Parameter]:
+        return [self.params[c.name].coerced(c) if c.name in self.params else c for c in changes]
 
     @staticmethod
     def _refuse_undeclared(node: Node, overrides: dict[str, Parameter]) -> None:

@@ -865,14 +865,14 @@ Q_SCREENSHOT = SCREENSHOT.with_name("questionnaire.png")
 
 
 class Asked:
-    """The study runner's side (vla_evaluation.study.questionnaire) in a thread: the station's action
+    """The study runner's side (vla_study.questionnaire) in a thread: the station's action
     with the paper's statements, the terminal as the fallback; `row` is what likert.jsonl gets."""
 
     def __init__(self, node):
         import threading
 
-        from vla_evaluation.study.questionnaire import StationQuestionnaire, likert_row
-        from vla_evaluation.study.runner import LIKERT
+        from vla_study.questionnaire import StationQuestionnaire, likert_row
+        from vla_study.runner import LIKERT
         self.logs, self.terminal_asked, self.row = [], False, None
 
         def terminal():
@@ -889,7 +889,7 @@ def test_the_questionnaire_is_answered_by_keyboard_and_the_study_gets_the_row(gr
     arrows, Enter): it passes axe-core with 44 px targets, a reload shows it again and sends nothing,
     Esc in it still latches the e-stop, keys in it do not drive, a send with an answer missing is
     refused on the page, and the runner gets the row likert.jsonl takes; a resend is refused."""
-    from vla_evaluation.study.runner import LIKERT
+    from vla_study.runner import LIKERT
     h, obs, url, _ = graph
     ready(h, obs, page, url)
     d = page.driver
@@ -948,7 +948,7 @@ def test_the_questionnaire_is_answered_by_keyboard_and_the_study_gets_the_row(gr
 def test_the_questionnaire_is_answered_with_a_single_switch(graph, page, settings_restored):
     """Scanning: the highlight steps through the statements and "Send answers"; a press on a statement
     steps through its numbers from 1, a press on a number chooses it and moves on to the next."""
-    from vla_evaluation.study.runner import LIKERT
+    from vla_study.runner import LIKERT
     h, obs, url, _ = graph
     ready(h, obs, page, url)
     apply_settings(h, page, input_device="switch1", scan_period=2.0)

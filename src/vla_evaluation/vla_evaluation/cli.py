@@ -19,8 +19,6 @@ SUBCOMMANDS: list[Subcommand] = [
      "the main job: the graph on the simulated Panda with the shipped models, table + video"),
     ("new-object", "vla_evaluation.new_object",
      "teach the robot a new object end to end in simulation (detector, demos, model) and measure it"),
-    ("study", "vla_evaluation.study.cli",
-     "the paper's user study (Section 7) with human-like simulated participants; resumable"),
 ]
 
 

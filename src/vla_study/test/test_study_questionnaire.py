@@ -9,9 +9,9 @@ import threading
 
 import numpy as np
 import pytest
-from vla_evaluation.study.protocol import load_protocol
-from vla_evaluation.study.questionnaire import StationQuestionnaire, check_answers, likert_row, station_for
-from vla_evaluation.study.runner import LIKERT, run_study
+from vla_study.protocol import load_protocol
+from vla_study.questionnaire import StationQuestionnaire, check_answers, likert_row, station_for
+from vla_study.runner import LIKERT, run_study
 
 TWO_STRATEGIES = """study: questionnaire
 participants: P01
@@ -102,7 +102,7 @@ class Interrupted(FakeStation):
 def test_a_questionnaire_a_stop_left_unanswered_is_asked_when_the_study_resumes(tmp_path, answered):
     """Stopped while the page waited (Ctrl-C) after the first strategy: the resumed study asks it
     first, on the station. Stopped in the last strategy's: no trial is left, nothing is launched, and
-    the terminal asks it (backend None: as `vla_evaluation study` resumes)."""
+    the terminal asks it (backend None: as `vla_study` resumes)."""
     f = tmp_path / "q.yaml"
     f.write_text(TWO_STRATEGIES)
     out, logs = tmp_path / "study", []
@@ -260,7 +260,7 @@ def test_through_the_launched_graph_the_participants_page_answers_and_the_termin
     """The study's own graph (GraphBackend with a real participant: the station starts with it): after
     the strategy's trial the runner's questionnaire reaches the page through the station's action on
     the graph's EventsExecutor, the page's answers come back as the likert.jsonl row."""
-    from vla_evaluation.study.graph_backend import GraphBackend
+    from vla_study.graph_backend import GraphBackend
 
     f = tmp_path / "one.yaml"
     f.write_text(TWO_STRATEGIES.replace("[latent-YOLO, end-effector]", "[end-effector]"))
@@ -284,7 +284,7 @@ def test_through_the_launched_graph_the_participants_page_answers_and_the_termin
 
 
 def test_the_terminal_questionnaire_keeps_to_the_scale(capsys):
-    from vla_evaluation.study.runner import LIKERT, ask_likert
+    from vla_study.runner import LIKERT, ask_likert
 
     replies = iter(["8", "x", "0"] + ["4"] * len(LIKERT))
     row = ask_likert("P01", "latent-YOLO", lambda _prompt: next(replies))
@@ -297,8 +297,8 @@ def test_the_terminal_questionnaire_keeps_to_the_scale(capsys):
 def test_the_studys_default_protocol_is_the_papers_three_strategies():
     import argparse
 
-    from vla_evaluation.study.cli import add_arguments
-    from vla_evaluation.study.protocol import PAPER, load_protocol
+    from vla_study.cli import add_arguments
+    from vla_study.protocol import PAPER, load_protocol
 
     ap = argparse.ArgumentParser()
     add_arguments(ap)

@@ -37,7 +37,6 @@ from pathlib import Path
 import numpy as np
 from sensor_msgs.msg import Joy
 from std_srvs.srv import Trigger
-
 from vla_evaluation.graph import (
     CONTROLLER,
     EpisodeMonitor,
@@ -46,11 +45,12 @@ from vla_evaluation.graph import (
     GraphEvaluator,
     GraphObserver,
 )
-from vla_evaluation.study.participant import HumanOperator, HumanParams, Observation
-from vla_evaluation.study.person import Experimenter, InputTally, PersonDriver, run_person_trial
-from vla_evaluation.study.protocol import STRATEGIES, Protocol
+
 from vla_interfaces.msg import ControllerStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import StartEpisode
+from vla_study.participant import HumanOperator, HumanParams, Observation
+from vla_study.person import Experimenter, InputTally, PersonDriver, run_person_trial
+from vla_study.protocol import STRATEGIES, Protocol
 
 RECORDER = "recorder"
 AXIS, EE_MODE_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 4  # the stick as the controller is set up for it
@@ -247,10 +247,10 @@ class GraphBackend:
     def run(self, trial, params: HumanParams | None, operator_seed: int) -> tuple[dict, dict]:
         """One trial: `params` of a simulated participant, None for a person (the experimenter's)."""
         from vla_common.tasks import parse_task
-
         from vla_evaluation.kinematic import plan_waypoints
         from vla_evaluation.metrics import final_state_error, judge_task
-        from vla_evaluation.study.runner import task_goal, trial_row
+
+        from vla_study.runner import task_goal, trial_row
 
         ev, obs, p = self.ev, self.ev.obs, self.p
         clock = PhaseClock()

@@ -10,9 +10,9 @@ protocol is refused.
 
 Backends, one participant model and one scorer (`trial_row`), two transports:
 - `graph` (the default, and what CI's reduced study runs): the shipped launch file through the one
-  graph runner, the participant's stick as sensor_msgs/Joy, each trial a bag (study/graph_backend.py);
+  graph runner, the participant's stick as sensor_msgs/Joy, each trial a bag (vla_study/graph_backend.py);
   A real participant (an id without `sim:`) drives the same graph from the operator station or a
-  joystick, the experimenter starting and ending each trial at the terminal (study/person.py);
+  joystick, the experimenter starting and ending each trial at the terminal (vla_study/person.py);
 - `physics`: the graph's computations in one process (MuJoCo PandaSim, the bridge's SafetyFilter, the
   controller's StickToCommand / EndEffectorBaseline; vla_evaluation.physics), several times faster:
   for the sensitivity sweep and the oracle comparison, not for the study's record.
@@ -29,17 +29,17 @@ from pathlib import Path
 
 import numpy as np
 
-from vla_evaluation.study.participant import (
+from vla_study.participant import (
     HumanOperator,
     HumanParams,
     Observation,
     TaskGoal,
     population,
 )
-from vla_evaluation.study.person import Experimenter, InputTally, TerminalExperimenter
-from vla_evaluation.study.protocol import STRATEGIES, Protocol, latin_square, robot_refusal
-from vla_evaluation.study.questionnaire import LABELS, SCALE
-from vla_evaluation.study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
+from vla_study.person import Experimenter, InputTally, TerminalExperimenter
+from vla_study.protocol import STRATEGIES, Protocol, latin_square, robot_refusal
+from vla_study.questionnaire import LABELS, SCALE
+from vla_study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
 
 LIKERT = ("The strategy was easy to use", "The strategy was helpful", "The strategy was intuitive",
           "I felt in control of the robot", "The robot did what I wanted", "I would use it again")
@@ -194,9 +194,8 @@ class PhysicsBackend:
         from vla_common.catalogue import load_catalogue
         from vla_common.kinematics import PandaKinematics
         from vla_detector.inference import Detector
-        from vla_sim.sim import PandaSim
-
         from vla_evaluation.resources import detector_model_path
+        from vla_sim.sim import PandaSim
 
         self.p = protocol
         self.catalogue = load_catalogue("")
@@ -206,9 +205,8 @@ class PhysicsBackend:
         self._models: dict[str, object] = {}
 
     def model(self, name: str):
-        from vla_latent_controller.model import LatentModel
-
         from vla_evaluation.resources import latent_model_dir
+        from vla_latent_controller.model import LatentModel
 
         if name not in self._models:
             self._models[name] = LatentModel.load(latent_model_dir(name))
@@ -221,12 +219,11 @@ class PhysicsBackend:
                             kin=self.kin, catalogue=self.catalogue)[0]
 
     def run(self, trial: Trial, params: HumanParams, operator_seed: int) -> tuple[dict, dict]:
-        from vla_latent_controller.ee_baseline import EndEffectorBaseline
-        from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
-
         from vla_evaluation.kinematic import TeleopSettings, layout_command
         from vla_evaluation.metrics import SuccessTracker, final_state_error, judge_task
         from vla_evaluation.physics import _goal_pose, _servo
+        from vla_latent_controller.ee_baseline import EndEffectorBaseline
+        from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
         sim, p = self.sim, self.p
         layout = self.reset_scene(trial)  # ~/reset: the seeded layout, settled, detected
@@ -334,7 +331,7 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
     """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials.
     Real participants (ids without `sim:`) drive the launched graph themselves, with the experimenter at
     this terminal (`experimenter`: another front end, or a test's). With `robot: real` the runner
-    attaches to the lab's running graph instead (study/robot_backend.py; `use_sim_time`: that graph is
+    attaches to the lab's running graph instead (vla_study/robot_backend.py; `use_sim_time`: that graph is
     a simulated one, for a rehearsal or a test)."""
     if why := robot_refusal(protocol):  # before anything is made or run
         raise SystemExit(f"protocol refused: {why}")
@@ -355,7 +352,7 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
         if real and experimenter is None:
             experimenter = TerminalExperimenter()
         if protocol.robot == "real":
-            from vla_evaluation.study.robot_backend import RobotBackend
+            from vla_study.robot_backend import RobotBackend
 
             backend = RobotBackend(protocol, out, log, experimenter=experimenter, use_sim_time=use_sim_time)
         else:
@@ -370,7 +367,7 @@ def run_study(protocol: Protocol, out: Path, backend=None, log: Callable[[str], 
 
 
 def _graph_backend(protocol: Protocol, out: Path, log, experimenter: Experimenter | None):
-    from vla_evaluation.study.graph_backend import GraphBackend
+    from vla_study.graph_backend import GraphBackend
 
     return GraphBackend(protocol, out, log, experimenter=experimenter)
 
@@ -403,10 +400,10 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
 
 def _likert(store: StudyStore, who: str, strategy: str, backend, log, ask) -> None:
     """The questionnaire after a strategy: on the operator station's page when the study runs with it,
-    else (or when it does not answer) on the terminal: the same row (study/questionnaire.py)."""
+    else (or when it does not answer) on the terminal: the same row (vla_study/questionnaire.py)."""
     from functools import partial
 
-    from vla_evaluation.study.questionnaire import likert_row, station_for
+    from vla_study.questionnaire import likert_row, station_for
 
     terminal, station = partial(ask_likert, who, strategy, ask), station_for(backend, log)
     store.record_likert(likert_row(who, strategy, LIKERT, terminal, station, log))

@@ -37,13 +37,13 @@ from pathlib import Path
 import numpy as np
 from std_srvs.srv import SetBool
 from vla_common.robot import ROBOTS
-from vla_launch.launcher import ProcessSpec
-from vla_launch.session import LaunchError, LaunchSession
-
 from vla_evaluation.graph import BRIDGE, CONTROLLER, EpisodeMonitor, GraphConfig, GraphError, GraphEvaluator
 from vla_evaluation.graph_runner import NodeSpinner
 from vla_evaluation.metrics import LimitMonitor
-from vla_evaluation.study.graph_backend import (
+from vla_launch.launcher import ProcessSpec
+from vla_launch.session import LaunchError, LaunchSession
+
+from vla_study.graph_backend import (
     AXIS,
     EE_MODE_BUTTON,
     SETTLE_S,
@@ -52,7 +52,7 @@ from vla_evaluation.study.graph_backend import (
     StudyObserver,
     study_graph_config,
 )
-from vla_evaluation.study.person import (
+from vla_study.person import (
     Experimenter,
     InputTally,
     PersonDriver,
@@ -60,7 +60,7 @@ from vla_evaluation.study.person import (
     run_person_trial,
     start_point,
 )
-from vla_evaluation.study.protocol import Protocol
+from vla_study.protocol import Protocol
 
 REST_SPEED = 0.05  # rad/s: every joint slower than this is an arm at rest (the e-stop brakes it there)
 RECORDER_TOPICS = ["joint_states", "joy", "detections", "camera/image_raw", "controller_node/status",
@@ -264,10 +264,10 @@ class RobotBackend(GraphBackend):
         """One trial of a person; `params` must be None (a simulated participant is refused earlier,
         by protocol.robot_refusal; here again, so that nothing of one ever reaches the robot)."""
         from vla_common.tasks import parse_task
-
         from vla_evaluation.kinematic import plan_waypoints
         from vla_evaluation.metrics import final_state_error
-        from vla_evaluation.study.runner import trial_row
+
+        from vla_study.runner import trial_row
 
         if params is not None:
             raise GraphError(f"{trial.participant} is a simulated participant: refused on the real robot")

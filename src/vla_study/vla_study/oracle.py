@@ -1,7 +1,7 @@
 """The oracle teleoperator on the study's own layouts: what a latent model can do, beside what the
 simulated participants get out of it.
 
-    python -m vla_evaluation.study.oracle --protocol docs/results/study/protocol_run.yaml --out out/oracle
+    python -m vla_study.oracle --protocol docs/results/study/protocol_run.yaml --out out/oracle
 Every latent test trial of the protocol (its task and seeded layout, the same as the participants')
 is driven by the paper's oracle (vla_evaluation.sim_teleoperator: decoder search towards the
 planner's waypoints) on the physics backend. Rows go to <out>/oracle.jsonl (resumable, keyed by
@@ -14,12 +14,12 @@ import json
 from collections import defaultdict
 from pathlib import Path
 
-from vla_evaluation.study.protocol import STRATEGIES, ProtocolError, load_protocol, parse_participants
-from vla_evaluation.study.runner import trial_plan
+from vla_study.protocol import STRATEGIES, ProtocolError, load_protocol, parse_participants
+from vla_study.runner import trial_plan
 
 
 def main(argv=None) -> int:
-    from vla_evaluation.study.cli import SHIPPED
+    from vla_study.cli import SHIPPED
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--protocol", type=Path, default=SHIPPED)
@@ -48,7 +48,8 @@ def main(argv=None) -> int:
     if todo:
         from vla_evaluation.kinematic import TeleopSettings
         from vla_evaluation.physics import run_episode
-        from vla_evaluation.study.runner import PhysicsBackend
+
+        from vla_study.runner import PhysicsBackend
 
         backend = PhysicsBackend(proto)
         settings = TeleopSettings(rate=proto.rate, time_limit=proto.time_limit)

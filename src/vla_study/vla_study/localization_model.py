@@ -1,7 +1,7 @@
 """The study's localization-only models (the paper's second strategy): the base one and the few-shot ones.
 
-    python -m vla_evaluation.study.localization_model --out out/models/localization
-    python -m vla_evaluation.study.localization_model --out out/models/fewshot \
+    python -m vla_study.localization_model --out out/models/localization
+    python -m vla_study.localization_model --out out/models/fewshot \
         --fewshot cereal_box/push_south cereal_box/push_south_east cereal_box/circle
 
 The paper's "localization-only" encoder: the CNN of the end-to-end model learns where the object is
@@ -48,10 +48,9 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     import torch
     from vla_detector.inference import Detector
-    from vla_latent_training.train import train_model
-
     from vla_evaluation.experiments import Plan, simulate_demos
     from vla_evaluation.resources import detector_model_path
+    from vla_latent_training.train import train_model
 
     torch.set_num_threads(1)
     t0 = time.perf_counter()

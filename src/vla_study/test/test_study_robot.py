@@ -11,10 +11,10 @@ import os
 
 import pytest
 from scripted_person import ScriptedPerson
-from vla_evaluation.study.cli import add_arguments
-from vla_evaluation.study.cli import run as cli_run
-from vla_evaluation.study.person import TerminalExperimenter, TrialScore, parse_displacement_cm
-from vla_evaluation.study.protocol import load_protocol, robot_refusal
+from vla_study.cli import add_arguments
+from vla_study.cli import run as cli_run
+from vla_study.person import TerminalExperimenter, TrialScore, parse_displacement_cm
+from vla_study.protocol import load_protocol, robot_refusal
 
 ROBOT = """study: robot
 participants: P01
@@ -46,7 +46,7 @@ def test_a_simulated_participant_on_the_real_robot_is_refused_at_its_line(tmp_pa
                           f"({f}:11: robot: real)"), why
     assert _cli(["--protocol", str(f), "--check"]) == 2
     assert f"{f}:2: simulated participants" in capsys.readouterr().err
-    from vla_evaluation.study.runner import run_study
+    from vla_study.runner import run_study
 
     with pytest.raises(SystemExit, match=r"robot.yaml:2: simulated participants"):
         run_study(load_protocol(f), tmp_path / "never")        # the API refuses it too, before anything
@@ -74,7 +74,7 @@ def test_a_simulated_study_keeps_its_digest():
     protocol's digest as the runner computed it before the key, at 95a1f1a)."""
     import dataclasses
 
-    from vla_evaluation.study.protocol import PAPER
+    from vla_study.protocol import PAPER
 
     p = load_protocol(PAPER.with_name("shipped.yaml"))
     assert p.robot == "sim" and p.digest() == "b385362ff4d71028"
@@ -143,9 +143,9 @@ def _study_on(graph, tmp_path, use_sim_time: bool, state_rate: float, protocol: 
               robot_model: str = "panda") -> None:
     """The protocol's trials on the started `graph` (a LaunchSession), Ctrl-C at the second placement,
     resumed by a second runner; checks what the issue asks of a real-robot study."""
-    from vla_evaluation.study.analysis import analyse
-    from vla_evaluation.study.robot_backend import RobotBackend
-    from vla_evaluation.study.runner import run_study, trial_plan
+    from vla_study.analysis import analyse
+    from vla_study.robot_backend import RobotBackend
+    from vla_study.runner import run_study, trial_plan
 
     f = tmp_path / "robot.yaml"
     f.write_text(protocol)

@@ -12,7 +12,7 @@ The experimenter, at the study's terminal:
 - ends the trial when the participant says done (Enter), or the protocol's time limit ends it.
 Both are calls on an :class:`Experimenter`, so that a test (or another front end) can play the part.
 
-On the real robot (protocol `robot: real`, study/robot_backend.py) the experimenter also places the
+On the real robot (protocol `robot: real`, vla_study/robot_backend.py) the experimenter also places the
 object by hand at the trial's start point (said in words and in metres in the robot's base frame) and
 confirms, and, after the trial, scores it: success y/n and, optionally, the object's displacement as
 measured on the table (`Experimenter.score`): without a simulation nothing else measures the object.
@@ -216,7 +216,6 @@ def start_point(trial, catalogue, kin):
     point `practice.reset_seed`; test trials: a seeded new placement)."""
     from vla_common.robot import READY_POSE
     from vla_common.tasks import parse_task
-
     from vla_evaluation.kinematic import plannable_layout
 
     spec = parse_task(trial.task, catalogue)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 from scripted_person import ScriptedPerson
-from vla_evaluation.study.person import InputTally, TerminalExperimenter
+from vla_study.person import InputTally, TerminalExperimenter
 
 PERSON = """study: person
 participants: P01
@@ -72,7 +72,7 @@ def test_the_station_address_is_waited_for_not_read_once(tmp_path):
     never comes gives '' after the graph's start-up time."""
     from types import SimpleNamespace
 
-    from vla_evaluation.study.graph_backend import GraphBackend
+    from vla_study.graph_backend import GraphBackend
 
     log = tmp_path / "graph.log"
     log.write_text("[graph] up\n")
@@ -97,9 +97,9 @@ def test_the_station_address_is_waited_for_not_read_once(tmp_path):
 @pytest.mark.ros
 @pytest.mark.timeout(900)
 def test_a_real_participant_drives_the_graph_and_answers_the_questionnaire(tmp_path):
-    from vla_evaluation.study.graph_backend import GraphBackend
-    from vla_evaluation.study.protocol import load_protocol
-    from vla_evaluation.study.runner import LIKERT, run_study
+    from vla_study.graph_backend import GraphBackend
+    from vla_study.protocol import load_protocol
+    from vla_study.runner import LIKERT, run_study
 
     f = tmp_path / "person.yaml"
     f.write_text(PERSON)

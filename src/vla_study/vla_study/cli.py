@@ -1,10 +1,10 @@
-"""`vla_evaluation study`: run the user study's protocol (resumable), then its figures and tables.
+"""`vla_study`: run the user study's protocol (resumable), then its figures and tables.
 
-    vla_evaluation study --participants sim:9                  # the paper's protocol, shipped models
-    vla_evaluation study --protocol my.yaml --out out/study    # another protocol
-    vla_evaluation study --analyse-only --out out/study        # figures and tables from what ran
-    vla_evaluation study --protocol my.yaml --check            # validate, print the sessions, run nothing
-    vla_evaluation study --protocol my.yaml --participants P01 --robot real   # attach to the robot's graph
+    vla_study --participants sim:9                  # the paper's protocol, shipped models
+    vla_study --protocol my.yaml --out out/study    # another protocol
+    vla_study --analyse-only --out out/study        # figures and tables from what ran
+    vla_study --protocol my.yaml --check            # validate, print the sessions, run nothing
+    vla_study --protocol my.yaml --participants P01 --robot real   # attach to the robot's graph
 Run it again with the same --out to resume; a different protocol in that --out is refused.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ import dataclasses
 import sys
 from pathlib import Path
 
-from vla_evaluation.study.protocol import (
+from vla_study.protocol import (
     PAPER,
     ProtocolError,
     load_protocol,
@@ -80,7 +80,7 @@ def run(args) -> int:
         print(f"protocol refused:\n{why}", file=sys.stderr)
         return 2
     if args.check:
-        from vla_evaluation.study.runner import trial_plan
+        from vla_study.runner import trial_plan
 
         plan = trial_plan(proto)
         if proto.robot == "real":
@@ -89,7 +89,7 @@ def run(args) -> int:
             from vla_common.catalogue import load_catalogue
             from vla_common.kinematics import PandaKinematics
 
-            from vla_evaluation.study.person import start_point
+            from vla_study.person import start_point
 
             cat, kin = load_catalogue(""), PandaKinematics()
         print(f"{proto.source}: valid; {len(proto.participants)} participants, {len(plan)} trials "
@@ -106,12 +106,28 @@ def run(args) -> int:
                       f"trial {t.trial + 1}, placement seed {t.layout_seed}{where}")
         return 0
     if not args.analyse_only:
-        from vla_evaluation.study.runner import run_study
+        from vla_study.runner import run_study
 
         run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
                   use_sim_time=args.use_sim_time)
-    from vla_evaluation.study.analysis import analyse
+    from vla_study.analysis import analyse
 
     for line in analyse(args.out, args.figures or args.out):
         print(line)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """The `vla_study` command; 130 on Ctrl-C (no traceback)."""
+    parser = argparse.ArgumentParser(prog="vla_study", description=__doc__.splitlines()[0])
+    add_arguments(parser)
+    args = parser.parse_args(argv)
+    try:
+        return run(args)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

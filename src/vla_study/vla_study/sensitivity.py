@@ -1,6 +1,6 @@
 """Success against reaction delay and stick noise, latent-YOLO vs the end-effector baseline.
 
-    python -m vla_evaluation.study.sensitivity --out out/study_sensitivity [--delays 0.1,0.3,0.5]
+    python -m vla_study.sensitivity --out out/study_sensitivity [--delays 0.1,0.3,0.5]
 One participant (the population's mean parameters, HumanParams()) with the delay and the motor noise
 varied, the rest held; each cell over the same seeded layouts. Rows go to sensitivity.jsonl (resumable,
 as the study's), the table to sensitivity.md.
@@ -12,8 +12,8 @@ import dataclasses
 import json
 from pathlib import Path
 
-from vla_evaluation.study.protocol import Protocol
-from vla_evaluation.study.runner import PhysicsBackend, Trial, hash_seed
+from vla_study.protocol import Protocol
+from vla_study.runner import PhysicsBackend, Trial, hash_seed
 
 
 def main(argv=None) -> int:
@@ -24,7 +24,7 @@ def main(argv=None) -> int:
     ap.add_argument("--tasks", default="cereal_box/push_south,bread/push_east")
     ap.add_argument("--layouts", type=int, default=2)
     a = ap.parse_args(argv)
-    from vla_evaluation.study.participant import HumanParams
+    from vla_study.participant import HumanParams
 
     proto = Protocol("sensitivity", ["sim:1"], 0, ["latent-YOLO", "end-effector"], {}, 1, 0, 7, "none", 30.0,
                      20.0, models={"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_south"}})
@@ -53,7 +53,7 @@ def main(argv=None) -> int:
                             f.write(json.dumps(row, sort_keys=True) + "\n")
                         print(f"[sensitivity] {key}: success {row['success']}", flush=True)
     if rows_path.exists():
-        from vla_evaluation.study.analysis import sensitivity_table
+        from vla_study.analysis import sensitivity_table
 
         table = "\n".join(sensitivity_table(rows_path))
         (a.out / "sensitivity.md").write_text(

@@ -83,7 +83,7 @@ def analyse(out: Path, figures: Path) -> list[str]:
              f"strategies {', '.join(strategies)}", ""]
     if simulated:
         lines += ["All numbers below come from **simulated participants** (the human-like operator model "
-                  "of vla_evaluation.study.participant), not from people.", ""]
+                  "of vla_study.participant), not from people.", ""]
     ways = {"graph": "through the launched graph (the stick published as Joy, a bag per trial)",
             "physics": "on the physics backend (the graph's computations in one process)"}
     backends = sorted({r.get("backend", "physics") for r in rows})

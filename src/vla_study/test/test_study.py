@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from vla_evaluation.study import participant as part
-from vla_evaluation.study.protocol import ProtocolError, latin_square, load_protocol
-from vla_evaluation.study.runner import task_goal, trial_plan
-from vla_evaluation.study.smoothness import sparc, speed_profile
+from vla_study.protocol import ProtocolError, latin_square, load_protocol
+from vla_study.runner import task_goal, trial_plan
+from vla_study.smoothness import sparc, speed_profile
+
+from vla_study import participant as part
 
 ALLOWED_OBS = {"t", "hand", "obj", "controller_code", "ee_axis"}
 
@@ -33,7 +34,7 @@ def test_operator_model_imports_nothing_that_knows_the_decoder_or_the_plan():
         elif isinstance(node, ast.ImportFrom):
             imported.add((node.module or "").split(".")[0])
     assert imported <= {"__future__", "math", "collections", "dataclasses", "numpy"}, imported
-    code = ("import sys; import vla_evaluation.study.participant; "
+    code = ("import sys; import vla_study.participant; "
             "bad = [m for m in sys.modules if m.startswith(('vla_latent_controller', 'vla_sim', "
             "'vla_evaluation.sim_teleoperator', 'vla_evaluation.kinematic'))]; print(bad)")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
@@ -192,7 +193,7 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
     assert any(m.startswith(f"{f}:6:") and "colour" in m for m in msgs), msgs
     # the command refuses it with the same lines and makes nothing
     out = tmp_path / "study"
-    res = subprocess.run([sys.executable, "-m", "vla_evaluation.cli", "study", "--protocol", str(f),
+    res = subprocess.run([sys.executable, "-m", "vla_study.cli", "--protocol", str(f),
                           "--out", str(out)], capture_output=True, text=True, timeout=300)
     assert res.returncode == 2, res.stdout + res.stderr
     assert f"{f}:2:" in res.stderr and f"{f}:6:" in res.stderr
@@ -200,7 +201,7 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
     # a valid protocol: --check prints each participant's session and writes nothing
     import argparse
 
-    from vla_evaluation.study import cli
+    from vla_study import cli
 
     f.write_text(REDUCED)
     ap = argparse.ArgumentParser()
@@ -211,7 +212,7 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
     assert "2 participants, 4 trials" in printed and "P02:" in printed and not out.exists()
     # real participants on the physics backend are refused before anything is made (a person drives
     # the launched graph: test_study_person.py)
-    from vla_evaluation.study.runner import run_study
+    from vla_study.runner import run_study
 
     with pytest.raises(SystemExit, match="P01.*--backend graph"):
         run_study(dataclasses.replace(load_protocol(f), participants=["P01"], backend="physics"), out)
@@ -236,7 +237,7 @@ def test_end_effector_axes_without_x_y_z_are_refused_at_their_line(tmp_path):
 
 
 def test_the_paper_protocol_plans_the_papers_trials():
-    from vla_evaluation.study.protocol import PAPER
+    from vla_study.protocol import PAPER
 
     p = load_protocol(PAPER)
     plan = trial_plan(p)
@@ -280,11 +281,11 @@ def test_the_study_graph_leaves_the_idle_oracle_out(tmp_path):
     joint_states and loaded each model change), only the controller is given the models, and the
     camera renders only as often as the latch after a reset needs."""
     from vla_evaluation.graph import CONTROLLER, LAUNCH_FILE, TELEOP, GraphConfig
-    from vla_evaluation.study.cli import SHIPPED
-    from vla_evaluation.study.graph_backend import study_graph_config
     from vla_launch.plan import find_launch_file
     from vla_launch.plan import load as load_launch
     from vla_launch.session import argument_text
+    from vla_study.cli import SHIPPED
+    from vla_study.graph_backend import study_graph_config
 
     cfg = study_graph_config(load_protocol(SHIPPED), tmp_path)
     assert TELEOP not in cfg.node_parameters() and cfg.model_nodes() == (CONTROLLER,)
@@ -311,7 +312,7 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
     proto = tmp_path / "reduced.yaml"
     proto.write_text(REDUCED)
     out = tmp_path / "study"
-    cmd = [sys.executable, "-m", "vla_evaluation.cli", "study", "--protocol", str(proto), "--out", str(out)]
+    cmd = [sys.executable, "-m", "vla_study.cli", "--protocol", str(proto), "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             start_new_session=True)
     deadline = time.monotonic() + 600
@@ -355,8 +356,8 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
 
 
 def test_anonymise_leaves_no_participant_id_in_the_shared_copy(tmp_path):
-    from vla_evaluation.study.anonymise import anonymise
-    from vla_evaluation.study.runner import file_stem
+    from vla_study.anonymise import anonymise
+    from vla_study.runner import file_stem
 
     src, dest, key = tmp_path / "study", tmp_path / "shared", tmp_path / "private" / "key.csv"
     (src / "trials").mkdir(parents=True)
@@ -389,7 +390,7 @@ def test_anonymise_leaves_no_participant_id_in_the_shared_copy(tmp_path):
 
 def test_sensitivity_resumes_from_its_rows_and_writes_the_table(tmp_path):
     """Every cell already recorded: nothing runs (no simulator is made) and the table is written."""
-    from vla_evaluation.study import sensitivity
+    from vla_study import sensitivity
 
     rows = []
     for d in (0.1, 0.5):

@@ -1,6 +1,6 @@
 """A shareable copy of a study folder with participant ids replaced by pseudonyms.
 
-    python -m vla_evaluation.study.anonymise --src out/study --dest out/study_shared --key ~/private/key.csv
+    python -m vla_study.anonymise --src out/study --dest out/study_shared --key ~/private/key.csv
 The copy holds the same trials and answers under P01, P02, ... (in the order participants first
 appear), file names included, and study.json keeps only the protocol's file name (its path may name a
 person or a site). The key (pseudonym, original id) goes to --key, which must lie outside both
@@ -16,7 +16,7 @@ import json
 import shutil
 from pathlib import Path
 
-from vla_evaluation.study.runner import file_stem
+from vla_study.runner import file_stem
 
 
 def anonymise(src: Path, dest: Path, key_path: Path) -> dict[str, str]:

@@ -46,14 +46,16 @@ def test_answers_that_are_not_on_the_scale_or_not_the_statements_are_dropped_and
     assert link.questionnaire is not None            # still waiting: the page may send a corrected one
 
 
-@pytest.mark.parametrize("raw", [
-    json.dumps({"type": "answers", "id": "3", "answers": {}}),
-    json.dumps({"type": "answers", "id": 3, "answers": [4, 4, 4]}),
-    json.dumps({"type": "answers", "answers": {}}),
+@pytest.mark.parametrize("raw, words", [
+    (json.dumps({"type": "answers", "id": "3", "answers": {}}), "answers.id must be a whole number"),
+    (json.dumps({"type": "answers", "id": 3, "answers": [4, 4, 4]}), "answers.answers must be an object"),
+    (json.dumps({"type": "answers", "answers": {}}), "answers.id is missing"),
+    (answers(qid=10**400), "answers.id must be a whole number"),
+    (answers(values={STATEMENTS[0]: 10**400}), "whole number from 1 to 7"),
 ])
-def test_answers_of_the_wrong_shape_are_malformed(raw):
+def test_answers_of_the_wrong_shape_are_malformed(raw, words):
     link, cid, _q = waiting()
-    assert "integer id" in link.on_message(cid, raw, 1.0).error
+    assert words in link.on_message(cid, raw, 1.0).error
     assert link.counters.malformed == 1
 
 

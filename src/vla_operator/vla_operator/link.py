@@ -17,11 +17,11 @@ Every rule here exists because an operator interface got it wrong (FACTS.md sect
 """
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 
 from vla_operator.questionnaire import Questionnaire, answers_problem, ordered
+from vla_operator.schema import MODELS, check, parse
 
 # What a page may ask for; everything but "input" and "heartbeat" becomes a request to a node.
 REQUESTS = {
@@ -37,6 +37,7 @@ REQUESTS = {
     "answers": "the answers to the questionnaire that waits (the driver)",
 }
 KINDS = {"input", "heartbeat", "hidden", "claim", *REQUESTS}
+assert KINDS == set(MODELS), "every kind of message has its schema (schema.py)"
 WATCHER_MAY = {"heartbeat", "estop", "claim", "hidden"}
 
 
@@ -154,10 +155,13 @@ class Link:
             return self._drop("malformed", msg)
         kind = msg["type"]
         if kind not in KINDS:
-            return self._drop("unknown", f"unknown message type {kind!r}")
+            return self._drop("unknown", "unknown message type")   # never quoted: a peer's text
         c.last_seen = now
         if not c.driver and kind not in WATCHER_MAY:
             return self._drop("forbidden", "another station drives; a watcher may only press the e-stop")
+        msg = check(msg)       # the schema: only the kind's fields, each checked; or why not (its name)
+        if isinstance(msg, str):
+            return self._drop("malformed", msg)
         if kind == "heartbeat":
             self.counters.accepted += 1
             return Verdict()
@@ -172,9 +176,6 @@ class Link:
             return Verdict()
         if kind == "input":
             return self._input(c, msg, now)
-        problem = check_request(msg)
-        if problem:
-            return self._drop("malformed", problem)
         if kind == "answers":
             return self._answers(msg)
         self.counters.accepted += 1
@@ -192,9 +193,7 @@ class Link:
         return Verdict(request={"type": "answers", "id": q.qid, "answers": ordered(q, msg["answers"])})
 
     def _input(self, c: Client, msg: dict, now: float) -> Verdict:
-        seq, t, axis = msg.get("seq"), msg.get("t"), msg.get("axis")
-        if not (_int(seq) and _number(t) and _number(axis)) or not -1.0 <= axis <= 1.0:
-            return self._drop("malformed", "input needs an integer seq, a finite t (ms) and axis in [-1, 1]")
+        seq, t, axis = msg["seq"], msg["t"], msg["axis"]
         if seq <= c.last_seq:
             return self._drop("stale", f"input {seq} is not newer than {c.last_seq}")
         c.last_seq = seq
@@ -251,51 +250,3 @@ class Link:
     def _drop(self, counter: str, why: str) -> Verdict:
         setattr(self.counters, counter, getattr(self.counters, counter) + 1)
         return Verdict(error=why)
-
-
-# ---------------------------------------------------------------------- validation
-def parse(raw: str | bytes) -> dict | str:
-    """The message as a dict with a string ``type``, or why it is malformed."""
-    try:
-        msg = json.loads(raw)
-    except (ValueError, UnicodeDecodeError):
-        return "not JSON"
-    if not isinstance(msg, dict) or not isinstance(msg.get("type"), str):
-        return "not an object with a string 'type'"
-    return msg
-
-
-def check_request(msg: dict) -> str | None:
-    """Why a request is malformed, or None."""
-    kind = msg["type"]
-    if kind == "release_estop" and msg.get("confirm") is not True:
-        return "releasing the e-stop needs confirm: true"
-    if kind == "select":
-        by = msg.get("by")
-        if by == "class" and not isinstance(msg.get("class_id"), str):
-            return "select by class needs a class_id"
-        if by == "index" and not _int(msg.get("index")):
-            return "select by index needs an integer index"
-        if by == "pixel" and not (_number(msg.get("x")) and _number(msg.get("y"))):
-            return "select by pixel needs finite x, y"
-        if by not in ("class", "index", "pixel", "policy"):
-            return "select needs by: class, index, pixel or policy"
-    if kind == "teaching" and not isinstance(msg.get("on"), bool):
-        return "teaching needs on: true or false"
-    if kind == "episode":
-        action = msg.get("action")
-        if action not in ("start", "stop", "discard"):
-            return "episode needs action: start, stop or discard"
-        if action == "start" and not (isinstance(msg.get("task"), str) and msg["task"]):
-            return "starting an episode needs a task"
-    if kind == "settings" and not isinstance(msg.get("values"), dict):
-        return "settings needs values: {name: value}"
-    return None
-
-
-def _number(x) -> bool:
-    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
-def _int(x) -> bool:
-    return isinstance(x, int) and not isinstance(x, bool)

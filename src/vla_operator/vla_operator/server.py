@@ -14,7 +14,8 @@ from pathlib import Path
 from aiohttp import WSMsgType, web
 
 from vla_operator.access import Access
-from vla_operator.link import Link, LinkParams, parse
+from vla_operator.link import Link, LinkParams
+from vla_operator.schema import MODELS, parse
 
 
 class Station:
@@ -210,7 +211,7 @@ class Station:
         if len(data) > self.link.params.max_message_bytes:
             return ""
         msg = parse(data)
-        return msg["type"] if isinstance(msg, dict) and len(msg["type"]) <= 32 else ""
+        return msg["type"] if isinstance(msg, dict) and msg["type"] in MODELS else ""   # ours only
 
     def _broadcast_roles(self, taken_from: int | None = None) -> None:
         """Every page's role; the page that drove before a watcher took control is told so."""

@@ -1,24 +1,27 @@
-"""The caregiver's settings (no rclpy): one table, the validation of untrusted values (a page's, or the
-settings file's), and the file on the robot PC, written atomically and read with a size bound.
+"""The caregiver's settings (no rclpy): their schema (a pydantic model) and defaults, the validation of
+untrusted values (a page's, or the settings file's), and the file on the robot PC, written atomically
+and read with a size bound.
 
 Every value is checked here before anything applies it: the page is a network peer and the file may
-be damaged. An error names the setting and what is allowed, and never quotes a file's content (a
-page's unknown setting name is quoted back to that page, with the closest known one). The deadband is
-the controller's own parameter: only its type is checked here, its range is the controller's to
-enforce (its refusal is shown with its reason).
+be damaged. An error names the setting and what is allowed, and never quotes a value or a file's
+content (a page's unknown setting name is quoted back to that page, with the closest known one). The
+deadband is the controller's own parameter: its range is the controller's to enforce (its refusal is
+shown with its reason).
 """
 from __future__ import annotations
 
 import difflib
 import json
-import math
 import os
 import string
 import tempfile
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import BaseModel, BeforeValidator, ConfigDict, Field, ValidationError, model_validator
+
+from vla_operator.schema import number, refusal, refused
 
 MAX_FILE_BYTES = 16384          # the settings file is a few hundred bytes; anything larger is not ours
 MAX_KEYS_PER_ACTION = 3
@@ -35,118 +38,105 @@ class SettingError(ValueError):
     """A refused value; the message is safe to show and to log (it never quotes the value)."""
 
 
-def _number(name: str, lo: float, hi: float, hi_open: bool = False) -> Callable[[Any], float]:
-    def check(v: Any) -> float:
-        if not isinstance(v, (int, float)) or isinstance(v, bool) or not math.isfinite(v):
-            raise SettingError(f"{name} must be a number")
-        if not lo <= v <= hi or (hi_open and v == hi):
-            raise SettingError(f"{name} must be from {lo} to {hi}{' (excluded)' if hi_open else ''}")
-        return float(v)
-    return check
-
-
-def _choice(name: str, choices: tuple[str, ...]) -> Callable[[Any], str]:
-    def check(v: Any) -> str:
-        if v not in choices:
-            raise SettingError(f"{name} must be one of: {', '.join(choices)}")
-        return v
-    return check
-
-
-def _one_key(action: str, k: Any) -> str:
+def _key_name(k: Any) -> str:
+    """One key of the mapping: an allowed key's name (J and j are the same key)."""
     if not isinstance(k, str):
-        raise SettingError(f"keys.{action}: each key must be a key name")
+        raise refused("each key must be a key name")
     if len(k) == 1:
-        k = k.lower()     # J and j are the same key
+        k = k.lower()
     if k not in ALLOWED_KEYS:
         close = difflib.get_close_matches(k, NAMED_KEYS, n=1, cutoff=0.6) if len(k) <= 20 else []
         hint = f" (did you mean {close[0]}?)" if close else ""
-        raise SettingError(f"keys.{action}: a key is not allowed{hint}; allowed: {ALLOWED_KEYS_WORDS}")
+        raise refused(f"a key is not allowed{hint}; allowed: {ALLOWED_KEYS_WORDS}")
     return k
 
 
-def _keys(v: Any) -> dict[str, list[str]]:
+KeyList = Annotated[list[Annotated[str, BeforeValidator(_key_name)]],
+                    Field(min_length=1, max_length=MAX_KEYS_PER_ACTION)]
+
+
+class Keys(BaseModel):
     """{forward, back, stop}: each 1 to 3 allowed keys, no key twice; Escape only stops."""
-    if not isinstance(v, dict):
-        raise SettingError("keys must be an object with forward, back and stop")
-    unknown = [a for a in v if a not in KEY_ACTIONS]
-    if unknown:
-        raise SettingError(f"keys: unknown action{_closest(unknown[0], KEY_ACTIONS)}; "
-                           f"the actions are {', '.join(KEY_ACTIONS)}")
-    out: dict[str, list[str]] = {}
-    seen: dict[str, str] = {}
-    for action in KEY_ACTIONS:
-        keys = v.get(action)
-        if not isinstance(keys, list) or not 1 <= len(keys) <= MAX_KEYS_PER_ACTION:
-            raise SettingError(f"keys.{action} must be a list of 1 to {MAX_KEYS_PER_ACTION} keys")
-        out[action] = []
-        for k in keys:
-            k = _one_key(action, k)
-            if k in seen:
-                # k is one of ALLOWED_KEYS here: our own name, not the input's text
-                raise SettingError(f"keys: {k} is given twice ({seen[k]} and {action})")
-            if k == "Escape" and action != "stop":
-                raise SettingError("keys: Escape may only stop the arm")
-            seen[k] = action
-            out[action].append(k)
-    return out
+
+    model_config = ConfigDict(strict=True, extra="forbid")
+    NOUN: ClassVar[str] = "action"
+    forward: KeyList
+    back: KeyList
+    stop: KeyList
+
+    @model_validator(mode="after")
+    def _each_key_once(self) -> Keys:
+        seen: dict[str, str] = {}
+        for action in KEY_ACTIONS:
+            for k in getattr(self, action):   # k is one of ALLOWED_KEYS: our own name, not the input's
+                if k in seen:
+                    raise refused(f"{k} is given twice ({seen[k]} and {action})")
+                if k == "Escape" and action != "stop":
+                    raise refused("Escape may only stop the arm")
+                seen[k] = action
+        return self
+
+
+class Values(BaseModel):
+    """The settings a page or the file may give, any of them (absent ones are left as they are). The
+    deadband is the controller's own parameter: its range here is the widest it can be, the
+    controller's own range decides (its refusal is shown with its reason)."""
+
+    model_config = ConfigDict(strict=True, extra="forbid")
+    NOUN: ClassVar[str] = "setting"
+    speed_scale: number(0.05, 1.0) = None
+    deadband: number(0.0, 1.0, hi_open=True) | None = None
+    action_mode: Literal["hold", "step", "toggle"] = None
+    input_device: Literal["buttons", "switch1", "switch2", "gamepad"] = None
+    step_seconds: number(0.1, 2.0) = None
+    scan_period: number(0.5, 5.0) = None
+    keys: Keys = None
 
 
 @dataclass(frozen=True)
 class Setting:
     name: str
     default: Any
-    check: Callable[[Any], Any]   # the clean value, or SettingError
     words: str
 
 
 SETTINGS: dict[str, Setting] = {s.name: s for s in (
-    Setting("speed_scale", 1.0, _number("speed_scale", 0.05, 1.0),
+    Setting("speed_scale", 1.0,
             "the page's axis times this (0.05 to 1); the station's speed_scale parameter"),
-    Setting("deadband", None, _number("deadband", 0.0, 1.0, hi_open=True),
+    Setting("deadband", None,
             "the controller's deadband parameter (its range applies); none: the controller's own"),
-    Setting("action_mode", "hold", _choice("action_mode", ("hold", "step", "toggle")),
+    Setting("action_mode", "hold",
             "hold: moves while held; step: a short move per press; toggle: press to start, press to stop"),
-    Setting("input_device", "buttons", _choice("input_device", ("buttons", "switch1", "switch2", "gamepad")),
+    Setting("input_device", "buttons",
             "buttons (on-screen and keys), switch1 (single switch, scanning with Space), switch2 (dual "
             "switch: its keys are the mapping's), gamepad (the first pad's left stick)"),
-    Setting("step_seconds", 0.3, _number("step_seconds", 0.1, 2.0),
-            "step mode: how long one press drives, in seconds (0.1 to 2)"),
-    Setting("scan_period", 1.5, _number("scan_period", 0.5, 5.0),
+    Setting("step_seconds", 0.3, "step mode: how long one press drives, in seconds (0.1 to 2)"),
+    Setting("scan_period", 1.5,
             "single switch: seconds the scanning highlight stays on each control (0.5 to 5)"),
     Setting("keys", {"forward": ["ArrowUp", "ArrowRight", "j"], "back": ["ArrowDown", "ArrowLeft", "k"],
-                     "stop": ["Escape"]}, _keys,
+                     "stop": ["Escape"]},
             f"keys for forward, back and stop: 1 to {MAX_KEYS_PER_ACTION} each, no key twice, Escape only "
             "stops"),
 )}
+assert set(SETTINGS) == set(Values.model_fields), "one table of settings: the model and its defaults"
 
 
 def defaults() -> dict[str, Any]:
     return json.loads(json.dumps({n: s.default for n, s in SETTINGS.items()}))   # a deep copy
 
 
-def _closest(name: str, known) -> str:
-    close = difflib.get_close_matches(name, list(known), n=1, cutoff=0.5)
-    return f" (did you mean {close[0]!r}?)" if close else ""
-
-
 def validate(values: Any, quote_names: bool = True) -> dict[str, Any]:
-    """The clean values of a (partial) settings object, or SettingError for the first refused one. An
-    unknown name is refused with the closest known one; it is quoted only when ``quote_names`` (to
-    the page that sent it, never from a file)."""
+    """The clean values of a (partial) settings object, or SettingError for the first refused one (it
+    names the setting and what is allowed). An unknown name is refused with the closest known one; it
+    is quoted only when ``quote_names`` (to the page that sent it, never from a file)."""
     if not isinstance(values, dict):
         raise SettingError("settings must be an object {name: value}")
-    clean: dict[str, Any] = {}
-    for name, v in values.items():
-        if name not in SETTINGS:
-            shown = f" {name[:40]!r}" if quote_names and isinstance(name, str) else ""
-            raise SettingError(f"unknown setting{shown}{_closest(str(name)[:40], SETTINGS)}; "
-                               f"the settings are {', '.join(SETTINGS)}")
-        if name == "deadband" and v is None:
-            clean[name] = None
-            continue
-        clean[name] = SETTINGS[name].check(v)
-    return clean
+    try:
+        m = Values.model_validate(values)
+    except ValidationError as e:
+        raise SettingError(refusal(Values, e, quote_names=quote_names)) from None
+    clean = {name: getattr(m, name) for name in values}
+    return {n: v.model_dump() if isinstance(v, BaseModel) else v for n, v in clean.items()}
 
 
 def load(path: Path, base: dict[str, Any] | None = None) -> tuple[dict[str, Any], str]:

@@ -224,3 +224,42 @@ def test_bad_roots_and_formats(tmp_path):
         load_launch_file(str(tmp_path / "x.launch.py"))
 
 
+
+
+# -- the same file succeeds or fails under vla launch and ros2 launch (issue 32 item 10) ----------------
+# Each verdict is launch 3.4's (launch/actions/execute_process.py ExecuteProcess.parse and
+# launch_yaml/entity.py Entity.get_attr): `respawn`, `if`, `unless` and `on_exit` are read as strings
+# (a YAML boolean: TypeError); `respawn_delay`, `sigterm_timeout` and `sigkill_timeout` as floats that
+# may also be strings, and then compared with 0.0 (a string: TypeError; an integer fails the type
+# check: TypeError); `respawn` text is coerced as YAML ('1'/'0' too).
+ROS2_LAUNCH_VERDICTS = [
+    ("respawn: true", "must be a string, got the YAML bool True"),
+    ("respawn: 'true'", None),
+    ("respawn: 'yes'", None),
+    ("respawn: '1'", None),
+    ("respawn: '$(var flag)'", None),
+    ("respawn: 'sometimes'", "must be true or false"),
+    ("respawn_delay: '2.0'", "must be a YAML float such as 2.0, got a string"),
+    ("respawn_delay: 2", "must be a YAML float such as 2.0, got the YAML int 2"),
+    ("respawn_delay: 2.0", None),
+    ("respawn_delay: -1.0", "must be >= 0"),
+    ("sigterm_timeout: '3'", "got a string"),
+    ("sigkill_timeout: 3", "got the YAML int 3"),
+    ("sigterm_timeout: 3.0", None),
+    ("if: true", "must be a string, got the YAML bool True"),
+    ("unless: false", "must be a string, got the YAML bool False"),
+    ("if: '$(var flag)'", None),
+    ("on_exit: '$(var how)'", "on_exit supports only 'shutdown'"),
+]
+
+
+@pytest.mark.parametrize("attr, refusal", ROS2_LAUNCH_VERDICTS, ids=[v[0] for v in ROS2_LAUNCH_VERDICTS])
+def test_process_attributes_are_taken_or_refused_as_ros2_launch_does(tmp_path, attr, refusal):
+    text = ("launch:\n  - arg: {name: flag, default: 'true'}\n  - arg: {name: how, default: shutdown}\n"
+            f"  - executable: {{cmd: /bin/true, {attr}}}\n")
+    if refusal is None:
+        proc = load(tmp_path, text).processes[0]
+        assert proc.respawn == attr.startswith("respawn:")
+    else:
+        with pytest.raises(LaunchFileError, match=refusal):
+            load(tmp_path, text)

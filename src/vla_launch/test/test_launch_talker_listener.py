@@ -24,7 +24,7 @@ def test_two_nodes_start_talk_and_stop_on_sigint(launch, fixtures_dir):
     run.send(signal.SIGINT)
     assert run.finish(timeout=30) == 0, run.text()
     assert launch.wait_dead(pids, 2.0) == []
-    assert run.text().count("stopped (exit code 0)") == 2, run.text()
+    assert run.text().count("process has finished cleanly [pid") == 2, run.text()
 
 
 def test_a_crashing_node_leaves_the_other_running_as_ros2_launch(launch, fixtures_dir):
@@ -32,14 +32,14 @@ def test_a_crashing_node_leaves_the_other_running_as_ros2_launch(launch, fixture
     traceback and every node line are on stdout tagged `[talker-1]` / `[listener-2]`, and the launch
     exits 0 after Ctrl-C."""
     run = launch(os.path.join(fixtures_dir, "crash.launch.yaml"))
-    run.wait_for(r"process \[talker-1\] has died \(exit code 1\)", timeout=60)
+    run.wait_for(r"\[ERROR\] \[talker-1\]: process has died \[pid \d+, exit code 1, cmd '", timeout=60)
     talker, listener = run.child_pids()
     assert launch.wait_dead([talker], 2.0) == [] and launch.alive(listener), run.text()
     run.send(signal.SIGINT)
     assert run.finish(timeout=30) == 0, run.text()
     out = run.text("out")
     assert "[talker-1] RuntimeError: simulated crash after 3 messages" in out, out
-    assert "process [listener-2] stopped (exit code 0)" in out
+    assert "[INFO] [listener-2]: process has finished cleanly [pid" in out
     assert run.text("err") == ""
     assert launch.wait_dead([listener], 2.0) == []
 

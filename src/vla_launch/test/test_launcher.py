@@ -21,7 +21,9 @@ def launch_file(tmp_path, fixtures_dir, *procs, extra=""):
 
 
 def proc(name, args, **attrs):
-    return name, args, "".join(f"      {k}: \"{v}\"\n" for k, v in attrs.items())
+    """An executable action; a str attribute is written quoted, anything else as a YAML value."""
+    return name, args, "".join(f"      {k}: {f'{chr(34)}{v}{chr(34)}' if isinstance(v, str) else v}\n"
+                               for k, v in attrs.items())
 
 
 def test_output_goes_to_stdout_tagged_exec_n_and_partial_lines_flushed(tmp_path, fixtures_dir, launch):
@@ -34,7 +36,8 @@ def test_output_goes_to_stdout_tagged_exec_n_and_partial_lines_flushed(tmp_path,
     out = run.text("out")
     assert "[a-1] hello out" in out and "[a-1] tail" in out and "[a-1] hello err" in out, out
     assert "[b-2] b out" in out
-    assert "[a-1] process started with pid [" in out and "has finished cleanly" in out
+    assert "[INFO] [a-1]: process started with pid [" in out
+    assert re.search(r"\[INFO\] \[a-1\]: process has finished cleanly \[pid \d+\]", out)
     assert run.text("err") == ""
 
 
@@ -49,7 +52,11 @@ def test_sigint_tears_every_child_down(tmp_path, fixtures_dir, launch):
     assert run.finish() == 0, run.text()
     # the grandchild ignores SIGINT/SIGTERM; the final sweep of the children's groups kills it
     assert launch.wait_dead(pids + [grandchild], 2.0) == []
-    assert run.text().count("stopped (killed by SIGINT)") == 2
+    assert "[WARNING] [launch]: user interrupted with ctrl-c (SIGINT)" in run.text()
+    for tag in ("a-1", "b-2"):  # as launch 3.4 words it (a death by a signal: a negative exit code)
+        assert f"[INFO] [{tag}]: sending signal 'SIGINT' to process[{tag}]" in run.text()
+        assert re.search(rf"\[ERROR\] \[{tag}\]: process has died \[pid \d+, exit code -2, cmd '.*'\]\.",
+                         run.text()), run.text()
 
 
 def test_abort_on_exit_tears_the_rest_down_and_sets_the_exit_code(tmp_path, fixtures_dir, launch):
@@ -57,8 +64,8 @@ def test_abort_on_exit_tears_the_rest_down_and_sets_the_exit_code(tmp_path, fixt
     run = launch("--abort-on-exit", f)
     assert run.finish() == 3, run.text()
     assert launch.wait_dead(run.child_pids(), 1.0) == []
-    assert "has died (exit code 3)" in run.text()
-    assert "shutting down (bad died)" in run.text()
+    assert re.search(r"\[bad-2\]: process has died \[pid \d+, exit code 3, cmd", run.text())
+    assert "process[bad-2] has died: shutting down launched system" in run.text()
 
 
 def test_a_crash_leaves_the_others_running_and_the_exit_code_0(tmp_path, fixtures_dir, launch):
@@ -67,8 +74,9 @@ def test_a_crash_leaves_the_others_running_and_the_exit_code_0(tmp_path, fixture
                     proc("slow", "--exit-after 0.8"))
     run = launch(f)
     assert run.finish() == 0, run.text()
-    assert "process [bad-1] has died (exit code 4)" in run.text()
-    assert "process [slow-2] has finished cleanly" in run.text()  # slow was not torn down
+    died = r"\[ERROR\] \[bad-1\]: process has died \[pid \d+, exit code 4, cmd '\S+python\S* \S+proc.py "
+    assert re.search(died + r"--exit-after 0.1 --code 4'\]\.$", run.text(), re.M), run.text()
+    assert "[INFO] [slow-2]: process has finished cleanly [pid" in run.text()  # slow was not torn down
 
 
 def test_a_clean_exit_leaves_the_others_running(tmp_path, fixtures_dir, launch):
@@ -84,7 +92,7 @@ def test_on_exit_shutdown(tmp_path, fixtures_dir, launch):
                     proc("other", ""))
     run = launch(f)
     assert run.finish() == 0
-    assert "has on_exit: shutdown" in run.text()
+    assert "[INFO] [launch]: process[main-1] was required: shutting down launched system" in run.text()
 
 
 def test_stubborn_process_is_escalated_to_sigkill_and_reported(tmp_path, fixtures_dir, launch):
@@ -93,7 +101,11 @@ def test_stubborn_process_is_escalated_to_sigkill_and_reported(tmp_path, fixture
     run.wait_for(r"ready \d+")
     run.send(signal.SIGINT)
     assert run.finish() == 128 + signal.SIGKILL
-    assert "sending SIGTERM" in run.text() and "sending SIGKILL" in run.text()
+    assert ("[ERROR] [stubborn-1]: process[stubborn-1] failed to terminate '0.3' seconds after receiving "
+            "'SIGINT', escalating to 'SIGTERM'") in run.text()
+    assert ("process[stubborn-1] failed to terminate '0.6' seconds after receiving 'SIGTERM', escalating to "
+            "'SIGKILL'") in run.text()
+    assert "sending signal 'SIGKILL' to process[stubborn-1]" in run.text()
     assert launch.wait_dead(run.child_pids(), 1.0) == []
 
 
@@ -102,7 +114,8 @@ def test_sigterm_to_launch_is_forwarded(tmp_path, fixtures_dir, launch):
     run.wait_for(r"ready \d+")
     run.send(signal.SIGTERM)
     assert run.finish() == 0
-    assert "stopped (killed by SIGTERM)" in run.text()
+    assert "[WARNING] [launch]: user interrupted with SIGTERM" in run.text()
+    assert "sending signal 'SIGTERM' to process[a-1]" in run.text() and "exit code -15" in run.text()
 
 
 def test_children_die_when_launch_is_killed(tmp_path, fixtures_dir, launch):
@@ -147,9 +160,9 @@ def test_shutdown_signals_every_process_at_once(tmp_path, fixtures_dir, launch):
     run.send(signal.SIGINT)
     assert run.finish() == 0, run.text()
     lines = run.text().splitlines()
-    first_stop = next(i for i, t in enumerate(lines) if re.search(r"process \[\w-\d\] stopped", t))
+    first_stop = next(i for i, t in enumerate(lines) if re.search(r"\[\w-\d\]: process has", t))
     assert sum("got INT" in t for t in lines[:first_stop]) == 3, run.text()
-    assert run.text().count("stopped (exit code 0)") == 3
+    assert run.text().count("process has finished cleanly") == 3
 
 
 def test_a_stuck_process_is_escalated_without_holding_the_others(tmp_path, fixtures_dir, launch):
@@ -157,33 +170,38 @@ def test_a_stuck_process_is_escalated_without_holding_the_others(tmp_path, fixtu
     run = launch("--sigterm-timeout", "30", f)
     run.wait_for(r"ready \d+", count=2)
     run.send(signal.SIGINT)
-    run.wait_for(r"process \[first-1\] stopped", timeout=25)  # not after stuck's SIGTERM at 30 s
+    run.wait_for(r"\[first-1\]: process has", timeout=25)  # not after stuck's SIGTERM at 30 s
     assert "SIGTERM" not in run.text()
     for _ in range(20):  # a second Ctrl-C (1 s or more after the first) escalates stuck at once
         run.send(signal.SIGINT)
         with contextlib.suppress(AssertionError):
-            run.wait_for("sending SIGTERM", timeout=1.5)
+            run.wait_for("sending signal 'SIGTERM'", timeout=1.5)
             break
     assert run.finish() == 0, run.text()
-    assert "process [stuck-2] stopped (killed by SIGTERM)" in run.text()
+    assert "user interrupted with ctrl-c (SIGINT) again: escalating" in run.text()
+    assert re.search(r"\[stuck-2\]: process has died \[pid \d+, exit code -15", run.text())
 
 
-def test_respawn(tmp_path, fixtures_dir, launch):
-    f = launch_file(tmp_path, fixtures_dir, proc("flaky", "--exit-after 0.1 --code 1", respawn="true",
-                                                 respawn_delay="0.1"))
+def test_respawn_keeps_the_process_label(tmp_path, fixtures_dir, launch):
+    """As ros2 launch: a respawned process keeps its `[flaky-1]`; the next process is `-2`. (The labels
+    were `[flaky-3]`, `[flaky-4]`, ... one per start.)"""
+    f = launch_file(tmp_path, fixtures_dir, proc("flaky", "--out hi --exit-after 0.1 --code 1",
+                                                 respawn="true", respawn_delay=0.1), proc("other", ""))
     run = launch(f)
-    run.wait_for(r"process started with pid", count=3)
+    run.wait_for(r"\[flaky-1\] hi", count=3)  # its third start's output
     run.send(signal.SIGINT)
     assert run.finish() == 0  # respawned crashes are not failures; the stop was clean
-    assert "respawning flaky in 0.1 s" in run.text()
-    assert "[flaky-1] process started" in run.text() and "[flaky-3] process started" in run.text()
+    assert run.text().count("[INFO] [flaky-1]: process started with pid") >= 3
+    assert "[INFO] [other-2]: process started" in run.text()
+    assert not re.search(r"\[(flaky|other)-[3-9]\]", run.text()), run.text()
 
 
 def test_start_failure_and_launch_errors(tmp_path, launch):
     bad = tmp_path / "bad.launch.yaml"
     bad.write_text("launch:\n  - executable: {cmd: /no/such/program}\n")
     run = launch(str(bad))
-    assert run.finish() == 127 and "cannot start /no/such/program" in run.text()
+    assert run.finish() == 127 and ("[ERROR] [program-1]: exception occurred while executing process: "
+                                    "[Errno 2] No such file or directory: '/no/such/program'") in run.text()
     bad.write_text("launch:\n  - node: {pkg: vla_launch, exec: nope}\n")
     run = launch(str(bad))
     assert run.finish() == 1 and "vla_launch nope: No executable found" in run.text()

@@ -37,7 +37,7 @@ def test_a_session_runs_logs_and_stops_cleanly(tmp_path, fixtures_dir):
         assert set(s.pids) == {"a", "b"}
         assert "[a-1] bonjour" in s.tail("a") and s.output("a") == ["bonjour", f"ready {s.pids['a']}"]
     assert s.stop() == 0
-    assert "stopped" in log.read_text()
+    assert "[INFO] [a-1]: sending signal 'SIGINT' to process[a-1]" in log.read_text()
     assert not os.path.exists(s._tmpdir)  # its temporary parameter files are gone, the log is kept
 
 

@@ -134,13 +134,14 @@ class _Entity:
         return v
 
     def flag(self, name: str) -> str | None:
-        """A boolean attribute: YAML bool or text (substitutions allowed)."""
+        """A boolean attribute (`if`, `unless`, `respawn`): text, substitutions allowed. launch 3.4 reads
+        these as strings and refuses a YAML boolean with a TypeError, so a file that ros2 launch
+        refuses is refused here too."""
         v = self.attrs.get(name)
         if v is None or isinstance(v, str):
             return v
-        if isinstance(v, bool):
-            return "true" if v else "false"
-        raise self.fail(f"attribute '{name}' must be true/false, got {v!r}")
+        raise self.fail(f"attribute '{name}' must be a string, got the YAML {type(v).__name__} {v!r} "
+                        f"(ros2 launch refuses it with a TypeError): write {name}: \"{str(v).lower()}\"")
 
     def entities(self, name: str) -> list[dict]:
         v = self.attrs.get(name)
@@ -169,30 +170,36 @@ def _split(ent: _Entity, text: str | None, ctx: SubstitutionContext) -> list[str
         raise ent.fail(str(e)) from e
 
 
-def _float(ent: _Entity, name: str, ctx: SubstitutionContext) -> float | None:
+def _float(ent: _Entity, name: str) -> float | None:
+    """A time attribute (`respawn_delay`, `sigterm_timeout`, `sigkill_timeout`) as launch 3.4's YAML
+    frontend takes it: a YAML float and nothing else. An integer fails its type check and a string its
+    comparison with 0.0, both with a TypeError, so no substitution either."""
     v = ent.attrs.get(name)
     if v is None:
         return None
-    if isinstance(v, (int, float)) and not isinstance(v, bool):
-        return float(v)
-    s = _sub(ent, ent.text(name), ctx)
-    try:
-        f = float(s)
-    except ValueError as e:
-        raise ent.fail(f"attribute '{name}' must be a number, got {s!r}") from e
-    if not f >= 0.0:
-        raise ent.fail(f"attribute '{name}' must be >= 0, got {s!r}")
-    return f
+    if not isinstance(v, float):
+        what = "a string" if isinstance(v, str) else f"the YAML {type(v).__name__} {v!r}"
+        raise ent.fail(f"attribute '{name}' must be a YAML float such as 2.0, got {what} (ros2 launch "
+                       "refuses it with a TypeError)")
+    if not v >= 0.0:
+        raise ent.fail(f"attribute '{name}' must be >= 0, got {v!r}")
+    return v
 
 
 def _bool(ent: _Entity, name: str, ctx: SubstitutionContext) -> bool | None:
-    v = ent.flag(name)
+    """A boolean process attribute as launch evaluates it (type_utils.coerce_to_type): '1' and '0',
+    or what YAML reads as a boolean (true, False, yes, off ...)."""
+    v = _sub(ent, ent.flag(name), ctx)
     if v is None:
         return None
+    text = {"1": "true", "0": "false"}.get(v, v)
     try:
-        return as_condition(substitute(v, ctx), f"attribute '{name}'")
-    except SubstitutionError as e:
-        raise ent.fail(str(e)) from e
+        value = yaml.safe_load(text) if text else text
+    except yaml.YAMLError:
+        value = None
+    if not isinstance(value, bool):
+        raise ent.fail(f"attribute '{name}' must be true or false (or 1, 0), got {v!r}")
+    return value
 
 
 def _condition_ok(ent: _Entity, ctx: SubstitutionContext) -> bool:
@@ -494,14 +501,14 @@ class LaunchFileLoader:
         proc.cwd = None if cwd is None else os.path.expanduser(cwd)
         proc.launch_prefix = _split(ent, ent.text("launch-prefix"), ctx)
         proc.output = _sub(ent, ent.text("output"), ctx) or "screen"
-        on_exit = _sub(ent, ent.text("on_exit"), ctx)
+        on_exit = ent.text("on_exit")  # launch compares the text as written, without substitutions
         if on_exit not in (None, "shutdown"):
             raise ent.fail(f"on_exit supports only 'shutdown', got {on_exit!r}")
         proc.on_exit_shutdown = on_exit == "shutdown"
         proc.respawn = bool(_bool(ent, "respawn", ctx))
-        proc.respawn_delay = _float(ent, "respawn_delay", ctx) or 0.0
-        proc.sigterm_timeout = _float(ent, "sigterm_timeout", ctx)
-        proc.sigkill_timeout = _float(ent, "sigkill_timeout", ctx)
+        proc.respawn_delay = _float(ent, "respawn_delay") or 0.0
+        proc.sigterm_timeout = _float(ent, "sigterm_timeout")
+        proc.sigkill_timeout = _float(ent, "sigkill_timeout")
         proc.source = ent.where
         self.plan.processes.append(proc)
 

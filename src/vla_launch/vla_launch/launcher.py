@@ -10,8 +10,12 @@ output, exits and Ctrl-C are handled as they happen without polling threads.
 As `ros2 launch` (launch 3.4) does it:
 - Every output line of a child, from its stdout or its stderr, is printed to stdout as
   `[<exec>-<n>] line`: the executable's basename (or `exec_name`/`name`) and a counter of the
-  processes this launch has started (1, 2, ...; a respawn gets the next number). The launcher's own
-  lines (`[INFO] [launch]: ...`) go to stdout too.
+  processes this launch has started (1, 2, ...; a respawn keeps its process's tag). The launcher's
+  own lines go to stdout too, worded as launch 3.4 words them: `[INFO] [talker-1]: process started
+  with pid [N]`, `process has finished cleanly [pid N]`, `[ERROR] [talker-1]: process has died [pid
+  N, exit code C, cmd '...'].`, `sending signal 'SIGINT' to process[talker-1]`, `[INFO] [launch]:
+  process[talker-1] was required: shutting down launched system` (on_exit), `[WARNING] [launch]:
+  user interrupted with ctrl-c (SIGINT)`.
 - A process that ends, whatever its code, leaves the others running; `respawn` restarts it after
   `respawn_delay` s; `on_exit: shutdown` shuts the launch down. The exit code stays 0.
   `keep_going=False` (harnesses) instead tears down on a non-zero exit and returns that code.
@@ -49,6 +53,7 @@ except (OSError, AttributeError):  # not Linux
     _PRCTL = None
 
 _REPEAT_DEBOUNCE_S = 1.0
+_SHUTTING_DOWN = "shutting down launched system"
 _CLEAN_STOP_CODES = {0, -signal.SIGINT, -signal.SIGTERM, 128 + signal.SIGINT, 128 + signal.SIGTERM}
 
 
@@ -88,6 +93,12 @@ def _signal_name(num: int) -> str:
         return f"signal {num}"
 
 
+def _interrupted(sig: int) -> str:
+    """What launch says on a signal to itself (it has words for Ctrl-C; the others are said alike)."""
+    return "user interrupted with ctrl-c (SIGINT)" if sig == signal.SIGINT else \
+        f"user interrupted with {_signal_name(sig)}"
+
+
 def _preexec(parent_pid: int):
     def setup() -> None:  # runs in the child between fork and exec
         if _PRCTL is not None:
@@ -123,7 +134,7 @@ class Launcher:
         self._signals: list[int] = []
         self._last_escalation = 0.0
         self._wake_w: int | None = None
-        self._respawns: list[tuple[float, ProcessSpec]] = []
+        self._respawns: list[tuple[float, ProcessSpec, str]] = []  # (when, spec, its tag)
         self._count = 0  # processes started, for the `exec-n` tags
         self._sel = selectors.DefaultSelector()
 
@@ -135,8 +146,9 @@ class Launcher:
         except (BrokenPipeError, ValueError):
             pass
 
-    def log(self, msg: str, error: bool = False) -> None:
-        self._write(self.out, f"[{'ERROR' if error else 'INFO'}] [launch]: {msg}\n")
+    def log(self, msg: str, error: bool = False, source: str = "launch", level: str | None = None) -> None:
+        """A line of the launcher's own, as launch's loggers write it: `[LEVEL] [source]: msg`."""
+        self._write(self.out, f"[{level or ('ERROR' if error else 'INFO')}] [{source}]: {msg}\n")
 
     def _emit(self, child: _Child, fd: int, data: bytes, final: bool = False) -> None:
         buf = child.partial.setdefault(fd, bytearray())
@@ -172,7 +184,11 @@ class Launcher:
         child.fds.pop(fd, None)
 
     # --------------------------------------------------------------------------------- start
-    def _start(self, spec: ProcessSpec) -> None:
+    def _start(self, spec: ProcessSpec, tag: str | None = None) -> None:
+        """Start `spec`; a respawn passes the tag of the process it replaces (launch keeps it)."""
+        if tag is None:
+            self._count += 1
+            tag = f"{spec.exec_name or spec.label}-{self._count}"
         env = dict(self.env)
         env.setdefault("PYTHONUNBUFFERED", "1")
         for k, v in spec.env.items():
@@ -185,13 +201,12 @@ class Launcher:
                 spec.cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                 env=env, cwd=spec.cwd, close_fds=True, process_group=0, preexec_fn=_preexec(os.getpid()))
         except (OSError, subprocess.SubprocessError) as e:
-            self.log(f"{spec.label}: cannot start {spec.cmd[0]}: {e}", error=True)
+            self.log(f"exception occurred while executing process: {e}", error=True, source=tag)
             self.failures.append((spec.label, 127))
             if not self.keep_going:
-                self.begin_shutdown(signal.SIGINT, f"{spec.label} failed to start")
+                self.begin_shutdown(signal.SIGINT, f"process[{tag}] failed to start: {_SHUTTING_DOWN}")
             return
-        self._count += 1
-        child = _Child(spec, popen, f"{spec.exec_name or spec.label}-{self._count}")
+        child = _Child(spec, popen, tag)
         for stream, is_err in ((popen.stdout, False), (popen.stderr, True)):
             fd = os.dup(stream.fileno())
             stream.close()
@@ -203,7 +218,7 @@ class Launcher:
         self.labels[child.pid] = spec.label
         self.tags[child.pid] = child.tag
         self._tell_reaper(f"{child.pid} {self._grace(spec):g}")
-        self.log(f"[{child.tag}] process started with pid [{child.pid}]: {' '.join(spec.cmd)}")
+        self.log(f"process started with pid [{child.pid}]", source=child.tag)
 
     # ---------------------------------------------------------------------------------- reaper
     def _grace(self, spec: ProcessSpec) -> float:
@@ -252,6 +267,8 @@ class Launcher:
 
     # ------------------------------------------------------------------------------ shutdown
     def _send(self, child: _Child, sig: int) -> None:
+        if child.popen.poll() is None:
+            self.log(f"sending signal '{_signal_name(sig)}' to process[{child.tag}]", source=child.tag)
         try:
             os.killpg(child.pid, sig)
         except (ProcessLookupError, PermissionError):  # the child left its group (setsid)
@@ -270,13 +287,18 @@ class Launcher:
             child.stage = 3
             child.deadline = None
 
-    def _escalate(self, child: _Child) -> None:
-        if child.stage <= 1:
-            self.log(f"sending SIGTERM to {child.tag}", error=child.stage == 1)
-            self._send(child, signal.SIGTERM)
-        elif child.stage == 2:
-            self.log(f"{child.tag} did not stop after SIGTERM, sending SIGKILL", error=True)
-            self._send(child, signal.SIGKILL)
+    def _escalate(self, child: _Child, timed_out: bool) -> None:
+        """The next signal to `child`: at its deadline (said as launch says it) or on a repeated Ctrl-C."""
+        nxt = {0: signal.SIGTERM, 1: signal.SIGTERM, 2: signal.SIGKILL}.get(child.stage)
+        if nxt is None:
+            return
+        if timed_out and child.stage:
+            term = self.sigterm_timeout if child.spec.sigterm_timeout is None else child.spec.sigterm_timeout
+            kill = self.sigkill_timeout if child.spec.sigkill_timeout is None else child.spec.sigkill_timeout
+            after, got = (term, "SIGINT") if child.stage == 1 else (term + kill, "SIGTERM")
+            self.log(f"process[{child.tag}] failed to terminate '{after:g}' seconds after receiving "
+                     f"'{got}', escalating to '{_signal_name(nxt)}'", error=True, source=child.tag)
+        self._send(child, nxt)
 
     def begin_shutdown(self, first_signal: int, reason: str) -> None:
         """Signal every child at once (each one's escalation runs on its own deadlines)."""
@@ -284,8 +306,7 @@ class Launcher:
             return
         self.shutting_down = True
         self._respawns.clear()
-        self.log(f"shutting down ({reason}): sending {_signal_name(first_signal)} to "
-                 f"{len(self.children)} process(es)")
+        self.log(reason, level="WARNING" if reason.startswith("user interrupted") else "INFO")
         for child in self.children:
             self._send(child, first_signal)
 
@@ -300,14 +321,15 @@ class Launcher:
             now = time.monotonic()
             if not self.shutting_down:
                 first = signal.SIGINT if sig == signal.SIGINT else signal.SIGTERM
-                self.begin_shutdown(first, f"received {_signal_name(sig)}")
+                self.begin_shutdown(first, _interrupted(sig))
                 self._last_escalation = now
             elif now - self._last_escalation >= _REPEAT_DEBOUNCE_S:
                 # A repeated Ctrl-C escalates; one signal delivered twice (e.g. by `timeout`, which
                 # signals the child and then its own group) must not.
                 self._last_escalation = now
+                self.log(f"{_interrupted(sig)} again: escalating", level="WARNING")
                 for child in self.children:
-                    self._escalate(child)
+                    self._escalate(child, timed_out=False)
 
     # ------------------------------------------------------------------------------- exits
     def _reap(self) -> None:
@@ -321,29 +343,26 @@ class Launcher:
             self._on_exit(child, rc)
 
     def _on_exit(self, child: _Child, rc: int) -> None:
-        how = f"exit code {rc}" if rc >= 0 else f"killed by {_signal_name(-rc)}"
+        """Say how `child` ended as launch says it (a signal is a negative exit code there too)."""
         spec = child.spec
         self.ended.append((spec.label, rc))
+        if rc == 0:
+            self.log(f"process has finished cleanly [pid {child.pid}]", source=child.tag)
+        else:
+            self.log(f"process has died [pid {child.pid}, exit code {rc}, cmd '{' '.join(spec.cmd)}'].",
+                     error=True, source=child.tag)
         if self.shutting_down:
             if child.stage == 3 or rc not in _CLEAN_STOP_CODES:
                 self.failures.append((spec.label, rc))
-                self.log(f"process [{child.tag}] did not stop cleanly ({how})", error=True)
-            else:
-                self.log(f"process [{child.tag}] stopped ({how})")
             return
-        if rc == 0:
-            self.log(f"process [{child.tag}] has finished cleanly")
-        else:
-            self.log(f"process [{child.tag}] has died ({how}), cmd: {' '.join(spec.cmd)}", error=True)
-            if not self.keep_going and not spec.respawn:
-                self.failures.append((spec.label, rc))
+        if rc != 0 and not self.keep_going and not spec.respawn:
+            self.failures.append((spec.label, rc))
         if spec.respawn:
-            self.log(f"respawning {spec.label} in {spec.respawn_delay:g} s")
-            self._respawns.append((time.monotonic() + spec.respawn_delay, spec))
+            self._respawns.append((time.monotonic() + spec.respawn_delay, spec, child.tag))
         elif spec.on_exit_shutdown:
-            self.begin_shutdown(signal.SIGINT, f"{spec.label} exited and has on_exit: shutdown")
+            self.begin_shutdown(signal.SIGINT, f"process[{child.tag}] was required: {_SHUTTING_DOWN}")
         elif rc != 0 and not self.keep_going:
-            self.begin_shutdown(signal.SIGINT, f"{spec.label} died")
+            self.begin_shutdown(signal.SIGINT, f"process[{child.tag}] has died: {_SHUTTING_DOWN}")
 
     def exit_code(self) -> int:
         if not self.failures:
@@ -360,16 +379,16 @@ class Launcher:
             now = time.monotonic()
             for child in self.children:
                 if child.deadline is not None and now >= child.deadline:
-                    self._escalate(child)
+                    self._escalate(child, timed_out=True)
             due = [r for r in self._respawns if r[0] <= now]
             for r in due:
                 self._respawns.remove(r)
                 if not self.shutting_down:
-                    self._start(r[1])
+                    self._start(r[1], tag=r[2])
             if not self.children and not self._respawns:
                 return
             waits = [c.deadline - now for c in self.children if c.deadline is not None]
-            waits += [t - now for t, _ in self._respawns]
+            waits += [t - now for t, _, _ in self._respawns]
             timeout = max(0.0, min([0.5] + waits))
             for key, _ in self._sel.select(timeout):
                 if key.data is None:

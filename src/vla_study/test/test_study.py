@@ -17,8 +17,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 from vla_study.protocol import ProtocolError, latin_square, load_protocol
-from vla_study.runner import task_goal, trial_plan
+from vla_study.runner import trial_plan
 from vla_study.smoothness import sparc, speed_profile
+from vla_study.trial import task_goal
 
 from vla_study import participant as part
 
@@ -284,8 +285,8 @@ def test_the_study_graph_leaves_the_idle_oracle_out(tmp_path):
     from vla_launch.plan import find_launch_file
     from vla_launch.plan import load as load_launch
     from vla_launch.session import argument_text
-    from vla_study.cli import SHIPPED
     from vla_study.graph_backend import study_graph_config
+    from vla_study.protocol import SHIPPED
 
     cfg = study_graph_config(load_protocol(SHIPPED), tmp_path)
     assert TELEOP not in cfg.node_parameters() and cfg.model_nodes() == (CONTROLLER,)
@@ -357,7 +358,7 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
 
 def test_anonymise_leaves_no_participant_id_in_the_shared_copy(tmp_path):
     from vla_study.anonymise import anonymise
-    from vla_study.runner import file_stem
+    from vla_study.trial import file_stem
 
     src, dest, key = tmp_path / "study", tmp_path / "shared", tmp_path / "private" / "key.csv"
     (src / "trials").mkdir(parents=True)

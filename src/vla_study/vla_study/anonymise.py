@@ -16,7 +16,7 @@ import json
 import shutil
 from pathlib import Path
 
-from vla_study.runner import file_stem
+from vla_study.trial import file_stem
 
 
 def anonymise(src: Path, dest: Path, key_path: Path) -> dict[str, str]:

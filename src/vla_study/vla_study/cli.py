@@ -11,18 +11,26 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import math
 import sys
 from pathlib import Path
 
+from vla_common.catalogue import load_catalogue
+from vla_common.kinematics import PandaKinematics
+from vla_evaluation.resources import latent_model_dir
+
+from vla_study.analysis import analyse
+from vla_study.person import start_point
 from vla_study.protocol import (
     PAPER,
+    SHIPPED,
+    Protocol,
     ProtocolError,
     load_protocol,
     parse_participants,
     robot_refusal,
 )
-
-SHIPPED = PAPER.with_name("shipped.yaml")
+from vla_study.runner import run_study, trial_plan
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -52,21 +60,35 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
-    from vla_evaluation.resources import latent_model_dir
-
     try:
         proto = load_protocol(args.protocol,
                               model_exists=lambda m: (latent_model_dir(m) / "config.json").is_file())
+        proto = with_overrides(proto, args)
     except ProtocolError as e:
         print(f"protocol refused:\n{e}", file=sys.stderr)
         return 2
+    except ValueError as e:
+        print(f"--participants: {e}", file=sys.stderr)
+        return 2
+    if why := robot_refusal(proto):
+        print(f"protocol refused:\n{why}", file=sys.stderr)
+        return 2
+    if args.check:
+        print_sessions(proto)
+        return 0
+    if not args.analyse_only:
+        run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
+                  use_sim_time=args.use_sim_time)
+    for line in analyse(args.out, args.figures or args.out):
+        print(line)
+    return 0
+
+
+def with_overrides(proto: Protocol, args) -> Protocol:
+    """The protocol with the command line's overrides; where each came from is kept for messages."""
     if args.participants:
-        try:
-            proto = dataclasses.replace(proto, participants=parse_participants(args.participants),
-                                        origin={**proto.origin, "participants": "--participants"})
-        except ValueError as e:
-            print(f"--participants: {e}", file=sys.stderr)
-            return 2
+        proto = dataclasses.replace(proto, participants=parse_participants(args.participants),
+                                    origin={**proto.origin, "participants": "--participants"})
     if args.trials is not None:
         proto = dataclasses.replace(proto, trials=args.trials)
     if args.time_limit is not None:
@@ -76,45 +98,26 @@ def run(args) -> int:
                                     origin={**proto.origin, "backend": "--backend"})
     if args.robot is not None:
         proto = dataclasses.replace(proto, robot=args.robot, origin={**proto.origin, "robot": "--robot"})
-    if why := robot_refusal(proto):
-        print(f"protocol refused:\n{why}", file=sys.stderr)
-        return 2
-    if args.check:
-        from vla_study.runner import trial_plan
+    return proto
 
-        plan = trial_plan(proto)
-        if proto.robot == "real":
-            import math
 
-            from vla_common.catalogue import load_catalogue
-            from vla_common.kinematics import PandaKinematics
-
-            from vla_study.person import start_point
-
-            cat, kin = load_catalogue(""), PandaKinematics()
-        print(f"{proto.source}: valid; {len(proto.participants)} participants, {len(plan)} trials "
-              f"({sum(t.phase == 'practice' for t in plan)} practice)")
-        for who in proto.participants:
-            print(f"\n{who}:")
-            for t in (t for t in plan if t.participant == who):
-                where = ""
-                if proto.robot == "real":   # the experimenter's sheet: where the object goes
-                    goal, _seed = start_point(t, cat, kin)
-                    where = (f", place at x {goal.x:.3f} m, y {goal.y:.3f} m, "
-                             f"yaw {math.degrees(goal.yaw):.0f} deg")
-                print(f"  {t.order + 1:3d}. {t.strategy:20s} {t.setting:6s} {t.task:30s} {t.phase:8s} "
-                      f"trial {t.trial + 1}, placement seed {t.layout_seed}{where}")
-        return 0
-    if not args.analyse_only:
-        from vla_study.runner import run_study
-
-        run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
-                  use_sim_time=args.use_sim_time)
-    from vla_study.analysis import analyse
-
-    for line in analyse(args.out, args.figures or args.out):
-        print(line)
-    return 0
+def print_sessions(proto: Protocol) -> None:
+    """Each participant's session in order; on the real robot with where the object goes (the
+    experimenter's sheet)."""
+    plan = trial_plan(proto)
+    real = proto.robot == "real"
+    cat, kin = (load_catalogue(""), PandaKinematics()) if real else (None, None)
+    print(f"{proto.source}: valid; {len(proto.participants)} participants, {len(plan)} trials "
+          f"({sum(t.phase == 'practice' for t in plan)} practice)")
+    for who in proto.participants:
+        print(f"\n{who}:")
+        for t in (t for t in plan if t.participant == who):
+            where = ""
+            if real:
+                goal, _seed = start_point(t, cat, kin)
+                where = f", place at x {goal.x:.3f} m, y {goal.y:.3f} m, yaw {math.degrees(goal.yaw):.0f} deg"
+            print(f"  {t.order + 1:3d}. {t.strategy:20s} {t.setting:6s} {t.task:30s} {t.phase:8s} "
+                  f"trial {t.trial + 1}, placement seed {t.layout_seed}{where}")
 
 
 def main(argv: list[str] | None = None) -> int:

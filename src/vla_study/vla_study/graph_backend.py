@@ -13,7 +13,7 @@ as `vla_evaluation evaluate --mode graph` and `demo` do) plus the recorder, and 
   The controller turns it into a command (the decoder, or the end-effector baseline), and the bridge's
   safety layer into motion: every command takes the path a person's would;
 - ends at the participant's "done" or the time limit, releases the stick, lets the arm come to rest
-  (0.5 s), closes the bag and, while the recorder closes it, scores the trial with `runner.trial_row`,
+  (0.5 s), closes the bag and, while the recorder closes it, scores the trial with `trial.trial_row`,
   the physics backend's scorer. Each row carries `wall_phases` (wall s of each step above) and
   `trial_rtf` (simulated over wall s while the participant drove).
 The launch leaves out the shipped sim_teleoperator (the oracle; `GraphConfig.teleoperator`): the
@@ -32,11 +32,14 @@ import re
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from sensor_msgs.msg import Joy
 from std_srvs.srv import Trigger
+from vla_common.kinematics import PandaKinematics
+from vla_common.tasks import parse_task
 from vla_evaluation.graph import (
     CONTROLLER,
     EpisodeMonitor,
@@ -45,12 +48,16 @@ from vla_evaluation.graph import (
     GraphEvaluator,
     GraphObserver,
 )
+from vla_evaluation.kinematic import TeleopSettings, plan_waypoints
+from vla_evaluation.metrics import LimitMonitor, final_state_error, judge_task
+from vla_evaluation.resources import detector_model_path, latent_model_dir
 
 from vla_interfaces.msg import ControllerStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import StartEpisode
 from vla_study.participant import HumanOperator, HumanParams, Observation
 from vla_study.person import Experimenter, InputTally, PersonDriver, run_person_trial
-from vla_study.protocol import STRATEGIES, Protocol
+from vla_study.protocol import Protocol
+from vla_study.trial import Measured, Participant, Scene, Trial, TrialBackend, strategy_mode
 
 RECORDER = "recorder"
 AXIS, EE_MODE_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 4  # the stick as the controller is set up for it
@@ -158,9 +165,6 @@ class StudyObserver(GraphObserver):
 
 def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0,
                        operator_port: int | None = None) -> GraphConfig:
-    from vla_evaluation.kinematic import TeleopSettings
-    from vla_evaluation.resources import detector_model_path, latent_model_dir
-
     return GraphConfig(
         model_path=str(latent_model_dir("default")), detector_model=str(detector_model_path()),
         # the controller commands at its shipped 100 Hz (the bridge's 0.1 s watchdog then survives a
@@ -190,16 +194,35 @@ class PhaseClock:
         self._t = now
 
 
-class GraphBackend:
+def monitor_path(monitor: EpisodeMonitor, t_end: float) -> tuple[np.ndarray, np.ndarray]:
+    """The TCP path (T, 3) and its times that the monitor sampled from joint_states until `t_end`."""
+    keep = np.asarray(monitor.path_t) <= t_end + 1e-9
+    path = np.asarray(monitor.path)[keep[: len(monitor.path)]] if monitor.path else np.zeros((0, 3))
+    return path.reshape(-1, 3), np.asarray(monitor.path_t)[keep]
+
+
+def limit_fields(lim: LimitMonitor) -> dict:
+    """The row's limit violations, measured on joint_states (as the evaluation's)."""
+    return dict(limit_violations=int(lim.violations), position_violations=int(lim.position_violations),
+                velocity_violations=int(lim.velocity_violations),
+                max_speed_ratio=round(float(lim.max_speed_ratio), 3))
+
+
+@dataclass
+class GraphScene(Scene):
+    clock: PhaseClock = field(default_factory=PhaseClock)
+    q_start: np.ndarray | None = None
+    bag_path: str = ""
+
+
+class GraphBackend(TrialBackend):
     """Runs each trial on the launched graph (start it once; `close()` stops it)."""
 
     def __init__(self, protocol: Protocol, out: Path, log=print, real_time_factor: float = 2.0,
                  experimenter: Experimenter | None = None, operator_port: int = 8080) -> None:
         """`experimenter`: for real participants (None: simulated ones only); the operator station then
         starts on 127.0.0.1:`operator_port` (0: any free port)."""
-        from vla_common.kinematics import PandaKinematics
-
-        self.p, self.log, self.experimenter = protocol, log, experimenter
+        self.protocol, self.log, self.experimenter = protocol, log, experimenter
         Path(out, "logs").mkdir(parents=True, exist_ok=True)
         Path(out, "bags").mkdir(parents=True, exist_ok=True)
         self.out = Path(out)
@@ -233,94 +256,103 @@ class GraphBackend:
     def close(self) -> None:
         self.ev.close()
 
-    def _set_strategy(self, trial) -> str:
-        mode = STRATEGIES[trial.strategy]
+    def _set_strategy(self, trial: Trial) -> str:
+        mode = strategy_mode(trial.strategy)
         if mode != self.mode:
             self.ev.obs.set_parameters(CONTROLLER, {"mode": mode})
             self.mode = mode
         if mode == "latent":
-            from vla_evaluation.resources import latent_model_dir
-
-            self.ev.set_model(str(latent_model_dir(self.p.models[trial.strategy][trial.setting])))
+            self.ev.set_model(str(latent_model_dir(self.protocol.models[trial.strategy][trial.setting])))
         return mode
 
-    def run(self, trial, params: HumanParams | None, operator_seed: int) -> tuple[dict, dict]:
-        """One trial: `params` of a simulated participant, None for a person (the experimenter's)."""
-        from vla_common.tasks import parse_task
-        from vla_evaluation.kinematic import plan_waypoints
-        from vla_evaluation.metrics import final_state_error, judge_task
-
-        from vla_study.runner import task_goal, trial_row
-
-        ev, obs, p = self.ev, self.ev.obs, self.p
+    def prepare(self, trial: Trial) -> GraphScene:
+        """The strategy, the scene reset by ~/reset (the trial's seeded layout, settled, detected), the
+        trial's bag opened while the controller latches the new detection (the bag records the latch)."""
+        ev = self.ev
         clock = PhaseClock()
         mode = self._set_strategy(trial)
         spec = parse_task(trial.task, self.catalogue)
         clock.mark("strategy")
-        _seed, start, q_now = ev.reset_scene(spec, int(trial.layout_seed), 1)  # ~/reset, settled, detected
+        _seed, start, q_now = ev.reset_scene(spec, int(trial.layout_seed), 1)
         clock.mark("reset")
-        bag = self._start_bag(trial)  # the bag opens while the controller latches (it records the latch)
+        bag = self._start_bag(trial)
         clock.mark("bag_start")
-        note = ""
+        scene = GraphScene(mode, spec, start, clock=clock, q_start=q_now)
         if mode == "latent" and (why := ev.latch()):
-            note = f"no context: {why}"  # the controller waits, nothing moves (as the physics backend)
+            scene.note = f"no context: {why}"  # the controller waits, nothing moves (as the physics backend)
         clock.mark("latch")
-        bag_path = self._bag_opened(bag, trial)
+        scene.bag_path = self._bag_opened(bag, trial)
         clock.mark("bag_opened")
-        monitor = EpisodeMonitor(spec, start, self.kin, max(1, round(ev.config.state_rate / 20.0)), False)
-        wall_limit = p.time_limit / max(ev.config.real_time_factor, 0.05) * 4 + 60
-        person = params is None
-        if person:
+        if not trial.participant.startswith("sim:"):   # a person: the experimenter says when they are ready
             self.experimenter.confirm(f"Trial {trial.key}: {trial.task} with {trial.strategy}"
                                       f" ({trial.phase}). The scene is reset; is the participant ready?")
+        return scene
+
+    def participant(self, trial: Trial, scene: Scene, params: HumanParams | None, seed: int) -> Participant:
+        """A person's tally of the `joy` they send (`params` None), else the simulated operator."""
+        if params is None:
+            return InputTally(AXIS, EE_MODE_BUTTON)
+        return super().participant(trial, scene, params, seed)
+
+    def drive(self, trial: Trial, scene: GraphScene, op: Participant) -> Measured:
+        """The participant drives until done or the limit; the arm rests; the bag closes while the trial
+        is measured."""
+        ev, obs, p = self.ev, self.ev.obs, self.protocol
+        monitor = self._monitor(scene)
         obs.monitor = monitor
         monitor.t_start = obs.now()
-        if person:
-            driver = PersonDriver(InputTally(AXIS, EE_MODE_BUTTON), monitor.t_start, float(p.time_limit))
+        if isinstance(op, InputTally):
+            driver = PersonDriver(op, monitor.t_start, float(p.time_limit))
         else:
-            op = HumanOperator(params, task_goal(trial.task, self.catalogue), mode, seed=operator_seed,
-                               cycle=p.end_effector_axes)
-            driver = TrialDriver(op, spec.object_class, monitor.t_start, float(p.time_limit), self.kin,
-                                 mode == "end_effector")
-        obs.driver = driver
-        try:
-            if person:
-                run_person_trial(driver, self.experimenter, f"Driving (at most {p.time_limit:g} s): "
-                                 "when the participant says done", wall_limit)
-            obs.wait_for(driver.finished.is_set, wall_limit, f"the end of trial {trial.key}", ev.alive)
-        finally:
-            obs.driver = None
-        clock.mark("trial")
+            driver = TrialDriver(op, scene.spec.object_class, monitor.t_start, float(p.time_limit), self.kin,
+                                 scene.mode == "end_effector")
+        self._until_the_end(trial, driver, p.time_limit / max(ev.config.real_time_factor, 0.05) * 4 + 60)
+        scene.clock.mark("trial")
         t_end = driver.t_start + driver.t_end
         obs.wait_for(lambda: obs.objects_stamp >= t_end + SETTLE_S and obs.q_stamp >= t_end + SETTLE_S,
                      60.0, "the arm to rest after the trial", ev.alive)
         obs.monitor = None
         with obs.cond:
-            q_final, end = obs.q.copy(), obs.objects.get(spec.object_class)
-        clock.mark("settle")
-        bag_closed = self._stop_bag(t_end + SETTLE_S, bag_path)  # the recorder closes it while we score
-        clock.mark("bag_stop")
-        keep = np.asarray(monitor.path_t) <= driver.t_end + 1e-9
-        path = np.asarray(monitor.path)[keep[: len(monitor.path)]] if monitor.path else np.zeros((0, 3))
-        times = np.asarray(monitor.path_t)[keep]
+            q_final, end = obs.q.copy(), obs.objects.get(scene.spec.object_class)
+        scene.clock.mark("settle")
+        bag_closed = self._stop_bag(t_end + SETTLE_S, scene.bag_path)  # the recorder closes it as we score
+        scene.clock.mark("bag_stop")
         if end is None:
-            raise GraphError(f"{spec.object_class} missing from scene/objects after trial {trial.key}")
-        ok, disp, _ang = judge_task(spec, start, end, path[:, :2] if len(path) else np.zeros((0, 2)))
-        final_wp = plan_waypoints(self.kin, spec, start, q_now, catalogue=self.catalogue)[-1]
-        row, arrays = trial_row(driver.op, path, times, np.asarray(driver.sticks), ok=ok, disp=disp,
-                                t_success=monitor.tracker.time_to_success, t_done=driver.t_done,
-                                t_end=driver.t_end, fse=final_state_error(q_final, final_wp),
-                                interventions=monitor.tally.interventions, start=start, note=note)
-        row.update(bag_closed())
-        lim = monitor.limits  # measured on joint_states, as the evaluation's
-        row.update(limit_violations=int(lim.violations), position_violations=int(lim.position_violations),
-                   velocity_violations=int(lim.velocity_violations),
-                   max_speed_ratio=round(float(lim.max_speed_ratio), 3))
-        clock.mark("score")  # with the bag's closing
+            raise GraphError(f"{scene.spec.object_class} missing from scene/objects after trial {trial.key}")
+        path, times = monitor_path(monitor, driver.t_end)
+        ok, disp, _ang = judge_task(scene.spec, scene.start, end, path[:, :2])
+        final_wp = plan_waypoints(self.kin, scene.spec, scene.start, scene.q_start,
+                                  catalogue=self.catalogue)[-1]
+        extra = bag_closed()
+        extra.update(limit_fields(monitor.limits))  # measured on joint_states, as the evaluation's
+        scene.clock.mark("score")  # with the bag's closing
         # where the trial's wall time went, and the simulation's pace while the participant drove
-        rtf = driver.t_end / max(clock.phases["trial"], 1e-3)
-        row.update(wall_phases=clock.phases, trial_rtf=round(rtf, 2), camera_rate=ev.config.camera_rate)
-        return row, arrays
+        rtf = driver.t_end / max(scene.clock.phases["trial"], 1e-3)
+        extra.update(wall_phases=scene.clock.phases, trial_rtf=round(rtf, 2),
+                     camera_rate=ev.config.camera_rate)
+        return Measured(path, times, np.asarray(driver.sticks), ok=ok, disp=disp,
+                        t_success=monitor.tracker.time_to_success, t_done=driver.t_done, t_end=driver.t_end,
+                        fse=final_state_error(q_final, final_wp), interventions=monitor.tally.interventions,
+                        extra=extra)
+
+    def _monitor(self, scene: GraphScene) -> EpisodeMonitor:
+        """The trial's measurements on joint_states, scene/objects and the statuses (a path sample
+        every 1/20 s of the state rate)."""
+        every = max(1, round(self.ev.config.state_rate / 20.0))
+        return EpisodeMonitor(scene.spec, scene.start, self.kin, every, False)
+
+    def _until_the_end(self, trial: Trial, driver, wall_limit: float) -> None:
+        """Let the driver run on the observer's timer until the trial ends (a person's: at the
+        experimenter's word or the limit)."""
+        obs = self.ev.obs
+        obs.driver = driver
+        try:
+            if isinstance(driver, PersonDriver):
+                run_person_trial(driver, self.experimenter, f"Driving (at most {self.protocol.time_limit:g} "
+                                 "s): when the participant says done", wall_limit)
+            obs.wait_for(driver.finished.is_set, wall_limit, f"the end of trial {trial.key}", self.ev.alive)
+        finally:
+            obs.driver = None
 
     def _start_bag(self, trial) -> Callable[[], StartEpisode.Response]:
         """Ask the recorder for the trial's bag once its clock has passed the reset; returns the wait."""

@@ -14,13 +14,15 @@ import json
 from collections import defaultdict
 from pathlib import Path
 
-from vla_study.protocol import STRATEGIES, ProtocolError, load_protocol, parse_participants
+from vla_evaluation.kinematic import TeleopSettings
+from vla_evaluation.physics import run_episode
+
+from vla_study.physics_backend import PhysicsBackend
+from vla_study.protocol import SHIPPED, STRATEGIES, ProtocolError, load_protocol, parse_participants
 from vla_study.runner import trial_plan
 
 
 def main(argv=None) -> int:
-    from vla_study.cli import SHIPPED
-
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--protocol", type=Path, default=SHIPPED)
     ap.add_argument("--participants", default=None, help="sim:N (overrides the file)")
@@ -46,11 +48,6 @@ def main(argv=None) -> int:
             done.add(key)
             todo.append((key, t))
     if todo:
-        from vla_evaluation.kinematic import TeleopSettings
-        from vla_evaluation.physics import run_episode
-
-        from vla_study.runner import PhysicsBackend
-
         backend = PhysicsBackend(proto)
         settings = TeleopSettings(rate=proto.rate, time_limit=proto.time_limit)
         for key, t in todo:

@@ -29,6 +29,9 @@ from dataclasses import dataclass, field
 from typing import Protocol as TypingProtocol
 
 import numpy as np
+from vla_common.robot import READY_POSE
+from vla_common.tasks import parse_task
+from vla_evaluation.kinematic import plannable_layout
 from vla_latent_controller.teleop import TeleopParams
 
 # |axis| above this counts as a deflection: the controller's deadband (declared there)
@@ -214,10 +217,6 @@ def start_point(trial, catalogue, kin):
     """The trial's start point (an ObjectPose in the robot's base frame) and the layout seed it came
     from: the placement the simulated study resets to for the same trial (practice: the fixed reset
     point `practice.reset_seed`; test trials: a seeded new placement)."""
-    from vla_common.robot import READY_POSE
-    from vla_common.tasks import parse_task
-    from vla_evaluation.kinematic import plannable_layout
-
     spec = parse_task(trial.task, catalogue)
     _objects, goal, _wps, used = plannable_layout(kin, spec, spec.object_class, int(trial.layout_seed),
                                                   np.asarray(READY_POSE), 1, catalogue=catalogue)
@@ -226,8 +225,6 @@ def start_point(trial, catalogue, kin):
 
 def placement_text(trial, goal, q_now: np.ndarray) -> str:
     """What the experimenter is told before a trial: the trial, where the object goes, the arm's state."""
-    from vla_common.robot import READY_POSE
-
     far = float(np.max(np.abs(np.asarray(q_now) - np.asarray(READY_POSE))))
     name = goal.class_id.replace("_", " ")
     return (f"Trial {trial.order + 1} of {trial.participant}: {trial.task} with {trial.strategy} "

@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import yaml
+from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.tasks import parse_task
 
 STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-effector": "end_effector"}
 # The shipped models per strategy and setting (vla_latent_controller/models); localization models are
@@ -22,6 +24,7 @@ KEYS = {"study", "participants", "population_seed", "strategies", "settings", "t
         "end_effector_debounce", "robot"}
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 PAPER = Path(__file__).with_name("protocols") / "paper.yaml"
+SHIPPED = PAPER.with_name("shipped.yaml")  # the paper's procedure with latent-YOLO and the end-effector only
 # graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
 # physics: the same participant and scoring with the graph's computations in one process (fast sweeps)
 BACKENDS = ("graph", "physics")
@@ -113,9 +116,6 @@ def parse_participants(text: str) -> list[str]:
 
 def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protocol:
     """Read and validate a protocol file; ProtocolError with every problem as file:line: message."""
-    from vla_common.catalogue import CatalogueError, load_catalogue
-    from vla_common.tasks import parse_task
-
     path = Path(path)
     where = str(path)
     try:

@@ -32,15 +32,20 @@ from __future__ import annotations
 import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from std_srvs.srv import SetBool
+from vla_common.kinematics import PandaKinematics
 from vla_common.robot import ROBOTS
-from vla_evaluation.graph import BRIDGE, CONTROLLER, EpisodeMonitor, GraphConfig, GraphError, GraphEvaluator
+from vla_common.tasks import parse_task
+from vla_evaluation.graph import BRIDGE, CONTROLLER, GraphConfig, GraphError, GraphEvaluator
 from vla_evaluation.graph_runner import NodeSpinner
-from vla_evaluation.metrics import LimitMonitor
+from vla_evaluation.kinematic import plan_waypoints
+from vla_evaluation.metrics import LimitMonitor, final_state_error
 from vla_launch.launcher import ProcessSpec
+from vla_launch.run import find_executable
 from vla_launch.session import LaunchError, LaunchSession
 
 from vla_study.graph_backend import (
@@ -48,19 +53,17 @@ from vla_study.graph_backend import (
     EE_MODE_BUTTON,
     SETTLE_S,
     GraphBackend,
+    GraphScene,
     PhaseClock,
     StudyObserver,
+    limit_fields,
+    monitor_path,
     study_graph_config,
 )
-from vla_study.person import (
-    Experimenter,
-    InputTally,
-    PersonDriver,
-    placement_text,
-    run_person_trial,
-    start_point,
-)
+from vla_study.participant import HumanParams
+from vla_study.person import Experimenter, InputTally, PersonDriver, placement_text, start_point
 from vla_study.protocol import Protocol
+from vla_study.trial import Measured, Participant, Scene, Trial
 
 REST_SPEED = 0.05  # rad/s: every joint slower than this is an arm at rest (the e-stop brakes it there)
 RECORDER_TOPICS = ["joint_states", "joy", "detections", "camera/image_raw", "controller_node/status",
@@ -112,8 +115,6 @@ class RobotObserver(StudyObserver):
 def recorder_command(out_dir: Path, use_sim_time: bool) -> list[str]:
     """The study's recorder as the simulated study's launch starts it (demo.launch.yaml): bags only at
     the runner's word (the stick's buttons are the participant's), the first camera frame of each."""
-    from vla_launch.run import find_executable
-
     params = {"output_dir": str(Path(out_dir).absolute()), "topics": "[" + ",".join(RECORDER_TOPICS) + "]",
               "image_every_n": "10000", "start_button": "-1", "stop_button": "-1", "discard_button": "-1",
               "use_sim_time": "true" if use_sim_time else "false"}
@@ -198,6 +199,11 @@ class AttachedGraph(GraphEvaluator):
                 self.log(f"[study] {e}")
 
 
+@dataclass
+class RobotScene(GraphScene):
+    placement_seed: int = 0
+
+
 class RobotBackend(GraphBackend):
     """Each trial on the lab's graph with a person and the experimenter (see the module docstring)."""
 
@@ -206,11 +212,9 @@ class RobotBackend(GraphBackend):
                  state_rate: float = 200.0) -> None:
         """`use_sim_time`: the graph is a simulated one (a rehearsal, or a test on the MuJoCo bridge),
         whose nodes follow /clock. `state_rate`: the bridge's joint_states rate (the path's sampling)."""
-        from vla_common.kinematics import PandaKinematics
-
         if experimenter is None:
             raise ValueError("the real robot needs an experimenter (TerminalExperimenter at the terminal)")
-        self.p, self.log, self.experimenter = protocol, log, experimenter
+        self.protocol, self.log, self.experimenter = protocol, log, experimenter
         self.out = Path(out)
         Path(out, "logs").mkdir(parents=True, exist_ok=True)
         Path(out, "bags").mkdir(parents=True, exist_ok=True)
@@ -260,18 +264,10 @@ class RobotBackend(GraphBackend):
         finally:
             self.ev.close()
 
-    def run(self, trial, params, operator_seed: int) -> tuple[dict, dict]:
-        """One trial of a person; `params` must be None (a simulated participant is refused earlier,
-        by protocol.robot_refusal; here again, so that nothing of one ever reaches the robot)."""
-        from vla_common.tasks import parse_task
-        from vla_evaluation.kinematic import plan_waypoints
-        from vla_evaluation.metrics import final_state_error
-
-        from vla_study.runner import trial_row
-
-        if params is not None:
-            raise GraphError(f"{trial.participant} is a simulated participant: refused on the real robot")
-        ev, obs, p = self.ev, self.ev.obs, self.p
+    def prepare(self, trial: Trial) -> RobotScene:
+        """The strategy; the object placed by the experimenter at the trial's start point with the arm
+        stopped; the bag opened while the controller latches the scene's detection."""
+        ev, obs = self.ev, self.ev.obs
         clock = PhaseClock()
         mode = self._set_strategy(trial)
         spec = parse_task(trial.task, self.catalogue)
@@ -284,64 +280,68 @@ class RobotBackend(GraphBackend):
         clock.mark("place")
         bag = self._start_bag(trial)
         clock.mark("bag_start")
-        note = ""
+        scene = RobotScene(mode, spec, goal, clock=clock, placement_seed=int(used_seed))
         if mode == "latent" and (why := ev.latch()):
-            note = f"no context: {why}"  # the controller waits, nothing moves (as on the simulated robot)
+            scene.note = f"no context: {why}"  # the controller waits, nothing moves (as in simulation)
         clock.mark("latch")
-        bag_path = self._bag_opened(bag, trial)
+        scene.bag_path = self._bag_opened(bag, trial)
         clock.mark("bag_opened")
         with obs.cond:
-            q_start = obs.q.copy()
-        monitor = EpisodeMonitor(spec, goal, self.kin, max(1, round(ev.config.state_rate / 20.0)), False)
+            scene.q_start = obs.q.copy()
+        return scene
+
+    def participant(self, trial: Trial, scene: Scene, params: HumanParams | None, seed: int) -> Participant:
+        """A person's tally; a simulated participant is refused (earlier, by protocol.robot_refusal; here
+        again, so that nothing of one ever reaches the robot)."""
+        if params is not None:
+            raise GraphError(f"{trial.participant} is a simulated participant: refused on the real robot")
+        return InputTally(AXIS, EE_MODE_BUTTON)
+
+    def drive(self, trial: Trial, scene: RobotScene, op: Participant) -> Measured:
+        """The e-stop released for the trial and latched again at its end; the arm at rest, the bag
+        closed, the experimenter scores the trial; the rest is measured on joint_states."""
+        ev, obs, p = self.ev, self.ev.obs, self.protocol
+        monitor = self._monitor(scene)
         monitor.limits = LimitMonitor(spec=ROBOTS[obs.robot_model])   # the arm's own limit table
-        wall_limit = p.time_limit * 4 + 60
-        driver = PersonDriver(InputTally(AXIS, EE_MODE_BUTTON), obs.now(), float(p.time_limit))
+        driver = PersonDriver(op, obs.now(), float(p.time_limit))
         self._estop(False)  # the arm moves once the stick has been at neutral, as the participant drives
         obs.monitor = monitor
         monitor.t_start = driver.t_start = obs.now()
-        obs.driver = driver
         try:
-            run_person_trial(driver, self.experimenter, f"Driving (at most {p.time_limit:g} s): "
-                             "when the participant says done", wall_limit)
-            obs.wait_for(driver.finished.is_set, wall_limit, f"the end of trial {trial.key}", ev.alive)
+            self._until_the_end(trial, driver, p.time_limit * 4 + 60)
         finally:
-            obs.driver = None
             obs.monitor = None  # the e-stop's braking is the study's, not a safety intervention of the trial
             self._estop(True)
-        clock.mark("trial")
+        scene.clock.mark("trial")
         t_end = driver.t_start + driver.t_end
         obs.wait_for(lambda: obs.q_stamp >= t_end + SETTLE_S and (
             obs.dq is None or float(np.max(np.abs(obs.dq))) < REST_SPEED), 30.0, "the arm to rest", ev.alive)
         with obs.cond:
             q_final = obs.q.copy()
-        clock.mark("settle")
-        bag_closed = self._stop_bag(obs.q_stamp, bag_path)
-        row_bag = bag_closed()
-        clock.mark("bag_stop")
+        scene.clock.mark("settle")
+        extra = self._stop_bag(obs.q_stamp, scene.bag_path)()
+        scene.clock.mark("bag_stop")
         how = "the participant said done" if driver.t_done is not None else "the time limit"
         score = self.experimenter.score(
             f"Trial {trial.key} ended after {driver.t_end:.1f} s ({how}); the arm is stopped. Score it.")
-        clock.mark("score")
-        keep = np.asarray(monitor.path_t) <= driver.t_end + 1e-9
-        path = np.asarray(monitor.path)[keep[: len(monitor.path)]] if monitor.path else np.zeros((0, 3))
-        times = np.asarray(monitor.path_t)[keep]
-        try:   # against the planner's last waypoint for the object where it was told to go
-            fse = final_state_error(q_final, plan_waypoints(self.kin, spec, goal, q_start,
-                                                            catalogue=self.catalogue)[-1])
+        scene.clock.mark("score")
+        path, times = monitor_path(monitor, driver.t_end)
+        fse = self._final_state_error(scene, q_final)
+        extra.update(limit_fields(monitor.limits))
+        extra.update(robot="real", robot_model=obs.robot_model, scored_by="experimenter",
+                     object_start_source="placed by the experimenter",
+                     object_displacement_m=score.displacement_m,
+                     final_state_error=None if fse is None else round(float(fse), 4),
+                     arm_start_q=[round(float(v), 4) for v in scene.q_start],
+                     placement_seed=scene.placement_seed, wall_phases=scene.clock.phases)
+        return Measured(path, times, np.asarray(driver.sticks), ok=score.success, disp=0.0, t_success=None,
+                        t_done=driver.t_done, t_end=driver.t_end, fse=0.0 if fse is None else fse,
+                        interventions=monitor.tally.interventions, extra=extra)
+
+    def _final_state_error(self, scene: RobotScene, q_final: np.ndarray) -> float | None:
+        """Against the planner's last waypoint for the object where it was told to go (None: no plan)."""
+        try:
+            return final_state_error(q_final, plan_waypoints(self.kin, scene.spec, scene.start, scene.q_start,
+                                                             catalogue=self.catalogue)[-1])
         except ValueError:
-            fse = None
-        row, arrays = trial_row(driver.op, path, times, np.asarray(driver.sticks), ok=score.success, disp=0.0,
-                                t_success=None, t_done=driver.t_done, t_end=driver.t_end,
-                                fse=0.0 if fse is None else fse, interventions=monitor.tally.interventions,
-                                start=goal, note=note)
-        lim = monitor.limits
-        row.update(row_bag)
-        row.update(robot="real", robot_model=obs.robot_model, scored_by="experimenter",
-                   object_start_source="placed by the experimenter",
-                   object_displacement_m=score.displacement_m,
-                   final_state_error=None if fse is None else round(float(fse), 4),
-                   arm_start_q=[round(float(v), 4) for v in q_start], placement_seed=int(used_seed),
-                   limit_violations=int(lim.violations), position_violations=int(lim.position_violations),
-                   velocity_violations=int(lim.velocity_violations),
-                   max_speed_ratio=round(float(lim.max_speed_ratio), 3), wall_phases=clock.phases)
-        return row, arrays
+            return None

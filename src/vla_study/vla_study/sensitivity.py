@@ -12,8 +12,11 @@ import dataclasses
 import json
 from pathlib import Path
 
+from vla_study.analysis import sensitivity_table
+from vla_study.participant import HumanParams
+from vla_study.physics_backend import PhysicsBackend
 from vla_study.protocol import Protocol
-from vla_study.runner import PhysicsBackend, Trial, hash_seed
+from vla_study.trial import Trial, hash_seed
 
 
 def main(argv=None) -> int:
@@ -24,7 +27,6 @@ def main(argv=None) -> int:
     ap.add_argument("--tasks", default="cereal_box/push_south,bread/push_east")
     ap.add_argument("--layouts", type=int, default=2)
     a = ap.parse_args(argv)
-    from vla_study.participant import HumanParams
 
     proto = Protocol("sensitivity", ["sim:1"], 0, ["latent-YOLO", "end-effector"], {}, 1, 0, 7, "none", 30.0,
                      20.0, models={"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_south"}})
@@ -53,8 +55,6 @@ def main(argv=None) -> int:
                             f.write(json.dumps(row, sort_keys=True) + "\n")
                         print(f"[sensitivity] {key}: success {row['success']}", flush=True)
     if rows_path.exists():
-        from vla_study.analysis import sensitivity_table
-
         table = "\n".join(sensitivity_table(rows_path))
         (a.out / "sensitivity.md").write_text(
             "# Sensitivity (simulated participant: HumanParams() with the reaction delay and the stick "

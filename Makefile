@@ -4,10 +4,14 @@ SHELL := /bin/bash
 ENV := source scripts/env.sh
 PYTEST_ARGS ?=
 
-.PHONY: setup test test-fast lint demo experiments bench clean
+.PHONY: setup lock test test-fast lint demo experiments bench clean
 
 setup:
 	@flock /tmp/vla-setup-$$(id -u).lock bash scripts/setup.sh
+
+# Regenerate the pinned locks from pyproject.toml's direct dependencies (pip-tools), keeping pins.
+lock: setup
+	@bash scripts/lock.sh $(LOCK_ARGS)
 
 test: setup
 	@$(ENV) && python -m pytest $(PYTEST_ARGS)

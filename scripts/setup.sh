@@ -20,7 +20,7 @@ py=${PYTHON:-python3}
 stamp=$venv/.requirements.sha256
 want=$(sha256sum requirements.txt | cut -d' ' -f1)
 if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; then
-  echo "[setup] creating $venv from requirements.txt (pinned)"
+  echo "[setup] creating $venv from requirements.txt (the pinned lock of pyproject.toml)"
   [ -x "$venv/bin/python" ] || "$py" -m venv "$venv"
   "$venv/bin/python" -m pip install -q --disable-pip-version-check --upgrade 'pip==26.3' 2>&1 | grep -v '^WARNING: Location' || true
   # One pip command for everything: colcon-core needs setuptools<80 and pip must see that pin.
@@ -31,7 +31,7 @@ if [ ! -x "$venv/bin/python" ] || [ "$(cat "$stamp" 2>/dev/null)" != "$want" ]; 
     | grep -v '^WARNING: Location' || true
   "$venv/bin/python" -c "import aiohttp, selenium, axe_playwright_python" \
     || { echo "[setup] the operator station's packages do not import" >&2; exit 1; }
-  "$venv/bin/python" -c "import rclpy, mujoco, pinocchio, cv2, onnxruntime, torch, rosbags, mcap" \
+  "$venv/bin/python" -c "import rclpy, mujoco, pinocchio, cv2, onnxruntime, torch, ray, rosbags, mcap" \
     || { echo "[setup] the environment does not import; see the pip output above" >&2; exit 1; }
   echo "$want" > "$stamp"
 fi

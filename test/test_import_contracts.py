@@ -33,6 +33,7 @@ def test_the_contracts_hold():
 @pytest.mark.parametrize("module,line,contract", [
     ("vla_latent_controller/teleop.py", "import torch", "Runtime packages import no torch"),
     ("vla_latent_controller/teleop.py", "import rclpy", "Cores import no rclpy"),
+    ("vla_operator/server.py", "import ray", "Only the evaluation and training packages import Ray"),
     ("vla_detector/inference.py", "import mujoco", "Only the bridge's MuJoCo backend imports the simulator"),
     ("vla_common/robot.py", "import vla_sim.sim", "Each layer imports only the layers below it"),
     ("vla_camera/source.py", "import vla_detector.decode", "Each layer imports only the layers below it"),

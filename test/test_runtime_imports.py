@@ -1,4 +1,4 @@
-"""The runtime installs alone: its modules import and its nodes start where torch, MuJoCo and the
+"""The runtime installs alone: its modules import and its nodes start where torch, MuJoCo, Ray and the
 simulator (vla_sim) cannot be imported, as on a robot or vision PC that has only the runtime packages.
 
 The blocker is test/runtime_blocker/sitecustomize.py, first on PYTHONPATH: a meta-path finder that
@@ -22,9 +22,9 @@ from vla_launch.launcher import ProcessSpec
 from vla_launch.session import LaunchSession
 
 BLOCKER_DIR = Path(__file__).resolve().parent / "runtime_blocker"
-BLOCKED = ("torch", "mujoco", "vla_sim")
+BLOCKED = ("torch", "mujoco", "vla_sim", "ray")
 RUNTIME_PACKAGES = ("vla_common", "vla_panda_bridge", "vla_camera", "vla_detector", "vla_latent_controller",
-                    "vla_demo_recorder", "vla_joystick")
+                    "vla_demo_recorder", "vla_joystick", "vla_operator", "vla_launch")
 MUJOCO_BACKEND = "vla_panda_bridge.backend_mujoco"
 
 
@@ -81,7 +81,7 @@ def test_the_blocker_blocks_what_is_installed(tmp_path):
     assert {e["name"] for e in events if e["event"] == "blocked"} >= set(BLOCKED)
 
 
-def test_every_runtime_module_imports_without_torch_mujoco_or_the_simulator(tmp_path):
+def test_every_runtime_module_imports_without_torch_mujoco_ray_or_the_simulator(tmp_path):
     log = tmp_path / "blocker.jsonl"
     res = subprocess.run([sys.executable, "-m", "import_all", *RUNTIME_PACKAGES], env=blocked_env(log),
                          capture_output=True, text=True, timeout=300)
@@ -210,7 +210,7 @@ def runtime_nodes(tmp_path_factory):
 @pytest.mark.slow
 @pytest.mark.timeout(300)
 @pytest.mark.parametrize("label", list(NODES))
-def test_runtime_node_starts_without_torch_mujoco_or_the_simulator(runtime_nodes, label):
+def test_runtime_node_starts_without_torch_mujoco_ray_or_the_simulator(runtime_nodes, label):
     r = runtime_nodes
     pid = r["pids"][label]
     assert r["seen"][label], f"{label}: no {EVIDENCE[label]} within the timeout\n{r['description']}"

@@ -59,6 +59,17 @@ def test_jacobian_matches_finite_differences(kin):
         np.testing.assert_allclose(omega, J[3:, i], atol=1e-5)
 
 
+def test_tcp_state_is_fk_and_jacobian_in_one_pass(kin):
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        q = rng.uniform(Q_MIN + 0.2, Q_MAX - 0.2)
+        p, r, J = kin.tcp_state(q)
+        p0, r0 = kin.fk(q)
+        np.testing.assert_allclose(p, p0, atol=1e-12)
+        np.testing.assert_allclose(r, r0, atol=1e-12)
+        np.testing.assert_allclose(J, kin.jacobian(q), atol=1e-12)
+
+
 def test_ik_round_trip(kin):
     rng = np.random.default_rng(3)
     for _ in range(10):

@@ -1,7 +1,8 @@
 """The camera model: a fixed pinhole camera given by its pose (position + look-at point, no roll) and
 vertical field of view, and where a world point appears in its image. One home for the simulated
-webcam's pose (the MuJoCo scene builds its camera from it) and for the projection the controller's
-`nearest_to_ee` and the planner demonstrations use."""
+webcam's pose (the MuJoCo scene builds its camera from it), for the projection the controller's
+`nearest_to_ee` and the planner demonstrations use, and for its inverse onto a plane (where the
+controller's assistance finds a detected object on the table)."""
 
 from __future__ import annotations
 
@@ -37,6 +38,20 @@ def project(point, pos, rot: np.ndarray, intrinsics) -> tuple[float, float] | No
     return float(fx * pc[0] / pc[2] + cx), float(fy * pc[1] / pc[2] + cy)
 
 
+def unproject(pixel, pos, rot: np.ndarray, intrinsics, z: float) -> np.ndarray | None:
+    """The world point at height `z` (m, world frame) that appears at pixel (u, v): the inverse of
+    `project` on that plane (where a detection's box centre lies on the table, at an object's middle
+    height). None when the pixel's ray does not reach the plane in front of the camera."""
+    fx, fy, cx, cy = intrinsics
+    u, v = float(pixel[0]), float(pixel[1])
+    ray = np.asarray(rot, float) @ np.array([(u - cx) / fx, (v - cy) / fy, 1.0])
+    pos = np.asarray(pos, float)
+    if abs(ray[2]) < 1e-9:
+        return None
+    s = (float(z) - pos[2]) / ray[2]
+    return pos + s * ray if s > 1e-6 else None
+
+
 @dataclass(frozen=True)
 class CameraModel:
     """A fixed camera: `position` and `look_at` in the robot base frame (m), vertical field of view."""
@@ -55,6 +70,11 @@ class CameraModel:
         """point -> (u, v) or None, for images of `width` x `height` pixels."""
         rot, k = self.rotation(), self.intrinsics(width, height)
         return lambda p: project(p, self.position, rot, k)
+
+    def unprojector(self, width: int, height: int):
+        """(pixel (u, v), z) -> the world point at height z seen there, or None (see `unproject`)."""
+        rot, k = self.rotation(), self.intrinsics(width, height)
+        return lambda px, z: unproject(px, self.position, rot, k, z)
 
 
 # The simulated webcam, like the paper's: in front of the table, above it, facing the robot.

@@ -39,8 +39,9 @@ from vla_demo_recorder.recorder import Recorder, RecorderError, validate_task
 from vla_interfaces.msg import RecorderStatus
 from vla_interfaces.srv import StartEpisode
 
+# controller_node/status: what the controller did with the stick, the assistance's goal and pull among it
 DEFAULT_TOPICS = ["joint_states", "camera/image_raw", "camera/camera_info", "detections", "joy",
-                  "gripper/status"]
+                  "gripper/status", "controller_node/status"]
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 # s: at Ctrl-C, how long queued messages are still written, and how long closing may take in all
 # (the drain, one write or fsync in progress, the last chunk, fsync, metadata). Measured under load 18

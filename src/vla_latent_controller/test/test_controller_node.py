@@ -502,3 +502,34 @@ def test_ee_axes_from_the_command_line_and_an_older_file(random_model_dir, tmp_p
             assert not res.successful and "needs distinct axes" in res.reason, bad
     finally:
         h.shutdown()
+
+
+def test_the_assistance_is_set_at_run_time_and_the_status_names_its_goal():
+    """Issue 34: the caregiver's level reaches the core at once; the status carries the inferred goal."""
+    from sensor_msgs.msg import CameraInfo
+    from vla_common.camera_model import SIM_WEBCAM
+
+    h = Harness(Path(__file__).resolve().parents[1] / "models" / "default")
+    try:
+        info = h.io.create_publisher(CameraInfo, "camera/camera_info", 10)
+        fx, fy, cx, cy = SIM_WEBCAM.intrinsics(640, 480)
+        u, v = SIM_WEBCAM.projector(640, 480)([0.5, 0.05, 0.04])   # a loaf on the table
+        bad = h.node.set_parameters([Parameter("assistance", value="max")])
+        assert not bad[0].successful and h.node.core.params.assistance == "off"
+        st, _ = h.settle(ControllerStatus.ACTIVE, dets=(("bread", u, v),))
+        assert st.assistance == "off" and st.goal_task == ""
+        assert h.node.set_parameters([Parameter("assistance", value="high")])[0].successful
+        assert h.node.core.params.assistance == "high"
+        info.publish(CameraInfo(width=640, height=480, k=[fx, 0.0, cx, 0.0, fy, cy, 0.0, 0.0, 1.0]))
+        h.spin_until(lambda: h.node._intrinsics is not None)
+        st, cmd = h.settle(ControllerStatus.ACTIVE, axis=1.0, dets=(("bread", u, v),))
+        end = time.monotonic() + 5.0
+        while st.goal_task == "" and time.monotonic() < end:
+            st, cmd = h.settle(ControllerStatus.ACTIVE, axis=1.0, dets=(("bread", u, v),))
+        assert st.assistance == "high" and st.goal_task == "bread/push_east" and st.goal_stage == "hover"
+        assert st.goal_x == pytest.approx(0.5, abs=1e-3) and st.goal_y == pytest.approx(0.05, abs=1e-3)
+        assert 0.5 < st.goal_confidence <= 1.0 and st.goal_share > 0.0
+        st, cmd = h.settle(ControllerStatus.ZERO_DEADBAND, axis=0.0, dets=(("bread", u, v),))
+        assert np.all(cmd == 0.0) and st.goal_share == 0.0 and st.goal_task == "bread/push_east"
+    finally:
+        h.close()

@@ -21,7 +21,7 @@ from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
-from vla_common.camera_model import SIM_WEBCAM, look_at_rotation, project
+from vla_common.camera_model import SIM_WEBCAM, look_at_rotation, project, unproject
 from vla_common.image_convert import to_rgb
 from vla_common.kinematics import PandaKinematics
 from vla_common.robot import JOINT_NAMES, ROBOTS
@@ -35,6 +35,7 @@ from vla_common.ros.qos import IMAGE_QOS
 from vla_interfaces.msg import ControllerStatus, DetectionArray
 from vla_interfaces.srv import GripperCommand, SelectTarget, SetMode
 from vla_latent_controller.artifacts import ModelError
+from vla_latent_controller.assistance import LEVELS
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
 from vla_latent_controller.ee_baseline import axes_text, parse_axes
 from vla_latent_controller.joints import parse_joint_map
@@ -102,6 +103,9 @@ PARAMETERS = ParameterTable([
           dynamic=True, check=_refusal(parse_joint_map), array="string_array"),
     _core("goal_selection", "which detection is the goal: highest_score, nearest_to_ee "
           "or a class of the model", dynamic=True),
+    _core("assistance", "goal inference over the detected objects' tasks and a pull toward the inferred "
+          "goal as its confidence grows (latent mode): off, low (at most half the command) or high; the "
+          "stick still decides: zero at rest, reversed it backs away", choices=LEVELS, dynamic=True),
     _core("detection_max_age", "re-latch when the latched detection is older (s); 0: latch once "
           "(paper)", range=(0.0, 86400.0), dynamic=True),
     _core("redetect_button", "button that re-latches the context from the next detection; -1: none",
@@ -183,7 +187,7 @@ class ControllerNode(Node):
         self._kin = _panda_kinematics(self.get_logger())
         self.core = TeleopCore(
             self.params, kinematics=self._kin, joint_names=JOINT_NAMES, ee_pixel=self._ee_pixel,
-            joint_map=parse_joint_map(values["joint_map"]),
+            joint_map=parse_joint_map(values["joint_map"]), unproject=self._unproject,
         )
         self._image_sub = None  # camera/image_raw, for a CNN-encoder model only
         self._start_model(values["model_path"], values["mode"])
@@ -367,6 +371,15 @@ class ControllerNode(Node):
         rot = look_at_rotation(np.asarray(pos), np.asarray(target))
         return project(self._kin.fk(q)[0], pos, rot, self._intrinsics)
 
+    def _unproject(self, pixel: tuple[float, float], z: float) -> np.ndarray | None:
+        """The world point at height z seen at detector pixel (u, v) (None before camera_info)."""
+        pos = self.get_parameter("camera_position").value
+        target = self.get_parameter("camera_look_at").value
+        if self._intrinsics is None or np.allclose(pos, target):
+            return None
+        rot = look_at_rotation(np.asarray(pos), np.asarray(target))
+        return unproject(pixel, pos, rot, self._intrinsics, z)
+
     def _on_set_mode(self, req: SetMode.Request, resp: SetMode.Response) -> SetMode.Response:
         """Through the `mode` parameter, so that it always reads the mode in use."""
         if req.mode not in MODES:
@@ -416,6 +429,11 @@ class ControllerNode(Node):
         m.latched_x, m.latched_y = float(st.latched_x), float(st.latched_y)
         m.z, m.ee_axis = float(st.z), st.ee_axis
         m.command = [float(v) for v in st.command]
+        a = st.assist
+        m.assistance, m.goal_task, m.goal_stage = a.level, a.goal_task, a.stage
+        m.goal_confidence, m.goal_share = float(a.confidence), float(a.share)
+        m.goal_x, m.goal_y = (float(v) for v in a.goal_xy)
+        m.goal_image_x, m.goal_image_y = (float(v) for v in a.goal_image_xy)
         return m
 
     def on_shutdown(self, ack_timeout: float = 1.0) -> bool:

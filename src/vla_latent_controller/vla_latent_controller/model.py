@@ -61,6 +61,16 @@ class LatentModel:
             return float(override)
         return float(self.config["latent"].get("path_fraction", 1.0))
 
+    def tasks(self) -> dict[str, list[str]]:
+        """The tasks the model was taught, by class ({class: [task, ...]}), from its training summary's
+        demonstrations per task (the goals the controller's assistance may infer)."""
+        names = list(self.config.get("training", {}).get("demos_per_task", {}))
+        out: dict[str, list[str]] = {}
+        for name in names:
+            cls = str(name).split("/", 1)[0]
+            out.setdefault(cls, []).append(str(name))
+        return out
+
     def gain(self, class_id: str | None) -> float:
         """Latent per unit of stick for this goal class (sign: + does the task)."""
         lat = self.config["latent"]

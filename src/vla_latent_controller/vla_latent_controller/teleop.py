@@ -16,8 +16,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from vla_common.arming import Arming
 from vla_common.detection import Detection
-from vla_common.robot import JOINT_NAMES
+from vla_common.robot import HAND, JOINT_NAMES
 
+from vla_latent_controller.assistance import Assistance, AssistState, check_level
 from vla_latent_controller.context import (
     GOAL_SELECTIONS,
     ContextError,
@@ -78,6 +79,8 @@ class TeleopParams:
     ee_axes: list[str] = field(default_factory=lambda: list(EE_AXES))  # what ee_mode_button cycles
     detection_max_age: float = 0.0
     goal_selection: str = "highest_score"
+    # Goal inference and a pull toward the inferred goal, latent mode (assistance.py): off, low, high
+    assistance: str = "off"
     joint_states_timeout: float = 0.5
     # per-joint speed limits (rad/s) by the robot's joint name; the whole vector is scaled to respect them
     dq_max: Mapping[str, float] | None = None
@@ -90,6 +93,8 @@ class TeleopParams:
             return f"deadband {self.deadband} must be in [0, 1)"
         if not 0.0 <= self.path_fraction <= 1.0:
             return f"path_fraction {self.path_fraction} must be in [0, 1] (0: the model's)"
+        if check_level(self.assistance):
+            return check_level(self.assistance)
         if (
             self.goal_selection not in GOAL_SELECTIONS
             and classes is not None
@@ -114,6 +119,7 @@ class Status:
     z: float = 0.0
     ee_axis: str = "x"
     command: np.ndarray = field(default_factory=lambda: np.zeros(7))
+    assist: AssistState = field(default_factory=AssistState)  # the inferred goal, how sure, its share
 
 
 @dataclass
@@ -173,6 +179,8 @@ class TeleopCore:
     ``joint_names`` (default: the Panda's); ``ee_pixel`` maps q to the end effector's pixel in the
     detector's image (or None when the camera is not calibrated). ``joint_map`` renames the
     controller's joints to the robot's ({model joint: robot joint}, see :mod:`.joints`).
+    ``unproject((u, v), z)`` is the world point at height z seen at detector pixel (u, v) (or None):
+    where the assistance finds the detected objects (see :mod:`.assistance`).
     """
 
     def __init__(
@@ -184,8 +192,10 @@ class TeleopCore:
         model_error: str | None = None,
         ee_pixel: Callable[[np.ndarray], tuple[float, float] | None] | None = None,
         joint_map: Mapping[str, str] | None = None,
+        unproject: Callable[[tuple[float, float], float], np.ndarray | None] | None = None,
     ):
         self.params = params
+        self.assist = Assistance(kinematics, unproject)
         self.kinematics = kinematics
         self.ee_pixel = ee_pixel
         self.ee = EndEffectorBaseline(
@@ -227,6 +237,10 @@ class TeleopCore:
         self.model, self.model_error = model, (None if model is not None else error)
         self.latched = None
         self._bind_joints()
+        # the assistance's kinematics are the Panda's, in its joint order: a model on other joints gets none
+        fits = model is not None and tuple(model.joint_names) == tuple(self.kin_joints)
+        self.assist.kinematics = self.kinematics if fits else None
+        self.assist.set_tasks(model.tasks() if model is not None else {})
 
     def set_joint_map(self, joint_map: Mapping[str, str]) -> None:
         """Rename the controller's joints to the robot's ({model joint: robot joint})."""
@@ -263,6 +277,7 @@ class TeleopCore:
         """Drop the latched context; the next detection (and image) received from ``now`` on is latched."""
         self.latched = None
         self._latch_after = now
+        self.assist.reset()
 
     def select_target(
         self, by: str, class_id: str, index: int, x: float, y: float, now: float
@@ -320,6 +335,7 @@ class TeleopCore:
             self.request_redetect(now)
         if _pressed_now(self._buttons, prev, p.grasp_button):
             self.grasp_presses += 1
+            self.assist.on_grasp_press()
 
     def on_joint_states(self, names: Sequence[str], positions: Sequence[float], now: float) -> None:
         """Keep the latest message that names any of our joints (resolved by name in :meth:`step`); one
@@ -338,6 +354,9 @@ class TeleopCore:
             self._js = _JointStates(names, None, now, "joint_states positions are not numbers")
             return
         self._js = _JointStates(names, q, now)
+        fingers = [q[names.index(f)] for f in HAND.finger_joints if f in names]
+        if len(fingers) == 2:   # each finger joint is half the gap
+            self.assist.on_fingers(float(fingers[0] + fingers[1]), now)
 
     def on_detections(self, dets: Sequence[Detection], image_size: tuple[int, int], now: float) -> None:
         self._dets, self._dets_size, self._dets_t = list(dets), tuple(image_size), now
@@ -386,6 +405,8 @@ class TeleopCore:
         s.latched_x, s.latched_y = (lat.x, lat.y) if lat else (math.nan, math.nan)
         s.latched_by = lat.by if lat else ""
         s.command = self._cmd.copy()
+        moving = code == Code.ACTIVE and self.mode == "latent"
+        s.assist = self.assist.shown(self.params.assistance, moving)
         return s
 
     def _joint_state(self, now: float) -> tuple[np.ndarray, JointBinding] | tuple[Code, str]:
@@ -427,8 +448,12 @@ class TeleopCore:
             return self._zero(*problem)
         code, reason, u = self._stick(now)
         if code is not None:
+            if code in NEUTRAL_CODES:
+                self.assist.on_neutral()
             return self._zero(code, reason)
-        z, dq = self._command(q, u)
+        z, dq = self._command(q, u, now)
+        if self.assist.lost:
+            return self._zero(Code.WAITING_FOR_DETECTION, self.assist.lost, z)
         if not np.all(np.isfinite(dq)):
             return self._zero(
                 Code.MODEL_ERROR, "command is not finite (model or kinematics output NaN/Inf)", z
@@ -453,13 +478,26 @@ class TeleopCore:
             return Code.MODEL_ERROR, "end_effector mode needs the Panda kinematics (Pinocchio)"
         return None
 
-    def _command(self, q: np.ndarray, u: float) -> tuple[float, np.ndarray]:
+    def _command(self, q: np.ndarray, u: float, now: float) -> tuple[float, np.ndarray]:
         """(latent z, joint velocities in the active joints' order) for stick value u."""
         if self.mode == "latent":
             z = u * self.latched.gain
             fraction = self.model.path_fraction(self.params.path_fraction)   # 0: the model's calibrated one
-            return z, self.model.decoder.velocity(q, z, fraction) * self.params.action_scale
+            dq = self.model.decoder.velocity(q, z, fraction) * self.params.action_scale
+            if self.params.assistance != "off":
+                self._observe(q, now)
+                dq = self.assist.command(q, u, dq, now)
+            return z, dq
         return u, self.ee.command(q, u)
+
+    def _observe(self, q: np.ndarray, now: float) -> None:
+        """Show the assistance the latest detections and the latched object (in detector pixels)."""
+        a, lat, size = self.assist, self.latched, self._dets_size
+        a.level = self.params.assistance
+        latched = None
+        if lat is not None and lat.class_id and size and math.isfinite(lat.x):
+            latched = (lat.class_id, lat.x * size[0], lat.y * size[1])
+        a.observe(self._dets, size, self._dets_t, latched, q, now)
 
     def stick_code(self, now: float) -> Code | None:
         """What the stick says now (None: it drives; else why it gives zero): a change is a press, a

@@ -21,9 +21,36 @@ from vla_common.catalogue import Catalogue, ObjectSpec, default_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import DQ_MAX, Q_MAX, Q_MIN, READY_POSE
+from vla_common.task_goals import (  # the goal poses' geometry and the ranges drawn around them
+    APPROACH_GAP,
+    APPROACH_RUN,
+    APPROACH_SPEED,
+    CARRY_LIFT,
+    CARRY_SPEED,
+    CIRCLE_GAP,
+    CIRCLE_HEIGHT,
+    CIRCLE_SPEED,
+    DESCEND_SHARE,
+    DOWN,
+    EXTRA_DISTANCE,
+    GRASP_HOVER,
+    GRASP_TRANSIT_SPEED,
+    HOVER_EXTRA,
+    MIN_HOVER,
+    PLACE_CLEARANCE,
+    PUSH_HEIGHT,
+    PUSH_SPEED,
+    RETREAT_RUN,
+    TILT_RANGE_DEG,
+    TRANSIT_SPEED,
+    grasp_height,
+    mid,
+    preferred_flip,
+    push_rotation,
+    push_start,
+)
 from vla_common.tasks import TaskSpec, parse_task
 
-FINGER_HALF_THICKNESS = 0.0087  # finger tip extent along the hand's x axis (URDF collision boxes)
 # Tracking gain of TaskPlan.command (1/s) and the share of DQ_MAX a command may use.
 TRACKING_GAIN = 4.0
 COMMAND_SPEED_SHARE = 0.9
@@ -31,7 +58,6 @@ COMMAND_SPEED_SHARE = 0.9
 REF_MAX_SPEED = 0.8
 REF_MAX_ACCEL = 2.5
 _DENSE_STEP = 0.005  # m between IK samples along Cartesian segments
-TILT_RANGE_DEG = (18.0, 26.0)  # gripper tilt while pushing: finger tips lead, the wrist stays back
 MIN_CLEARANCE = 0.02  # m between the arm (links 3-7) and the object before the push starts
 _EXTRA_TILT_DEG = (0.0, 8.0, 16.0)  # tried in turn when the arm would come too close to the object
 
@@ -134,22 +160,6 @@ def random_start_pose(rng: np.random.Generator, scale: float = 0.08) -> np.ndarr
     return np.clip(q, np.asarray(Q_MIN) + 0.2, np.asarray(Q_MAX) - 0.2)
 
 
-def push_rotation(direction_xy, tilt: float, flip: bool = False) -> np.ndarray:
-    """TCP orientation for pushing along a unit (x, y) direction: approach axis (z) down, tilted by
-    `tilt` rad so the finger tips lead; hand x axis along +direction (-direction with `flip`: the
-    hand is symmetric, the two choices give different arm configurations)."""
-    d = np.array([direction_xy[0], direction_xy[1], 0.0], dtype=float)
-    d /= np.linalg.norm(d)
-    z = np.array([math.sin(tilt) * d[0], math.sin(tilt) * d[1], -math.cos(tilt)])
-    x = -d if flip else d
-    x = x - z * (x @ z)
-    x /= np.linalg.norm(x)
-    return np.column_stack([x, np.cross(z, x), z])
-
-
-DOWN = np.diag([1.0, -1.0, -1.0])  # TCP pointing down, hand x along world x (as in the ready pose)
-
-
 def object_clearance(kin: PandaKinematics, q: np.ndarray, obj: ObjectPose, shape: ObjectSpec,
                      shift=(0.0, 0.0)) -> float:
     """Smallest distance (m) from the arm's links 3-7 (collision-mesh vertices) to the object's
@@ -171,16 +181,6 @@ def object_clearance(kin: PandaKinematics, q: np.ndarray, obj: ObjectPose, shape
 
 def _joint_margin(q: np.ndarray) -> float:
     return float(min(np.min(q - np.asarray(Q_MIN)), np.min(np.asarray(Q_MAX) - q)))
-
-
-def preferred_flip(direction_xy) -> bool:
-    """The hand flip used for every episode of a push direction: the one whose hand x axis points
-    away from the robot (+x), or to +y when the push is sideways. A fixed choice per task keeps all
-    its demonstrations in one arm configuration, which a 1-D latent action needs."""
-    d = np.asarray(direction_xy, dtype=float)
-    if abs(d[0]) > 1e-6:
-        return bool(d[0] < 0)
-    return bool(d[1] < 0)
 
 
 _TILT_PENALTY = 0.5  # rad of joint distance one radian of extra tilt is worth when choosing
@@ -240,15 +240,6 @@ def _best_push_configuration(
 _REFERENCE: dict[tuple[str, ObjectSpec], np.ndarray] = {}
 
 
-def push_start(shape, center_xy, direction_xy, gap: float) -> np.ndarray:
-    """The TCP's (x, y) before a push: `gap` outside the circle round the object's footprint,
-    opposite the push direction. It depends on the object's (x, y), not its yaw: the learned model's
-    context (class, x, y) carries no yaw, so a yaw-dependent start cannot be learned (measured: bread
-    pushed from where the average loaf's edge would be, off-centre, 20-39 deg off)."""
-    d = np.asarray(direction_xy, dtype=float)
-    return np.asarray(center_xy, dtype=float) - d * (shape.footprint_radius + FINGER_HALF_THICKNESS + gap)
-
-
 def reference_configuration(kin: PandaKinematics, spec: TaskSpec, shape: ObjectSpec) -> np.ndarray:
     """The task's reference pre-push configuration: planned from the ready pose for the object
     (`shape`) at the centre of the workspace (x 0.48 m, y 0, yaw 0) with the middle of every random
@@ -257,10 +248,10 @@ def reference_configuration(kin: PandaKinematics, spec: TaskSpec, shape: ObjectS
     if key not in _REFERENCE:
         obj = ObjectPose(spec.object_class, 0.48, 0.0, 0.0, 0.0)
         d = spec.direction_vector
-        start_xy = push_start(shape, (obj.x, obj.y), d, 0.03)
-        hover = max(0.18, shape.height + 0.09)
+        start_xy = push_start(shape, (obj.x, obj.y), d, mid(APPROACH_GAP))
+        hover = max(MIN_HOVER, shape.height + mid(HOVER_EXTRA))
         q, _rot, _c, _e = _best_push_configuration(
-            kin, [*start_xy, 0.025], [*start_xy, hover], d, math.radians(sum(TILT_RANGE_DEG) / 2),
+            kin, [*start_xy, mid(PUSH_HEIGHT)], [*start_xy, hover], d, math.radians(mid(TILT_RANGE_DEG)),
             np.asarray(READY_POSE), obj, shape)
         _REFERENCE[key] = q
     return _REFERENCE[key].copy()
@@ -374,14 +365,14 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         d = spec.direction_vector
         perp = np.array([-d[1], d[0]])
         p = {
-            "approach_gap": float(rng.uniform(0.02, 0.04)),
+            "approach_gap": float(rng.uniform(*APPROACH_GAP)),
             "lateral_offset": float(rng.uniform(-0.012, 0.012)),
-            "push_height": float(rng.uniform(0.02, 0.03)),
+            "push_height": float(rng.uniform(*PUSH_HEIGHT)),
             "tilt_deg": float(rng.uniform(*TILT_RANGE_DEG)),
-            "hover_height": max(0.18, shape.height + float(rng.uniform(0.06, 0.12))),
-            "extra_distance": float(rng.uniform(0.03, 0.06)),
-            "push_speed": float(rng.uniform(0.06, 0.11)),
-            "transit_speed": float(rng.uniform(0.15, 0.25)),
+            "hover_height": max(MIN_HOVER, shape.height + float(rng.uniform(*HOVER_EXTRA))),
+            "extra_distance": float(rng.uniform(*EXTRA_DISTANCE)),
+            "push_speed": float(rng.uniform(*PUSH_SPEED)),
+            "transit_speed": float(rng.uniform(*TRANSIT_SPEED)),
             "hold": float(rng.uniform(0.3, 0.6)),  # s at the post-push pose
             "dwell": float(rng.uniform(0.1, 0.4)),
         }
@@ -397,7 +388,7 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         p["tilt_deg"] += extra
         p["clearance"] = clearance
         b.joint_move([*start_xy, p["hover_height"]], rot, p["transit_speed"], seed=q_pre)
-        b.line([*start_xy, zp], rot, p["transit_speed"] * 0.6)
+        b.line([*start_xy, zp], rot, p["transit_speed"] * DESCEND_SHARE)
         b.dwell(p["dwell"])
         b.line([*end_xy, zp], rot, p["push_speed"])
         b.dwell(p["hold"])
@@ -405,10 +396,10 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
         p = _plan_grasp(b, spec, shape, c, rng)
     elif spec.kind == "circle":
         p = {
-            "radius": shape.footprint_radius + float(rng.uniform(0.05, 0.08)),
-            "height": shape.height + float(rng.uniform(0.05, 0.09)),
-            "speed": float(rng.uniform(0.10, 0.16)),
-            "transit_speed": float(rng.uniform(0.15, 0.25)),
+            "radius": shape.footprint_radius + float(rng.uniform(*CIRCLE_GAP)),
+            "height": shape.height + float(rng.uniform(*CIRCLE_HEIGHT)),
+            "speed": float(rng.uniform(*CIRCLE_SPEED)),
+            "transit_speed": float(rng.uniform(*TRANSIT_SPEED)),
             "start_angle_jitter": float(rng.uniform(-0.3, 0.3)),
         }
         tcp0 = kin.fk(q0)[0]
@@ -425,11 +416,6 @@ def plan_task(kin: PandaKinematics, task: TaskSpec | str, obj: ObjectPose, q_sta
     return TaskPlan(spec, q0, b.waypoints, np.array(b.times), b.tcp, b.segments, p, hand_events=events)
 
 
-# Grasps from above: the finger tips this far below the object's top (the free finger is ~5 cm), and
-# never below its middle; the hand opens during the approach, closes at the bottom, a place ends
-# with the object this far above its resting height when the hand opens.
-GRASP_DEPTH = 0.035
-PLACE_CLEARANCE = 0.004
 HAND_CLOSE_S = 1.4   # s the demonstrator waits for the fingers to close and squeeze (80 mm at 0.08 m/s)
 HAND_OPEN_S = 0.8
 # The path of a task with the hand never goes back over itself, so that a 1-D latent has one way
@@ -439,8 +425,6 @@ HAND_OPEN_S = 0.8
 # after the place withdraws along the gap again (back towards the robot, up). A vertical descent
 # and a lift over the same line ask the decoder for down and up at the same states under the same
 # stick sign: a model trained on such demonstrations never brought the hand down to the object.
-APPROACH_RUN = (0.05, 0.07)   # m along x covered while descending onto the object
-RETREAT_RUN = 0.06            # m back along x while rising after the place
 
 
 def _plan_grasp(b: _Builder, spec: TaskSpec, shape: ObjectSpec, c: np.ndarray, rng) -> dict:
@@ -450,15 +434,15 @@ def _plan_grasp(b: _Builder, spec: TaskSpec, shape: ObjectSpec, c: np.ndarray, r
     come down onto the target, open, withdraw back and up. The hand points down (DOWN, fingers
     closing along world y): objects that fit the open hand at any yaw (the catalogue checks it), so
     the poses depend on (x, y) only, as the model's context."""
-    z_grasp = max(shape.height - GRASP_DEPTH, shape.height / 2)
+    z_grasp = grasp_height(shape)
     p = {
-        "hover_height": z_grasp + float(rng.uniform(0.08, 0.12)),
+        "hover_height": z_grasp + float(rng.uniform(*GRASP_HOVER)),
         "approach_run": float(rng.uniform(*APPROACH_RUN)),
-        "lift": float(spec.distance if spec.kind == "lift" else rng.uniform(0.08, 0.11)),
+        "lift": float(spec.distance if spec.kind == "lift" else rng.uniform(*CARRY_LIFT)),
         "grasp_offset": float(rng.uniform(-0.004, 0.004)),   # along x: how well the hand is centred
-        "transit_speed": float(rng.uniform(0.15, 0.22)),
-        "approach_speed": float(rng.uniform(0.06, 0.09)),
-        "carry_speed": float(rng.uniform(0.08, 0.12)),
+        "transit_speed": float(rng.uniform(*GRASP_TRANSIT_SPEED)),
+        "approach_speed": float(rng.uniform(*APPROACH_SPEED)),
+        "carry_speed": float(rng.uniform(*CARRY_SPEED)),
         "hold": float(rng.uniform(2.4, 2.8) if spec.kind == "lift" else rng.uniform(0.3, 0.5)),
     }
     g = np.array([c[0] + p["grasp_offset"], c[1]])

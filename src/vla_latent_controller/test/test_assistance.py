@@ -1,0 +1,197 @@
+"""The assistance the person commands (assistance.py) through the controller core: with the shipped
+models, the Panda's kinematics and the simulated webcam, the arm integrated kinematically."""
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from vla_common.camera_model import SIM_WEBCAM
+from vla_common.catalogue import default_catalogue
+from vla_common.detection import Detection
+from vla_common.kinematics import PandaKinematics
+from vla_common.robot import READY_POSE
+from vla_common.task_goals import task_goal_poses
+from vla_latent_controller.assistance import LEVELS, STOP_REACH_M
+from vla_latent_controller.model import LatentModel
+from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
+
+MODELS = Path(__file__).resolve().parents[1] / "models"
+NAMES = [f"panda_joint{i}" for i in range(1, 8)]
+FINGERS = ["panda_finger_joint1", "panda_finger_joint2"]
+SIZE = (640, 480)
+DT = 0.01
+CAT = default_catalogue()
+
+
+@pytest.fixture(scope="module")
+def kin():
+    return PandaKinematics()
+
+
+def detection(cls: str, xy) -> Detection:
+    """Where the simulated webcam sees the object's middle."""
+    u, v = SIM_WEBCAM.projector(*SIZE)([xy[0], xy[1], 0.5 * CAT.spec(cls).height])
+    return Detection(cls, 0.9, u, v, 40.0, 40.0)
+
+
+class Arm:
+    """A controller core on an arm that moves as commanded (q += command dt)."""
+
+    def __init__(self, kin, model="default", level="high", objects=(("bread", (0.5, 0.05)),), **kw):
+        self.kin = kin
+        self.core = TeleopCore(TeleopParams(assistance=level, **kw), LatentModel.load(MODELS / model), kin,
+                               unproject=SIM_WEBCAM.unprojector(*SIZE))
+        self.core.arming.offer(True)
+        self.q = np.array(READY_POSE, float)
+        self.t = 0.0
+        self.fingers = 0.08
+        self.dets = [detection(c, xy) for c, xy in objects]
+
+    def step(self, stick: float, dets=None):
+        self.t += DT
+        if dets is not None:
+            self.dets = dets
+        self.core.on_joint_states(NAMES + FINGERS, [*self.q, self.fingers / 2, self.fingers / 2], self.t)
+        self.core.on_joy([stick], [0] * 4, self.t)
+        self.core.on_detections(self.dets, SIZE, self.t)
+        cmd, st = self.core.step(self.t)
+        self.q = self.q + cmd * DT
+        return cmd.copy(), st
+
+    def tcp(self) -> np.ndarray:
+        return self.kin.fk(self.q)[0]
+
+    def target(self) -> np.ndarray:
+        goal = next(g for g in self.core.assist.goals if g.task.name == self.core.status.assist.goal_task)
+        return goal.target().position
+
+    def unassisted(self, stick: float) -> np.ndarray:
+        """What the decoder alone commands here (the same core, the assistance off for one step)."""
+        p = self.core.params
+        level, p.assistance = p.assistance, "off"
+        self.core.on_joy([stick], [0] * 4, self.t)
+        cmd = self.core.step(self.t)[0].copy()
+        p.assistance = level
+        return cmd
+
+
+def drive(arm: Arm, seconds: float, stick: float = 1.0):
+    st = None
+    for _ in range(int(round(seconds / DT))):
+        _, st = arm.step(stick)
+    return st
+
+
+@pytest.mark.parametrize("level", LEVELS)
+def test_zero_stick_commands_exactly_zero_at_every_level(kin, level):
+    arm = Arm(kin, level=level)
+    st = drive(arm, 1.0)
+    assert st.code == Code.ACTIVE
+    if level != "off":
+        assert st.assist.goal_task == "bread/push_east" and st.assist.share > 0
+    for stick in (0.0, 0.05, -0.1, 0.1):
+        cmd, st = arm.step(stick)
+        assert st.code == Code.ZERO_DEADBAND and np.all(cmd == 0.0)
+        assert st.assist.share == 0.0
+
+
+@pytest.mark.parametrize("level", ["low", "high"])
+def test_a_reversed_stick_moves_away_from_the_inferred_goal_from_the_first_step(kin, level):
+    arm = Arm(kin, level=level)
+    for seconds in (0.6, 0.6, 1.5, 1.0):   # on the way to the hover pose, then coming down to the push
+        st = drive(arm, seconds)
+        assert st.assist.goal_task == "bread/push_east" and st.assist.share > 0
+        to = arm.target() - arm.tcp()
+        cmd, st = arm.step(-1.0)
+        v = kin.jacobian(arm.q - cmd * DT)[:3] @ cmd
+        assert float(v @ to) < 0.0, "the first reversed step approaches the goal"
+        assert np.linalg.norm(v) > 0.01
+        target = arm.target()
+        before = np.linalg.norm(target - arm.tcp())
+        drive(arm, 0.2, -1.0)
+        assert np.linalg.norm(target - arm.tcp()) > before
+
+
+def test_driving_away_lowers_the_confidence_at_once(kin):
+    arm = Arm(kin)
+    st = drive(arm, 1.0)
+    sure = st.assist.confidence
+    assert sure > 0.9
+    confidence = [arm.step(-1.0)[1].assist.confidence for _ in range(50)]
+    assert confidence[0] < sure
+    assert all(b < a for a, b in zip(confidence, confidence[1:]))
+    assert confidence[-1] < 0.6     # half a second back: less than half the level's pull (CONFIDENCE_*)
+
+
+def test_a_goal_that_leaves_the_detections_pulls_no_more_from_the_next_step(kin):
+    arm = Arm(kin, objects=(("bread", (0.5, 0.05)), ("milk_carton", (0.42, -0.2))))
+    st = drive(arm, 1.0)
+    assert st.assist.goal_task == "bread/push_east" and st.assist.share == 1.0
+    milk_only = [d for d in arm.dets if d.class_id == "milk_carton"]
+    cmd, st = arm.step(1.0, dets=milk_only)
+    assert st.assist.goal_task != "bread/push_east"
+    arm.q = arm.q - cmd * DT  # the same state again: the command is the decoder's own, or the other goal's
+    if st.assist.goal_task == "":
+        assert np.array_equal(cmd, arm.unassisted(1.0))
+    assert all(g.task.name != "bread/push_east" or not g.obj.visible for g in arm.core.assist.goals)
+
+
+def test_picking_another_object_moves_the_pull_at_once(kin):
+    arm = Arm(kin, objects=(("bread", (0.5, 0.1)), ("soda_can", (0.45, -0.15))), goal_selection="bread")
+    st = drive(arm, 1.0)
+    assert st.assist.goal_task == "bread/push_east" and st.assist.confidence > 0.9
+    ok, _ = arm.core.select_target("class", "soda_can", -1, math.nan, math.nan, arm.t)
+    assert ok
+    _, st = arm.step(1.0)
+    assert st.latched_class == "soda_can"
+    assert st.assist.goal_task == "soda_can/push_south"
+
+
+def test_a_held_stick_ends_at_the_last_goal_pose_and_holds_there(kin):
+    arm = Arm(kin)
+    st = drive(arm, 12.0)
+    end = task_goal_poses(CAT.task("bread/push_east"), CAT.spec("bread"), arm.core.assist.goals[0].obj.anchor)
+    assert st.assist.stage == "done"
+    assert np.linalg.norm(arm.tcp() - end[-1].position) <= STOP_REACH_M
+    cmd, st = arm.step(1.0)
+    assert st.code == Code.ACTIVE and np.all(cmd == 0.0)
+    cmd, st = arm.step(-1.0)     # and the way back is open
+    assert np.linalg.norm(cmd) > 0
+
+
+def test_the_assistance_moves_no_faster_than_the_stick_asks(kin):
+    arm = Arm(kin)
+    drive(arm, 1.0)
+    for _ in range(50):
+        p0 = arm.tcp()
+        _, st = arm.step(0.3)
+        assert st.assist.share == 1.0
+        speed = np.linalg.norm(arm.tcp() - p0) / DT
+        assert speed <= 0.3 * 0.2 * 1.05   # the stick's share of the transit speed (m/s)
+
+
+def test_the_grasp_pose_is_left_only_once_the_hand_has_closed(kin):
+    arm = Arm(kin, model="glass_bottle_pick_place_west", objects=(("glass_bottle", (0.5, -0.1)),))
+    st = drive(arm, 10.0)
+    assert st.assist.goal_task == "glass_bottle/pick_place_west" and st.assist.stage == "grasp"
+    grasp = next(g for g in arm.core.assist.goals).poses[1].position
+    assert np.linalg.norm(arm.tcp() - grasp) < STOP_REACH_M
+    cmd, st = arm.step(1.0)
+    assert np.linalg.norm(kin.jacobian(arm.q)[:3] @ cmd) < 0.01   # held at the grasp pose
+    arm.fingers = 0.026                                            # the operator's button: it holds the neck
+    st = drive(arm, 0.5)
+    assert st.assist.stage == "carry"
+    p0 = arm.tcp()
+    drive(arm, 0.5)
+    assert arm.tcp()[2] > p0[2] + 0.01                             # up, toward the carry
+
+
+def test_status_names_the_goal_where_the_object_stands(kin):
+    arm = Arm(kin, objects=(("bread", (0.5, 0.05)),))
+    st = drive(arm, 0.5)
+    a = st.assist
+    assert a.level == "high" and a.goal_task == "bread/push_east"
+    assert a.goal_xy == pytest.approx((0.5, 0.05), abs=1e-6)
+    u, v = arm.dets[0].cx / SIZE[0], arm.dets[0].cy / SIZE[1]
+    assert a.goal_image_xy == pytest.approx((u, v))
+    assert a.stage == "hover" and 0.5 < a.confidence <= 1.0

@@ -1,0 +1,436 @@
+"""Assistance the person commands: goal inference over what the camera sees, and a pull toward the
+inferred goal that grows with confidence (in the spirit of Jeon, Losey and Sadigh, RSS 2020). No rclpy.
+
+The candidate goals are the detected objects, each with its tasks' goal poses (`vla_common.task_goals`:
+from the object's class, its centre on the table and the task; the model's tasks say which of an
+object's tasks it was taught). The object is found on the table from its detection's box centre and
+the camera (`unproject`). Each goal keeps the pose it steers toward next (a push: hover, pre-push,
+push end; a circle: a ring; a pick-and-place: hover, grasp, carry, place, retreat).
+
+Inference: every goal gathers evidence from where the *person's* command (the decoder's output for
+their stick, before any assistance) takes the hand: progress toward the goal's next pose adds,
+motion away subtracts, and old evidence fades with the distance moved (not with time: a pause keeps
+it). Evidence from the assisted motion would feed on itself; Aronson and Short (2024) show how such
+confidence runs away and traps the user. The object the controller latched (the operator's pick on
+the station, or `goal_selection`) starts ahead (`PRIOR_LATCHED`). The belief is a softmax over the
+goals and "none of them"; the confidence is the inferred goal's probability.
+
+Command: with the stick forward the command is (1 - a) x person's + a x assistance's, a = the level's
+share times how far the confidence is above one half; the assistance's moves the TCP straight toward
+the goal's next pose at the demonstrations' speed times |stick| (slowing onto a pose where the hand
+acts and onto the last one) and turns the hand toward its orientation. The person stays in charge:
+- the stick at rest gives zero (the controller never calls this then);
+- reversed, the assistance retraces the goal's poses and the command never moves the TCP toward the
+  goal's next pose, from the first step;
+- only the stick's speed: |stick| sets it, the assistance never moves faster than the stick asks;
+- confidence falls as fast as it rises: motion away, another object picked (all evidence dropped),
+  a goal whose object is no longer in the detections pulls no more from the next step;
+- a goal whose last pose is reached holds the hand there (zero) until the stick returns to neutral.
+The hand is the operator's: a grasp pose is left only once the fingers have closed (the grasp
+button), a place only once they have opened.
+"""
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from vla_common.catalogue import Catalogue, TaskSpec, default_catalogue
+from vla_common.detection import Detection
+from vla_common.robot import HAND
+from vla_common.task_goals import GRASP, OPEN, GoalPose, task_goal_poses
+
+LEVELS = ("off", "low", "high")
+LEVEL_SHARE = {"off": 0.0, "low": 0.5, "high": 1.0}  # the most of the command the assistance takes
+CONFIDENCE_FROM = 0.5     # no pull at or below even odds ...
+CONFIDENCE_FULL = 0.9     # ... the level's whole share from here on
+PRIOR_LATCHED = 1.0       # nats the latched object's goals start ahead of "none of them"
+EVIDENCE_M = 0.02         # m of progress toward a goal's next pose worth one nat
+MEMORY_M = 0.15           # m of motion over which old evidence fades to 1/e
+EVIDENCE_MAX = 6.0        # nats, either way
+AWAY_WEIGHT = 3.0         # motion away from a goal counts this many times its progress (falls faster)
+REACH_M = 0.015           # a pose passed through counts as reached this close
+STOP_REACH_M = 0.005      # a pose where the hand acts, or the last one
+POSITION_GAIN = 2.0       # 1/s onto a pose the hand stops at
+ROTATION_GAIN = 2.0       # 1/s
+MAX_ROTATION = 0.8        # rad/s at full stick
+DAMPING = 0.02            # of the Jacobian's pseudo-inverse
+MATCH_M = 0.08            # a detection this close to a goal's object is that object (it may be pushed)
+LOST_KEEP_S = 5.0         # s a goal whose object left the detections is remembered (pulling nothing)
+DETECTIONS_MAX_AGE = 2.0  # s: older detections show nothing (no goal pulls)
+HAND_STEADY_M = 0.0005    # m the finger gap may change over HAND_STEADY_S and count as at rest
+HAND_STEADY_S = 0.3
+HAND_CLOSED_BELOW = HAND.max_width - 0.008  # m: a gap at rest below this holds something
+MAX_STEP_S = 0.1          # s: a longer gap between steps counts as this much motion
+
+
+def check_level(level: str) -> str | None:
+    return None if level in LEVELS else f"assistance {level!r} is not one of {LEVELS}"
+
+
+@dataclass
+class Seen:
+    """One object the detections show, followed from array to array (it may be pushed)."""
+
+    class_id: str
+    anchor: np.ndarray            # (x, y) where it was first seen: its goal poses' centre
+    xy: np.ndarray                # where it was last seen
+    pixel: tuple[float, float]    # its box centre in the detector's image (px)
+    image_size: tuple[int, int]
+    start: np.ndarray             # the TCP when it was first seen: where a reversed stick leads back to
+    visible: bool = True
+    seen_t: float = 0.0
+
+
+@dataclass
+class Goal:
+    """One candidate goal: an object and one of its tasks, with the pose it steers toward next."""
+
+    obj: Seen
+    task: TaskSpec
+    poses: list[GoalPose]
+    stage: int = 0                # the next pose; len(poses): every pose reached
+    evidence: float = 0.0
+
+    @property
+    def done(self) -> bool:
+        return self.stage >= len(self.poses)
+
+    def target(self) -> GoalPose:
+        return self.poses[min(self.stage, len(self.poses) - 1)]
+
+    def previous(self) -> np.ndarray:
+        """Where a reversed stick heads: the pose before the next one (the TCP where it was first seen)."""
+        if self.stage == 0:
+            return self.obj.start
+        return self.poses[min(self.stage, len(self.poses)) - 1].position
+
+
+@dataclass
+class AssistState:
+    """What the status shows: the level, the inferred goal and how sure, and the share it takes."""
+
+    level: str = "off"
+    goal_task: str = ""
+    confidence: float = 0.0
+    share: float = 0.0
+    stage: str = ""
+    goal_xy: tuple[float, float] = (math.nan, math.nan)
+    goal_image_xy: tuple[float, float] = (math.nan, math.nan)  # normalised by the image size
+    reason: str = ""
+
+
+@dataclass
+class _Hand:
+    """The finger gap over the last HAND_STEADY_S: closed (on something) or open, once at rest."""
+
+    samples: list[tuple[float, float]] = field(default_factory=list)
+    known: bool = False
+
+    def add(self, width: float, now: float) -> None:
+        self.known = True
+        self.samples = [s for s in self.samples if now - s[0] <= HAND_STEADY_S] + [(now, width)]
+
+    def state(self) -> str:
+        """"closed", "open" or "" (moving, or no finger joints seen)."""
+        if not self.known or not self.samples:
+            return ""
+        widths = [w for _, w in self.samples]
+        if self.samples[-1][0] - self.samples[0][0] < HAND_STEADY_S * 0.5 or \
+                max(widths) - min(widths) > HAND_STEADY_M:
+            return ""
+        return "closed" if widths[-1] < HAND_CLOSED_BELOW else "open"
+
+
+class Assistance:
+    """Goal inference and blending for the controller core (see the module docstring).
+
+    ``kinematics`` has ``tcp_state(q)`` -> (position, rotation, 6x7 Jacobian) over the model's joints
+    (the Panda's); ``unproject((u, v), z)`` gives the world point at height z seen at detector pixel
+    (u, v), or None (no camera calibration yet: no goals)."""
+
+    def __init__(self, kinematics=None, unproject: Callable | None = None,
+                 catalogue: Catalogue | None = None):
+        self.kinematics = kinematics
+        self.unproject = unproject
+        self.catalogue = catalogue or default_catalogue()
+        self.level = "off"
+        self.tasks: dict[str, list[TaskSpec]] = {}
+        self.objects: list[Seen] = []
+        self.goals: list[Goal] = []
+        self._dets_t = -math.inf
+        self._latched: tuple[str, float, float] | None = None
+        self._hand = _Hand()
+        self._presses = 0  # grasp button presses: the hand's state where no finger joints are seen
+        self._last_t: float | None = None
+        self._held: tuple[Goal, float] | None = None  # a reached goal holding the hand, and its share
+        self.lost = ""  # the last command was a stop: the reached goal's object left the view (why)
+        self.state = AssistState()
+
+    # ----------------------------------------------------------------- inputs
+    def set_tasks(self, tasks: Mapping[str, Sequence[str]]) -> None:
+        """The tasks the model was taught, by class ({class: [task names]}); unknown tasks are left out."""
+        self.tasks = {}
+        for cls, names in tasks.items():
+            for name in names:
+                try:
+                    spec = self.catalogue.task(name)
+                except ValueError:
+                    continue
+                self.tasks.setdefault(cls, []).append(spec)
+        self.reset()
+
+    def reset(self) -> None:
+        """A new episode (a re-detect, a new model): every goal forgotten."""
+        self.objects, self.goals, self._dets_t, self._latched = [], [], -math.inf, None
+        self._last_t = self._held = None
+
+    def on_fingers(self, width: float, now: float) -> None:
+        """The gap between the fingers (m) from joint_states."""
+        if math.isfinite(width):
+            self._hand.add(float(width), now)
+
+    def on_grasp_press(self) -> None:
+        self._presses += 1
+
+    def observe(self, dets: Sequence[Detection], image_size, dets_t: float, latched, q, now: float) -> None:
+        """Track the objects of the latest detections (once per new array) and note the latched one
+        ((class, u, v) in detector pixels, or None). A goal whose object is missing pulls no more."""
+        if latched != self._latched:
+            self._latched, self._held = latched, None
+            for g in self.goals:    # the operator chose another object: only the prior counts now
+                g.evidence = 0.0
+        if dets_t != self._dets_t and self.kinematics is not None:
+            self._dets_t = dets_t
+            self._track(self._located(dets, image_size), self.kinematics.tcp_state(q)[0], image_size, now)
+        self._expire(now)
+
+    def _located(self, dets, image_size) -> list[tuple[Detection, np.ndarray]]:
+        """The detections of classes with a task, with where each object stands on the table."""
+        out = []
+        if self.unproject is None or not image_size:
+            return out
+        for d in dets:
+            if d.class_id not in self.tasks or not d.is_finite():
+                continue
+            try:
+                point = self.unproject((d.cx, d.cy), 0.5 * self.catalogue.spec(d.class_id).height)
+            except (ValueError, ArithmeticError):
+                point = None
+            if point is not None and np.all(np.isfinite(point)):
+                out.append((d, np.asarray(point, float)[:2]))
+        return out
+
+    def _track(self, located, tcp, image_size, now: float) -> None:
+        """Match each located detection to the nearest remembered object of its class within MATCH_M
+        (nearest pairs first); the others are new objects; objects matched by none are not visible."""
+        for o in self.objects:
+            o.visible = False
+        pairs = sorted((float(np.linalg.norm(o.xy - xy)), i, j) for i, (d, xy) in enumerate(located)
+                       for j, o in enumerate(self.objects) if o.class_id == d.class_id)
+        used_d, used_o = set(), set()
+        for dist, i, j in pairs:
+            if dist <= MATCH_M and i not in used_d and j not in used_o:
+                used_d.add(i)
+                used_o.add(j)
+                d, xy = located[i]
+                o = self.objects[j]
+                o.xy, o.pixel, o.image_size = xy, (d.cx, d.cy), tuple(image_size)
+                o.visible, o.seen_t = True, now
+        start = np.asarray(tcp, float) if tcp is not None else np.full(3, math.nan)
+        for i, (d, xy) in enumerate(located):
+            if i not in used_d:
+                o = Seen(d.class_id, xy.copy(), xy.copy(), (d.cx, d.cy), tuple(image_size), start, seen_t=now)
+                self.objects.append(o)
+                shape = self.catalogue.spec(d.class_id)
+                self.goals += [Goal(o, spec, task_goal_poses(spec, shape, xy, tcp))
+                               for spec in self.tasks[d.class_id]]
+
+    def _expire(self, now: float) -> None:
+        if now - self._dets_t > DETECTIONS_MAX_AGE:
+            for o in self.objects:
+                o.visible = False
+        self.objects = [o for o in self.objects if o.visible or now - o.seen_t <= LOST_KEEP_S]
+        self.goals = [g for g in self.goals if any(g.obj is o for o in self.objects)]
+
+    def shown(self, level: str, moving: bool) -> AssistState:
+        """The state for the status: the last step's while the assistance commands; otherwise the
+        goal last inferred with no share (nothing pulls while the command is zero)."""
+        self.level = level
+        if level == "off":
+            self.state = AssistState()
+        elif not moving:
+            self.state = replace(self.state, level=level, share=0.0)
+        return self.state
+
+    # ----------------------------------------------------------------- the command
+    def on_neutral(self) -> None:
+        """The stick is back at rest: a reached goal lets go of the hand."""
+        self._held, self._last_t = None, None
+
+    def command(self, q: np.ndarray, u: float, person: np.ndarray, now: float) -> np.ndarray:
+        """The command for stick u (!= 0) given the person's (the decoder's) ``person``; updates the
+        inference. Returns ``person`` itself when the assistance is off or has nothing to add."""
+        dt = 0.0 if self._last_t is None else min(max(now - self._last_t, 0.0), MAX_STEP_S)
+        self._last_t, self.lost = now, ""
+        if self.level == "off" or self.kinematics is None or u == 0.0:
+            self.state = AssistState(level=self.level)
+            return person
+        if self._held is not None:
+            goal, share = self._held
+            if u > 0 and goal.obj.visible:  # reached, the stick still forward: hold as when reached
+                return (1.0 - share) * person
+            self._held = None
+            if u > 0:   # its object left the view: a stop the person did not choose (they return to neutral)
+                self.lost = f"the {goal.obj.class_id} of the goal reached is no longer detected"
+                return np.zeros_like(person)
+        p, R, J = self.kinematics.tcp_state(q)
+        visible = [g for g in self.goals if g.obj.visible]
+        self._stages(visible, p, u)
+        self._infer(visible, p, J[:3] @ person, dt)
+        best, confidence = self._best(visible)
+        share = LEVEL_SHARE[self.level] * _ramp(confidence) if best is not None else 0.0
+        self.state = self._state(best, confidence, share)
+        if best is None or share == 0.0:
+            return person
+        if u > 0 and best.done:
+            self._held = (best, share)
+            return (1.0 - share) * person
+        toward = self._toward(best, p, R, J, u) if u > 0 else self._back(best, p, J, u)
+        out = (1.0 - share) * person + share * toward
+        return out if u > 0 else _not_toward(out, best.target().position - p, J)
+
+    def _stages(self, goals: Sequence[Goal], p: np.ndarray, u: float) -> None:
+        hand = self._hand.state() if self._hand.known else ("closed" if self._presses % 2 else "open")
+        for g in goals:
+            if u > 0:
+                while not g.done and self._reached(g, p, hand):
+                    g.stage += 1
+            elif g.stage > 0 and np.linalg.norm(g.previous() - p) < REACH_M:
+                g.stage -= 1
+
+    @staticmethod
+    def _reached(g: Goal, p: np.ndarray, hand: str) -> bool:
+        pose = g.target()
+        stops = bool(pose.hand) or g.stage == len(g.poses) - 1
+        if np.linalg.norm(pose.position - p) >= (STOP_REACH_M if stops else REACH_M):
+            return False
+        if pose.hand == GRASP:
+            return hand == "closed"
+        if pose.hand == OPEN:
+            return hand == "open"
+        return True
+
+    def _infer(self, goals: Sequence[Goal], p: np.ndarray, v: np.ndarray, dt: float) -> None:
+        """Evidence from the person's TCP velocity v over dt: progress toward a goal's next pose, or the
+        pose after it (a model that cuts a corner, or heads on to the carry while the hand waits to
+        close, still does that task); motion away from both counts AWAY_WEIGHT times."""
+        moved = float(np.linalg.norm(v)) * dt
+        fade = math.exp(-moved / MEMORY_M)
+        for g in goals:
+            progress = max((_progress(v, pose.position - p) for pose in g.poses[g.stage:g.stage + 2]),
+                           default=0.0) * dt
+            if progress < 0.0:
+                progress *= AWAY_WEIGHT
+            g.evidence = float(np.clip(g.evidence * fade + progress / EVIDENCE_M,
+                                       -EVIDENCE_MAX, EVIDENCE_MAX))
+
+    def _best(self, goals: Sequence[Goal]) -> tuple[Goal | None, float]:
+        """The most probable goal and its probability (against the others and "none of them")."""
+        if not goals:
+            return None, 0.0
+        scores = np.array([g.evidence + (PRIOR_LATCHED if self._is_latched(g) else 0.0) for g in goals])
+        top = float(max(scores.max(), 0.0))
+        weights = np.exp(scores - top)
+        total = float(weights.sum()) + math.exp(-top)
+        i = int(np.argmax(scores))
+        return goals[i], float(weights[i] / total)
+
+    def _is_latched(self, g: Goal) -> bool:
+        """The goal's object is the one the controller latched: the nearest of its class to the latch."""
+        lat = self._latched
+        if lat is None or lat[0] != g.obj.class_id:
+            return False
+        same = [o for o in self.objects if o.class_id == lat[0] and o.visible]
+        return min(same, key=lambda o: math.hypot(o.pixel[0] - lat[1], o.pixel[1] - lat[2])) is g.obj
+
+    def _state(self, best: Goal | None, confidence: float, share: float) -> AssistState:
+        if best is None:
+            return AssistState(self.level, reason="no goal in view")
+        o = best.obj
+        w, h = o.image_size
+        return AssistState(self.level, best.task.name, confidence, share,
+                           "done" if best.done else best.target().name,
+                           (float(o.anchor[0]), float(o.anchor[1])), (o.pixel[0] / w, o.pixel[1] / h))
+
+    def _toward(self, g: Goal, p, R, J, u: float) -> np.ndarray:
+        """Joint velocities that take the TCP toward the goal's next pose at |u| x its speed."""
+        if g.done:
+            return np.zeros(J.shape[1])
+        pose = g.target()
+        to = pose.position - p
+        dist = float(np.linalg.norm(to))
+        speed = abs(u) * pose.speed
+        if pose.hand or g.stage == len(g.poses) - 1:
+            speed = min(speed, POSITION_GAIN * dist)
+        v = to / dist * speed if dist > 1e-9 else np.zeros(3)
+        w = ROTATION_GAIN * _rotation_error(pose.rotation, R)
+        wn = float(np.linalg.norm(w))
+        if wn > abs(u) * MAX_ROTATION:
+            w *= abs(u) * MAX_ROTATION / wn
+        return _solve(J, np.concatenate([v, w]))
+
+    def _back(self, g: Goal, p, J, u: float) -> np.ndarray:
+        """Joint velocities that retrace the goal's poses: toward the one before its next."""
+        back = g.previous() - p
+        dist = float(np.linalg.norm(back))
+        if not np.all(np.isfinite(back)) or dist < 1e-9:
+            return np.zeros(J.shape[1])
+        speed = abs(u) * g.target().speed
+        return _solve(J[:3], back / dist * speed)
+
+
+def _progress(v: np.ndarray, to: np.ndarray) -> float:
+    """The speed (m/s) at which velocity v closes the distance along ``to``."""
+    n = float(np.linalg.norm(to))
+    return float(v @ to) / n if n > 1e-9 else 0.0
+
+
+def _ramp(confidence: float) -> float:
+    """How much of the level's share the confidence earns: none up to CONFIDENCE_FROM, all from
+    CONFIDENCE_FULL on, linear between."""
+    return float(np.clip((confidence - CONFIDENCE_FROM) / (CONFIDENCE_FULL - CONFIDENCE_FROM), 0.0, 1.0))
+
+
+def _solve(J: np.ndarray, twist: np.ndarray) -> np.ndarray:
+    """Damped least squares: the joint velocities (min norm) that give ``twist``."""
+    return J.T @ np.linalg.solve(J @ J.T + DAMPING**2 * np.eye(J.shape[0]), twist)
+
+
+def _not_toward(dq: np.ndarray, to: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """``dq`` without any TCP velocity along ``to`` (a reversed stick never approaches the goal)."""
+    n = float(np.linalg.norm(to))
+    if n < 1e-9:
+        return dq
+    g = to / n
+    toward = float((J[:3] @ dq) @ g)
+    if toward <= 0.0:
+        return dq
+    return dq - _solve(J[:3], toward * g)
+
+
+def _rotation_error(target: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """The rotation vector (world frame) that turns R into target: log(target R^T)."""
+    E = target @ R.T
+    c = float(np.clip((np.trace(E) - 1.0) / 2.0, -1.0, 1.0))
+    angle = math.acos(c)
+    axis = np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
+    s = math.sin(angle)
+    if angle < 1e-9:
+        return 0.5 * axis
+    if s < 1e-6:   # a half turn: the axis from the symmetric part
+        k = int(np.argmax(np.diag(E)))
+        a = (E[:, k] + np.eye(3)[:, k]) / math.sqrt(max(2.0 * (1.0 + E[k, k]), 1e-12))
+        return angle * a / np.linalg.norm(a)
+    return angle / (2.0 * s) * axis

@@ -31,6 +31,9 @@ MODULE_KEYS = {
     "rosbags": "python3-rosbags-pip",
     "pylibfranka": "python3-pylibfranka-pip",
     "panda_py": "python3-panda-python-pip",
+    "pydantic": "python3-pydantic-pip",
+    "pydantic_core": "python3-pydantic-pip",
+    "ray": "python3-ray-pip",
 }
 # ROS packages are their own keys (rclpy, sensor_msgs, vla_common, ...).
 IGNORED = set(sys.stdlib_module_names) | {"__future__"}

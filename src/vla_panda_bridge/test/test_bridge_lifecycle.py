@@ -176,3 +176,32 @@ def test_franka_sim_bridge_through_the_lifecycle():
             drive_through_the_lifecycle(m)
         finally:
             h.shutdown()
+
+
+def test_deactivate_ends_teaching_mode_and_holds_the_arm_against_a_push():
+    """The README: deactivate brakes and holds. In teaching mode (servos off, the arm backdrivable) a
+    deactivate left the servos off, and a hand pushing the arm moved it. Now deactivate leaves teaching
+    mode (servos on, holding the pose), a push moves nothing, and teaching cannot start while inactive."""
+    h = RosHarness()
+    try:
+        m = Managed(h, camera_rate=0.0, real_time_factor=1.0, command_timeout=0.5)
+        assert m.transition(Transition.TRANSITION_CONFIGURE) and m.transition(Transition.TRANSITION_ACTIVATE)
+        assert h.spin_until(m.armed, 20.0) and m.still_for(20)
+        teaching = m.io.create_client(SetBool, "panda_bridge/set_teaching")
+        assert h.call(teaching, SetBool.Request(data=True)).success
+        sim = m.bridge.backend.sim
+        assert sim.teaching
+        assert m.transition(Transition.TRANSITION_DEACTIVATE)
+        assert not sim.teaching and not m.bridge.filter.teaching
+        assert m.status[-1].code == SafetyStatus.AWAITING_ZERO and "deactivated" in m.status[-1].text
+        q0, hand = sim.q, sim.model.body("panda_hand").id
+        sim.data.xfrc_applied[hand, :3] = [0.0, 8.0, 0.0]      # a hand pulls sideways for 1 s
+        start = len(m.states)
+        assert h.spin_until(lambda: len(m.states) >= start + 200, 20.0)
+        sim.data.xfrc_applied[hand, :3] = 0.0
+        assert abs(sim.q - q0).max() < 0.01, sim.q - q0       # held (in teaching mode: > 0.02 rad)
+        answer = h.call(teaching, SetBool.Request(data=True))
+        assert not answer.success and "deactivated" in answer.message, answer.message
+        assert not sim.teaching
+    finally:
+        h.shutdown()

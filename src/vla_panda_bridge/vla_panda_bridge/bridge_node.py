@@ -278,7 +278,14 @@ class PandaBridge(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
     def _hold(self, why: str) -> None:
+        """Inactive: commands refused, the filter braking to zero; teaching mode left (servos on, holding
+        the pose), since deactivate holds the arm and a backdrivable arm is not held."""
         self._active = False
+        if self.filter.teaching and self.backend is not None:
+            try:
+                self._leave_teaching()
+            except (UnsupportedError, RuntimeError) as exc:
+                self.get_logger().error(f"{why}: could not leave teaching mode: {exc}")
         self.filter.disarm(why)
         self._publish_status(self.filter.hold_code(), self._inactive_text(why))
 
@@ -487,6 +494,8 @@ class PandaBridge(LifecycleNode):
         f = self.filter
         if self.backend is None:
             return "teaching mode refused: " + self._inactive_text()
+        if on and not self._active:
+            return "teaching mode refused: " + self._inactive_text("deactivated")
         if TEACHING not in self.backend.capabilities:
             return f"teaching mode is not available with the {self.backend.kind} backend"
         if on and not f.teaching and (f.estop_active or f.fault):

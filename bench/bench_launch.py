@@ -48,7 +48,7 @@ class _Watch(Node):
 
 def one_run(i: int, log: Path, args: list[str]) -> tuple[float, bool]:
     """Seconds from SIGINT to the launch's exit, and whether a node needed SIGTERM/SIGKILL."""
-    h = RosHarness()
+    h = RosHarness(other_processes=True)  # the launch is other processes
     with open(log, "wb") as f:
         proc = subprocess.Popen([find_executable("vla_launch", "vla"), "launch", "vla_bringup",
                                  "teleop.launch.yaml", *args], stdin=subprocess.DEVNULL, stdout=f,

@@ -8,14 +8,21 @@
 - Fast DDS gets the large-image transport profile (`qos.use_large_image_transport`) before
   rclpy.init, unless the environment chooses transports itself: whole camera frames go through
   shared memory, for every node alike.
-- Shutdown is bounded: if the node's teardown (destroy_node, rclpy shutdown) has not finished
-  `SHUTDOWN_GRACE_S` after it began (Fast DDS 2.14 can busy-wait in participant deletion when several
-  nodes leave the graph at once, eProsima/Fast-DDS #6513), a C-level watchdog (faulthandler, it needs
-  no Python lock) prints where each thread is and ends the process with exit code 1, instead of
-  leaving it for a SIGKILL. `on_shutdown` has a bound of its own: `SHUTDOWN_GRACE_S`, or the node's
-  `shutdown_timeout_s` where its work needs longer (the recorder closes an episode's bag). One budget
-  for both ended the recorder with exit code 1 in `destroy_publisher` when closing a bag had taken
-  most of the 3 s (issue 21).
+- Shutdown is bounded, in two parts:
+  - `on_shutdown` (the zero command) gets `SHUTDOWN_GRACE_S`, or the node's `shutdown_timeout_s`
+    where its work needs longer (the recorder closes an episode's bag); one that has not returned by
+    then is a failure: a C-level watchdog (faulthandler, it needs no Python lock) prints where each
+    thread is and ends the process with exit code 1.
+  - The teardown (destroy_node, rclpy shutdown, the DDS participant's deletion, said to the other
+    participants) gets `TEARDOWN_S`, and then the process ends (`os._exit`) with its exit code: the
+    node's duty is done, and Python's own finalization is skipped. That finalization ran after the
+    watchdog was cancelled, unbounded: in 4 of 8 Ctrl-Cs of the teleop graph at load 12 it took
+    2.0-2.9 s of the stop, and once it crashed the bridge (exit code -11, no Python frame); and a
+    teardown starved at load 38 ran past the old 3 s watchdog in rclpy's logging shutdown (exit code
+    1, issue 32). A teardown that runs past `TEARDOWN_S` (Fast DDS 2.14 can busy-wait in participant
+    deletion when several nodes leave at once, eProsima/Fast-DDS #6513) has its threads' stacks
+    printed, and the process ends all the same with its code: a native timer calls `_exit`
+    (glibc's `timer_create` with SIGEV_THREAD: no GIL, no Python lock needed).
 - The executor is rclpy's `EventsExecutor` (C++, rclpy.experimental): the default
   `SingleThreadedExecutor` rebuilt its wait set in Python for every callback, 44 % of the controller's
   samples (py-spy). In the whole teleop graph with the operator station, loaded machine (load 23-33,
@@ -33,7 +40,10 @@
 
 from __future__ import annotations
 
+import ctypes
 import faulthandler
+import gc
+import os
 import re
 import signal
 import sys
@@ -53,6 +63,7 @@ from vla_common.ros.qos import use_large_image_transport
 
 SPIN_SLICE_S = 0.1
 SHUTDOWN_GRACE_S = 3.0
+TEARDOWN_S = 0.5
 
 
 class ConfigError(ValueError):
@@ -94,7 +105,8 @@ def spin_until_stopped(node: Node, executor, stop: Callable[[], bool]) -> None:
 
 
 def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = None) -> int:
-    """Create the node with `make_node()`, spin it until a signal, shut it down; return the exit code."""
+    """Create the node with `make_node()`, spin it until a signal, shut it down, and end the process
+    with the exit code (it returns only when rcl refuses the command line: 2)."""
     use_large_image_transport()
     argv = list(sys.argv if args is None else args)
     try:
@@ -105,6 +117,7 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     remember(rclpy.utilities.get_default_context(), argv)  # which section gave which parameter
     signals = _Signals()
     node: Node | None = None
+    executor: EventsExecutor | None = None
     code = 0
     try:
         node = make_node()
@@ -126,8 +139,10 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     finally:
         signals.ignore()
         _shutdown(node, name)
-        faulthandler.cancel_dump_traceback_later()
-    return code
+    held = [node, executor]
+    node = executor = None
+    _end_process(held, name, code)
+    return code  # not reached
 
 
 def rcl_argument_error(text: str) -> str:
@@ -146,18 +161,75 @@ def _watchdog(seconds: float) -> None:
 
 
 def _shutdown(node: Node | None, name: str) -> None:
-    _watchdog(SHUTDOWN_GRACE_S)
+    """The node's on_shutdown (its zero command), bounded: a hang ends the process with exit code 1."""
     try:
-        if node is not None:
-            on_shutdown = getattr(node, "on_shutdown", None)
-            if on_shutdown is not None and rclpy.ok():
-                _watchdog(max(SHUTDOWN_GRACE_S, float(getattr(node, "shutdown_timeout_s", 0.0))))
-                try:
-                    on_shutdown()
-                finally:
-                    _watchdog(SHUTDOWN_GRACE_S)  # the teardown's own bound, however long that took
-            node.destroy_node()
+        on_shutdown = getattr(node, "on_shutdown", None)
+        if on_shutdown is not None and rclpy.ok():
+            _watchdog(max(SHUTDOWN_GRACE_S, float(getattr(node, "shutdown_timeout_s", 0.0))))
+            on_shutdown()
     except Exception as exc:  # the context may already be gone: nothing more can be sent
         print(f"{name}: during shutdown: {exc}", file=sys.stderr)
     finally:
+        faulthandler.cancel_dump_traceback_later()
+
+
+def _end_process(held: list, name: str, code: int) -> None:
+    """Destroy the node, shut rclpy down and delete the DDS participant (the graph hears that it
+    left), bounded by TEARDOWN_S; then end the process with `code`, skipping Python's finalization."""
+    exit_after(TEARDOWN_S, code)
+    context = rclpy.utilities.get_default_context()  # try_shutdown puts a new one in its place
+    try:
+        node, executor = held
+        held.clear()
+        if node is not None:
+            node.destroy_node()
+        if executor is not None:
+            executor.shutdown()
+        del node, executor
+    except Exception as exc:  # the context may already be gone
+        print(f"{name}: during shutdown: {exc}", file=sys.stderr)
+    finally:
         rclpy.try_shutdown()
+    gc.collect()          # what still held the node's handles: the participant can go now
+    context.destroy()
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(code)
+
+
+def exit_after(seconds: float, code: int) -> None:
+    """In `seconds`, print every thread's stack and end the process with `code`, whatever holds the
+    GIL: a glibc timer runs `_exit(code)` in a thread of its own. Where there is none (not glibc),
+    the watchdog's exit code 1 instead."""
+    faulthandler.dump_traceback_later(max(0.0, seconds - 0.05), exit=False)
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        event = _SigEvent(value=code, notify=_SIGEV_THREAD,
+                          function=ctypes.cast(libc._exit, ctypes.c_void_p).value)
+        timer = ctypes.c_void_p()
+        whole, frac = divmod(float(seconds), 1.0)
+        spec = _ITimerSpec(value=_TimeSpec(int(whole), int(frac * 1e9)))
+        if (libc.timer_create(_CLOCK_MONOTONIC, ctypes.byref(event), ctypes.byref(timer)) != 0
+                or libc.timer_settime(timer, 0, ctypes.byref(spec), None) != 0):
+            raise OSError(ctypes.get_errno(), "timer_create")
+    except (OSError, AttributeError):
+        _watchdog(seconds)
+
+
+class _SigEvent(ctypes.Structure):
+    """glibc's struct sigevent (64 bytes): the value, then for SIGEV_THREAD the function and its
+    attributes in the union. `_exit` takes the value's low int: the exit code."""
+    _fields_ = [("value", ctypes.c_void_p), ("signo", ctypes.c_int), ("notify", ctypes.c_int),
+                ("function", ctypes.c_void_p), ("attributes", ctypes.c_void_p), ("pad", ctypes.c_int * 8)]
+
+
+class _TimeSpec(ctypes.Structure):
+    _fields_ = [("sec", ctypes.c_long), ("nsec", ctypes.c_long)]
+
+
+class _ITimerSpec(ctypes.Structure):
+    _fields_ = [("interval", _TimeSpec), ("value", _TimeSpec)]
+
+
+_SIGEV_THREAD = 2
+_CLOCK_MONOTONIC = 1

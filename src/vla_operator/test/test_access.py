@@ -8,7 +8,7 @@ import stat
 
 import pytest
 from vla_operator.access import Access, TokenError, load_token, token_refusal
-from vla_operator.server import Station
+from vla_operator.server import Limits, Station
 
 TOKEN = "s3cret-token-0123456789"
 LOCAL = Access("127.0.0.1", 8080, TOKEN)
@@ -84,7 +84,7 @@ def served(tmp_path):
     (web / "index.html").write_text("<!doctype html><title>station</title>")
     (web / "app.js").write_text("// the page")
     station = Station(web, "127.0.0.1", 0, TOKEN, lambda axis: None, lambda msg, reply: None,
-                      request_timeout=0.5)
+                      limits=Limits(request_timeout=0.5))
     station.start()
     yield station
     station.stop()

@@ -151,18 +151,18 @@ def test_the_driving_page_answers_and_the_client_gets_the_answers(station):
     assert h.spin_until(lambda: bool(feedback), 5.0) and feedback[-1].driver and feedback[-1].pages == 1
     result = handle.get_result_async()
     bad = {"type": "answers", "id": shown["id"], "answers": {s: 9 for s in STATEMENTS}}
-    node.station._on_message(page, json.dumps(bad))
+    node.station._on_message(peer(node, page), json.dumps(bad))
     assert node.station.link.counters.malformed == 1
     h.spin_for(0.3)
     assert not result.done()                         # still waiting for a whole answer
     good = {"type": "answers", "id": shown["id"], "answers": dict(zip(STATEMENTS, (2, 6, 7)))}
-    node.station._on_message(page, json.dumps(good))
+    node.station._on_message(peer(node, page), json.dumps(good))
     assert h.spin_until(result.done, 10.0)
     r = result.result()
     assert r.status == GoalStatus.STATUS_SUCCEEDED and r.result.answered
     assert list(r.result.answers) == [2, 6, 7]
     assert node.state["questionnaire"] is None       # the pages hide it
-    node.station._on_message(page, json.dumps(good))  # sent again: refused, nothing changes
+    node.station._on_message(peer(node, page), json.dumps(good))  # sent again: refused, nothing changes
     assert node.station.link.counters.stale == 1
 
 
@@ -197,5 +197,11 @@ def test_one_waits_at_a_time_and_a_cancel_withdraws_it_from_the_pages(station):
     assert result.result().status == GoalStatus.STATUS_CANCELED and not result.result().result.answered
     assert node.state["questionnaire"] is None and node.station.link.questionnaire is None
     late = {"type": "answers", "id": qid, "answers": {s: 4 for s in STATEMENTS}}
-    node.station._on_message(page, json.dumps(late))   # the page answers what was withdrawn: refused
+    node.station._on_message(peer(node, page), json.dumps(late))   # answers what was withdrawn: refused
     assert node.station.link.counters.stale == 1
+
+
+def peer(node, cid: int):
+    """A page of the link (no socket) as the server's message handler takes it."""
+    from vla_operator.server import Limits, Peer
+    return Peer(cid, None, None, Limits())

@@ -1,21 +1,72 @@
 """The station's web server (aiohttp, no rclpy): the page's files, and one WebSocket per page that
-carries input in, and frames, detections and status out. The safety rules are :mod:`.link`'s; this
-module only moves bytes. It runs its own event loop in a thread; the node talks to it through
-``publish_axis`` / ``request`` callbacks and ``set_frame`` / ``set_state``, which are thread-safe."""
+carries input in, and frames, detections and status out. The safety rules are :mod:`.link`'s, who may
+open it :mod:`.access`'s, what a page may cost :mod:`.outbox`'s; this module moves bytes. It runs its
+own event loop in a thread; the node talks to it through ``publish_axis`` / ``request`` callbacks and
+``set_frame`` / ``set_state`` / ``reply``, which are thread-safe.
+
+Everything reachable from the network is untrusted, so every page is bounded (issue 32):
+- what goes out to a page waits in its own :class:`Outbox` (the newest state and frame replace older
+  ones, replies and refusals are few), sent by one task per page as the page reads; a send that stays
+  blocked for ``send_timeout`` closes the page;
+- what comes in is budgeted: beyond ``max_rate`` messages/s a page's messages are refused unread (an
+  e-stop is always handled), and a page refused more than ``max_refusals`` in a burst (``refusal_rate``
+  per s after it) is closed at once, what it had sent and not yet handled dropped with it;
+- a page's handler lets the others' messages through every few of its own, so a flood from one socket
+  never holds back another page's e-stop, which goes to the bridge from this thread as it arrives;
+- a connection that has not sent a whole request within ``request_timeout`` is closed.
+"""
 from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from aiohttp import WSMsgType, web
 
 from vla_operator.access import Access
 from vla_operator.link import Link, LinkParams
+from vla_operator.outbox import Budget, Outbox
 from vla_operator.schema import MODELS, parse
+
+LOG = logging.getLogger("vla_operator.server")
+OVER_BUDGET = "too many messages: the station handles this page's next ones when it slows down"
+OVER_BUDGET_TEXT = json.dumps({"type": "refused", "reason": OVER_BUDGET, "what": ""})
+
+
+@dataclass(frozen=True)
+class Limits:
+    """What one page may cost. A page sends at most ~100 messages/s (its input resent every 40 ms, a
+    gamepad's changes, a heartbeat every 200 ms); a loaded machine can make all its inputs late
+    (refused, stale) for a while."""
+
+    max_rate: float = 300.0        # messages/s a page may send (and as many at once)
+    refusal_rate: float = 50.0     # refusals/s a page may earn after a burst of ...
+    max_refusals: float = 100.0    # ... this many; past them it is closed
+    max_pages: int = 16            # pages open at once
+    send_timeout: float = 10.0     # s a send to a page may stay blocked before it is closed
+    request_timeout: float = 10.0  # s to send a whole HTTP request (and to stay idle between two)
+    yield_every: int = 8           # a page's messages handled before the other pages' get a turn
+
+
+@dataclass(eq=False)
+class Peer:
+    cid: int
+    ws: web.WebSocketResponse | None
+    transport: asyncio.Transport | None
+    limits: Limits
+    outbox: Outbox = field(default_factory=Outbox)
+    messages: Budget = None
+    refusals: Budget = None
+    flooding: bool = False
+
+    def __post_init__(self):
+        self.messages = Budget(self.limits.max_rate, self.limits.max_rate)
+        self.refusals = Budget(self.limits.refusal_rate, self.limits.max_refusals)
 
 
 class Station:
@@ -23,25 +74,27 @@ class Station:
                  publish_axis: Callable[[float], None],
                  request: Callable[[dict, Callable[[dict], None]], None],
                  params: LinkParams | None = None, clock: Callable[[], float] = time.monotonic,
-                 names: tuple[str, ...] = (), request_timeout: float = 10.0):
-        """``names``: the caregiver's names for this station besides its addresses (the Host check);
-        ``request_timeout``: s a connection may take to send a whole request (and stay idle)."""
+                 names: tuple[str, ...] = (), limits: Limits | None = None):
+        """``names``: the caregiver's names for this station besides its addresses (the Host check)."""
         self.web_dir, self.bind, self.port, self.token = web_dir, bind, port, token
-        self.names, self.request_timeout = tuple(names), request_timeout
-        self.access = Access(bind, port, token, self.names)
         self.publish_axis, self.request, self.clock = publish_axis, request, clock
+        self.names, self.limits = tuple(names), limits or Limits()
+        self.access = Access(bind, port, token, self.names)
         self.link = Link(params or LinkParams())
         self.lock = threading.Lock()          # the link, and the order of what is published from it,
         #                                       shared with the node's timer
-        self._sockets: dict[int, web.WebSocketResponse] = {}
-        self._frame: tuple[int, bytes, dict] = (0, b"", {})
-        self._state: dict = {}
-        self._events: dict[int, asyncio.Event] = {}  # per page: a newer frame is there
+        self._peers: dict[int, Peer] = {}     # the loop's thread only
+        self._frame: tuple[dict, bytes] | None = None    # the newest, handed over from the node
+        self._state: dict | None = None
+        self._scheduled = {"frame": False, "state": False}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._runner: web.AppRunner | None = None
         self._thread: threading.Thread | None = None
         self.address = ""
         self.frames_sent = 0
+        self._dropped_before = 0              # by pages closed since
+        self.counters = {"over_budget": 0, "closed_flooding": 0, "closed_slow": 0, "refused_full": 0,
+                         "errors": 0}
         files = web_dir.iterdir() if web_dir.is_dir() else ()
         self._files = {f.name for f in files if f.suffix in (".js", ".css")}
 
@@ -64,7 +117,8 @@ class Station:
         app.router.add_get("/static/{name}", self._static)
         # keepalive_timeout runs from the connection's start until a whole request is in: a half-open
         # request (headers never finished) is closed after it, as is an idle keep-alive connection
-        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=self.request_timeout)
+        self._runner = web.AppRunner(app, access_log=None, keepalive_timeout=self.limits.request_timeout,
+                                     shutdown_timeout=1.0)
         try:
             self._loop.run_until_complete(self._runner.setup())
             site = web.TCPSite(self._runner, self.bind, self.port)
@@ -82,47 +136,112 @@ class Station:
         """Close the pages and the server; a second call (on_shutdown, then destroy_node) does nothing."""
         if self._loop is None or not self._loop.is_running():
             return
+
         async def close():
-            for ws in list(self._sockets.values()):
-                await ws.close()
+            for peer in list(self._peers.values()):
+                self._drop_connection(peer)     # at once: a page that does not read cannot hold us
             await self._runner.cleanup()
         try:
             asyncio.run_coroutine_threadsafe(close(), self._loop).result(2.0)
-        except Exception:  # shutting down: the loop may be gone already
+        except Exception:  # noqa: BLE001 - shutting down: the loop may be gone already
             pass
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join(2.0)
 
-    # ------------------------------------------------------------------ from the node
+    # ------------------------------------------------------------------ from the node (any thread)
     def set_frame(self, jpeg: bytes, meta: dict) -> None:
-        """The latest frame; pages get it when they are ready for one (never a backlog)."""
-        self._frame = (self._frame[0] + 1, jpeg, meta)
-        if self._loop is not None:
-            self._loop.call_soon_threadsafe(self._wake)
-
-    def _wake(self) -> None:
-        for e in self._events.values():
-            e.set()
+        """The latest frame; each page gets the newest one when it is ready for one (never a backlog)."""
+        self._frame = (meta, jpeg)
+        self._schedule("frame", self._post_frame)
 
     def set_state(self, state: dict) -> None:
-        """Status for every page (the nodes' status in words); sent at once."""
-        self._state = state
-        self._broadcast({"type": "state", **state})
+        """Status for every page (the nodes' status in words): the newest replaces any not yet sent."""
+        self._state = dict(state)
+        self._schedule("state", self._post_state)
 
     def reply(self, cid: int, reply: dict) -> None:
-        self._send(cid, {"type": "reply", **reply})
+        self._call(self._post, cid, {"type": "reply", **reply})
 
     def wants_frames(self) -> bool:
-        return bool(self._sockets)
+        return bool(self._peers)
 
-    def _broadcast(self, msg: dict) -> None:
-        for cid in list(self._sockets):
-            self._send(cid, msg)
+    def dropped(self) -> int:
+        """Messages not sent because a page did not read them (newer ones replaced them)."""
+        return self._dropped_before + sum(p.outbox.dropped for p in list(self._peers.values()))
 
-    def _send(self, cid: int, msg: dict) -> None:
-        ws, loop = self._sockets.get(cid), self._loop
-        if ws is not None and loop is not None:
-            asyncio.run_coroutine_threadsafe(_send_quietly(ws, json.dumps(msg)), loop)
+    def _schedule(self, kind: str, post: Callable[[], None]) -> None:
+        """One pending hand-over to the loop per kind, however fast the node calls."""
+        if not self._scheduled[kind]:
+            self._scheduled[kind] = True
+            self._call(post)
+
+    def _call(self, fn, *args) -> None:
+        loop = self._loop
+        if loop is not None and not loop.is_closed():
+            try:
+                loop.call_soon_threadsafe(fn, *args)
+            except RuntimeError:   # the loop closed meanwhile (shutting down)
+                pass
+
+    # ------------------------------------------------------------------ to the pages (loop thread)
+    def _post_state(self) -> None:
+        self._scheduled["state"] = False
+        if self._state is not None:
+            text = json.dumps({"type": "state", **self._state})    # once for every page
+            for peer in self._peers.values():
+                peer.outbox.latest("state", text)
+
+    def _post_frame(self) -> None:
+        self._scheduled["frame"] = False
+        if self._frame is not None:
+            for peer in self._peers.values():
+                peer.outbox.latest("frame", self._frame)
+
+    def _post(self, cid: int, msg: dict) -> None:
+        peer = self._peers.get(cid)
+        if peer is not None:
+            peer.outbox.put(json.dumps(msg))
+
+    def _broadcast_roles(self, taken_from: int | None = None) -> None:
+        """Every page's role; the page that drove before a watcher took control is told so."""
+        for cid, c in list(self.link.clients.items()):
+            self._post(cid, {"type": "role", "driver": c.driver, "may_drive": c.may_drive,
+                             "driver_present": self.link.driver() is not None,
+                             "taken": cid == taken_from})
+
+    async def _sender(self, peer: Peer) -> None:
+        """Sends a page's outbox as the page reads; a send blocked for send_timeout closes the page."""
+        while (item := await peer.outbox.next()) is not None:
+            kind, payload = item
+            try:
+                async with asyncio.timeout(self.limits.send_timeout):
+                    if kind == "frame":
+                        meta, jpeg = payload
+                        age = (time.monotonic() - meta["received"]) * 1000.0
+                        await peer.ws.send_str(json.dumps({**meta, "type": "frame", "age_ms": age}))
+                        await peer.ws.send_bytes(jpeg)
+                        self.frames_sent += 1
+                    else:
+                        await peer.ws.send_str(payload)
+            except TimeoutError:
+                self.counters["closed_slow"] += 1
+                self._drop_connection(peer)
+                return
+            except (ConnectionError, RuntimeError):
+                return
+
+    def _drop_connection(self, peer: Peer) -> None:
+        """Close a page's connection now, and forget what it sent that was not handled yet."""
+        peer.outbox.close()
+        if peer.transport is not None and not peer.transport.is_closing():
+            peer.transport.abort()
+        # aiohttp parses what arrived ahead of the handler (up to 128 KiB of payload: thousands of
+        # small messages from a flood), in a queue that only the cyclic garbage collector would free
+        # otherwise. Such full collections took 30-100 ms each under a flood, and an e-stop arriving
+        # then waited as long (issue 32). Private to aiohttp 3.14 (pinned); absent, nothing is done.
+        queued = getattr(getattr(peer.ws, "_reader", None), "_buffer", None)
+        if queued is not None:
+            queued.clear()
 
     # ------------------------------------------------------------------ HTTP
     @web.middleware
@@ -158,54 +277,95 @@ class Station:
                                                 request.query.get("token", ""))
         if refusal:
             return web.Response(status=403, text=refusal)
-        ws = web.WebSocketResponse(heartbeat=None, max_msg_size=self.link.params.max_message_bytes * 4)
+        if len(self._peers) >= self.limits.max_pages:
+            self.counters["refused_full"] += 1
+            return web.Response(status=503, text=f"{self.limits.max_pages} pages are open: close one")
+        # no compression: the frames are JPEGs, and deflating the rest costs more than it saves here
+        ws = web.WebSocketResponse(heartbeat=None, compress=False,
+                                   max_msg_size=self.link.params.max_message_bytes * 4)
         await ws.prepare(request)
         with self.lock:   # ?watch=1: a page that only shows (a display, the demo's recording)
             client = self.link.connect(self.clock(), may_drive=request.query.get("watch") != "1")
-        cid = client.cid
-        self._sockets[cid] = ws
-        await ws.send_str(json.dumps({"type": "hello", "client": cid, "driver": client.driver,
-                                      "driver_present": self.link.driver() is not None,
-                                      "stale_after": self.link.params.stale_after}))
-        if self._state:
-            await ws.send_str(json.dumps({"type": "state", **self._state}))
-        self._events[cid] = asyncio.Event()
-        sender = asyncio.ensure_future(self._send_frames(ws, self._events[cid]))
+            driver_present = self.link.driver() is not None
+        peer = Peer(client.cid, ws, request.transport, self.limits)
+        self._peers[peer.cid] = peer
+        self._post(peer.cid, {"type": "hello", "client": peer.cid, "driver": client.driver,
+                              "driver_present": driver_present, "stale_after": self.link.params.stale_after})
+        if self._state is not None:
+            peer.outbox.latest("state", json.dumps({"type": "state", **self._state}))
+        sender = asyncio.ensure_future(self._sender(peer))
         try:
-            async for m in ws:
-                if m.type in (WSMsgType.TEXT, WSMsgType.BINARY):
-                    self._on_message(cid, m.data)
-                else:
-                    break
+            await self._receive(peer)
         finally:
+            self._peers.pop(peer.cid, None)
+            self._dropped_before += peer.outbox.dropped
+            if peer.flooding:
+                self._drop_connection(peer)    # at once: a flooder's close handshake is not waited for
+            else:
+                peer.outbox.close()
             sender.cancel()
-            self._sockets.pop(cid, None)
-            self._events.pop(cid, None)
             with self.lock:
-                if self.link.disconnect(cid):
+                if self.link.disconnect(peer.cid):
                     self.publish_axis(0.0)
             self._broadcast_roles()
         return ws
 
-    def _on_message(self, cid: int, data: str | bytes) -> None:
+    async def _receive(self, peer: Peer) -> None:
+        n = 0
+        async for m in peer.ws:
+            if m.type not in (WSMsgType.TEXT, WSMsgType.BINARY) or not self._on_message(peer, m.data):
+                return
+            n += 1
+            if n % self.limits.yield_every == 0:
+                await asyncio.sleep(0)   # the other pages' messages (an e-stop) get their turn
+
+    # ------------------------------------------------------------------ from a page
+    def _on_message(self, peer: Peer, data: str | bytes) -> bool:
+        """Handle one message; False when the page is closed for what it sent."""
         now = self.clock()
+        if not peer.messages.take(now) and not _is_estop(data):
+            self.counters["over_budget"] += 1
+            self.link.counters.received += 1
+            return self._refuse(peer, OVER_BUDGET, "")
         # Decided and published under the link's lock, as the node's timer does: otherwise the timer
         # could publish a held value it read just before a release, after the release's zero (a blip
         # of motion after the operator let go, seen on a loaded machine).
         with self.lock:
-            verdict = self.link.on_message(cid, data, now)
+            verdict = self.link.on_message(peer.cid, data, now)
             if verdict.publish:
                 self.link.published(now)
                 if verdict.from_neutral:
                     self.publish_axis(0.0)
                 self.publish_axis(self.link.value(now))
-        if verdict.error:   # with the refused message's type, when it had one (the page shows it there)
-            self._send(cid, {"type": "refused", "reason": verdict.error, "what": self._kind(data)})
         if verdict.request is not None:
-            if verdict.request["type"] == "claim":
-                self._broadcast_roles(taken_from=verdict.request["taken_from"])
-            else:
-                self.request(verdict.request, lambda reply: self.reply(cid, reply))
+            self._dispatch(peer, verdict.request)
+        if verdict.error:   # with the refused message's type, when it is one (the page shows it there)
+            return self._refuse(peer, verdict.error, self._kind(data))
+        return True
+
+    def _dispatch(self, peer: Peer, request: dict) -> None:
+        if request["type"] == "claim":
+            self._broadcast_roles(taken_from=request["taken_from"])
+            return
+        cid = peer.cid
+        try:                      # an e-stop goes to the bridge from here, now
+            self.request(request, lambda reply: self.reply(cid, reply))
+        except Exception as e:  # noqa: BLE001 - a node's failure never closes the page's link
+            self.counters["errors"] += 1
+            LOG.exception("request %s failed", request["type"])
+            self._post(cid, {"type": "reply", "what": request["type"], "ok": False,
+                             "message": f"the station could not do this ({type(e).__name__})"})
+
+    def _refuse(self, peer: Peer, reason: str, what: str) -> bool:
+        """Tell the page why (only the last few refusals wait for a page that does not read); close a
+        page past its refusal budget."""
+        peer.outbox.refuse(OVER_BUDGET_TEXT if reason is OVER_BUDGET else
+                           json.dumps({"type": "refused", "reason": reason, "what": what}))
+        if peer.refusals.take(self.clock()):
+            return True
+        self.counters["closed_flooding"] += 1
+        peer.flooding = True
+        return False
 
     def _kind(self, data: str | bytes) -> str:
         if len(data) > self.link.params.max_message_bytes:
@@ -213,31 +373,10 @@ class Station:
         msg = parse(data)
         return msg["type"] if isinstance(msg, dict) and msg["type"] in MODELS else ""   # ours only
 
-    def _broadcast_roles(self, taken_from: int | None = None) -> None:
-        """Every page's role; the page that drove before a watcher took control is told so."""
-        for cid, c in list(self.link.clients.items()):
-            self._send(cid, {"type": "role", "driver": c.driver, "may_drive": c.may_drive,
-                             "driver_present": self.link.driver() is not None,
-                             "taken": cid == taken_from})
 
-    async def _send_frames(self, ws: web.WebSocketResponse, event: asyncio.Event) -> None:
-        sent = 0
-        while not ws.closed:
-            await event.wait()
-            event.clear()
-            version, jpeg, meta = self._frame
-            if version == sent or not jpeg:
-                continue
-            sent = version
-            meta = {**meta, "type": "frame", "age_ms": (time.monotonic() - meta["received"]) * 1000.0}
-            await ws.send_str(json.dumps(meta))
-            await ws.send_bytes(jpeg)   # waits while the page's socket is full: frames that come
-            self.frames_sent += 1       # meanwhile replace each other, only the latest is sent next
-
-
-async def _send_quietly(ws: web.WebSocketResponse, text: str) -> None:
-    if not ws.closed:
-        try:
-            await ws.send_str(text)
-        except (ConnectionError, RuntimeError):
-            pass
+def _is_estop(data: str | bytes) -> bool:
+    """An e-stop, whatever the page's budget (a small message of type estop; cheap for any other)."""
+    if len(data) > 64 or ("estop" if isinstance(data, str) else b"estop") not in data:
+        return False
+    msg = parse(data)
+    return isinstance(msg, dict) and msg["type"] == "estop"

@@ -4,6 +4,7 @@ pages in words, turns the pages' requests into the nodes' own services, and serv
 action (``~/questionnaire``: the page shows it, the driving page answers it)."""
 from __future__ import annotations
 
+import gc
 import secrets
 import sys
 import threading
@@ -36,6 +37,7 @@ from vla_operator.words import controller_words, safety_words
 
 NODE_NAME = "operator_station"
 DEFAULT_TOKEN_FILE = Path("~/.config/vla_operator/token")
+TEXT_CHARS = 300      # a status text shown to the person: longer ones are cut
 # Only the newest frame kept (reliable, as the camera): a station that fell behind shows the latest
 # frame and never works through a backlog (IMAGE_QOS keeps 30, for the detector and the recorder).
 LATEST_IMAGE_QOS = image_qos(depth=1)
@@ -134,6 +136,11 @@ class StationNode(Node):
         self._init_questionnaire()
         self.create_timer(1.0 / p["rate"], self._tick)
         self.create_timer(1.0, self._publish_status)
+        # Everything built so far (modules, rclpy, pydantic, OpenCV) lives as long as the node: frozen
+        # out of the garbage collector, a full collection scans only what came since. Under a page's
+        # flood of junk, full collections of the whole heap took 58-114 ms each and held back another
+        # page's e-stop by as much (issue 32).
+        gc.freeze()
         # printed once, not logged: the person who starts the graph finds it among the nodes' lines
         print(address_banner(self.address), flush=True)
 
@@ -351,24 +358,26 @@ class StationNode(Node):
             {"class_id": d.class_id, "score": round(d.score, 3), "cx": d.center_x, "cy": d.center_y,
              "w": d.size_x, "h": d.size_y} for d in msg.detections]}
 
+    # Any DDS peer may publish these: their texts are cut to TEXT_CHARS (a person reads a sentence, not
+    # 60 KB; issue 32's peer sent 60 KB texts at 350 Hz), and the pages get only the newest state.
     def _on_ctrl(self, m: ControllerStatus) -> None:
         code = int(m.code)
-        self._state(controller={"code": code, "words": controller_words(code), "reason": m.reason,
-                                "mode": m.mode, "ee_axis": m.ee_axis,
-                                "latched_class": m.latched_class, "latched_by": m.latched_by,
+        self._state(controller={"code": code, "words": controller_words(code), "reason": _cut(m.reason),
+                                "mode": _cut(m.mode), "ee_axis": _cut(m.ee_axis),
+                                "latched_class": _cut(m.latched_class), "latched_by": _cut(m.latched_by),
                                 "latched_x": m.latched_x, "latched_y": m.latched_y})
 
     def _on_safety(self, m: SafetyStatus) -> None:
-        self._state(safety={"code": int(m.code), "words": safety_words(int(m.code)), "text": m.text,
+        self._state(safety={"code": int(m.code), "words": safety_words(int(m.code)), "text": _cut(m.text),
                             "estop": bool(m.estop_active), "teaching": int(m.code) == SafetyStatus.TEACHING,
-                            "gripper": m.gripper})
+                            "gripper": _cut(m.gripper)})
 
     def _on_gripper(self, m: GripperStatus) -> None:
-        self._state(gripper={"text": m.text, "holding": m.holding})
+        self._state(gripper={"text": _cut(m.text), "holding": _cut(m.holding)})
 
     def _on_recorder(self, m: RecorderStatus) -> None:
-        self._state(recorder={"recording": bool(m.recording), "task": m.task, "episode": int(m.episode_index),
-                              "error": m.last_error})
+        self._state(recorder={"recording": bool(m.recording), "task": _cut(m.task),
+                              "episode": int(m.episode_index), "error": _cut(m.last_error)})
 
     # ------------------------------------------------------------------ the questionnaire (an action)
     # A person takes minutes to answer: an action, not a service (the client waits without blocking
@@ -497,7 +506,8 @@ class StationNode(Node):
             driving = self.station.link.driver() is not None
         s = DiagnosticStatus(name=NODE_NAME, hardware_id=self.address,
                              message=f"{pages} page(s), {'one drives' if driving else 'nobody drives'}")
-        counters.update(frames_received=self.frames.received, frames_encoded=self.frames.encoded,
+        counters.update(**self.station.counters, dropped=self.station.dropped(),
+                        frames_received=self.frames.received, frames_encoded=self.frames.encoded,
                         frames_skipped=self.frames.skipped, frames_refused=self.frames.refused,
                         frames_failed=self.frames.failed, frames_sent=self.station.frames_sent,
                         **self.view.fields())
@@ -514,6 +524,11 @@ class StationNode(Node):
     def destroy_node(self):
         self.on_shutdown()
         return super().destroy_node()
+
+
+def _cut(text: str) -> str:
+    """A peer's status text, cut to TEXT_CHARS characters."""
+    return text if len(text) <= TEXT_CHARS else text[: TEXT_CHARS - 1] + "…"
 
 
 def main(args: list[str] | None = None) -> int:

@@ -14,7 +14,7 @@ from franka_sim_server import running
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState, Joy
 from vla_common.ros.testing import RosHarness
-from vla_panda_bridge.safety import AWAITING_ZERO
+from vla_common.safety_status import SafetyCode
 
 from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
 
@@ -61,7 +61,7 @@ def test_the_stick_moves_the_simulated_fr3_through_the_latent_controller(sim):
 
         def stopped() -> bool:
             """A stop the graph reports (a watchdog on a loaded machine, say): it waits for neutral."""
-            return (bridge.backend.status.filter_code == AWAITING_ZERO
+            return (bridge.backend.status.filter_code == SafetyCode.AWAITING_ZERO
                     or bool(status) and status[-1].code == ControllerStatus.AWAITING_NEUTRAL)
 
         def drive(axis: float, seconds: float, until=lambda: False) -> None:

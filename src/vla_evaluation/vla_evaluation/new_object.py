@@ -41,8 +41,8 @@ from dataclasses import MISSING, asdict, dataclass, field, fields
 from pathlib import Path
 
 from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.safety_status import code_name
 from vla_common.tasks import BASE_TASKS
-from vla_panda_bridge.safety import CODE_NAMES
 
 from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET
 from vla_evaluation.resources import detector_model_path
@@ -372,7 +372,7 @@ def summary_row(results: dict, task: str) -> TransferFigures:
     by_code: Counter = Counter()
     for e in episodes:
         for code, n in (e.get("x_interventions_by_code") or {}).items():
-            by_code[CODE_NAMES.get(int(code), str(code))] += int(n)
+            by_code[code_name(code)] += int(n)
     return TransferFigures(
         task=task, episodes=int(row["episodes"]), success_rate=row.get("success_rate"),
         final_state_error=row.get("final_state_error"),

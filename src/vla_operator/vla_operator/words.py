@@ -1,6 +1,9 @@
 """Status codes in words for the page (status in words, not only in colour). The codes are the
-messages' constants (vla_interfaces ControllerStatus and SafetyStatus); no rclpy here."""
+messages' constants (vla_interfaces ControllerStatus; SafetyStatus's are vla_common's SafetyCode); no
+rclpy here."""
 from __future__ import annotations
+
+from vla_common.safety_status import SafetyCode
 
 CONTROLLER = {
     0: "Moving with your input",
@@ -15,20 +18,21 @@ CONTROLLER = {
     9: "Stopped: let go of the input (back to neutral) to move again",
 }
 SAFETY = {
-    0: "Safety OK",
-    1: "Bad command (not a number): stopped",
-    2: "Bad command (wrong length): stopped",
-    3: "Speed limited",
-    4: "Acceleration limited",
-    5: "Near a joint limit: slowed",
-    6: "Commands stopped arriving: braking",
-    7: "EMERGENCY STOP latched",
-    8: "Arm state not valid: braking",
-    9: "Implausible command: stopped",
-    10: "The robot stopped itself (reflex): needs recovery",
-    11: "Teaching mode: the arm can be moved by hand",
-    12: "Waiting for a zero command before moving",
-    13: "Contact: slowed",
+    SafetyCode.OK: "Safety OK",
+    SafetyCode.NON_FINITE_COMMAND: "Bad command (not a number): stopped",
+    SafetyCode.WRONG_LENGTH: "Bad command (wrong length): stopped",
+    SafetyCode.VELOCITY_SCALED: "Speed limited",
+    SafetyCode.ACCELERATION_LIMITED: "Acceleration limited",
+    SafetyCode.POSITION_MARGIN: "Near a joint limit: slowed",
+    SafetyCode.COMMAND_TIMEOUT: "Commands stopped arriving: braking",
+    SafetyCode.ESTOP: "EMERGENCY STOP latched",
+    SafetyCode.INVALID_STATE: "Arm state not valid: braking",
+    SafetyCode.IMPLAUSIBLE_COMMAND: "Implausible command: stopped",
+    SafetyCode.REFLEX: "The robot stopped itself (reflex): needs recovery",
+    SafetyCode.TEACHING: "Teaching mode: the arm can be moved by hand",
+    SafetyCode.AWAITING_ZERO: "Waiting for a zero command before moving",
+    SafetyCode.CONTACT: "Contact: slowed",
+    SafetyCode.WORKSPACE: "Near the table: lowering slowed",
 }
 
 

@@ -16,8 +16,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
 from vla_common.ros.testing import RosHarness
+from vla_common.safety_status import SafetyCode
 from vla_panda_bridge.bridge_node import PandaBridge
-from vla_panda_bridge.safety import AWAITING_ZERO
 
 from vla_interfaces.msg import SafetyStatus
 from vla_interfaces.srv import ResetScene
@@ -74,7 +74,8 @@ class Managed:
         """The bridge took the operator's zero, and so did the libfranka loop (which waits for one after
         every connection): motion may follow."""
         loop = getattr(self.bridge.backend, "status", None)
-        return self.bridge.filter.arming.armed and (loop is None or loop.filter_code != AWAITING_ZERO)
+        return self.bridge.filter.arming.armed and (loop is None
+                                                    or loop.filter_code != SafetyCode.AWAITING_ZERO)
 
     def still_for(self, n: int) -> bool:
         """The joint stays at rest over the next n joint states (the stick held meanwhile)."""

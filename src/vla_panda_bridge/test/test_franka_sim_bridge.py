@@ -27,9 +27,9 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from vla_common.kinematics import PandaKinematics
 from vla_common.ros.testing import RosHarness
+from vla_common.safety_status import SafetyCode
 from vla_launch.run import find_executable
 from vla_panda_bridge.libfranka_loop import LoopStatus
-from vla_panda_bridge.safety import AWAITING_ZERO
 
 from vla_interfaces.msg import SafetyStatus
 
@@ -94,7 +94,7 @@ class Bridge(RosHarness):
 
     def armed(self) -> bool:
         """Both filters (the node's and the loop's) let commands through."""
-        return self.node.filter.arming.armed and self.backend.status.filter_code != AWAITING_ZERO
+        return self.node.filter.arming.armed and self.backend.status.filter_code != SafetyCode.AWAITING_ZERO
 
     def _send(self, values) -> None:
         """Publish `values` as the controller would for an operator: zero while a filter waits for one

@@ -10,12 +10,13 @@ import time
 import numpy as np
 import pytest
 from vla_common.robot import FR3
+from vla_common.safety_status import SafetyCode
 from vla_panda_bridge.backend_libfranka import MAX_CATCH_UP, LibfrankaBackend
 from vla_panda_bridge.backends import reflex_torque
 from vla_panda_bridge.libfranka_driver import DriverSettings
 from vla_panda_bridge.libfranka_loop import LoopStatus
 from vla_panda_bridge.libfranka_slots import CMD_VALUES, STATE
-from vla_panda_bridge.safety import CONTACT, SafetyConfig, SafetyFilter
+from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
 
 class Logger:
@@ -175,7 +176,7 @@ def test_the_robots_external_torque_slows_motion_into_it_before_the_collision_re
         assert drive(into, 300)[1] == pytest.approx(0.5)     # free motion: full speed
         push = [0.0, -12.0, 0, 0, 0, 0, 0]                   # 0.6 x 20 Nm against the motion (0.14 x tau_max)
         assert drive(into, 300, push)[1] == pytest.approx(0.5 * 0.25)
-        assert host.code == CONTACT
+        assert host.code == SafetyCode.CONTACT
         push[1] = -15.0                                      # 0.75 x 20 Nm: stopped, before the reflex at 20
         assert drive(into, 300, push)[1] == pytest.approx(0.0, abs=1e-12)
         assert drive([-x for x in into], 300, push)[1] == pytest.approx(-0.5)   # backing out: free

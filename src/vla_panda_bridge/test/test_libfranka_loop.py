@@ -12,13 +12,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from vla_common.safety_status import SafetyCode
 from vla_panda_bridge.libfranka_driver import CONNECTION, REFLEX, RobotError
 from vla_panda_bridge.libfranka_loop import ControlLoop, LoopSettings
 from vla_panda_bridge.libfranka_slots import CONTROL, Slots
-from vla_panda_bridge.safety import NON_FINITE_COMMAND, WRONG_LENGTH
 
 from vla_panda_bridge import libfranka_loop as lf
-from vla_panda_bridge import safety as lf_safety
 
 Q0 = [0.0, 0.0, 0.0, -1.57, 0.0, 1.57, 0.785]
 REFLEX_TEXT = ('ControlException: libfranka: Move command aborted: motion aborted by reflex! '
@@ -305,8 +304,8 @@ def test_the_loop_watchdog_brakes_when_commands_stop(rig):
     assert_continuous(rig.loop, [v for v, _ in rig.driver.velocities])
 
 
-@pytest.mark.parametrize("bad, code", [([math.nan, 0, 0, 0, 0, 0, 0], NON_FINITE_COMMAND),
-                                       ([0.1] * 6, WRONG_LENGTH)])
+@pytest.mark.parametrize("bad, code", [([math.nan, 0, 0, 0, 0, 0, 0], SafetyCode.NON_FINITE_COMMAND),
+                                       ([0.1] * 6, SafetyCode.WRONG_LENGTH)])
 def test_malformed_commands_are_treated_as_zero(rig, bad, code):
     rig.run(2, command=ZERO)
     rig.run(200, command=velocity(1, 0.2))
@@ -528,7 +527,7 @@ def test_a_silent_robot_stops_the_arm_until_a_zero_command(rig, silence):
     assert rig.loop.filter.awaiting_zero and "silent" in rig.loop.filter.arming.reason
     tail = [v[3] for v, _ in rig.driver.velocities[-500:]] if rig.driver.in_motion else [0.0]
     assert max(abs(v) for v in tail) < 1e-9                # braked, and nothing restarts it
-    assert rig.state().filter_code == lf_safety.AWAITING_ZERO
+    assert rig.state().filter_code == SafetyCode.AWAITING_ZERO
     rig.run(5, command=ZERO)                               # the operator back at neutral
     rig.run(400, command=velocity(3, 0.3))
     assert rig.driver.velocities[-1][0][3] == pytest.approx(0.3)

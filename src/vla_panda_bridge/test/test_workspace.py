@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from vla_common.kinematics import PandaKinematics
-from vla_panda_bridge.safety import WORKSPACE, SafetyConfig, SafetyFilter
+from vla_common.safety_status import SafetyCode
+from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 from vla_panda_bridge.workspace import DEFAULT_FLOOR, FLOOR_GAIN, WorkspaceFloor, tcp_height
 
 DT = 0.001
@@ -58,7 +59,7 @@ def test_a_held_dive_stops_above_the_floor_and_would_hit_the_table_without_it(ki
     # is 4 mm above where the fingers touch the table).
     assert zs.min() >= DEFAULT_FLOOR - 0.002
     assert zs[-1] < DEFAULT_FLOOR + 0.01                    # it does come down close to the floor
-    assert WORKSPACE in codes
+    assert SafetyCode.WORKSPACE in codes
     free, _, _, _ = _run(kin, _filter(kin, None), q0, cmd, 2.0)
     assert free.min() < 0.0                                 # the same stream, no floor: through the table
 

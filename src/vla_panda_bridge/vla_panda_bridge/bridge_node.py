@@ -40,10 +40,10 @@ from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
+from vla_common.safety_status import SafetyCode, code_name
 
 from vla_interfaces.msg import SafetyStatus
 from vla_interfaces.srv import ResetScene
-from vla_panda_bridge import safety
 from vla_panda_bridge.backend import TEACHING, BackendError, UnsupportedError
 from vla_panda_bridge.backends import BACKENDS, reflex_torque
 from vla_panda_bridge.gripper_ros import GripperInterface
@@ -152,6 +152,10 @@ PARAMETERS = ParameterTable([
 ])
 
 
+_SHAPING = (SafetyCode.OK, SafetyCode.VELOCITY_SCALED, SafetyCode.ACCELERATION_LIMITED)  # diagnostics OK
+_STOPPED = (SafetyCode.ESTOP, SafetyCode.REFLEX, SafetyCode.INVALID_STATE)               # diagnostics ERROR
+
+
 class PandaBridge(LifecycleNode):
     """See the module docstring and README.md (topics, parameters, services, safety behaviour)."""
 
@@ -220,7 +224,7 @@ class PandaBridge(LifecycleNode):
             if self.trigger_activate() != TransitionCallbackReturn.SUCCESS:
                 raise ConfigError("activate failed")
         else:
-            self._publish_status(safety.AWAITING_ZERO, self._inactive_text())
+            self._publish_status(SafetyCode.AWAITING_ZERO, self._inactive_text())
 
     # ------------------------------------------------------------------------------ lifecycle
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -268,7 +272,7 @@ class PandaBridge(LifecycleNode):
         self._hold("cleaned up")
         self._brake()
         self._release()
-        self._publish_status(safety.AWAITING_ZERO, self._inactive_text())
+        self._publish_status(SafetyCode.AWAITING_ZERO, self._inactive_text())
         return TransitionCallbackReturn.SUCCESS
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -366,14 +370,14 @@ class PandaBridge(LifecycleNode):
         self.filter.reset(self.backend.position())
         self.filter.set_fault(text)
         self.get_logger().error(f"robot reflex: {text}; holding until ~/recover")
-        self._publish_status(safety.REFLEX, f"robot reflex ({text}): holding until ~/recover")
+        self._publish_status(SafetyCode.REFLEX, f"robot reflex ({text}): holding until ~/recover")
 
     def _on_command(self, msg: Float64MultiArray) -> None:
         if not self._active:
             self.get_logger().warn(self._status_text or self._inactive_text(), throttle_duration_sec=1.0)
             return
         code, text = self.filter.submit(msg.data, self.backend.now())
-        if code != safety.OK:
+        if code != SafetyCode.OK:
             self.get_logger().warn(text, throttle_duration_sec=1.0)
             self._publish_status(code, text)
 
@@ -411,7 +415,7 @@ class PandaBridge(LifecycleNode):
         msg.header.stamp = (stamp_from_ns(self.backend.now_ns()) if self.backend is not None
                             else self.get_clock().now().to_msg())
         msg.code = int(code)
-        msg.text = text or safety.CODE_NAMES.get(code, "")
+        msg.text = text or code_name(code)
         msg.last_intervention = int(f.last_intervention)
         msg.commands_received = f.commands_received
         msg.commands_rejected = f.commands_rejected
@@ -421,9 +425,8 @@ class PandaBridge(LifecycleNode):
             msg.gripper, msg.gripper_lost = self.gripper.summary()
         self._status_pub.publish(msg)
         self._published_code = code
-        level = "ok" if code in (safety.OK, safety.VELOCITY_SCALED, safety.ACCELERATION_LIMITED) else (
-            "error" if code in (safety.ESTOP, safety.REFLEX, safety.INVALID_STATE) else "warn")
-        self.diagnostics.update(level, msg.text, code=safety.CODE_NAMES.get(code, str(code)),
+        level = "ok" if code in _SHAPING else "error" if code in _STOPPED else "warn"
+        self.diagnostics.update(level, msg.text, code=code_name(code),
                                 commands_received=msg.commands_received, interventions=msg.interventions)
 
     # -------------------------------------------------------------------------------- services

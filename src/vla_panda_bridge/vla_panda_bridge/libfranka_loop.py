@@ -33,6 +33,7 @@ from enum import Enum, IntEnum
 
 import numpy as np
 from vla_common.robot import robot_spec
+from vla_common.safety_status import SafetyCode
 
 from vla_panda_bridge.libfranka_driver import (
     FATAL,
@@ -53,7 +54,6 @@ from vla_panda_bridge.libfranka_slots import (
     STATE,
     Slots,
 )
-from vla_panda_bridge.safety import OK as FILTER_OK
 from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 
 
@@ -219,7 +219,7 @@ class ControlLoop:
         self._last_read: float | None = None
         self._dq = [0.0] * NUM_JOINTS
         self._motion_cycles = 0
-        self._code = FILTER_OK
+        self._code = SafetyCode.OK
         self.cycle = 0
         self.connects = self.errors = self.missed = self.motions = 0
         self.latency = math.nan
@@ -447,7 +447,7 @@ class ControlLoop:
         if c[CMD_ARRIVED] != self._cmd_arrived:      # a new input (not the same one written again)
             self._cmd_arrived = c[CMD_ARRIVED]
             self._latency_pending = True
-        self._want = (code == FILTER_OK and not self._estop and bool(np.any(values))
+        self._want = (code == SafetyCode.OK and not self._estop and bool(np.any(values))
                       and self.filter.arming.armed)
 
     def _wants_motion(self) -> bool:

@@ -58,34 +58,14 @@ from dataclasses import dataclass
 import numpy as np
 from vla_common.arming import Arming
 from vla_common.robot import NUM_JOINTS, PANDA, RobotSpec
+from vla_common.safety_status import SafetyCode as Code
 
 from vla_panda_bridge.contact import CONTACT_SLOW, CONTACT_STOP, ContactMemory, contact_scales
 from vla_panda_bridge.workspace import WorkspaceFloor
 
-# Status codes: the constants of vla_interfaces/msg/SafetyStatus (repeated so this module needs no ROS;
-# a test checks they agree).
-OK = 0
-NON_FINITE_COMMAND = 1
-WRONG_LENGTH = 2
-VELOCITY_SCALED = 3
-ACCELERATION_LIMITED = 4
-POSITION_MARGIN = 5
-COMMAND_TIMEOUT = 6
-ESTOP = 7
-INVALID_STATE = 8
-IMPLAUSIBLE_COMMAND = 9
-REFLEX = 10
-TEACHING = 11
-AWAITING_ZERO = 12
-CONTACT = 13
-WORKSPACE = 14
-CODE_NAMES = {OK: "OK", NON_FINITE_COMMAND: "NON_FINITE_COMMAND", WRONG_LENGTH: "WRONG_LENGTH",
-              VELOCITY_SCALED: "VELOCITY_SCALED", ACCELERATION_LIMITED: "ACCELERATION_LIMITED",
-              POSITION_MARGIN: "POSITION_MARGIN", COMMAND_TIMEOUT: "COMMAND_TIMEOUT", ESTOP: "ESTOP",
-              INVALID_STATE: "INVALID_STATE", IMPLAUSIBLE_COMMAND: "IMPLAUSIBLE_COMMAND",
-              REFLEX: "REFLEX", TEACHING: "TEACHING", AWAITING_ZERO: "AWAITING_ZERO", CONTACT: "CONTACT",
-              WORKSPACE: "WORKSPACE"}
-_REJECTIONS = (NON_FINITE_COMMAND, WRONG_LENGTH, IMPLAUSIBLE_COMMAND)
+_REJECTIONS = (Code.NON_FINITE_COMMAND, Code.WRONG_LENGTH, Code.IMPLAUSIBLE_COMMAND)
+_COUNTED_WHEN_ENTERED = (Code.VELOCITY_SCALED, Code.ACCELERATION_LIMITED, Code.POSITION_MARGIN,
+                         Code.INVALID_STATE, Code.AWAITING_ZERO, Code.CONTACT, Code.WORKSPACE)
 
 # The soft position cap plans the approach with this fraction of the deceleration limit, so the
 # tracker follows it without leaning on the hard check (which would brake in bang-bang fashion).
@@ -183,7 +163,7 @@ class SafetyFilter:
         self._q_ref: list[float] | None = None
         self._q_meas: list[float] | None = None             # the latest valid measurement
         self._target = [0.0] * NUM_JOINTS
-        self._target_code = OK                              # why the target is what it is
+        self._target_code = Code.OK                              # why the target is what it is
         self._target_text = ""
         self._last_valid: float | None = None
         self._estop = False
@@ -192,12 +172,12 @@ class SafetyFilter:
         # Armed at start (the arm rests): the controller starts disarmed, waiting for the operator's
         # neutral, and the libfranka loop disarms on every connection.
         self.arming = Arming()
-        self._code = OK
+        self._code = Code.OK
         self.commands_received = 0
         self.commands_rejected = 0
         self.interventions = 0
         self.resyncs = 0
-        self.last_intervention = OK
+        self.last_intervention = Code.OK
 
     # ----------------------------------------------------------------------------------------- state
     @property
@@ -249,7 +229,7 @@ class SafetyFilter:
         self._v = [0.0] * NUM_JOINTS
         self._a = [0.0] * NUM_JOINTS
         self._target = [0.0] * NUM_JOINTS
-        self._target_code, self._target_text = OK, ""
+        self._target_code, self._target_text = Code.OK, ""
         self._last_valid = None
         self._q_ref = _valid_q(q)
         self._contact.clear()
@@ -273,7 +253,7 @@ class SafetyFilter:
         """Latch (True) or release (False). After a release motion needs a zero command first."""
         active = bool(active)
         if active and not self._estop:
-            self._count_intervention(ESTOP)
+            self._count_intervention(Code.ESTOP)
         if active or self._estop:
             self.disarm("e-stop")
         self._estop = active
@@ -282,7 +262,7 @@ class SafetyFilter:
     def set_fault(self, text: str) -> None:
         """The robot stopped itself with a reflex (`text` says which): hold zero until clear_fault()."""
         if not self._fault:
-            self._count_intervention(REFLEX)
+            self._count_intervention(Code.REFLEX)
         self.disarm(f"robot reflex: {text or 'reflex'}")
         self._fault = text or "reflex"
         self._zero_target()
@@ -313,19 +293,19 @@ class SafetyFilter:
 
     def _zero_target(self) -> None:
         self._target = [0.0] * NUM_JOINTS
-        self._target_code, self._target_text = OK, ""
+        self._target_code, self._target_text = Code.OK, ""
         self._last_valid = None
 
     def hold_code(self) -> int:
         """The code a hold or the wait for a zero command gives now (OK if none): for a status sent
         right after a service changed them, before the next period."""
         if self._estop:
-            return ESTOP
+            return Code.ESTOP
         if self._fault:
-            return REFLEX
+            return Code.REFLEX
         if self._teaching:
-            return TEACHING
-        return OK if self.arming.armed else AWAITING_ZERO
+            return Code.TEACHING
+        return Code.OK if self.arming.armed else Code.AWAITING_ZERO
 
     def stopping_time_bound(self) -> float:
         """Upper bound (s) on how long braking from the current state takes (for shutdown loops)."""
@@ -337,7 +317,7 @@ class SafetyFilter:
         the measured external torque per joint (Nm), where the backend has one."""
         if not (isinstance(now, float | int) and math.isfinite(now)):
             now = math.nan                                  # an unusable clock expires the watchdog
-        event_code, event_text = OK, ""
+        event_code, event_text = Code.OK, ""
         if cmd is not None:
             event_code, event_text = self.submit(cmd, now)
 
@@ -348,10 +328,10 @@ class SafetyFilter:
                 self._last_valid = now
             elif not age <= self.config.command_timeout:
                 self.disarm("command watchdog (no valid command in time)")   # target zero too
-                self._target_code = COMMAND_TIMEOUT
+                self._target_code = Code.COMMAND_TIMEOUT
                 self._target_text = (f"no valid command for {self.config.command_timeout:.3g} s: "
                                      "decelerating to zero")
-                self._count_intervention(COMMAND_TIMEOUT)
+                self._count_intervention(Code.COMMAND_TIMEOUT)
 
         had_state = self._q_ref is not None
         state_ok = self._sync_position(q)
@@ -410,41 +390,42 @@ class SafetyFilter:
         # Status: the most important reason the output differs from the raw command.
         moving = not self.is_stopped
         if self._estop:
-            code, text = ESTOP, "e-stop latched: decelerating to zero and holding until released"
+            code, text = Code.ESTOP, "e-stop latched: decelerating to zero and holding until released"
         elif self._fault:
-            code, text = REFLEX, f"robot reflex ({self._fault}): holding until ~/recover"
+            code, text = Code.REFLEX, f"robot reflex ({self._fault}): holding until ~/recover"
         elif self._teaching:
-            code, text = TEACHING, "teaching mode: the arm is backdrivable, commands are ignored"
-        elif event_code != OK:
+            code, text = Code.TEACHING, "teaching mode: the arm is backdrivable, commands are ignored"
+        elif event_code != Code.OK:
             code, text = event_code, event_text
         elif not state_ok:
-            code, text = INVALID_STATE, "no valid measured joint position: braking to zero"
-        elif (self._target_code == COMMAND_TIMEOUT or self._target_code in _REJECTIONS) and moving:
+            code, text = Code.INVALID_STATE, "no valid measured joint position: braking to zero"
+        elif (self._target_code == Code.COMMAND_TIMEOUT or self._target_code in _REJECTIONS) and moving:
             code, text = self._target_code, self._target_text
         elif not self.arming.armed:
-            code, text = AWAITING_ZERO, f"stopped ({self.arming.reason}): send a zero command before moving"
+            code = Code.AWAITING_ZERO
+            text = f"stopped ({self.arming.reason}): send a zero command before moving"
         elif contact:
             worst = min(contact, key=contact.get)
-            code = CONTACT
+            code = Code.CONTACT
             text = (f"{', '.join(self._names[i] for i in sorted(contact))} slowed by an external torque "
                     f"({self._names[worst]} at {contact[worst]:.0%} speed): moving further into the "
                     "contact stops before a reflex")
         elif floored is not None:
-            code = WORKSPACE
+            code = Code.WORKSPACE
             text = (f"the hand slowed above the workspace floor (TCP at z >= {self.floor.floor:.3g} m): "
                     "lowering it further is slowed to a stop; moving up or sideways is not")
         elif margin_joints:
             names = ", ".join(self._names[i] for i in margin_joints)
-            code = POSITION_MARGIN
+            code = Code.POSITION_MARGIN
             text = f"{names} slowed to stop {self.config.position_margin:.3g} rad from the position limit"
-        elif self._target_code == VELOCITY_SCALED:
-            code, text = VELOCITY_SCALED, self._target_text
+        elif self._target_code == Code.VELOCITY_SCALED:
+            code, text = Code.VELOCITY_SCALED, self._target_text
         elif accel_limited:
-            code, text = ACCELERATION_LIMITED, "acceleration limit shaping the output (jerk-limited ramp)"
+            code = Code.ACCELERATION_LIMITED
+            text = "acceleration limit shaping the output (jerk-limited ramp)"
         else:
-            code, text = OK, ""
-        if code != self._code and code in (VELOCITY_SCALED, ACCELERATION_LIMITED, POSITION_MARGIN,
-                                           INVALID_STATE, AWAITING_ZERO, CONTACT, WORKSPACE):
+            code, text = Code.OK, ""
+        if code != self._code and code in _COUNTED_WHEN_ENTERED:
             self._count_intervention(code)                  # the others are counted where they happen
         self._code = code
         return np.array(v_out), code, text
@@ -469,37 +450,37 @@ class SafetyFilter:
             arr = None
         if arr is None or arr.shape != (NUM_JOINTS,):
             n = "non-numeric" if arr is None else f"{arr.size} values"
-            return self._reject(WRONG_LENGTH,
+            return self._reject(Code.WRONG_LENGTH,
                                 f"command rejected: {n}, expected {NUM_JOINTS}; treated as zero")
         finite = np.isfinite(arr)
         if not finite.all():
             bad = ", ".join(self._names[i] for i in np.flatnonzero(~finite))
-            return self._reject(NON_FINITE_COMMAND,
+            return self._reject(Code.NON_FINITE_COMMAND,
                                 f"command rejected: non-finite value at {bad}; treated as zero")
         excess = np.abs(arr) / self._plausible
         if excess.max() > 1.0:
             i = int(np.argmax(excess))
-            return self._reject(IMPLAUSIBLE_COMMAND,
+            return self._reject(Code.IMPLAUSIBLE_COMMAND,
                                 f"command rejected: {self._names[i]} at {arr[i]:.3g} rad/s is beyond "
                                 f"{self.config.plausibility_factor:g}x its limit "
                                 f"({self.robot.dq_max[i]:g} rad/s); treated as zero")
         if self.holding:
-            return OK, ""                                   # ignored while held
+            return Code.OK, ""                                   # ignored while held
         if not self.arming.offer(float(np.abs(arr).max()) <= ZERO_COMMAND):
-            return OK, ""                                   # ignored until a zero command
+            return Code.OK, ""                                   # ignored until a zero command
         self._last_valid = now
         ratios = np.abs(arr) / self.v_max
         ratio = float(ratios.max())
         if ratio > 1.0:
             worst = self._names[int(np.argmax(ratios))]
             self._target = (arr / ratio).tolist()
-            self._target_code = VELOCITY_SCALED
+            self._target_code = Code.VELOCITY_SCALED
             self._target_text = (f"velocity scaled by {1.0 / ratio:.3g} keeping its direction "
                                  f"({worst} was {ratio:.3g}x its limit)")
         else:
             self._target = arr.tolist()
-            self._target_code, self._target_text = OK, ""
-        return OK, ""
+            self._target_code, self._target_text = Code.OK, ""
+        return Code.OK, ""
 
     def _contact_scales(self, target: list[float], tau_ext) -> dict[int, float]:
         """`contact.contact_scales` with this filter's reflex table and thresholds, on the torque

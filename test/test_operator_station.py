@@ -200,6 +200,16 @@ def ready(h, obs, b, url: str | None = None) -> None:
     assert h.spin_until(lambda: not obs.moving(), 10.0)
 
 
+def release_estop(h, obs, b) -> None:
+    """The person releases the latched e-stop: "Release stop…" (shown once the page knows the stop is
+    latched), then "Yes, release" in its dialog."""
+    shown = "!document.getElementById('release').hidden"
+    assert wait_page(h, b, shown, 10.0), js(b, "document.body.innerText")
+    b.driver.find_element(By.ID, "release").click()
+    b.driver.find_element(By.ID, "release-confirm").click()
+    assert h.spin_until(lambda: not obs.estop(), 5.0)
+
+
 def moves_while(h, obs, start, stop, timeout=20.0, stop_after=True) -> float:
     """Start an input, wait until the arm moves, stop it (unless not ``stop_after``: it keeps moving);
     seconds from the stop to a zero command."""
@@ -227,9 +237,9 @@ def test_page_shows_frames_boxes_and_status_in_words(graph, page):
     h, obs, url, _ = graph
     ready(h, obs, page, url)
     assert wait_page(h, page, "window.station.fps > 0")
-    assert len(page.driver.find_elements(By.CSS_SELECTOR, "#boxes button")) > 0
+    assert len(page.driver.find_elements(By.CSS_SELECTOR, "#objects button")) > 0
     assert wait_page(h, page, "document.getElementById('s-safety').textContent.startsWith('Safety OK')")
-    assert wait_page(h, page, "document.getElementById('target').textContent.startsWith('Latched')")
+    assert wait_page(h, page, "document.getElementById('target').textContent.startsWith('Goal: the ')")
     SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
     if os.environ.get("VLA_UPDATE_SCREENSHOT") == "1" or not SCREENSHOT.exists():
         page.driver.save_screenshot(str(SCREENSHOT))
@@ -364,9 +374,7 @@ def test_gamepad_b_stops_on_any_device_and_a_toggles_the_hand(graph, page, setti
         d.execute_script("window.fakePad.buttons[1].pressed = true;")
         assert h.spin_until(obs.estop, 5.0)
         d.execute_script("window.fakePad.buttons[1].pressed = false;")
-        d.find_element(By.ID, "release").click()
-        d.find_element(By.ID, "release-confirm").click()
-        assert h.spin_until(lambda: not obs.estop(), 5.0)
+        release_estop(h, obs, page)
         apply_settings(h, page, input_device="gamepad")
         d.execute_script("delete window.station.replies['gripper'];"
                          "window.fakePad.buttons[0].pressed = true;")
@@ -460,7 +468,7 @@ def test_saved_settings_survive_a_reload_and_reach_the_controller(graph, page, s
         Select(d.find_element(By.ID, "set-mode")).select_by_value("hold")
         assert save(h, page).startswith("Settings saved"), js(page, "document.body.innerText")
         assert controller_deadband(h, obs) == pytest.approx(before)
-        d.find_element(By.ID, "view-toggle").click()
+        d.find_element(By.ID, "view-back").click()
 
 
 def test_an_invalid_setting_is_refused_with_the_reason_shown(graph, page, station_files, settings_restored):
@@ -494,13 +502,14 @@ def test_clicking_another_box_relatches_the_controller(graph, page):
     h, obs, url, _ = graph
     ready(h, obs, page, url)
     before = obs.ctrl.latched_class
-    boxes = page.driver.find_elements(By.CSS_SELECTOR, "#boxes button")
+    boxes = page.driver.find_elements(By.CSS_SELECTOR, "#objects button")
     labels = js(page, "window.station.boxes.map(b => b.class_id)")
     other = next(i for i, c in enumerate(labels) if c != before)
     boxes[other].click()
     assert h.spin_until(lambda: obs.ctrl.latched_class == labels[other]
                         and obs.ctrl.latched_by.startswith("operator: pixel"), 20.0), obs.ctrl
-    assert wait_page(h, page, f"document.getElementById('target').textContent.includes('{labels[other]}')")
+    name = labels[other].replace("_", " ")
+    assert wait_page(h, page, f"document.getElementById('target').textContent.includes('the {name}')")
 
 
 def test_next_axis_in_end_effector_mode_switches_the_controllers_axis(graph, page):
@@ -531,9 +540,7 @@ def test_estop_button_and_shortcut_latch_the_bridge_and_release_does_not_move(gr
     d = page.driver
 
     def release():
-        d.find_element(By.ID, "release").click()
-        d.find_element(By.ID, "release-confirm").click()
-        assert h.spin_until(lambda: not obs.estop(), 5.0)
+        release_estop(h, obs, page)
 
     # Baseline of this run: the round trip of a harmless request to the bridge through the same path
     # (station -> bridge service -> answer), teaching off while not teaching.
@@ -647,9 +654,7 @@ def test_a_second_client_cannot_drive_but_may_stop(graph, page):
         assert h.spin_until(obs.estop, 5.0)
     finally:
         b.quit()
-    page.driver.find_element(By.ID, "release").click()
-    page.driver.find_element(By.ID, "release-confirm").click()
-    assert h.spin_until(lambda: not obs.estop(), 5.0)
+    release_estop(h, obs, page)
 
 
 def tab_order(d, stop_at: str = "view-toggle", n: int = 60) -> list[str]:
@@ -667,14 +672,18 @@ def tab_order(d, stop_at: str = "view-toggle", n: int = 60) -> list[str]:
     return order
 
 
+# WCAG 2.0-2.2 A and AA, and AAA (axe-core's wcag2aaa: text contrast of at least 7:1)
+AXE_TAGS = ["wcag2a", "wcag2aa", "wcag2aaa", "wcag21a", "wcag21aa", "wcag22aa"]
+
+
 def axe_violations(b) -> list:
     import axe_playwright_python
     d = b.driver
     d.execute_script((Path(axe_playwright_python.__file__).parent / "axe.min.js").read_text())
     return d.execute_async_script(
         "const done = arguments[arguments.length - 1];"
-        "axe.run(document, {runOnly: {type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa',"
-        " 'wcag22aa']}}).then(r => done(r.violations.map(v => [v.id, v.nodes.map(n => n.target)])));")
+        "axe.run(document, {runOnly: {type: 'tag', values: arguments[0]}})"
+        ".then(r => done(r.violations.map(v => [v.id, v.nodes.map(n => n.target)])));", AXE_TAGS)
 
 
 def small_targets(b) -> list:
@@ -705,11 +714,17 @@ def test_a_watcher_takes_control_by_keyboard_only_at_rest_and_starts_from_neutra
         assert not page.driver.find_element(By.ID, "take-control").is_displayed()
         order = tab_order(d)
         assert order.index("redetect") < order.index("take-control") < order.index("back"), order
-        hold_in(h, obs, page)                                     # the driver moves the arm
         d.find_element(By.ID, "take-control").send_keys(Keys.ENTER)
         assert wait_page(h, b, "document.getElementById('take-dialog').open")
         assert axe_violations(b) == [] and small_targets(b) == []
         assert d.switch_to.active_element.get_attribute("id") == "take-confirm"
+        d.find_element(By.ID, "take-cancel").send_keys(Keys.ENTER)
+        assert wait_page(h, b, "!document.getElementById('take-dialog').open")
+        # the driver moves the arm; the claim follows at once (a driver's page lets go of an input the
+        # loaded machine's station refused, and a claim at rest would be accepted)
+        hold_in(h, obs, page)
+        d.find_element(By.ID, "take-control").send_keys(Keys.ENTER)
+        assert wait_page(h, b, "document.getElementById('take-dialog').open")
         d.switch_to.active_element.send_keys(Keys.ENTER)
         assert wait_page(h, b, f"{MESSAGE}.includes('moving the arm')"), js(b, MESSAGE)
         # refused: the link gives that reason only while the driver's input is not at rest. Whether
@@ -811,32 +826,6 @@ def test_a_wrong_or_missing_token_is_refused_and_the_right_one_works(graph, stat
 
 
 # ---------------------------------------------------------------------- accessibility
-def test_axe_wcag22_aa_and_44px_targets(graph, page):
-    """Both views: driving, and the caregiver's settings."""
-    import axe_playwright_python
-    h, obs, url, _ = graph
-    ready(h, obs, page, url)
-    d = page.driver
-    d.execute_script((Path(axe_playwright_python.__file__).parent / "axe.min.js").read_text())
-    for view in ("operate", "settings"):
-        if view == "settings":
-            open_settings(h, page)
-        result = d.execute_async_script(
-            "const done = arguments[arguments.length - 1];"
-            "axe.run(document, {runOnly: {type: 'tag', values: ['wcag2a', 'wcag2aa', 'wcag21a', 'wcag21aa',"
-            " 'wcag22aa']}}).then(r => done(r.violations.map(v => [v.id, v.nodes.map(n => n.target)])));")
-        assert result == [], (view, result)
-        small = js(page, """[...document.querySelectorAll('button, select, input, a')]
-            .filter(e => e.offsetParent !== null)
-            .map(e => { const t = e.type === 'radio' ? e.closest('label') : e;
-                        const r = t.getBoundingClientRect();
-                        return [e.id || e.textContent.trim(), r.width, r.height]; })
-            .filter(([, w, h]) => w < 44 || h < 44)""")
-        assert small == [], (view, small)
-    d.find_element(By.ID, "view-toggle").click()
-    assert wait_page(h, page, "document.getElementById('settings').hidden")
-
-
 def test_keyboard_only_reaches_every_control_in_order(graph, page):
     h, obs, url, _ = graph
     ready(h, obs, page, url)
@@ -847,12 +836,14 @@ def test_keyboard_only_reaches_every_control_in_order(graph, page):
         ActionChains(d).send_keys(Keys.TAB).perform()
         el = d.switch_to.active_element
         key = el.get_attribute("id") or el.get_attribute("name") or el.get_attribute("aria-label")
-        if key in order and key == "view-toggle":
+        if key in order and key == "estop":   # round the page once
             break
         if not order or order[-1] != key:
             order.append(key)
-    expected = ["view-toggle", "estop", "release", "prev", "next", "redetect", "back", "forward", "speed",
-                "gripper", "task", "ep-start", "ep-stop", "ep-discard", "teaching"]
+    # STOP first; the objects and the status beside the view; the drive controls in the footer, last
+    # ("Release stop…" only while the stop is latched, the episodes only with a recorder)
+    expected = ["estop", "prev", "next", "redetect", "teaching", "view-toggle", "back", "forward", "speed",
+                "gripper"]
     seen = [k for k in order if k in expected]
     assert seen == expected, order
 
@@ -912,9 +903,8 @@ def test_the_questionnaire_is_answered_by_keyboard_and_the_study_gets_the_row(gr
     n_latched = len(obs.latched)
     ActionChains(d).send_keys(Keys.ESCAPE).perform()
     assert h.spin_until(lambda: len(obs.latched) > n_latched, 5.0)
-    d.find_element(By.ID, "release").click()
-    d.find_element(By.ID, "release-confirm").click()
-    assert h.spin_until(lambda: not obs.estop(), 5.0) and js(page, Q_SHOWN)
+    release_estop(h, obs, page)
+    assert js(page, Q_SHOWN)
     want = [7, 6, 5, 4, 3, 2]
     d.execute_script("document.getElementById('q-h').focus()")
     n = len(obs.cmd_log)

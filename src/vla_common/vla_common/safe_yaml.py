@@ -19,6 +19,7 @@ from pathlib import Path
 import yaml
 
 MAX_DEPTH = 32
+Lines = dict[tuple[str, ...], int]  # the line of each key and item, by its path (load_yaml_lines)
 
 
 class YamlFileError(ValueError):
@@ -71,6 +72,17 @@ def read_file(path: Path, max_bytes: int, what: str = "file") -> bytes:
 
 def load_yaml(path: Path, max_bytes: int, what: str = "file") -> object:
     """The one YAML document in the regular file `path` (see the module's rules)."""
+    return _load(path, max_bytes, what, False)[0]
+
+
+def load_yaml_lines(path: Path, max_bytes: int, what: str = "file") -> tuple[object, Lines]:
+    """As `load_yaml`, with the line of each mapping key and sequence item: {path: line}, a path being
+    the keys and indices down to it, each as str (`("settings", "Seen")`, `("strategies", "1")`; `()`:
+    the document), so that a schema's error can say file:line."""
+    return _load(path, max_bytes, what, True)
+
+
+def _load(path: Path, max_bytes: int, what: str, lines: bool) -> tuple[object, Lines]:
     data = read_file(path, max_bytes, what)
     try:
         text = data.decode("utf-8")
@@ -78,7 +90,9 @@ def load_yaml(path: Path, max_bytes: int, what: str = "file") -> object:
         raise YamlFileError(f"{what} {path} is not UTF-8 text (byte {err.start})") from None
     loader = _StrictLoader(text)
     try:
-        return loader.get_single_data()
+        node = loader.get_single_node()
+        value = loader.construct_document(node) if node is not None else None
+        return value, (_node_lines(node) if lines and node is not None else {})
     except _RefusedError as err:
         raise YamlFileError(f"{what} {path}: {_at(err.mark)}{err.reason}") from None
     except yaml.MarkedYAMLError as err:
@@ -93,6 +107,25 @@ def load_yaml(path: Path, max_bytes: int, what: str = "file") -> object:
             from None
     finally:
         loader.dispose()
+
+
+def _node_lines(root: yaml.Node) -> Lines:
+    """{path: line} of every key and item under `root` (nesting is bounded by the loader)."""
+    out: Lines = {(): root.start_mark.line + 1}
+    todo: list[tuple[tuple[str, ...], yaml.Node]] = [((), root)]
+    while todo:
+        where, node = todo.pop()
+        if isinstance(node, yaml.MappingNode):
+            for key, value in node.value:
+                here = (*where, str(key.value) if isinstance(key, yaml.ScalarNode) else "?")
+                out[here] = key.start_mark.line + 1
+                todo.append((here, value))
+        elif isinstance(node, yaml.SequenceNode):
+            for i, item in enumerate(node.value):
+                here = (*where, str(i))
+                out[here] = item.start_mark.line + 1
+                todo.append((here, item))
+    return out
 
 
 class _RefusedError(Exception):

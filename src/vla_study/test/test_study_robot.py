@@ -65,18 +65,39 @@ def test_a_simulated_participant_on_the_real_robot_is_refused_at_its_line(tmp_pa
     f.write_text(ROBOT + "backend: physics\n")
     assert robot_refusal(load_protocol(f)).startswith(f"{f}:12: the physics backend has no robot")
     f.write_text(ROBOT.replace("robot: real", "robot: hardware"))
-    with pytest.raises(Exception, match=r"robot.yaml:11: robot: one of sim, real"):
+    with pytest.raises(Exception, match=r"robot.yaml:11: robot \('hardware'\): .*'sim' or 'real'"):
         load_protocol(f)
 
 
-def test_a_simulated_study_keeps_its_digest():
-    """Folders made before `robot` existed resume: robot: sim leaves the digest as it was (the shipped
-    protocol's digest as the runner computed it before the key, at 95a1f1a)."""
+SHIPPED_THEN = """study: paper-section-7-shipped-models
+participants: sim:9
+population_seed: 2026
+strategies: [latent-YOLO, end-effector]
+settings:
+  base: [bread/push_east, soda_can/push_south, milk_carton/push_south_west, glass_bottle/push_west]
+  Seen: cereal_box/push_south
+  Near: cereal_box/push_south_east
+  Far: cereal_box/circle
+trials: 2
+practice: {trials: 1, reset_seed: 7}
+counterbalance: latin_square
+time_limit: 30
+rate: 20
+end_effector_axes: ["x", "y", "z"]
+end_effector_debounce: 0.15
+"""
+
+
+def test_a_simulated_study_keeps_its_digest(tmp_path):
+    """Folders made before `robot` (and `role`, `seeds`, `development`) existed resume: at their defaults
+    they leave the digest as it was (the shipped protocol's digest as the runner computed it before the
+    key, at 95a1f1a)."""
     import dataclasses
 
-    from vla_study.protocol import PAPER
 
-    p = load_protocol(PAPER.with_name("shipped.yaml"))
+    f = tmp_path / "shipped_then.yaml"   # protocols/shipped.yaml as it was then
+    f.write_text(SHIPPED_THEN)
+    p = load_protocol(f)
     assert p.robot == "sim" and p.digest() == "b385362ff4d71028"
     assert dataclasses.replace(p, robot="real").digest() != p.digest()
 

@@ -19,7 +19,6 @@ from vla_common.catalogue import load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_evaluation.resources import latent_model_dir
 
-from vla_study.analysis import analyse
 from vla_study.person import start_point
 from vla_study.protocol import (
     PAPER,
@@ -30,7 +29,7 @@ from vla_study.protocol import (
     parse_participants,
     robot_refusal,
 )
-from vla_study.runner import run_study, trial_plan
+from vla_study.runner import reused_seeds, run_study, trial_plan
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -60,28 +59,48 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    if why := out_refusal(args.out):
+        print(why, file=sys.stderr)
+        return 2
     try:
         proto = load_protocol(args.protocol,
                               model_exists=lambda m: (latent_model_dir(m) / "config.json").is_file())
         proto = with_overrides(proto, args)
     except ProtocolError as e:
-        print(f"protocol refused:\n{e}", file=sys.stderr)
-        return 2
+        return refused(e.errors)
     except ValueError as e:
         print(f"--participants: {e}", file=sys.stderr)
         return 2
     if why := robot_refusal(proto):
-        print(f"protocol refused:\n{why}", file=sys.stderr)
-        return 2
+        return refused([why])
+    if why := reused_seeds(proto):
+        return refused(why)
     if args.check:
         print_sessions(proto)
         return 0
     if not args.analyse_only:
         run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
                   use_sim_time=args.use_sim_time)
+    from vla_study.analysis import analyse  # matplotlib: only for the figures, not for --help or --check
+
     for line in analyse(args.out, args.figures or args.out):
         print(line)
     return 0
+
+
+def out_refusal(out: Path) -> str | None:
+    """Why `out` cannot be a study folder: it, or a folder above it, is not a directory."""
+    for p in (out, *out.parents):
+        if p.exists():
+            return None if p.is_dir() else f"--out {out}: {p} is not a directory (a study folder is one)"
+    return None
+
+
+def refused(errors: list[str]) -> int:
+    """The protocol's problems on stderr, one line each (one problem: one line); exit status 2."""
+    print("protocol refused: " + errors[0] if len(errors) == 1 else "protocol refused:\n" + "\n".join(errors),
+          file=sys.stderr)
+    return 2
 
 
 def with_overrides(proto: Protocol, args) -> Protocol:

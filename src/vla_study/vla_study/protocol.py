@@ -1,36 +1,41 @@
-"""The study protocol file (YAML): participants, strategies, tasks, trials, practice, counterbalancing.
+"""The study protocol file (YAML): participants, strategies, tasks, trials, practice, counterbalancing,
+and which trials are for development and which the study's test.
 
-Errors are collected and reported as `file:line: message`, all at once, and the study does not start.
+A protocol is read as a catalogue is (vla_common.safe_yaml: a regular file of at most MAX_BYTES, no
+aliases, no duplicate keys, bounded nesting, UTF-8), checked by its schema (protocol_schema.py,
+pydantic) and then across keys; every problem is reported as `file:line: message`, all at once, and the
+study does not start. Nothing of the file is quoted beyond a name of at most 40 characters.
 The paper's procedure (Section 7) is `protocols/paper.yaml` beside this module.
 """
 from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import yaml
-from vla_common.catalogue import CatalogueError, load_catalogue
-from vla_common.tasks import parse_task
+from pydantic import ValidationError
+from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
+from vla_common.safe_yaml import Lines, UnreadableError, YamlFileError, key_name, load_yaml_lines
 
-STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-effector": "end_effector"}
-# The shipped models per strategy and setting (vla_latent_controller/models); localization models are
-# not shipped: a protocol naming that strategy must give its models.
+from vla_study.protocol_schema import (
+    EE_AXES,
+    LAYOUT_SEEDS,
+    STRATEGIES,
+    ProtocolFile,
+    describe,
+    line_of,
+)
+
+# The shipped models per strategy and setting (vla_latent_controller/models); the localization models'
+# are named by the protocols that use them.
 DEFAULT_MODELS = {"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_south",
                                   "Near": "cereal_box_push_south_east", "Far": "cereal_box_circle"}}
-KEYS = {"study", "participants", "population_seed", "strategies", "settings", "trials", "practice",
-        "counterbalance", "time_limit", "rate", "models", "backend", "end_effector_axes",
-        "end_effector_debounce", "robot"}
-EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 PAPER = Path(__file__).with_name("protocols") / "paper.yaml"
 SHIPPED = PAPER.with_name("shipped.yaml")  # the paper's procedure with latent-YOLO and the end-effector only
-# graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
-# physics: the same participant and scoring with the graph's computations in one process (fast sweeps)
-BACKENDS = ("graph", "physics")
-# sim: the runner launches the simulated Panda and resets its scene by ~/reset; real: it attaches to the
-# graph the lab started (the robot's launch) and the experimenter places the object and scores the trial
-ROBOTS = ("sim", "real")
+MAX_BYTES = 256 * 1024  # a protocol is a page of YAML
+__all__ = ["EE_AXES", "STRATEGIES", "Protocol", "ProtocolError", "load_protocol", "robot_refusal"]
 
 
 class ProtocolError(ValueError):
@@ -60,14 +65,22 @@ class Protocol:
     end_effector_axes: tuple[str, ...] = EE_AXES
     end_effector_debounce: float = 0.25  # s between mode presses (the controller's ee_debounce)
     robot: str = "sim"
+    role: str = "test"  # or "development" (protocol_schema.Role)
+    layout_seeds: int = LAYOUT_SEEDS  # the first test trial's layout seed
+    operator_seeds: str = ""  # the salt of the operator seeds ("": the trial's key alone)
+    development: tuple[str, ...] = ()  # development protocol files whose trials the test must not reuse
     source: str = ""
     # where a value came from, for messages: "file:line" of its key, or the command-line flag
     origin: dict[str, str] = field(default_factory=dict)
 
     def digest(self) -> str:
-        # robot "sim" is left out: study folders made before the key existed resume as they were
-        d = {k: v for k, v in self.__dict__.items() if k not in ("source", "participants", "origin")
-             and not (k == "robot" and v == "sim")}
+        """What the trials depend on. Keys added later are left out at their defaults (robot sim, the
+        first seeds), so that study folders made before them resume as they were; role and development
+        never change a trial."""
+        defaults = {"robot": "sim", "layout_seeds": LAYOUT_SEEDS, "operator_seeds": ""}
+        d = {k: v for k, v in self.__dict__.items()
+             if k not in ("source", "participants", "origin", "role", "development")
+             and not (k in defaults and v == defaults[k])}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
 
 
@@ -92,165 +105,129 @@ def robot_refusal(p: Protocol) -> str | None:
     return None
 
 
-def _line(node) -> int:
-    return node.start_mark.line + 1
-
-
-def _scalar(node):
-    return yaml.safe_load(yaml.serialize(node)) if node is not None else None
-
-
 def parse_participants(text: str) -> list[str]:
     """`sim:9` -> sim:1..sim:9; `P01,P02` -> real participants."""
     text = str(text).strip()
     if text.startswith("sim:"):
-        n = int(text[4:])
+        n = int(text[4:]) if text[4:].isdigit() else 0
         if not 1 <= n <= 1000:
-            raise ValueError("sim:N needs 1 <= N <= 1000")
+            raise ValueError("sim:N needs a whole number 1 <= N <= 1000")
         return [f"sim:{i}" for i in range(1, n + 1)]
     ids = [p.strip() for p in text.split(",") if p.strip()]
-    if not ids or any(not p.replace("_", "").replace("-", "").isalnum() for p in ids):
+    if not ids or any(not p.replace("_", "").replace("-", "").isalnum() or len(p) > 40 for p in ids):
         raise ValueError("participants are sim:N or comma-separated ids of letters, digits, - and _")
     return ids
 
 
-def load_protocol(path: str | Path, catalogue=None, model_exists=None) -> Protocol:
-    """Read and validate a protocol file; ProtocolError with every problem as file:line: message."""
+def load_protocol(path: str | Path, catalogue: Catalogue | None = None, model_exists=None,
+                  _role: str | None = None) -> Protocol:
+    """Read and validate a protocol file; ProtocolError with every problem as file:line: message.
+    `model_exists(name)`: whether a latent model is installed (None: not checked)."""
     path = Path(path)
     where = str(path)
     try:
-        root = yaml.compose(path.read_text())
-    except OSError as e:
-        raise ProtocolError([f"{where}:0: cannot read ({e.strerror})"]) from None
-    except yaml.YAMLError as e:
-        line = e.problem_mark.line + 1 if getattr(e, "problem_mark", None) else 0
-        raise ProtocolError([f"{where}:{line}: not valid YAML ({getattr(e, 'problem', 'syntax')})"]) from None
-    if not isinstance(root, yaml.MappingNode):
+        data, lines = load_yaml_lines(path, MAX_BYTES, "protocol")
+    except UnreadableError as e:
+        raise ProtocolError([f"{where}:0: cannot read the protocol: {e.reason}"]) from None
+    except YamlFileError as e:
+        raise ProtocolError([f"{where}:{_yaml_line(str(e))}: {_after_path(str(e), where)}"]) from None
+    if not isinstance(data, dict):
         raise ProtocolError([f"{where}:1: the protocol must be a mapping of keys to values"])
-    errors: list[str] = []
-    nodes: dict[str, yaml.Node] = {}
-    for k, v in root.value:
-        key = _scalar(k)
-        if key not in KEYS:
-            errors.append(f"{where}:{_line(k)}: unknown key {key!r} (known: {', '.join(sorted(KEYS))})")
-        elif key in nodes:
-            errors.append(f"{where}:{_line(k)}: duplicate key {key!r}")
-        else:
-            nodes[key] = v
-
-    def err(key_or_node, msg):
-        node = nodes.get(key_or_node) if isinstance(key_or_node, str) else key_or_node
-        errors.append(f"{where}:{_line(node) if node is not None else _line(root)}: {msg}")
-
-    def get(key, default, kind, check=None):
-        if key not in nodes:
-            return default
-        v = _scalar(nodes[key])
-        if not isinstance(v, kind) or isinstance(v, bool) and kind is not bool:
-            err(key, f"{key} must be {getattr(kind, '__name__', kind)}, got {v!r}")
-            return default
-        if check and (why := check(v)):
-            err(key, f"{key}: {why}")
-            return default
-        return v
-
-    for req in ("participants", "strategies", "settings"):
-        if req not in nodes:
-            errors.append(f"{where}:{_line(root)}: missing required key {req!r}")
-    participants = []
-    if "participants" in nodes:
-        try:
-            participants = parse_participants(_scalar(nodes["participants"]))
-        except ValueError as e:
-            err("participants", f"participants: {e}")
-    strategies = get("strategies", [], list)
-    for i, s in enumerate(strategies):
-        if s not in STRATEGIES:
-            err(nodes["strategies"].value[i], f"unknown strategy {s!r} (known: {', '.join(STRATEGIES)})")
-    if len(set(strategies)) != len(strategies):
-        err("strategies", "a strategy is listed twice")
     try:
         cat = catalogue or load_catalogue("")
     except CatalogueError as e:
-        cat = None
-        errors.append(f"{where}:0: cannot load the object catalogue ({e.reason})")
-    settings: dict[str, list[str]] = {}
-    if "settings" in nodes:
-        sn = nodes["settings"]
-        if not isinstance(sn, yaml.MappingNode) or not sn.value:
-            err("settings", "settings must map a setting name to a task or a list of tasks")
-        else:
-            for k, v in sn.value:
-                name, tasks = _scalar(k), _scalar(v)
-                tasks = [tasks] if isinstance(tasks, str) else tasks
-                if not isinstance(tasks, list) or not tasks:
-                    err(v, f"setting {name!r}: a task or a non-empty list of tasks")
-                    continue
-                for t in tasks:
-                    try:
-                        spec = parse_task(str(t), cat) if cat is not None else None
-                        if spec is not None and spec.kind not in ("push", "circle"):
-                            err(v, f"setting {name!r}: task {t!r} is a {spec.kind} task; the study has "
-                                   "push and circle tasks")
-                    except (ValueError, KeyError) as e:
-                        err(v, f"setting {name!r}: {e}")
-                settings[str(name)] = [str(t) for t in tasks]
-    trials = get("trials", 2, int, lambda v: None if 1 <= v <= 50 else "must be 1..50")
-    practice = {"trials": 1, "reset_seed": 7}
-    if "practice" in nodes:
-        pv = _scalar(nodes["practice"])
-        if not isinstance(pv, dict) or set(pv) - set(practice):
-            err("practice", "practice must be a mapping with trials and reset_seed")
-        else:
-            practice.update(pv)
-            if not (isinstance(practice["trials"], int) and 0 <= practice["trials"] <= 10):
-                err("practice", "practice trials must be 0..10")
-    cb = get("counterbalance", "latin_square", str,
-             lambda v: None if v in ("latin_square", "none") else "latin_square or none")
-    tl = get("time_limit", 30.0, (int, float), lambda v: None if 1 <= v <= 600 else "must be 1..600 s")
-    rate = get("rate", 20.0, (int, float), lambda v: None if 5 <= v <= 200 else "must be 5..200 Hz")
-    backend = get("backend", "graph", str,
-                  lambda v: None if v in BACKENDS else f"one of {', '.join(BACKENDS)}")
-    robot = get("robot", "sim", str, lambda v: None if v in ROBOTS else f"one of {', '.join(ROBOTS)}")
-    ee_axes = EE_AXES
-    if "end_effector_axes" in nodes:
-        av = _scalar(nodes["end_effector_axes"])
-        if (not isinstance(av, list) or not all(isinstance(a, str) for a in av) or len(set(av)) != len(av)
-                or not set(av) <= set(EE_AXES) or not {"x", "y", "z"} <= set(av)):
-            err("end_effector_axes", f"end_effector_axes must list distinct axes of {list(EE_AXES)} "
-                f"including x, y and z, got {av!r}")
-        else:
-            ee_axes = tuple(av)
-    ee_debounce = get("end_effector_debounce", 0.25, (int, float),
-                      lambda v: None if 0.0 <= v <= 5.0 else "must be 0..5 s")
-    models = {k: dict(v) for k, v in DEFAULT_MODELS.items()}
-    if "models" in nodes:
-        mv = _scalar(nodes["models"])
-        if not isinstance(mv, dict) or not all(isinstance(v, dict) for v in mv.values()):
-            err("models", "models must map a strategy to {setting: model directory name}")
-        else:
-            for k, v in mv.items():
-                models.setdefault(k, {}).update({str(a): str(b) for a, b in v.items()})
-    for s in strategies:
-        if STRATEGIES.get(s) != "latent":
-            continue
-        for setting in settings:
-            m = models.get(s, {}).get(setting)
-            line_key = "models" if "models" in nodes else "strategies"
-            if m is None:
-                err(line_key, f"strategy {s!r} has no model for setting {setting!r} (give it under models)")
-            elif model_exists is not None and not model_exists(m):
-                err(line_key, f"strategy {s!r}, setting {setting!r}: model {m!r} is not installed")
-    # robot_refusal() is asked after the command line's overrides (--participants may replace sim:N)
-    origin = {k: f"{where}:{_line(nodes[k])}" for k in ("participants", "robot", "backend") if k in nodes}
+        raise ProtocolError([f"{where}:0: cannot load the object catalogue ({e.reason})"]) from None
+    try:
+        f = ProtocolFile.model_validate(data, context={"catalogue": cat})
+    except ValidationError as e:
+        raise ProtocolError(describe(e, where, lines)) from None
+    errors = _across_keys(f, path, lines, cat, model_exists)
+    if _role is not None and f.role != _role:
+        errors.append(f"{where}:{line_of(lines, ('role',))}: role is {f.role}, a {_role} protocol is "
+                      "needed here")
     if errors:
         raise ProtocolError(errors)
-    return Protocol(name=str(_scalar(nodes.get("study")) or path.stem), participants=participants,
-                    population_seed=int(get("population_seed", 2026, int)), strategies=list(strategies),
-                    settings=settings, trials=int(trials), practice_trials=int(practice["trials"]),
-                    practice_seed=int(practice["reset_seed"]), counterbalance=cb, time_limit=float(tl),
-                    rate=float(rate), models=models, backend=backend, end_effector_axes=ee_axes,
-                    end_effector_debounce=float(ee_debounce), robot=robot, source=where, origin=origin)
+    participants = parse_participants(f.participants)
+    models = {k: dict(v) for k, v in DEFAULT_MODELS.items()}
+    for k, v in f.models.items():
+        models.setdefault(k, {}).update(v)
+    # robot_refusal() is asked after the command line's overrides (--participants may replace sim:N)
+    origin = {k: f"{where}:{lines[(k,)]}" for k in ("participants", "robot", "backend", "development")
+              if (k,) in lines}
+    return Protocol(name=f.study or path.stem, participants=participants, population_seed=f.population_seed,
+                    strategies=list(f.strategies), settings=f.settings, trials=f.trials,
+                    practice_trials=f.practice.trials, practice_seed=f.practice.reset_seed,
+                    counterbalance=f.counterbalance, time_limit=float(f.time_limit), rate=float(f.rate),
+                    models=models, backend=f.backend, end_effector_axes=tuple(f.end_effector_axes),
+                    end_effector_debounce=float(f.end_effector_debounce), robot=f.robot, role=f.role,
+                    layout_seeds=f.seeds.layouts, operator_seeds=f.seeds.operators,
+                    development=tuple(str(_beside(path, d)) for d in f.development), source=where,
+                    origin=origin)
+
+
+def _across_keys(f: ProtocolFile, path: Path, lines: Lines, cat: Catalogue, model_exists) -> list[str]:
+    """What needs several keys: participants, a model for every latent strategy and setting,
+    development files that exist and say they are."""
+    where = str(path)
+    errors: list[str] = []
+    try:
+        parse_participants(f.participants)
+    except ValueError as e:
+        errors.append(f"{where}:{line_of(lines, ('participants',))}: participants: {e}")
+    return errors + _model_errors(f, where, lines, model_exists) + _development_errors(f, path, lines, cat)
+
+
+def _model_errors(f: ProtocolFile, where: str, lines: Lines, model_exists) -> list[str]:
+    """A model for every latent strategy and setting (the shipped ones by default), installed."""
+    errors: list[str] = []
+    models = {**DEFAULT_MODELS, **f.models}
+    for s in (s for s in f.strategies if STRATEGIES[s] == "latent"):
+        for setting in f.settings:
+            m = models.get(s, {}).get(setting)
+            at = line_of(lines, ("models", s, setting) if (f.models.get(s) or {}).get(setting) else
+                         ("models",) if f.models else ("strategies",))
+            if m is None:
+                errors.append(f"{where}:{at}: strategy {s!r} has no model for setting {key_name(setting)} "
+                              "(give it under models)")
+            elif model_exists is not None and not model_exists(m):
+                errors.append(f"{where}:{at}: strategy {s!r}, setting {key_name(setting)}: model "
+                              f"{key_name(m)} is not installed")
+    return errors
+
+
+def _development_errors(f: ProtocolFile, path: Path, lines: Lines, cat: Catalogue) -> list[str]:
+    """Each development file a test protocol names exists, is valid and says role: development."""
+    where = str(path)
+    if f.role == "development" and f.development:
+        return [f"{where}:{line_of(lines, ('development',))}: development: only a test protocol names "
+                "development files"]
+    errors: list[str] = []
+    for i, d in enumerate(f.development):
+        try:
+            load_protocol(_beside(path, d), cat, None, _role="development")
+        except ProtocolError as e:
+            errors.append(f"{where}:{line_of(lines, ('development', i))}: development file {key_name(d)}: "
+                          f"{e.errors[0]}")
+    return errors
+
+
+def _beside(path: Path, name: str) -> Path:
+    """A file a protocol names, relative to the protocol's folder."""
+    return (path.parent / name) if not Path(name).is_absolute() else Path(name)
+
+
+def _yaml_line(text: str) -> int:
+    """The line a safe_yaml error names ('line N, column M'), or 0."""
+    m = re.search(r"line (\d+), column", text)
+    return int(m.group(1)) if m else 0
+
+
+def _after_path(text: str, where: str) -> str:
+    """safe_yaml's message without its leading 'protocol <path>' (file:line already says it)."""
+    for lead in (f"protocol {where}: ", f"protocol {where} "):
+        if text.startswith(lead):
+            return text[len(lead):]
+    return text
 
 
 def latin_square(n: int) -> list[list[int]]:

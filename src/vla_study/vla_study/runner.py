@@ -27,7 +27,7 @@ import numpy as np
 from vla_study.backends import BACKENDS, Where, backend_name, make_backend
 from vla_study.participant import HumanParams, population
 from vla_study.person import Experimenter, TerminalExperimenter
-from vla_study.protocol import Protocol, latin_square, robot_refusal
+from vla_study.protocol import Protocol, latin_square, load_protocol, robot_refusal
 from vla_study.questionnaire import LABELS, SCALE, likert_row, station_for
 from vla_study.trial import Trial, TrialBackend, hash_seed
 
@@ -53,9 +53,37 @@ def trial_plan(p: Protocol) -> list[Trial]:
             for setting, tasks in p.settings.items():
                 for ti, task in enumerate(tasks):
                     for k in range(p.trials):
-                        seed = 200_000 + 1000 * pi + 100 * ti + 10 * k + sum(map(ord, setting)) % 10
+                        seed = p.layout_seeds + 1000 * pi + 100 * ti + 10 * k + sum(map(ord, setting)) % 10
                         out.append(Trial(who, strategy, setting, task, k, "test", seed, n))
                         n += 1
+    return out
+
+
+def operator_seed(p: Protocol, trial: Trial) -> int:
+    """The seed of the simulated participant's noise in a trial: from its key, salted by the protocol's
+    `seeds: operators` (none: the key alone, as the first runs)."""
+    return hash_seed(f"{p.operator_seeds}|{trial.key}" if p.operator_seeds else trial.key)
+
+
+def reused_seeds(p: Protocol) -> list[str]:
+    """Why a test protocol may not run: its test trials reuse a layout (the task and its layout seed) or
+    an operator seed of a trial in a development file it names. Empty: the test set is disjoint."""
+    if p.role != "test" or not p.development:
+        return []
+    mine = [t for t in trial_plan(p) if t.phase == "test"]
+    at = p.origin.get("development", p.source)
+    out = []
+    for path in p.development:
+        dev = load_protocol(path)
+        theirs = trial_plan(dev)
+        layouts = {(t.task, t.layout_seed) for t in theirs}
+        operators = {operator_seed(dev, t) for t in theirs}
+        hits = [t for t in mine if (t.task, t.layout_seed) in layouts or operator_seed(p, t) in operators]
+        if hits:
+            out.append(f"{at}: {len(hits)} of the {len(mine)} test trials reuse the layouts or operator "
+                       f"seeds of the development file {path} (the first: {hits[0].key}, layout seed "
+                       f"{hits[0].layout_seed}); give the test protocol its own seeds (seeds: layouts, "
+                       "operators)")
     return out
 
 
@@ -70,13 +98,19 @@ class StudyStore:
 
     def __init__(self, out: Path, protocol: Protocol) -> None:
         self.out = Path(out)
-        self.out.mkdir(parents=True, exist_ok=True)
-        (self.out / "trials").mkdir(exist_ok=True)
+        try:
+            self.out.mkdir(parents=True, exist_ok=True)
+            (self.out / "trials").mkdir(exist_ok=True)
+        except OSError as e:
+            raise SystemExit(f"--out {self.out}: {e.strerror}: a study folder is a directory") from None
         self.rows_path = self.out / "trials.jsonl"
         meta = self.out / "study.json"
         digest = protocol.digest()
         if meta.exists():
-            old = json.loads(meta.read_text())
+            try:
+                old = json.loads(meta.read_text())
+            except (OSError, UnicodeDecodeError, ValueError):
+                raise SystemExit(f"{meta} is not a study's record: choose a new --out") from None
             if old.get("protocol_digest") != digest:
                 raise SystemExit(f"{self.out} holds a study of another protocol ({old.get('protocol')}); "
                                  "choose a new --out (earlier results are never overwritten)")
@@ -99,10 +133,13 @@ class StudyStore:
                 f.write(tail + b"\n")
             with open(self.rows_path, "r+b") as f:
                 f.truncate(len(good) + 1 if good else 0)
-        for line in (good.decode().splitlines() if good else []):
+        for n, line in enumerate(good.decode(errors="replace").splitlines() if good else [], 1):
             if line.strip():
-                row = json.loads(line)
-                done[row["key"]] = row
+                try:
+                    row = json.loads(line)
+                    done[row["key"]] = row
+                except (ValueError, TypeError, KeyError):
+                    raise SystemExit(f"{self.rows_path}:{n}: not a trial's row: choose a new --out") from None
         return done
 
     def record(self, row: dict, arrays: dict[str, np.ndarray]) -> None:
@@ -151,6 +188,8 @@ def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None
     graph is a simulated one (a rehearsal or a test)."""
     if why := robot_refusal(protocol):  # before anything is made or run
         raise SystemExit(f"protocol refused: {why}")
+    if why := reused_seeds(protocol):
+        raise SystemExit("protocol refused: " + "\n".join(why))
     real = [w for w in protocol.participants if not w.startswith("sim:")]
     row = BACKENDS[backend_name(protocol)]
     if real and not row.persons and backend is None:  # refused before anything is made or run
@@ -187,10 +226,12 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
             break
         who = trial.participant
         wall0 = time.monotonic()
-        row, arrays = backend.run(trial, params.get(who), operator_seed=hash_seed(trial.key))
+        seed = operator_seed(protocol, trial)
+        row, arrays = backend.run(trial, params.get(who), operator_seed=seed)
         row.update({"key": trial.key, "file": trial.file_stem, "participant": who,
                     "strategy": trial.strategy, "setting": trial.setting, "task": trial.task,
                     "trial": trial.trial, "phase": trial.phase, "layout_seed": trial.layout_seed,
+                    "operator_seed": seed,
                     "order": trial.order, "simulated": who.startswith("sim:"), "backend": protocol.backend,
                     "wall_s": round(time.monotonic() - wall0, 2)})
         store.record(row, arrays)

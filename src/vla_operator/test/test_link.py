@@ -182,3 +182,38 @@ def test_bad_messages_are_counted_and_never_move(raw, counter):
 
 def test_params_bound():
     assert LinkParams().stale_after == 0.15
+
+
+def test_a_hold_stops_refuses_motion_and_needs_a_neutral_after_it():
+    """The caregiver's stop on a stale view (Link.hold): zero at once, motion refused while held, and a
+    stop as any other after it: the driver's next motion needs a neutral input first."""
+    link, cid = driving(10.0)
+    assert link.on_message(cid, inp(1, 100.0, 0.5), 10.1).publish and link.value(10.1) == 0.5
+    assert link.hold("the live view stopped") and link.value(10.1) == 0.0
+    assert not link.hold("again")                                      # once
+    v = link.on_message(cid, inp(2, 120.0, 0.5), 10.12)
+    assert "the live view stopped" in v.error and link.counters.held == 1 and link.value(10.12) == 0.0
+    assert link.on_message(cid, inp(3, 140.0, 0.0), 10.14).publish     # a neutral is fine while held
+    v = link.on_message(cid, inp(4, 160.0, 0.5), 10.16)
+    assert v.error and link.value(10.16) == 0.0                        # still held
+    link.release_hold()
+    v = link.on_message(cid, inp(5, 180.0, 0.5), 10.18)                # held through: let go first
+    assert "neutral input first (the live view stopped)" in v.error and link.value(10.18) == 0.0
+    assert link.on_message(cid, inp(6, 200.0, 0.0), 10.2).publish
+    assert link.on_message(cid, inp(7, 220.0, 0.5), 10.22).publish and link.value(10.22) == 0.5
+
+
+def test_the_arming_rule_is_vla_commons():
+    """One owner of the rule: the link's clients arm through vla_common.arming."""
+    from vla_common.arming import Arming
+
+    link = Link()
+    c = link.connect(0.0)
+    assert isinstance(c.arming, Arming) and not c.armed and c.arming.reason == "a new or reloaded page"
+
+
+def test_a_hold_at_rest_disarms_nothing():
+    link, cid = driving(10.0)
+    assert link.hold("the live view stopped") and link.value(10.1) == 0.0
+    link.release_hold()
+    assert link.on_message(cid, inp(1, 200.0, 0.5), 10.2).publish and link.value(10.2) == 0.5

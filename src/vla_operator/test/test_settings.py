@@ -22,6 +22,7 @@ def test_defaults_are_valid_and_a_copy():
     ({"speed_scale": 10**400}, "speed_scale must be a number"),
     ({"step_seconds": -10**400}, "step_seconds must be a number"),
     ({"deadband": 1e400}, "deadband must be a number"),
+    ({"stop_on_stale_view": 1}, "stop_on_stale_view must be true or false"),
     ({"speed_scale": True}, "speed_scale must be a number"),
     ({"speed_scale": "1"}, "speed_scale must be a number"),
     ({"deadband": 1.0}, "deadband must be from 0.0 to 1.0 (excluded)"),

@@ -54,3 +54,59 @@ def test_bad_images_leave_the_view_running_and_a_stopped_camera_is_stale(station
         assert h.spin_until(lambda: state(page).get("view_stale") is False, 30.0)
     finally:
         page.close()
+
+
+@pytest.mark.parametrize("stop_on_stale_view", [True, False])
+def test_a_stale_view_stops_the_arm_only_with_the_caregivers_setting(station_node, page_class, tmp_path,
+                                                                      stop_on_stale_view):
+    """stop_on_stale_view (off by default): a stale view holds motion (zero, inputs refused) and, once
+    the view is back, motion needs a neutral input first. Off: the view only says it is stale."""
+    import json
+    import time
+
+    from sensor_msgs.msg import Joy
+
+    (tmp_path / "settings.json").write_text(json.dumps({"stop_on_stale_view": stop_on_stale_view}))
+    node = station_node()
+    h = station_node.harness
+    cam = h.add(Camera(h.context))
+    joys = []
+    h.add(Node("test_view_joy", context=h.context)).create_subscription(Joy, "joy", joys.append, 100)
+    page = page_class(node.address)
+    seq = [0]
+
+    def send(axis: float) -> None:
+        seq[0] += 1
+        page.send({"type": "input", "seq": seq[0], "t": time.monotonic() * 1000.0, "axis": axis})
+
+    def state(key):
+        return (page.last("state") or {}).get(key)
+    try:
+        assert h.spin_until(lambda: state("view_stale") is False and page.of("hello"), 30.0)
+        send(0.0)
+        send(0.5)
+        assert h.spin_until(lambda: any(j.axes[0] == 0.5 for j in joys), 30.0)     # it moves
+        send(0.0)                                  # let go (this page sends no heartbeat: at rest)
+        cam.on = False
+        assert h.spin_until(lambda: state("view_stale") is True, 30.0)
+        n = len(page.of("refused"))
+        send(0.5)
+        if not stop_on_stale_view:
+            assert h.spin_until(lambda: joys[-1].axes[0] == 0.5, 30.0) and not state("motion_held")
+            assert len(page.of("refused")) == n
+            return
+        assert h.spin_until(lambda: len(page.of("refused")) > n, 30.0)
+        assert "live view stopped" in page.last("refused")["reason"] and state("motion_held")
+        assert h.spin_until(lambda: joys[-1].axes[0] == 0.0, 30.0)                  # stopped
+        cam.on = True
+        assert h.spin_until(lambda: state("view_stale") is False and state("motion_held") == "", 30.0)
+        n = len(page.of("refused"))
+        send(0.5)                                                    # held through the stop: refused
+        assert h.spin_until(lambda: len(page.of("refused")) > n, 30.0)
+        assert "neutral input first" in page.last("refused")["reason"]
+        send(0.0)
+        send(0.5)
+        k = len(joys)
+        assert h.spin_until(lambda: any(j.axes[0] == 0.5 for j in joys[k:]), 30.0)   # moves again
+    finally:
+        page.close()

@@ -6,7 +6,10 @@ Every rule here exists because an operator interface got it wrong (FACTS.md sect
 - an input older than ``stale_after`` (by the browser's sequence and clock, referred to the server's
   clock) is dropped, and the held value expires ``stale_after`` after it arrived, so a cut link gives
   zero without waiting for a close;
-- a closed socket, a missed heartbeat or a hidden page gives zero at once;
+- a closed socket, a missed heartbeat or a hidden page gives zero at once; so does a hold (the
+  caregiver's stop on a stale live view: ``Link.hold``), which refuses motion while it lasts;
+- every stop the operator did not choose disarms the driver: motion needs a neutral input after it
+  (the arming rule, whose one home is ``vla_common.arming``);
 - one client drives; the others watch and may only press the e-stop; a new driver starts at neutral,
   so a reload never re-sends motion; a watcher takes control only deliberately (``claim`` with
   ``confirm: true``) and only while the driver's input is at rest (see ``Link._claim``);
@@ -19,6 +22,8 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+
+from vla_common.arming import Arming
 
 from vla_operator.questionnaire import Questionnaire, answers_problem, ordered
 from vla_operator.schema import MODELS, check, parse
@@ -56,8 +61,13 @@ class Client:
     last_seen: float = -math.inf
     last_seq: int = -1
     offset: float = math.inf         # min over inputs of (server time - browser time): the link's base delay
-    armed: bool = False              # a driver's input moves only after a neutral one
     may_drive: bool = True           # False: a display page (?watch=1) that never drives
+    # a driver's input moves only after a neutral one: at first, and after any stop it did not choose
+    arming: Arming = field(default_factory=lambda: Arming(armed=False, reason="a new or reloaded page"))
+
+    @property
+    def armed(self) -> bool:
+        return self.arming.armed
 
 
 @dataclass
@@ -71,6 +81,7 @@ class Counters:
     stale: int = 0
     coalesced: int = 0
     not_armed: int = 0
+    held: int = 0                    # motion refused while the link is held (a stale live view)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -96,6 +107,7 @@ class Link:
     axis: float = 0.0                # the latest accepted input, in [-1, 1]
     axis_t: float = -math.inf        # when it arrived (server clock)
     questionnaire: Questionnaire | None = None   # the one that waits for the driver's answers
+    held: str = ""                   # why motion is held (stopped and refused), "" when it is not
     last_publish: float = -math.inf
     _next_id: int = 0
 
@@ -137,10 +149,28 @@ class Link:
         d = self.driver()
         if (d is not None and d.armed and self.axis != 0.0
                 and now - d.last_seen > self.params.heartbeat_timeout):
-            d.armed = False
+            d.arming.disarm("the page went silent while moving")
             self.stop()
             return True
         return False
+
+    def hold(self, why: str) -> bool:
+        """Hold all motion (the caregiver's stop on a stale view): zero now, and motion refused while
+        held. A stop as any other: a driver whose input moved the arm, or who presses during the hold,
+        must send a neutral input before moving after it; one at rest holds nothing and is not
+        disarmed (as a silence at rest, see ``tick``). True when the hold starts now (publish zero)."""
+        if self.held:
+            return False
+        self.held = why
+        d = self.driver()
+        if d is not None and self.axis != 0.0:
+            d.arming.disarm(why)
+        self.stop()
+        return True
+
+    def release_hold(self) -> None:
+        """Motion may follow again, after the driver's neutral (it was disarmed by the hold)."""
+        self.held = ""
 
     # ------------------------------------------------------------------ messages
     def on_message(self, cid: int, raw: str | bytes, now: float) -> Verdict:
@@ -170,7 +200,7 @@ class Link:
         if kind == "hidden":
             self.counters.accepted += 1
             if c.driver:
-                c.armed = False
+                c.arming.disarm("the page was hidden")
                 self.stop()
                 return Verdict(publish=True)
             return Verdict()
@@ -203,10 +233,12 @@ class Link:
         c.offset = min(c.offset, delay)
         if delay - c.offset > self.params.stale_after:
             return self._drop("stale", f"input {seq} arrived {delay - c.offset:.3f} s late")
-        if axis == 0.0:
-            c.armed = True
-        elif not c.armed:
-            return self._drop("not_armed", "motion needs a neutral input first (a new or reloaded page)")
+        if axis != 0.0 and self.held:
+            c.arming.disarm(self.held)        # after the hold: let go first
+            return self._drop("held", f"stopped: {self.held}")
+        why = c.arming.reason
+        if not c.arming.offer(neutral=axis == 0.0):
+            return self._drop("not_armed", f"motion needs a neutral input first ({why})")
         self.counters.accepted += 1
         # A press after the operator's own neutral: its first command is never held back, and that
         # neutral is published again just before it. A consumer that missed the neutral stream for a
@@ -238,8 +270,10 @@ class Link:
             if self.value(now) != 0.0:
                 return self._drop("forbidden", "the driving station is moving the arm: "
                                                "take control when it is at rest")
-            d.driver = d.armed = False
-        c.driver, c.armed = True, False
+            d.driver = False
+            d.arming.disarm("another station took control")
+        c.driver = True
+        c.arming = Arming(armed=False, reason="you took control: start from neutral")
         self.stop()
         self.counters.accepted += 1
         return Verdict(publish=True, request={"type": "claim", "taken_from": d.cid if d else None})

@@ -91,6 +91,7 @@ class Values(BaseModel):
     step_seconds: number(0.1, 2.0) = None
     scan_period: number(0.5, 5.0) = None
     keys: Keys = None
+    stop_on_stale_view: bool = None
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,9 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
                      "stop": ["Escape"]},
             f"keys for forward, back and stop: 1 to {MAX_KEYS_PER_ACTION} each, no key twice, Escape only "
             "stops"),
+    Setting("stop_on_stale_view", False,
+            "stop the arm while the live view has had no new frame for 1 s (motion then needs a neutral "
+            "input once the view is live again); off: the page only says that the view is stale"),
 )}
 assert set(SETTINGS) == set(Values.model_fields), "one table of settings: the model and its defaults"
 

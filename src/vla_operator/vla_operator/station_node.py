@@ -99,7 +99,8 @@ class StationNode(Node):
         self.status_pub = self.create_publisher(DiagnosticStatus, "~/status", 10)
         b, c, r = p["bridge"], p["controller"], p["recorder"]
         self.state: dict = {"tasks": list(p["tasks"]), "settings": self.settings,
-                            "settings_problem": self.settings_problem, "questionnaire": None}
+                            "settings_problem": self.settings_problem, "questionnaire": None,
+                            "motion_held": ""}
         self.create_subscription(Image, "camera/image_raw", self._on_image, LATEST_IMAGE_QOS)
         self.create_subscription(DetectionArray, "detections", self._on_dets, SENSOR_QOS)
         self.create_subscription(ControllerStatus, f"{c}/status", self._on_ctrl, 10)
@@ -335,9 +336,23 @@ class StationNode(Node):
 
     def _watch_view(self) -> None:
         """The pages are told at once when the view goes stale or comes back (and, while stale, how old
-        it is, every second)."""
-        if self.view.changed() is not None:
-            self._state()
+        it is, every second). With the caregiver's stop_on_stale_view, a stale view holds all motion:
+        zero at once, motion refused while it lasts, and a neutral input first once the view is back
+        (the link's hold, a stop as any other: the arming rule)."""
+        changed = self.view.changed()
+        stale = self.view.fields()["view_stale"]
+        with self.station.lock:
+            link = self.station.link
+            was = link.held
+            if stale and self.settings["stop_on_stale_view"]:
+                if link.hold("the live view stopped (no new picture for 1 s): let go, and move when the "
+                             "view is back"):
+                    self._publish_axis(0.0)
+            elif link.held:
+                link.release_hold()
+            held = link.held
+        if changed is not None or held != was:
+            self._state(motion_held=held)
 
     def _frame_out(self, jpeg: bytes, meta: dict) -> None:
         """From the encoder's thread: the pages' next frame; the view is live."""

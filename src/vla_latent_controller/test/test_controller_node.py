@@ -533,3 +533,29 @@ def test_the_assistance_is_set_at_run_time_and_the_status_names_its_goal():
         assert np.all(cmd == 0.0) and st.goal_share == 0.0 and st.goal_task == "bread/push_east"
     finally:
         h.close()
+
+
+def test_a_routine_stop_is_said_once_at_info_then_at_debug(random_model_dir, capfd):
+    """Each time the input and the arm's states stop (a key let go, a lagging simulation) the code goes
+    through routine stops (JOY_TIMEOUT or AWAITING_NEUTRAL, WAITING_FOR_JOINT_STATES): each is said at
+    INFO the first time only. Before, every time (at most every 2 s: 358 lines in 20 minutes of the
+    operator station). The status topic still has every change."""
+    from vla_latent_controller.status_log import ROUTINE
+
+    h = Harness(random_model_dir)
+    entered = []
+    try:
+        for _ in range(3):
+            h.settle(ControllerStatus.ACTIVE)
+            h.status.clear()
+            assert h.spin_until(lambda: any(s.code == ControllerStatus.WAITING_FOR_JOINT_STATES
+                                            for s in h.status), 10.0)
+            entered += [s.code for s in h.status]
+            h.spin_for(2.1)   # past the INFO lines' 2 s throttle, which alone let the old code repeat them
+    finally:
+        h.close()
+    stops = [c for c in entered if c != ControllerStatus.WAITING_FOR_JOINT_STATES]
+    assert len(stops) >= 3, entered                   # three stops of the input, on the status topic
+    err = capfd.readouterr().err
+    for code in ROUTINE:
+        assert err.count(f"zero command: {code.name}:") <= 1, err

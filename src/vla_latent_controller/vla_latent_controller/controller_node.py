@@ -40,6 +40,7 @@ from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
 from vla_latent_controller.ee_baseline import axes_text, parse_axes
 from vla_latent_controller.joints import parse_joint_map
 from vla_latent_controller.model import LatentModel
+from vla_latent_controller.status_log import StatusLog
 from vla_latent_controller.teleop import MODES, NEUTRAL_CODES, Code, Status, TeleopCore, TeleopParams
 
 NODE_NAME = "controller_node"
@@ -196,6 +197,7 @@ class ControllerNode(Node):
             raise ConfigError(f"parameter 'goal_selection': {reason}")
         self._msg = Float64MultiArray()
         self._last_code: int | None = None
+        self._status_log = StatusLog()
         self._last_status_t = -math.inf
         self._status_period = 1.0 / values["status_rate"]
         self._create_interfaces()
@@ -408,10 +410,14 @@ class ControllerNode(Node):
         self.cmd_pub.publish(self._msg)
         changed = st.code != self._last_code
         if changed or now - self._last_status_t >= self._status_period or now < self._last_status_t:
-            if changed and st.code not in (Code.ACTIVE, Code.ZERO_DEADBAND):
-                self.get_logger().info(
-                    f"zero command: {st.code.name}: {st.reason}", throttle_duration_sec=2.0
-                )
+            level = self._status_log.level(st.code) if changed else None
+            said = f"zero command: {st.code.name}: {st.reason}"
+            if level == "info":        # a routine code, the first time (status_log.py)
+                self.get_logger().info(said)
+            elif level == "problem":
+                self.get_logger().info(said, throttle_duration_sec=2.0)
+            elif level == "debug":     # a routine code again
+                self.get_logger().debug(said)
             self._last_code = st.code
             self._last_status_t = now
             self.status_pub.publish(self._status_msg(st))

@@ -8,10 +8,11 @@ message goes out to the publish stamp of the bridge's status that says it latche
 press of the page is followed by one sent straight to the bridge's ~/estop from this process: what the
 machine's load costs at that moment, without the station.
 
-    python bench/bench_station_flood.py                  # 50 presses each way, the flooder reconnecting
-    python bench/bench_station_flood.py --presses 20 --no-reconnect
-    python bench/bench_station_flood.py --status-flood 10   # also: 60 KB DDS statuses for 10 s, a page
-                                                            # that never reads
+    python bench/bench_station_flood.py                  # 50 presses each way, the flooder reconnecting,
+                                                         # then 60 KB DDS statuses for 10 s, a page that
+                                                         # never reads
+    python bench/bench_station_flood.py --presses 20 --no-reconnect --status-flood 0
+    python bench/bench_station_flood.py --quick          # CI: 20 presses, 3 s of statuses
 """
 from __future__ import annotations
 
@@ -81,8 +82,12 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presses", type=int, default=50)
     ap.add_argument("--no-reconnect", action="store_true", help="the flooder stops once closed")
-    ap.add_argument("--status-flood", type=float, default=0.0, metavar="S")
+    ap.add_argument("--status-flood", type=float, default=10.0, metavar="S",
+                    help="seconds of 60 KB DDS statuses after the junk flood (0: none)")
+    ap.add_argument("--quick", action="store_true", help="20 presses each way, 3 s of status flood (CI)")
     a = ap.parse_args()
+    if a.quick:
+        a.presses, a.status_flood = 20, min(a.status_flood, 3.0)
     tmp = Path(tempfile.mkdtemp(prefix="bench_station_flood_"))
     h = RosHarness(other_processes=True)
     station, bridge = station_and_bridge(tmp)

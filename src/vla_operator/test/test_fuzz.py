@@ -133,3 +133,34 @@ def test_what_the_fuzzers_found_on_the_hand_validation():
         assert v.error and not v.publish
     with pytest.raises(SettingError, match="speed_scale must be a number"):
         validate({"speed_scale": 10**400})
+
+
+def test_random_messages_through_the_socket_never_close_it(tmp_path, page_class):
+    """The same fuzzer through the running server (no ROS): every message is handled or refused, the
+    server never fails on one (errors 0) and the page's socket stays open."""
+    from vla_operator.server import Limits, Station
+
+    (tmp_path / "index.html").write_text("<!doctype html>")
+    token = "a-token-for-the-socket-fuzzer"
+    station = Station(tmp_path, "127.0.0.1", 0, token, lambda axis: None,
+                      lambda msg, reply: reply({"what": msg["type"], "ok": True}),
+                      limits=Limits(max_rate=1e6, refusal_rate=1e6, max_refusals=1e6))
+    station.start()
+    page = page_class(f"http://127.0.0.1:{station.access.port}/?token={token}")
+    try:
+        rng, sent = random.Random(7), 0
+        limit = station.link.params.max_message_bytes * 4       # larger: the socket is closed (below)
+        while sent < 1500:
+            raw = message(rng)
+            if len(raw) <= limit:
+                page.ws.send_binary(raw) if isinstance(raw, bytes) else page.send(raw)
+                sent += 1
+        page.send({"type": "heartbeat"})
+        assert page.wait(lambda p: station.link.counters.received == 1501)
+        assert station.counters["errors"] == 0 and not page.closed
+        assert all(MARK not in json.dumps(m) for m in page.got)
+        page.send("x" * (limit + 1))                            # a page never sends 8 KiB at once
+        assert page.wait(lambda p: p.closed)
+    finally:
+        page.close()
+        station.stop()

@@ -83,7 +83,7 @@ def run(args) -> int:
                   use_sim_time=args.use_sim_time)
     from vla_study.analysis import analyse  # matplotlib: only for the figures, not for --help or --check
 
-    for line in analyse(args.out, args.figures or args.out):
+    for line in analyse(args.out, args.figures or args.out, proto.time_limit):
         print(line)
     return 0
 

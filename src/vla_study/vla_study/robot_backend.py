@@ -60,6 +60,7 @@ from vla_study.graph_backend import (
     monitor_path,
     study_graph_config,
 )
+from vla_study.outcome import thrown
 from vla_study.participant import HumanParams
 from vla_study.person import Experimenter, InputTally, PersonDriver, placement_text, start_point
 from vla_study.protocol import Protocol
@@ -331,6 +332,7 @@ class RobotBackend(GraphBackend):
         extra.update(robot="real", robot_model=obs.robot_model, scored_by="experimenter",
                      object_start_source="placed by the experimenter",
                      object_displacement_m=score.displacement_m,
+                     thrown=None if score.displacement_m is None else thrown(score.displacement_m),
                      final_state_error=None if fse is None else round(float(fse), 4),
                      arm_start_q=[round(float(v), 4) for v in scene.q_start],
                      placement_seed=scene.placement_seed, wall_phases=scene.clock.phases)

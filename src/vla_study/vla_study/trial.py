@@ -17,6 +17,7 @@ from vla_common.catalogue import Catalogue, TaskSpec
 from vla_common.objects import ObjectPose
 from vla_common.tasks import parse_task
 
+from vla_study.outcome import thrown, trial_time
 from vla_study.participant import HumanOperator, HumanParams, TaskGoal
 from vla_study.person import InputTally
 from vla_study.protocol import STRATEGIES, Protocol
@@ -109,7 +110,7 @@ class TrialBackend:
         m = self.drive(trial, scene, op)
         row, arrays = trial_row(op, m.path, m.times, m.sticks, ok=m.ok, disp=m.disp, t_success=m.t_success,
                                 t_done=m.t_done, t_end=m.t_end, fse=m.fse, interventions=m.interventions,
-                                start=scene.start, note=scene.note)
+                                start=scene.start, note=scene.note, time_limit=self.protocol.time_limit)
         row.update(m.extra)
         return row, arrays
 
@@ -138,10 +139,11 @@ def strategy_mode(strategy: str) -> str:
 
 def trial_row(op: Participant, path: np.ndarray, times: np.ndarray, sticks: np.ndarray, *,
               ok: bool, disp: float, t_success: float | None, t_done: float | None, t_end: float, fse: float,
-              interventions: int, start, note: str) -> tuple[dict, dict]:
+              interventions: int, start, note: str, time_limit: float) -> tuple[dict, dict]:
     """One trial's row and arrays from what any backend measured: the TCP path (T, 3) and its times
     (s since the trial began), the stick, the outcome; the participant's counts from the operator.
-    Every backend scores a trial with this one function."""
+    Every backend scores a trial with this one function. `time_s` is the time to success, the time
+    limit for a failure (outcome.py); `duration_s` how long the participant drove."""
     path = np.asarray(path, float).reshape(-1, 3)
     times = np.asarray(times, float)
     dt = float(np.median(np.diff(times))) if len(times) > 1 else PATH_DT
@@ -149,11 +151,13 @@ def trial_row(op: Participant, path: np.ndarray, times: np.ndarray, sticks: np.n
     speed = speed_profile(path[::every], times[::every])
     row = {
         "success": bool(ok),
-        "time_s": round(float(t_success if ok and t_success is not None
-                              else (t_done if ok and t_done is not None else t_end)), 3),
+        "time_s": round(trial_time(ok, next((t for t in (t_success, t_done, t_end) if t is not None), None),
+                                   time_limit), 3),
+        "time_limit_s": float(time_limit),
         "duration_s": round(float(t_end), 3),
         "final_state_error": round(float(fse), 4),
         "object_displacement_m": round(float(disp), 4),
+        "thrown": thrown(disp),
         "path_length_m": round(path_length(path), 4),
         "n_inputs": int(op.n_inputs),
         "mode_switches": int(op.n_switches),

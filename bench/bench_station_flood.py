@@ -78,6 +78,38 @@ def status_flood(h, station, address: str, seconds: float) -> None:
     silent.close()
 
 
+def stale_view(h, page: EstopPage, cycles: int) -> None:
+    """A camera at 30 Hz stops: time from its last frame to the page's state saying the view is stale
+    (the station checks every 0.25 s for no frame in 1 s: at most 1.25 s plus delivery)."""
+    import numpy as np
+    import rclpy
+    from sensor_msgs.msg import Image
+    from vla_common.ros.qos import IMAGE_QOS
+
+    node = h.add(rclpy.create_node("bench_station_flood_camera", context=h.context))
+    pub = node.create_publisher(Image, "camera/image_raw", IMAGE_QOS)
+    img = Image(height=48, width=64, encoding="rgb8", step=192, data=np.zeros(48 * 192, np.uint8).tobytes())
+    on, last = [True], [0.0]
+
+    def tick():
+        if on[0]:
+            pub.publish(img)
+            last[0] = time.time()
+    node.create_timer(1 / 30, tick)
+    out = []
+    for _ in range(cycles):
+        on[0] = True
+        if not h.spin_until(lambda: page.view_stale is False, 30.0):
+            print("the view never came live")
+            return
+        h.spin_for(0.5)
+        on[0] = False
+        n = len(page.view_changes)
+        if h.spin_until(lambda n=n: any(s for _, s in page.view_changes[n:]), 30.0):
+            out.append(next(t for t, s in page.view_changes[n:] if s) - last[0])
+    print(figures(f"camera stopped -> the page's state says the view is stale ({cycles} stops)", out))
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--presses", type=int, default=50)
@@ -127,6 +159,7 @@ def main() -> int:
               f"{cpu:.0f} % of a core flooded; operator's page {'closed' if page.closed else 'open'}")
         if a.status_flood > 0:
             status_flood(h, station, address, a.status_flood)
+        stale_view(h, page, 5 if a.quick else 20)
         print(f"load average at the end: {os.getloadavg()}")
     finally:
         if page is not None:

@@ -165,6 +165,8 @@ class EstopPage:
                                               timeout=30)
         self.got = 0
         self.replies: list[dict] = []
+        self.view_stale = None                       # the latest state's view_stale
+        self.view_changes: list[tuple[float, bool]] = []   # (wall time here, view_stale) on each change
         self.closed = False
         self.thread = threading.Thread(target=self._read, daemon=True)
         self.thread.start()
@@ -182,6 +184,11 @@ class EstopPage:
             self.got += 1
             if isinstance(raw, str) and raw.startswith('{"type": "reply"'):
                 self.replies.append(json.loads(raw))
+            elif isinstance(raw, str) and raw.startswith('{"type": "state"'):
+                stale = json.loads(raw).get("view_stale")
+                if stale != self.view_stale:
+                    self.view_changes.append((time.time(), stale))
+                self.view_stale = stale
         self.closed = True
 
     def estop(self) -> float:

@@ -79,6 +79,11 @@ def test_a_junk_flood_does_not_delay_another_pages_estop_or_keep_memory(graph, t
             h.spin_for(1.0)                                     # the flood is on
             flooded, straight = press_and_time(h, page, latches, 20, direct=direct)
             peak = rss_mb(station.proc.pid)
+            newcomer = EstopPage(address)                       # a new page opens during the flood
+            try:                                                # (issue 32: new pages timed out)
+                assert h.spin_until(lambda: newcomer.got >= 2, 30.0)    # hello, role or state
+            finally:
+                newcomer.close()
         finally:
             sent = flooder.stop()
         after = settle_rss(h, station.proc.pid)

@@ -88,3 +88,44 @@ def test_simulated_results_are_labelled_and_worded_as_a_models(tmp_path):
         assert "simulated participants" in heading, heading
     assert "not what a person would" in text and "a calibration, not a finding" in text
     assert (out / "figure4_success.png").is_file()
+
+
+def test_the_paths_are_regenerated_from_the_rows_and_their_seeds(tmp_path):
+    """The .npz files are not kept in git: `vla_study --paths` reruns each trial whose path is missing,
+    with its row's layout and operator seeds, writes only the path, and says whether the outcome was the
+    row's; a row the protocol does not hold is named, not rerun."""
+    from vla_study.paths import regenerate_paths
+    from vla_study.protocol import load_protocol
+    from vla_study.runner import operator_seed, trial_plan
+
+    f = tmp_path / "p.yaml"
+    f.write_text("participants: sim:2\nstrategies: [latent-YOLO]\nsettings: {base: bread/push_east}\n"
+                 "trials: 1\npractice: {trials: 0, reset_seed: 7}\nbackend: physics\n")
+    p = load_protocol(f)
+    plan = trial_plan(p)
+    rows = [{"key": t.key, "file": t.file_stem, "participant": t.participant, "layout_seed": t.layout_seed,
+             "success": True, "time_s": 4.0, "simulated": True} for t in plan]
+    rows[1]["operator_seed"] = 1234
+    rows.append({**rows[0], "key": "sim:9|latent-YOLO|base|x|test|0", "file": "stranger"})
+    out = _study(tmp_path, rows)
+    (out / "trials").mkdir()
+    (out / "trials" / f"{plan[0].file_stem}.npz").write_bytes(b"kept")   # present: not rerun
+    ran = []
+
+    class Backend:
+        def run(self, trial, params, operator_seed):
+            ran.append((trial.key, trial.layout_seed, operator_seed, params is not None))
+            return {"success": False, "time_s": 30.0}, {"tcp": np.zeros((3, 3)), "t": np.zeros(3),
+                                                       "stick": np.zeros(3)}
+
+    logs = []
+    assert regenerate_paths(p, out, backend=Backend(), log=logs.append) == 1
+    assert ran == [(plan[1].key, plan[1].layout_seed, 1234, True)]
+    assert (out / "trials" / f"{plan[0].file_stem}.npz").read_bytes() == b"kept"
+    with np.load(out / "trials" / f"{plan[1].file_stem}.npz") as d:
+        assert d["tcp"].shape == (3, 3)
+    note = json.loads((out / "paths.jsonl").read_text())
+    assert note["key"] == plan[1].key and note["same_outcome"] is False
+    assert (out / "trials.jsonl").read_text().count("\n") == 3   # the rows as they were
+    assert any("stranger" not in x and "sim:9" in x and "give the protocol" in x for x in logs)
+    assert operator_seed(p, plan[0]) != 1234

@@ -56,6 +56,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--check", action="store_true",
                    help="validate the protocol and print each participant's session; run and write nothing")
     p.add_argument("--figures", type=Path, default=None, help="where figures and tables go (default: --out)")
+    p.add_argument("--paths", action="store_true",
+                   help="rerun the trials of --out whose TCP paths (trials/*.npz) are missing, with their "
+                        "rows' seeds, and write only the paths (the rows stay; paths.jsonl says whether each "
+                        "outcome was the row's); then the figures")
 
 
 def run(args) -> int:
@@ -78,7 +82,11 @@ def run(args) -> int:
     if args.check:
         print_sessions(proto)
         return 0
-    if not args.analyse_only:
+    if args.paths:
+        from vla_study.paths import regenerate_paths  # the tool's own module: only when asked
+
+        regenerate_paths(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit)
+    elif not args.analyse_only:
         run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
                   use_sim_time=args.use_sim_time)
     from vla_study.analysis import analyse  # matplotlib: only for the figures, not for --help or --check

@@ -143,10 +143,7 @@ class StudyStore:
         return done
 
     def record(self, row: dict, arrays: dict[str, np.ndarray]) -> None:
-        stem = row["file"]
-        tmp = self.out / "trials" / f".{stem}.tmp.npz"
-        np.savez_compressed(tmp, **arrays)
-        os.replace(tmp, self.out / "trials" / f"{stem}.npz")
+        save_arrays(self.out, row["file"], arrays)
         line = (json.dumps(row, sort_keys=True) + "\n").encode()
         with open(self.rows_path, "ab") as f:
             f.write(line)
@@ -176,6 +173,15 @@ def ask_likert(participant: str, strategy: str, ask: Callable[[str], str] = inpu
                 break
             print(f"  please answer with a whole number from {lo} to {hi}")
     return {"participant": participant, "strategy": strategy, "answers": answers}
+
+
+def save_arrays(out: Path, stem: str, arrays: dict[str, np.ndarray]) -> Path:
+    """A trial's TCP path, times and stick as `<out>/trials/<stem>.npz`, written whole or not at all."""
+    dest = Path(out) / "trials" / f"{stem}.npz"
+    tmp = dest.with_name(f".{stem}.tmp.npz")
+    np.savez_compressed(tmp, **arrays)
+    os.replace(tmp, dest)
+    return dest
 
 
 def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None,

@@ -5,7 +5,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$PWD
 
-# The operator station's browser tests drive Debian's headless Chromium (FACTS.md section 7).
+# The operator station's browser tests drive Debian's headless Chromium with Selenium (Playwright cannot
+# download its own browsers offline).
 if ! { [ -x /usr/lib/chromium/chromium ] && command -v chromedriver >/dev/null; }; then
   if [ "$(id -u)" = 0 ]; then
     echo "[setup] installing chromium and chromium-driver (apt)"

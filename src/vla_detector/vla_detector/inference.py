@@ -1,4 +1,4 @@
-"""Run-time detection with ONNX Runtime (contract 8). Never imports torch.
+"""Run-time detection with ONNX Runtime. Never imports torch (.importlinter: no torch at run time).
 
 `Detector(model_path)` loads an ONNX detector — ours (with its JSON sidecar) or an Ultralytics
 YOLOv5 / YOLOv8 export (class names and input size from the ONNX metadata Ultralytics writes, or a

@@ -127,7 +127,7 @@ def _demo(cls, rng, T=50):
 
 def _pairs(demo, rng, windows=10, sigma=0.01):
     q = np.asarray(demo.q)
-    eps = rng.normal(0, sigma, size=7)  # one draw per demo (contract 7)
+    eps = rng.normal(0, sigma, size=7)  # one draw per demo (the paper's code reused one)
     qs = [q[:-w] + eps for w in range(1, windows + 1)]
     return np.concatenate(qs), np.concatenate([q[w:] - qn for w, qn in zip(range(1, windows + 1), qs)])
 

@@ -1,6 +1,7 @@
 """Training the latent-action CAE from demonstrations (torch; never imported by the controller node).
 
-The paper's recipe (FACTS.md §2) with improvements that are on by default and switched off by
+The paper's recipe (its public code: a 30-30 tanh CAE, Adam lr 0.01, StepLR(400, 0.1), 1000
+epochs, ε drawn per demo) with improvements that are on by default and switched off by
 ``paper_exact``: a z = 0 term (zero stick → zero motion), a tanh-bounded latent, per-joint
 normalisation of states and actions, reversed pairs with a direction-signed latent (the stick's −
 side retraces the demonstrations; + is "do the task" in every context, even class-blind ones), and

@@ -28,7 +28,7 @@ def test_two_nodes_start_talk_and_stop_on_sigint(launch, fixtures_dir):
 
 
 def test_a_crashing_node_leaves_the_other_running_as_ros2_launch(launch, fixtures_dir):
-    """As `ros2 launch` (FACTS.md section 6): the talker dies, the listener keeps running, the
+    """As `ros2 launch` (launch 3.4): the talker dies, the listener keeps running, the
     traceback and every node line are on stdout tagged `[talker-1]` / `[listener-2]`, and the launch
     exits 0 after Ctrl-C."""
     run = launch(os.path.join(fixtures_dir, "crash.launch.yaml"))

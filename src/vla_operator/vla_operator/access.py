@@ -3,10 +3,11 @@ the token. Checked for the page, every file and the WebSocket handshake.
 
 - **Host names this station** (DNS rebinding, issue 32): a page on any web site whose name the attacker
   then points at 127.0.0.1 reaches the station with its own name in Host (and in Origin: Origin equals
-  Host proves nothing, FACTS.md section 9). Only these names are accepted, with the port served: the
-  bind address, ``localhost``, ``127.0.0.1``, ``[::1]``, the names the caregiver configures (``hosts``),
-  and, when the station listens on every interface, any IP address (a browser sends an IP address as
-  Host only to the machine at that address: no other site can rebind an address).
+  Host proves nothing, the rebinding page sends both with its own name; Jupyter checks Host as here).
+  Only these names are accepted, with the port served: the bind address, ``localhost``,
+  ``127.0.0.1``, ``[::1]``, the names the caregiver configures (``hosts``), and, when the station
+  listens on every interface, any IP address (a browser sends an IP address as Host only to the
+  machine at that address: no other site can rebind an address).
 - **Origin** (WebSocket): the page that opens the socket was served by this station (its Host).
 - **The token**, on every address, loopback included, as Jupyter does: the Host check stops browsers
   only; any program or other user account on the robot PC can connect to 127.0.0.1 and send any Host.

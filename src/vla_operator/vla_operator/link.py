@@ -1,6 +1,8 @@
 """The browser link's safety rules (no rclpy, no server): what a message from a page may do.
 
-Every rule here exists because an operator interface got it wrong (FACTS.md section 7):
+Every rule here exists because an operator interface got it wrong (their issue trackers:
+hello-robot/stretch_web_teleop #3, #38, #109; personalrobotics/feeding_web_interface #125, #126, #175;
+rosbridge keeps a closed client's publisher for 10 s, `unregister_timeout`):
 - input is stamped by the station when it arrives (browser clocks are not synced), rate-limited, and
   only the latest is kept: nothing is queued or replayed after a lag or a reconnect;
 - an input older than ``stale_after`` (by the browser's sequence and clock, referred to the server's

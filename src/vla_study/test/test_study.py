@@ -390,17 +390,45 @@ def test_anonymise_leaves_no_participant_id_in_the_shared_copy(tmp_path):
 
 
 def test_sensitivity_resumes_from_its_rows_and_writes_the_table(tmp_path):
-    """Every cell already recorded: nothing runs (no simulator is made) and the table is written."""
+    """Every cell already recorded: nothing runs (no simulator is made) and the tables are written: the
+    reaction delay × stick noise grid, and the decision policy varied one parameter at a time beside the
+    mean participant (issue 33: the policy parameters varied too)."""
     from vla_study import sensitivity
 
     rows = []
-    for d in (0.1, 0.5):
-        for s in ("latent-YOLO", "end-effector"):
+    for s in ("latent-YOLO", "end-effector"):
+        for d in (0.1, 0.5):   # rows of the first version (no `varied`): grid rows
             rows.append({"key": f"{s}|cereal_box/push_south|{d}|0.05|0", "strategy": s, "reaction_s": d,
                          "motor_k": 0.05, "success": d < 0.3})
+        rows.append({"key": f"{s}|cereal_box/push_south|mean|0", "strategy": s, "varied": "mean",
+                     "value": None, "reaction_s": 0.24, "motor_k": 0.1, "success": True})
+        for v in (1, 8):
+            rows.append({"key": f"{s}|cereal_box/push_south|stall_turn={v}|0", "strategy": s,
+                         "varied": "stall_turn", "value": v, "reaction_s": 0.24, "motor_k": 0.1,
+                         "success": v == 1 or s == "end-effector"})
     (tmp_path / "sensitivity.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     assert sensitivity.main(["--out", str(tmp_path), "--delays", "0.1,0.5", "--noise", "0.05",
-                             "--tasks", "cereal_box/push_south", "--layouts", "1"]) == 0
+                             "--policy", "stall_turn=1,8", "--tasks", "cereal_box/push_south",
+                             "--layouts", "1"]) == 0
     table = (tmp_path / "sensitivity.md").read_text()
+    assert "**simulated participant**" in table
     assert "| 0.1 | 0.05 | 1/1 | 1/1 |" in table and "| 0.5 | 0.05 | 0/1 | 0/1 |" in table
-    assert len((tmp_path / "sensitivity.jsonl").read_text().splitlines()) == 4
+    assert "| (the mean participant) | – | 1/1 | 1/1 |" in table
+    assert "| stall_turn (mean 4) | 1 | 1/1 | 1/1 |" in table
+    assert "| stall_turn (mean 4) | 8 | 0/1 | 1/1 |" in table
+    assert len((tmp_path / "sensitivity.jsonl").read_text().splitlines()) == len(rows)
+
+
+def test_the_policy_parameters_change_what_the_participant_does():
+    """The sweep's policy parameters are the participant's: a latent participant who turns after one
+    unchanged judgement turns sooner than the mean one (4)."""
+    goal = part.TaskGoal("push", (1.0, 0.0), 0.15, 0.08, 0.05)
+
+    def reversals(stall_turn: int) -> int:
+        p = dataclasses.replace(part.HumanParams(), stall_turn=stall_turn, lapse_p=0.0)
+        op = part.HumanOperator(p, goal, "latent", seed=3)
+        for i in range(200):   # nothing ever moves: every judgement sees no change
+            op.act(part.Observation(i * 0.05, np.array([0.3, 0.0, 0.3]), np.array([0.5, 0.0])))
+        return op.reversals
+
+    assert reversals(1) > reversals(4) > 0

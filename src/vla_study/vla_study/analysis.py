@@ -295,20 +295,3 @@ def _figure3(st: Study, out: Path, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
-
-
-def sensitivity_table(path: Path) -> list[str]:
-    """sensitivity.jsonl -> a markdown table: success per (delay, noise) for each strategy."""
-    rows = [json.loads(x) for x in Path(path).read_text().splitlines() if x.strip()]
-    strategies = list(dict.fromkeys(r["strategy"] for r in rows))
-    cells = sorted({(r["reaction_s"], r["motor_k"]) for r in rows})
-    lines = ["| reaction delay (s) | stick noise k | " + " | ".join(strategies) + " |",
-             "|---|---|" + "---|" * len(strategies)]
-    for d, k in cells:
-        vals = []
-        for s in strategies:
-            ok = [r["success"] for r in rows
-                  if r["strategy"] == s and r["reaction_s"] == d and r["motor_k"] == k]
-            vals.append(f"{sum(ok)}/{len(ok)}" if ok else "–")
-        lines.append(f"| {d:g} | {k:g} | " + " | ".join(vals) + " |")
-    return lines

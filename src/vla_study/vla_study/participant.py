@@ -68,6 +68,11 @@ class HumanParams:
     press_time: float = 0.22  # per button press (s): KLM's K; above the study controller's debounce
     commit_s: float = 0.6  # how long a direction is held before it is judged
     gain: float = 1.0  # stick per 0.15 m of remaining path (how boldly the person pushes)
+    # the decision policy (not drawn per participant; varied by the sensitivity sweep):
+    reverse_margin: float = 2.0  # latent: reverse when the task looks further by this many perception sds
+    stall_push: int = 2  # latent: judgements with no visible change before pushing fully
+    stall_turn: int = 4  # latent: ... before trying the other way
+    reach_tol: float = 0.04  # end effector: how near (m) a point of the plan counts as reached
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -145,7 +150,7 @@ class HumanOperator:
     """Steps at the control rate; `act(obs)` returns the stick (and the mode button)."""
 
     def __init__(self, params: HumanParams, goal: TaskGoal, mode: str, seed: int = 0,
-                 reach_tol: float = 0.04, cycle: tuple[str, ...] = EE_CYCLE) -> None:
+                 reach_tol: float | None = None, cycle: tuple[str, ...] = EE_CYCLE) -> None:
         """`cycle`: the axes the end-effector mode button cycles (the controller's ee_axes; with x, y, z)."""
         if mode not in ("latent", "end_effector"):
             raise ValueError(f"mode must be latent or end_effector, got {mode!r}")
@@ -153,7 +158,7 @@ class HumanOperator:
             raise ValueError(f"the mode cycle must hold x, y and z, got {list(cycle)}")
         self.p, self.goal, self.mode, self.cycle = params, goal, mode, tuple(cycle)
         self.rng = np.random.default_rng(seed)
-        self.reach_tol = reach_tol
+        self.reach_tol = params.reach_tol if reach_tol is None else reach_tol
         self.seen: deque[Observation] = deque()
         self.plan: list[np.ndarray] | None = None
         self.start_obj: np.ndarray | None = None
@@ -317,14 +322,15 @@ class HumanOperator:
         they judge the task, not a path of their own.
 
         Every commit_s the person compares how far from done the task looks with the last time: worse
-        by more than they can see (twice their perception noise) and they reverse; no visible change
-        twice in a row and they push fully, four times and they try the other way; better and they
+        by more than they can see (`reverse_margin` times their perception noise, 2) and they reverse;
+        no visible change `stall_push` times in a row (2) and they push fully, `stall_turn` times (4)
+        and they try the other way; better and they
         keep going, easing off as the end nears. (Also tried, on a 9-trial circle run, and not kept:
         a stuck person trying other extents of the stick (0.6, 0.3) before turning; no better.)
         """
         if t >= self.judge_at:
             cost = self._task_cost(hand, obj)
-            seen = 2 * self.p.perception_sd_m
+            seen = self.p.reverse_margin * self.p.perception_sd_m
             if math.isfinite(self.last_cost):
                 if cost > self.last_cost + seen:
                     self.direction = -self.direction
@@ -332,13 +338,13 @@ class HumanOperator:
                     self.stalls = 0
                 elif cost > self.last_cost - seen:
                     self.stalls += 1
-                    if self.stalls >= 4:
+                    if self.stalls >= self.p.stall_turn:
                         self.direction = -self.direction
                         self.reversals += 1
                         self.stalls = 0
                 else:
                     self.stalls = 0
-            self.magnitude = 1.0 if self.stalls >= 2 else float(
+            self.magnitude = 1.0 if self.stalls >= self.p.stall_push else float(
                 np.clip(self.p.gain * cost / 0.15, 0.4, 1.0))
             self.last_cost = cost
             self.judge_at = t + self.p.commit_s

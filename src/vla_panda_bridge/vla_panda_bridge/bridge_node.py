@@ -309,6 +309,8 @@ class PandaBridge(LifecycleNode):
         for entity in self._backend_entities:
             next(destroy for kind, destroy in kinds if isinstance(entity, kind))(entity)
         self._backend_entities = []
+        if self.gripper is not None:
+            self.gripper.close()
         self.backend, self.gripper, self._started = None, None, False
 
     # Entities made while configuring or activating belong to the backend or the hand (see _release).

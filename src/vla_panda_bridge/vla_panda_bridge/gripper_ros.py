@@ -1,7 +1,8 @@
 """The bridge's gripper on ROS: the `~/gripper` service (vla_interfaces/srv/GripperCommand), the
-`gripper/status` topic (vla_interfaces/msg/GripperStatus) and the finger joints that join
-joint_states, around one `gripper.GripperCore` on the backend's hand driver (or none: a backend
-without a hand refuses every request, and joint_states keep the 7 arm joints).
+`~/gripper_action` action (control_msgs/action/GripperCommand, where control_msgs is installed:
+gripper_action.py), the `gripper/status` topic (vla_interfaces/msg/GripperStatus) and the finger
+joints that join joint_states, around one `gripper.GripperCore` on the backend's hand driver (or
+none: a backend without a hand refuses every request, and joint_states keep the 7 arm joints).
 
 The node calls `update()` with every joint state it publishes (the core follows the driver; a change
 is published at once) and `publish()` at the status rate; `set_estop`, `reset` follow the arm's.
@@ -13,7 +14,7 @@ from typing import Any
 
 from vla_interfaces.msg import GripperStatus
 from vla_interfaces.srv import GripperCommand
-from vla_panda_bridge import gripper
+from vla_panda_bridge import gripper, gripper_action
 from vla_panda_bridge.gripper import GripperCore
 
 
@@ -26,6 +27,18 @@ class GripperInterface:
         self._pub = host.create_publisher(GripperStatus, "gripper/status", 10)
         host.create_service(GripperCommand, "~/gripper", self._on_request)
         self._msg = GripperStatus()
+        self.action = None
+        if self.core is not None and gripper_action.AVAILABLE:
+            self.action = gripper_action.GripperAction(host, self.core, now_fn)
+        elif self.core is not None:
+            host.get_logger().info("control_msgs is not installed: ~/gripper_action "
+                                   "(control_msgs/action/GripperCommand) is not served; ~/gripper is")
+
+    def close(self) -> None:
+        """The hand goes with its backend: the action server too (a running goal is aborted)."""
+        if self.action is not None:
+            self.action.close()
+            self.action = None
 
     # ------------------------------------------------------------------ the node's calls
     def update(self) -> None:
@@ -33,6 +46,8 @@ class GripperInterface:
         if self.core is not None and self.core.update(self._now()):
             self.publish()
             self._log_change()
+        if self.action is not None:
+            self.action.update()
 
     def finger_state(self) -> tuple[list[float], list[float]]:
         """Positions and velocities of the finger joints (each half the gap) for joint_states."""

@@ -3,6 +3,7 @@
 SHELL := /bin/bash
 ENV := source scripts/env.sh
 PYTEST_ARGS ?=
+BENCH_BRIEF ?= 0
 
 .PHONY: setup lock test test-fast lint demo experiments bench clean
 
@@ -28,8 +29,10 @@ demo: setup
 experiments: setup
 	@$(ENV) && vla_evaluation experiments $(EXPERIMENTS_ARGS)
 
+# BENCH_BRIEF=1: every benchmark briefly (bench/brief.py), as CI runs them: a check that each still runs
 bench: setup
-	@$(ENV) && for b in bench/bench_*.py; do echo "== $$b"; python "$$b" || exit 1; done
+	@$(ENV) && export VLA_BENCH_BRIEF=$(BENCH_BRIEF) && \
+	  for b in bench/bench_*.py; do echo "== $$b"; python "$$b" || exit 1; done
 
 clean:
 	rm -rf build install log

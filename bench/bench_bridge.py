@@ -19,6 +19,7 @@ import subprocess
 import sys
 import time
 
+from brief import parse
 from vla_common.ros.domain import isolate
 
 isolate()  # before any rclpy context exists
@@ -159,7 +160,7 @@ def step_costs(n: int = 3000, rounds: int = 5) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=5.0, help="seconds measured per configuration")
-    a = ap.parse_args()
+    a = parse(ap, duration=1.0)
     print(f"bench_bridge (nproc={os.cpu_count()}, load average {os.getloadavg()[0]:.1f})")
     print("per-step cost (1 kHz loop):")
     step_costs()

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from brief import brief, parse
 from rclpy.executors import SingleThreadedExecutor
 from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64MultiArray
@@ -127,6 +128,10 @@ def bench_core(model_dir: Path, n: int) -> None:
     positions = [0.04, *(float(v) for v in READY_POSE)]
     core.on_detections([Detection("bread", 0.9, 320.0, 240.0)], (640, 480), 0.0)
     clock = time.perf_counter_ns
+    # the arming rule (vla_common.arming): the stick at neutral first, as an operator's at start
+    core.on_joint_states(names, positions, -1e-3)
+    core.on_joy([0.0], [], -1e-3)
+    core.step(-1e-3)
     t_js, t_step = np.empty(n), np.empty(n)
     for i in range(n):
         now = i * 1e-3
@@ -197,6 +202,15 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
             got and joy.get_subscription_count() and js.get_subscription_count()
         ):
             spin_for(0.05)
+        # The arming rule (vla_common.arming): the controller moves only after the stick was at
+        # neutral, as an operator's at start; and again after any stop it did not choose.
+        def neutral() -> None:
+            for _ in range(10):
+                inputs()
+                joy.publish(Joy(axes=[0.0]))
+                spin_for(0.02)
+
+        neutral()
         values = (0.5, 0.9)
         expect = {}
         for v in values:  # the command each stick value gives at this (fixed) state
@@ -223,7 +237,12 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
                 hit = next((t for t, d in got if np.allclose(d, expect[v], atol=1e-12)), None)
             if hit is not None:
                 lat.append((hit - t0) / 1e6)
+            else:   # stopped (a late input on a loaded machine): neutral again, as an operator would
+                neutral()
             spin_for(0.003)
+        if not lat:
+            print("end-to-end: no command matched its Joy (the controller's status is on its topic)")
+            return
         lat = np.array(lat)
         print(
             f"end-to-end Joy publish -> matching joint_velocity_cmd (separate processes, rate {rate:g} Hz):"
@@ -246,7 +265,6 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
 def bench_training(threads: int, epochs: int, per_task: int) -> None:
     # training needs torch (vla_latent_training): optional, imported only for this part
     from vla_common.tasks import BASE_TASKS
-    from vla_demo_recorder.dataset import make_pairs
     from vla_evaluation.planner_demos import planner_demos
     from vla_latent_training.train import TrainConfig, train_model
 
@@ -257,7 +275,7 @@ def bench_training(threads: int, epochs: int, per_task: int) -> None:
     ):
         w0, c0 = time.perf_counter(), time.process_time()
         res = train_model(
-            demos, cfg, pairs_fn=make_pairs, progress=False, threads=threads, log=lambda s: None
+            demos, cfg, progress=False, threads=threads, log=lambda s: None   # the paper's pairs
         )
         wall, cpu = time.perf_counter() - w0, time.process_time() - c0
         tr = res.config["training"]
@@ -280,7 +298,7 @@ def main() -> int:
     ap.add_argument("--rate", type=float, default=100.0, help="controller_node rate for the end-to-end test")
     ap.add_argument("--model", type=Path, default=None,
                     help="latent model directory to bench (default: a random 30-unit detector-context model)")
-    a = ap.parse_args()
+    a = parse(ap, quick=True)
     print(f"bench_controller: {os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}")
     with tempfile.TemporaryDirectory() as tmp:
         model = a.model or random_model(Path(tmp) / "model")
@@ -289,7 +307,8 @@ def main() -> int:
         if not a.skip_e2e:
             bench_e2e(model, 100 if a.quick else 500, a.rate)
     if not a.skip_training:
-        bench_training(a.threads, 100 if a.quick else 1000, 10)
+        # brief (CI): 10 epochs of 2 demos per task, a check that training runs
+        bench_training(a.threads, 10 if brief() else 100 if a.quick else 1000, 2 if brief() else 10)
     return 0
 
 

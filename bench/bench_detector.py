@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from brief import parse
 from sensor_msgs.msg import Image
 from vla_common.ros.domain import isolate
 from vla_common.ros.qos import IMAGE_DEPTH, image_qos, use_large_image_transport
@@ -368,7 +369,7 @@ def main() -> int:
     ap.add_argument("--reliability", default="reliable", help=argparse.SUPPRESS)
     ap.add_argument("--profile", action="store_true", help=argparse.SUPPRESS)
     ap.add_argument("--depth", type=int, default=IMAGE_DEPTH, help=argparse.SUPPRESS)
-    a = ap.parse_args()
+    a = parse(ap, frames="20", seconds=1.0)
     if a.role is not None:
         {"camera": role_camera, "listen": role_listen, "loop": role_loop}[a.role](a)
         return 0

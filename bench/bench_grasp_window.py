@@ -14,6 +14,7 @@ import itertools
 import time
 
 import numpy as np
+from brief import parse
 from vla_common.catalogue import default_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
@@ -54,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--along", default="-1,0,1", help="cm, + the hand stops short of the object's centre")
     p.add_argument("--across", default="0,0.5,1", help="cm, across the approach")
     p.add_argument("--seed", type=int, default=7, help="start pose and plan parameters")
-    a = p.parse_args(argv)
+    a = parse(p, argv, along="0", across="0")
     cat = default_catalogue()
     spec = cat.task(a.task)
     kin = PandaKinematics()

@@ -13,6 +13,7 @@ import argparse
 import sys
 import time
 
+from brief import parse
 from vla_evaluation.evaluate_cli import task_list
 from vla_evaluation.graph import GraphConfig
 from vla_evaluation.holds import FRESH_SEED, hold_config, run_holds
@@ -34,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--real-time-factor", type=float, default=GraphConfig.real_time_factor,
                    help="simulated seconds per wall second; lower it on a loaded machine, where joy "
                         "gaps of 0.25 simulated s stop the arm until neutral (default: %(default)s)")
-    a = p.parse_args(argv)
+    a = parse(p, argv, n=1, tasks="bread/push_east")
     cfg = hold_config(str(latent_model_dir(a.model)), str(detector_model_path()), a.seconds, a.stick,
                       a.path_fraction, log_dir=a.log_dir, real_time_factor=a.real_time_factor)
     t0 = time.monotonic()

@@ -18,6 +18,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from brief import parse
 from vla_common.ros.domain import isolate
 
 isolate()  # before any rclpy context exists
@@ -77,7 +78,7 @@ def main() -> None:
     ap.add_argument("--runs", type=int, default=10)
     ap.add_argument("--launch-arg", action="append", default=["use_sim_time:=true"],
                     help="name:=value for the launch file (repeatable)")
-    a = ap.parse_args()
+    a = parse(ap, runs=1)
     out = Path(tempfile.mkdtemp(prefix="bench_launch_"))
     times, escalated = [], 0
     for i in range(a.runs):

@@ -36,6 +36,7 @@ import subprocess
 import sys
 import time
 
+from brief import parse, skipped
 from vla_common.ros.domain import isolate
 
 isolate()  # before any rclpy context exists
@@ -202,7 +203,7 @@ def main() -> int:
     ap.add_argument("--priority", type=int, default=50,
                     help="SCHED_FIFO priority of franka-sim and the loop (0: normal scheduling)")
     ap.add_argument("--json", action="store_true", help="print the figures as JSON")
-    args = ap.parse_args()
+    args = parse(ap, seconds=3.0)
     reason = unavailable()
     if reason is None:
         try:
@@ -210,8 +211,7 @@ def main() -> int:
         except ImportError:
             reason = "pylibfranka==0.21.3 is not installed"
     if reason:
-        print(f"bench_libfranka: skipped: {reason}")
-        return 0
+        return skipped("FRANKA_SIM", f"bench_libfranka: {reason}")
     r = run(args.seconds, graph=not args.no_graph, priority=args.priority)
     if args.json:
         print(json.dumps(r, indent=2))

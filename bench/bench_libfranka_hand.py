@@ -26,6 +26,7 @@ import sys
 import time
 
 import numpy as np
+from brief import parse, skipped
 from vla_panda_bridge.gripper import GripperCore
 from vla_panda_bridge.libfranka_hand import HandProcess
 
@@ -101,11 +102,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--runs", type=int, default=20)
     ap.add_argument("--json", action="store_true")
-    args = ap.parse_args()
+    args = parse(ap, runs=2)
     reason = unavailable()
     if reason:
-        print(f"cannot run: {reason}", file=sys.stderr)
-        return 2
+        return skipped("FRANKA_SIM", f"bench_libfranka_hand: {reason}")
     load = os.getloadavg()[0]
     ns = Netns()
     server = FrankaSimServer(ns, gripper=True, gripper_object_width=OBJECT)

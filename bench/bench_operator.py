@@ -36,6 +36,7 @@ import sys
 import time
 from pathlib import Path
 
+from brief import parse
 from vla_common.ros.domain import isolate
 from vla_common.ros.qos import IMAGE_QOS, use_large_image_transport
 
@@ -178,7 +179,7 @@ class Camera(Node):
 def synthetic(rate: float, presses: int, seconds: float = 20.0) -> int:
     """Only the station, fed frames from here: its and the page's share of the frame rate, and of the
     key press latency (press -> the Joy's stamp, taken as the input arrives at the station)."""
-    h = RosHarness()
+    h = RosHarness(other_processes=True)   # it talks to the processes it starts
     cam = h.add(Camera(h.context, rate))
     log = Path("/tmp") / f"bench_operator_station_{os.getpid()}.log"
     with open(log, "wb") as out:
@@ -247,11 +248,11 @@ def main() -> int:
     ap.add_argument("--estops", type=int, default=10)
     ap.add_argument("--synthetic-camera", type=float, default=0.0, metavar="HZ",
                     help="only the station, fed 640x480 frames at HZ from here (the frame rate alone)")
-    args = ap.parse_args()
+    args = parse(ap, presses=10, estops=3)
     print(f"load average at start: {os.getloadavg()}", flush=True)
     if args.synthetic_camera > 0:
         return synthetic(args.synthetic_camera, args.presses)
-    h = RosHarness()
+    h = RosHarness(other_processes=True)   # it talks to the processes it starts
     with LaunchProcess("vla_bringup", "teleop.launch.yaml", "use_operator_station:=true",
                        "operator_port:=0",
                        log_path=Path("/tmp") / f"bench_operator_{os.getpid()}.log") as run:

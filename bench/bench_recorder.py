@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import rclpy
+from brief import parse
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -46,7 +47,7 @@ def main() -> int:
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--keep", action="store_true", help="keep the bag")
-    args = ap.parse_args()
+    args = parse(ap, seconds=3.0)
 
     isolate()  # read by rclpy.init and the child
     try:

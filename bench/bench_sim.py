@@ -20,6 +20,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from brief import parse
 
 os.environ.setdefault("MUJOCO_GL", "egl")
 
@@ -84,7 +85,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--seconds", type=float, default=10.0, help="simulated seconds per real-time-factor run")
     ap.add_argument("--frames", type=int, default=200, help="frames per render-time measurement")
-    args = ap.parse_args()
+    args = parse(ap, seconds=1.0, frames=10)
 
     print("measured motion / limit table, filtered streams into the simulated arm (1 kHz):")
     limits()

@@ -23,6 +23,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from brief import parse
 from vla_common.ros.domain import isolate
 
 isolate()   # a domain of its own, before rclpy starts
@@ -117,7 +118,7 @@ def main() -> int:
     ap.add_argument("--status-flood", type=float, default=10.0, metavar="S",
                     help="seconds of 60 KB DDS statuses after the junk flood (0: none)")
     ap.add_argument("--quick", action="store_true", help="20 presses each way, 3 s of status flood (CI)")
-    a = ap.parse_args()
+    a = parse(ap, presses=5, status_flood=1.0)
     if a.quick:
         a.presses, a.status_flood = 20, min(a.status_flood, 3.0)
     tmp = Path(tempfile.mkdtemp(prefix="bench_station_flood_"))

@@ -8,17 +8,18 @@ transfer (all base demos + k new) vs no transfer (k new only), k = 1..5.
 Figure 2b: end-effector paths of the three encoders (10 demos) on the bread task, top-down.
 
 Evaluation is the paper's kinematic loop (`evaluation.kinematic`) on rendered, detected layouts.
-Models train in parallel worker processes (`--jobs`). Output in --out (default docs/results/):
-CSV of every episode, per-run aggregates, PNG plots and README.md comparing with H1-H3.
+Each model (train, then evaluate) is one unit of a sweep on Ray (`vla_evaluation.sweep`: a local Ray,
+or a cluster with --ray-address; a GPU per training where the cluster has one). Finished models stream
+into `<work>/<plan digest>/models.jsonl`, so a stopped run resumes with the models it lacks. Output in
+--out (default docs/results/): CSV of every episode, per-run aggregates, PNG plots and README.md
+comparing with H1-H3.
 """
 
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
-import os
+import hashlib
 import shutil
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Sequence
@@ -26,7 +27,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 from vla_common.kinematics import PandaKinematics
 from vla_common.tasks import BASE_TASKS, parse_task, task_layout
 from vla_demo_recorder.dataset import Demo
@@ -39,6 +39,8 @@ from vla_sim.planner import PlanError, plan_task, random_start_pose
 from vla_evaluation.experiment_report import demo_consistency, write_report
 from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings, evaluate_kinematic, make_layouts
 from vla_evaluation.resources import detector_model_path
+from vla_evaluation.sweep import Engine, Needs, engine_from, run_sweep
+from vla_evaluation.sweep import add_arguments as add_engine_arguments
 from vla_evaluation.training_data import (
     BASE_SEED,
     UNSEEN_SEED,
@@ -46,6 +48,7 @@ from vla_evaluation.training_data import (
     ensure_detector,
     load_task_demos,
 )
+from vla_evaluation.unit_store import UnitStore, digest
 
 ENCODERS = ("detector", "localization", "end_to_end")
 SETTINGS_2C = {
@@ -85,7 +88,6 @@ class Plan:
     fig2a: bool = True
     fig2c: bool = True
     rate: float = 20.0
-    jobs: int = 2
     extra: dict = field(default_factory=dict)
 
     def train_config(self, encoder: str, seed: int) -> TrainConfig:
@@ -177,10 +179,7 @@ def collect_demos(
     return out
 
 
-# ------------------------------------------------------------------ jobs (run in worker processes)
-_STATE: dict = {}  # demos, layouts, settings: set before the worker pool forks
-
-
+# ------------------------------------------------------------------ jobs (units of the sweep)
 @dataclass
 class Job:
     figure: str  # "2a" or "2c"
@@ -194,25 +193,49 @@ class Job:
     keep_paths: bool = False
 
 
-def run_job(job: Job) -> list[dict]:
-    """Train one model on the job's demos and evaluate it on the validation layouts."""
+    @property
+    def key(self) -> str:
+        return "/".join(str(x) for x in (self.figure, self.encoder, self.setting or "-", self.variant or "-",
+                                         f"n{self.count}", f"r{self.run}"))
+
+
+class ExperimentWorker:
+    """A sweep worker: holds the demonstrations, layouts and settings (`state`, sent once per worker)
+    and trains and evaluates one model per unit."""
+
+    def __init__(self, state: dict) -> None:
+        self.state = state
+
+    def run(self, job: Job) -> list[dict]:
+        return run_job(job, self.state)
+
+    def close(self) -> None:
+        pass
+
+
+def run_job(job: Job, state: dict) -> list[dict]:
+    """Train one model on the job's demos and evaluate it on the validation layouts (on a GPU where
+    this worker has one)."""
     import torch  # only in the worker that trains
     from vla_latent_training.train import train_model  # torch
 
     torch.set_num_threads(1)
-    demos = [_STATE["demos"][t][i] for t, idx in job.train.items() for i in idx]
-    plan: Plan = _STATE["plan"]
+    demos = [state["demos"][t][i] for t, idx in job.train.items() for i in idx]
+    plan: Plan = state["plan"]
     cfg = plan.train_config(job.encoder, seed=job.run)
     t0 = time.perf_counter()
     tmp = Path(tempfile.mkdtemp(prefix="vla_exp_"))
     res = None
     try:
-        res = train_model(demos, cfg, progress=False, threads=1, log=lambda s: None)
+        res = train_model(demos, cfg, progress=False, threads=1, log=lambda s: None,
+                          device="cuda" if torch.cuda.is_available() else None)
         train_s = time.perf_counter() - t0
         model = LatentModel.load(res.save(tmp / "model"))
-        layouts = [lay for lay in _STATE["layouts"] if lay.task in job.eval_tasks]
+        layouts = [lay for lay in state["layouts"] if lay.task in job.eval_tasks]
         kin = PandaKinematics() if job.keep_paths else None
-        results = evaluate_kinematic(model, layouts, _STATE["settings"], kin=kin, label=job.encoder)
+        t1 = time.perf_counter()
+        results = evaluate_kinematic(model, layouts, state["settings"], kin=kin, label=job.encoder)
+        eval_s = time.perf_counter() - t1
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         if res is not None and res.cnn_onnx:
@@ -235,6 +258,7 @@ def run_job(job: Job) -> list[dict]:
             "note": r.note,
             "train_demos": len(demos),
             "train_s": round(train_s, 2),
+            "eval_s": round(eval_s, 2),
             "val_loss": res.config["training"].get("val_loss"),
         }
         if job.keep_paths and r.ee_path is not None:
@@ -268,8 +292,9 @@ def make_jobs(plan: Plan, base_tasks: Sequence[str]) -> list[Job]:
                     base = {t: list(range(max(plan.demo_counts))) for t in base_tasks}
                     jobs.append(Job("2c", "detector", r, k, {**base, task: new}, [task], setting, "transfer"))
                     jobs.append(Job("2c", "detector", r, k, {task: new}, [task], setting, "no_transfer"))
-    # longest first keeps both workers busy to the end
-    jobs.sort(key=lambda j: -sum(len(v) for v in j.train.values()) * (3 if j.encoder != "detector" else 1))
+    # run by run, so that a sweep stopped early has every point of the figures with the same number of
+    # runs; within a run longest first, which keeps the workers busy to the end
+    jobs.sort(key=lambda j: (j.run, -sum(map(len, j.train.values())) * (3 if j.encoder != "detector" else 1)))
     return jobs
 
 
@@ -295,7 +320,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--runs", type=int, default=None, help="runs (demo subsets / seeds) per point")
     p.add_argument("--epochs", type=int, default=None, help="training epochs per model")
     p.add_argument("--layouts", type=int, default=None, help="validation layouts per task")
-    p.add_argument("--jobs", type=int, default=None, help="worker processes (default: 2)")
     p.add_argument("--min-steps", type=int, default=None,
                    help="at least this many optimiser updates per model (epochs scaled up for few demos)")
     p.add_argument("--counts", default=None,
@@ -308,13 +332,18 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--encoders", default=None, help="comma-separated subset of detector,localization,end_to_end"
     )
+    p.add_argument("--work", type=Path, default=Path("out/experiments"),
+                   help="where finished models are kept, per plan, so that a stopped run resumes")
+    p.add_argument("--limit", type=int, default=None, help="run at most this many models now (resumable)")
+    p.add_argument("--gpu-share", type=float, default=1.0,
+                   help="the share of a GPU each training asks for where the cluster has GPUs")
+    add_engine_arguments(p)
 
 
-def run(args) -> int:
-    t_all = time.monotonic()
+def plan_from(args) -> Plan:
     plan = quick_plan() if args.quick else Plan()
     plan.position_scale = getattr(args, "position_scale", plan.position_scale)
-    for name in ("runs", "epochs", "layouts", "jobs", "min_steps"):
+    for name in ("runs", "epochs", "layouts", "min_steps"):
         if getattr(args, name) is not None:
             setattr(plan, name, getattr(args, name))
     if args.epochs is not None:
@@ -325,6 +354,13 @@ def run(args) -> int:
         plan.encoders = tuple(e.strip() for e in args.encoders.split(",") if e.strip())
     if args.only:
         plan.fig2a, plan.fig2c = args.only == "2a", args.only == "2c"
+    return plan
+
+
+def run(args) -> int:
+    t_all = time.monotonic()
+    plan = plan_from(args)
+    engine = engine_from(args)
     source = args.demo_source or ("sim" if args.quick else "bags")
     out = (
         Path(args.out)
@@ -334,8 +370,44 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     log = _log
     det_path = ensure_detector(args.detector_model or detector_model_path(), args.data, log)
-    detector = Detector(det_path)
+    plan_meta = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(plan).items()}
+    store = UnitStore(Path(args.work) / digest([plan_meta, source, _file_digest(det_path)]) / "models.jsonl",
+                      digest([plan_meta, source, _file_digest(det_path)]))
+    jobs = make_jobs(plan, BASE_TASKS)
+    todo = [j for j in jobs if j.key not in store.done][: args.limit]
+    log(f"[experiments] {len(jobs)} models ({plan.epochs} epochs each), {len(jobs) - len(todo)} already in "
+        f"{store.path}, {len(todo)} to train and evaluate on {engine.describe()}")
+    demos, seeds, settings = None, [], TeleopSettings(rate=plan.rate)
+    if todo:
+        demos, seeds = _run_models(plan, todo, store, engine, source, args, det_path, settings, log,
+                                   len(jobs) - len(todo), args.gpu_share)
+    missing = [j.key for j in jobs if j.key not in store.done]
+    if missing:
+        log(f"[experiments] {len(missing)} of {len(jobs)} models missing (failed or not run yet): run the "
+            "same command again to train them; the report is written when all are done")
+        return 1 if todo else 0
+    rows = [row for j in jobs for row in store.done[j.key]]  # the plan's order, whatever finished first
+    meta = {
+        "demo_consistency": demo_consistency(demos) if demos is not None else [],
+        "plan": plan_meta,
+        "demo_source": source,
+        "detector_model": str(det_path),
+        "validation_seeds": seeds or [VALIDATION_SEED_OFFSET + i for i in range(plan.layouts)],
+        "settings": vars(settings),
+        "wall_s": round(time.monotonic() - t_all, 1),
+        "quick": bool(args.quick),
+        "engine": engine.describe(),
+    }
+    write_report(rows, out, meta)
+    log(f"[experiments] done in {meta['wall_s'] / 60:.1f} min: {out}/README.md")
+    return 0
 
+
+def _run_models(plan: Plan, todo: list[Job], store: UnitStore, engine: Engine, source: str, args, det_path,
+                settings: TeleopSettings, log, done_before: int, gpu_share: float):
+    """The demonstrations and validation layouts (made here, once), then every model of `todo` as a
+    unit of the sweep; each finished model's rows go into `store` as it arrives."""
+    detector = Detector(det_path)
     need = {t: max(plan.demo_counts) for t in BASE_TASKS}
     if plan.fig2c:
         need.update({t: max(plan.k_counts) for t in SETTINGS_2C.values()})
@@ -345,47 +417,18 @@ def run(args) -> int:
     seeds = [VALIDATION_SEED_OFFSET + i for i in range(plan.layouts)]
     log(f"[experiments] rendering and detecting {len(eval_tasks) * len(seeds)} validation layouts")
     layouts = make_layouts(eval_tasks, seeds, detector=detector)
-    settings = TeleopSettings(rate=plan.rate)
-    _STATE.update(demos=demos, layouts=layouts, settings=settings, plan=plan)
-    jobs = make_jobs(plan, BASE_TASKS)
-    log(
-        f"[experiments] {len(jobs)} models to train and evaluate ({plan.epochs} epochs each) "
-        f"on {plan.jobs} worker(s)"
-    )
-    rows = _run_jobs(jobs, plan.jobs, log)
-    meta = {
-        "demo_consistency": demo_consistency(demos),
-        "plan": {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(plan).items()},
-        "demo_source": source,
-        "detector_model": str(det_path),
-        "validation_seeds": seeds,
-        "settings": vars(settings),
-        "wall_s": round(time.monotonic() - t_all, 1),
-        "quick": bool(args.quick),
-    }
-    write_report(rows, out, meta)
-    log(f"[experiments] done in {meta['wall_s'] / 60:.1f} min: {out}/README.md")
-    return 0
-
-
-def _run_jobs(jobs: Sequence[Job], n_workers: int, log) -> list[dict]:
-    rows: list[dict] = []
+    state = {"demos": demos, "layouts": layouts, "settings": settings, "plan": plan}
     t0 = time.monotonic()
-    bar = tqdm(total=len(jobs), desc="models", dynamic_ncols=True, file=sys.stdout)
-    if n_workers <= 1:
-        for job in jobs:
-            rows += run_job(job)
-            bar.update()
-    else:
-        ctx = mp.get_context("fork")  # workers inherit the demos and layouts; only results travel back
-        os.environ.setdefault("OMP_NUM_THREADS", "1")
-        with ctx.Pool(n_workers) as pool:
-            for part in pool.imap_unordered(run_job, jobs):
-                rows += part
-                bar.update()
-    bar.close()
-    log(f"[experiments] {len(jobs)} models in {(time.monotonic() - t0) / 60:.1f} min")
-    return rows
+    failed = run_sweep([(j.key, j) for j in todo], ExperimentWorker, engine=engine, on_result=store.record,
+                       shared=state, needs=Needs(cpus=1.0, gpu=gpu_share), name="experiments",
+                       done_before=done_before, log=log)
+    log(f"[experiments] {len(todo) - len(failed)} models in {(time.monotonic() - t0) / 60:.1f} min"
+        + (f"; failed: {', '.join(failed)}" if failed else ""))
+    return demos, seeds
+
+
+def _file_digest(path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:16]
 
 
 def _log(text: str) -> None:

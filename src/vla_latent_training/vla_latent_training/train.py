@@ -192,12 +192,12 @@ class PairTensors:
     sign: torch.Tensor  # (N, 1)
 
     @classmethod
-    def of(cls, pairs: PairSet, scales: JointScales) -> PairTensors:
+    def of(cls, pairs: PairSet, scales: JointScales, device: torch.device | None = None) -> PairTensors:
         return cls(
-            torch.tensor((pairs.q - scales.q_mean) / scales.q_std, dtype=F32),
-            torch.tensor(pairs.a / scales.a_scale, dtype=F32),
-            torch.tensor(pairs.demo),
-            torch.tensor(pairs.sign, dtype=F32)[:, None],
+            torch.tensor((pairs.q - scales.q_mean) / scales.q_std, dtype=F32, device=device),
+            torch.tensor(pairs.a / scales.a_scale, dtype=F32, device=device),
+            torch.tensor(pairs.demo, device=device),
+            torch.tensor(pairs.sign, dtype=F32, device=device)[:, None],
         )
 
     def take(self, idx) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
@@ -209,13 +209,14 @@ class PairTensors:
 class Networks:
     """The CAE and, for the image encoders, the CNN whose features lead each demo's context."""
 
-    def __init__(self, cfg: TrainConfig, ctx: ContextInputs, n_joints: int):
+    def __init__(self, cfg: TrainConfig, ctx: ContextInputs, n_joints: int, device: str | None = None):
         torch.manual_seed(cfg.seed)
+        self.device = torch.device(device or "cpu")
         self.cae = CAE(len(ctx.mean), n_joints, 1, cfg.hidden, bounded=cfg.bounded_latent,
-                       signed=cfg.reverse_pairs)
-        self.cnn = ContextCNN(cfg.feature_dim) if cfg.encoder in CNN_ENCODERS else None
-        self.static = torch.tensor(ctx.trained(), dtype=F32)
-        self.images = torch.tensor(ctx.images) if ctx.images is not None else None
+                       signed=cfg.reverse_pairs).to(self.device)
+        self.cnn = ContextCNN(cfg.feature_dim).to(self.device) if cfg.encoder in CNN_ENCODERS else None
+        self.static = torch.tensor(ctx.trained(), dtype=F32, device=self.device)
+        self.images = torch.tensor(ctx.images, device=self.device) if ctx.images is not None else None
 
     def contexts(self) -> torch.Tensor:
         """Every demo's context (with a CNN, computed from the images, so gradients reach it)."""
@@ -243,7 +244,7 @@ class Networks:
     def fold_context_standardisation(self, ctx: ContextInputs) -> None:
         """From now on the networks take the raw contexts (as the saved decoder does at run time)."""
         _fold_input_affine(self.cae, ctx.mean, ctx.std)
-        self.static = torch.tensor(ctx.raw, dtype=F32)
+        self.static = torch.tensor(ctx.raw, dtype=F32, device=self.device)
 
     def encoded_latents(self, data: PairTensors, n_forward: int) -> tuple[np.ndarray, np.ndarray]:
         """(every demo's context, the latent of each demonstrated pair), for the calibration."""
@@ -251,14 +252,15 @@ class Networks:
             ctx = self.contexts()
             d, q, a, s = data.take(slice(0, n_forward))
             z = self.cae.encode(ctx[d], q, a, s)
-        return ctx.double().numpy(), z.double().numpy()[:, 0]
+        return ctx.double().cpu().numpy(), z.double().cpu().numpy()[:, 0]
 
     def tensors(self) -> dict[str, np.ndarray]:
         """The CAE's weights, and the CNN's as ``cnn.*`` (kept beside its ONNX export, for inspection
         and fine-tuning)."""
-        out = {k: v.detach().numpy().copy() for k, v in self.cae.state_dict().items()}
+        out = {k: v.detach().cpu().numpy().copy() for k, v in self.cae.state_dict().items()}
         if self.cnn is not None:
-            out.update({f"cnn.{k}": v.detach().numpy().copy() for k, v in self.cnn.state_dict().items()})
+            cnn = self.cnn.state_dict().items()
+            out.update({f"cnn.{k}": v.detach().cpu().numpy().copy() for k, v in cnn})
         return out
 
 
@@ -269,7 +271,7 @@ def pair_loss(nets: Networks, cfg: TrainConfig, c, q, a, d) -> torch.Tensor:
     loss = mse(nets.cae.decode(c, q, z), a)
     if cfg.zero_weight > 0:  # zero stick -> zero motion
         m = min(len(q), ZERO_TERM_ROWS)
-        zero = nets.cae.decode(c[:m], q[:m], torch.zeros(m, 1))
+        zero = nets.cae.decode(c[:m], q[:m], torch.zeros(m, 1, device=q.device))
         loss = loss + cfg.zero_weight * mse(zero, torch.zeros_like(zero))
     return loss
 
@@ -292,8 +294,8 @@ def fit(nets: Networks, data: PairTensors, train_idx: np.ndarray, val_idx: np.nd
     epochs, step_size = scaled_schedule(cfg, len(train_idx))
     opt = torch.optim.Adam(nets.parameters(), lr=cfg.lr, fused=True)  # fused: same update, less overhead
     sched = torch.optim.lr_scheduler.StepLR(opt, step_size=step_size, gamma=cfg.gamma)
-    gen = torch.Generator().manual_seed(cfg.seed)
-    tr_t, val_t = torch.tensor(train_idx), torch.tensor(val_idx)
+    gen = torch.Generator().manual_seed(cfg.seed)  # on the CPU: the same order on any device
+    tr_t, val_t = torch.tensor(train_idx), torch.tensor(val_idx, device=nets.device)
     best_loss, best_epoch, best_state = math.inf, 0, None
     history: list[tuple[float, float]] = []
     t0 = time.perf_counter()
@@ -321,7 +323,7 @@ def _train_epoch(nets: Networks, data: PairTensors, tr_t: torch.Tensor, cfg: Tra
                  gen: torch.Generator) -> float:
     """One pass over the training pairs in a fresh order; the mean training loss."""
     nets.train(True)
-    order = tr_t[torch.randperm(len(tr_t), generator=gen)]
+    order = tr_t[torch.randperm(len(tr_t), generator=gen)].to(nets.device)
     d, q, a, s = data.take(order)  # one gather per epoch
     fixed = nets.static[d] if nets.cnn is None else None
     total, count = 0.0, 0
@@ -349,8 +351,9 @@ def _fold_input_affine(model, mean: np.ndarray, std: np.ndarray) -> None:
     """Make the encoder's and decoder's first layers take raw contexts: their first len(mean) inputs
     were trained on (c - mean) / std, so W' = W / std and b' = b - W' mean. The saved model then
     needs no extra normalisation step at run time."""
-    m = torch.tensor(mean, dtype=F32)
-    s = torch.tensor(std, dtype=F32)
+    device = model.encoder[0].weight.device
+    m = torch.tensor(mean, dtype=F32, device=device)
+    s = torch.tensor(std, dtype=F32, device=device)
     k = len(mean)
     with torch.no_grad():
         for net in (model.encoder, model.decoder):
@@ -465,8 +468,10 @@ def train_model(
     progress: bool = True,
     threads: int | None = None,
     log: Callable[[str], None] = print,
+    device: str | None = None,
 ) -> TrainResult:
-    """Train a CAE on ``demos`` (vla_demo_recorder.dataset.Demo objects) and calibrate its latent."""
+    """Train a CAE on ``demos`` (vla_demo_recorder.dataset.Demo objects) and calibrate its latent.
+    ``device``: a torch device to train on ("cuda" on a GPU worker of a sweep; default the CPU)."""
     cfg.validate()
     if threads:
         torch.set_num_threads(threads)
@@ -480,8 +485,8 @@ def train_model(
     train_idx, val_idx = split_pairs(len(pairs), cfg.val_fraction, rng)
     scales = joint_scales(pairs, train_idx, cfg.normalise)
     ctx = context_inputs(items, cfg, classes)
-    nets = Networks(cfg, ctx, pairs.q.shape[1])
-    data = PairTensors.of(pairs, scales)
+    nets = Networks(cfg, ctx, pairs.q.shape[1], device)
+    data = PairTensors.of(pairs, scales, nets.device)
     result = fit(nets, data, train_idx, val_idx, cfg, progress)
     if ctx.standardise:
         nets.fold_context_standardisation(ctx)
@@ -496,5 +501,5 @@ def train_model(
     summary = summary_lines(cfg, items, pairs, len(train_idx), len(val_idx), result, calibration, skipped)
     for line in summary:
         log(line)
-    cnn_onnx = _export_cnn(nets.cnn) if nets.cnn is not None else None
+    cnn_onnx = _export_cnn(nets.cnn.cpu()) if nets.cnn is not None else None
     return TrainResult(config, tensors, cnn_onnx, summary, skipped, result.history)

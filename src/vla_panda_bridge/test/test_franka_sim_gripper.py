@@ -220,9 +220,12 @@ def test_bad_requests_are_refused_before_the_hand(bridge, sim, fields, why):
 
 
 def test_a_flood_of_toggles_is_refused_not_obeyed(bridge):
+    t0 = time.monotonic()
     replies = [bridge.request(Req.TOGGLE) for _ in range(30)]
+    span = time.monotonic() - t0         # at most one accepted per MIN_INTERVAL of it (load stretches it)
     accepted = sum(r.success for r in replies)
-    assert replies[0].success and accepted <= 3, [r.message for r in replies]
+    assert replies[0].success and accepted <= 1 + span / gripper.MIN_INTERVAL, [r.message for r in replies]
+    assert accepted < len(replies)
     assert any("too soon" in r.message for r in replies if not r.success)
     n = len(bridge.states)
     assert bridge.spin_until(lambda: len(bridge.states) > n + 20, SLOW)

@@ -5,6 +5,8 @@ that motion's failure. Waits are on conditions (Events), never sleeps."""
 
 from __future__ import annotations
 
+import os
+import signal
 import threading
 import time
 
@@ -342,17 +344,26 @@ def test_the_hand_process_carries_motions_and_readings(process):
 def test_a_hand_process_that_dies_makes_the_hand_lost(process):
     core = GripperCore(process)
     assert _poll(core, lambda: core.status.state == gripper.IDLE), core.status
-    process._proc.kill()
+    first = process.pid
+    os.kill(first, signal.SIGKILL)
     assert _poll(core, lambda: core.status.state == gripper.LOST), core.status
     assert "the hand process exited" in core.status.text
     with pytest.raises(ConnectionError):
         process.start(HandOp(HOMING))
     process.stop()                                        # harmless on a dead process
+    # supervised as the arm's loop process: restarted, and the hand answers again
+    assert _poll(core, lambda: core.status.state == gripper.IDLE, timeout=30.0), core.status
+    assert process.pid != first and process.child.restarts == 1
+    ok, _ = core.request(gripper.MOVE, 1e5, width=0.04)
+    assert ok and _poll(core, lambda: core.status.state == gripper.IDLE and "moved" in core.status.text)
 
 
 def test_closing_ends_the_hand_process(process):
     core = GripperCore(process)
     assert _poll(core, lambda: core.status.state == gripper.IDLE), core.status
     t0 = time.monotonic()
+    pid, path = process.pid, process.slots.path
     process.close()
-    assert process._proc.poll() is not None and time.monotonic() - t0 < 2.0
+    assert time.monotonic() - t0 < 2.0 and not os.path.exists(path)
+    with pytest.raises(ChildProcessError):                # reaped: gone
+        os.waitpid(pid, os.WNOHANG)

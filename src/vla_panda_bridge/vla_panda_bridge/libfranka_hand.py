@@ -5,8 +5,9 @@ hand's next state datagram), and the bindings hold the GIL while they do (measur
 0.21.3 against franka-sim: a thread that calls read_once in a loop lets the rest of its process run
 only once per datagram, every 16.7 ms). So the Gripper lives in a process of its own, as the arm's
 1 kHz loop does: `HandProcess` (the node's driver) starts `python -m vla_panda_bridge.libfranka_hand`
-(after `prefix`, the loop's: e.g. `ip netns exec NS`) and exchanges JSON lines with it; its
-`start`, `stop` and `read` only write a line or copy the latest reading.
+(after `prefix`, the loop's: e.g. `ip netns exec NS`) and supervises it as the loop's
+(`child_process.ChildProcess`); they share latest-value slots (`hand_slots.HandSlots`, the bridge's one
+IPC, `shm.py`): its `start`, `stop` and `read` only write or copy a slot.
 
 In that process `LibfrankaHand` runs three threads: a reader (connects, then read_once in a loop: the
 latest width and is_grasped), a commander (one motion at a time) and a stopper (Gripper.stop into a
@@ -25,10 +26,9 @@ five calls; `open_gripper('auto')` tries pylibfranka first.
 
 from __future__ import annotations
 
-import json
-import math
-import shlex
-import subprocess
+import argparse
+import os
+import signal
 import sys
 import threading
 import time
@@ -36,6 +36,8 @@ from collections.abc import Callable
 from typing import Any
 
 from vla_panda_bridge import gripper
+from vla_panda_bridge.child_process import ChildProcess
+from vla_panda_bridge.hand_slots import CONTROL, HandSlots
 from vla_panda_bridge.libfranka_driver import _LOST
 
 RECONNECT_PERIOD = 1.0     # s between connection attempts while the hand does not answer
@@ -265,137 +267,112 @@ def _kind(op: gripper.HandOp) -> str:
 
 # ---------------------------------------------------------------------------------- the node's side
 class HandProcess:
-    """gripper.HandDriver for the node: the Gripper in a process of its own (see the module
-    docstring). Readings arrive on the process' stdout; ops and stops go to its stdin."""
+    """gripper.HandDriver for the node: the Gripper in a process of its own (see the module docstring),
+    supervised as the arm's loop process is (`child_process.ChildProcess`: one that exits is restarted
+    with back-off; no stuck check, since a blocking Gripper call holds the process's GIL for seconds),
+    and reached through shared-memory slots (`hand_slots.HandSlots`) as the loop is."""
 
     def __init__(self, ip: str, max_width: float, binding: str = "auto", prefix: str | list[str] = "",
                  python: str = sys.executable):
         self.max_width = float(max_width)
-        words = shlex.split(prefix) if isinstance(prefix, str) else list(prefix)
-        cmd = [*words, python, "-m", "vla_panda_bridge.libfranka_hand", ip, repr(self.max_width), binding]
-        self._lock = threading.Lock()
+        self.slots = HandSlots.create()
+        self.slots.control[CONTROL["parent_pid"]] = os.getpid()
+        self.child = ChildProcess("hand", "vla_panda_bridge.libfranka_hand",
+                                  ["--slots", self.slots.path, "--parent-pid", str(os.getpid()), ip,
+                                   repr(self.max_width), binding], prefix=prefix, python=python,
+                                  stuck_timeout=None)
         self._reading = gripper.HandReading(width=0.0, moving=False, error=f"connecting to the hand at {ip}")
-        self._sent = self._done = 0                    # ops sent / ops the process reported finished
-        self._proc = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
-                                      bufsize=1, start_new_session=True)
-        self._thread = threading.Thread(target=self._listen, name="hand-listen", daemon=True)
-        self._thread.start()
+        self._sent = self._done = 0                    # motions sent / the last the process finished
+        self._closed = False
+        self.child.start()
 
     @property
-    def pid(self) -> int:
-        return self._proc.pid
+    def pid(self) -> int | None:
+        return self.child.pid
 
     def start(self, op: gripper.HandOp) -> None:
-        with self._lock:
-            if self._reading.error:
-                raise ConnectionError(self._reading.error)
-            self._sent += 1
-            self._send({"op": op.kind, "width": op.width, "speed": op.speed, "force": op.force,
-                        "epsilon_inner": op.epsilon_inner, "epsilon_outer": op.epsilon_outer,
-                        "seq": self._sent})
+        error = self.read().error
+        if error:
+            raise ConnectionError(error)
+        self._sent += 1
+        self.slots.write_op(self._sent, op)
 
     def stop(self) -> None:
-        with self._lock:
-            self._send({"stop": True})
+        if not self._closed:
+            self.slots.control[CONTROL["stop_req"]] += 1.0
 
     def read(self) -> gripper.HandReading:
-        with self._lock:
-            r = self._reading
-            return gripper.HandReading(width=r.width, grasped=r.grasped, error=r.error, failed=r.failed,
-                                       finger_velocity=r.finger_velocity,
-                                       moving=r.moving or self._done < self._sent)
+        """The latest reading; the process supervised on the way (a dead one is restarted, and until
+        the new one reads the hand, the reading's error says what happened)."""
+        if self._closed:
+            return gripper.HandReading(width=self._reading.width, moving=False, error="the hand is closed")
+        self.child.poll(self.slots.reading_seq)
+        got = self.slots.read_reading()
+        if got is not None:
+            self._reading, self._done = got
+        r = self._reading
+        return gripper.HandReading(width=r.width, grasped=r.grasped, error=self.child.note or r.error,
+                                   failed=r.failed, finger_velocity=r.finger_velocity,
+                                   moving=r.moving or self._done < self._sent)
 
     def close(self, timeout: float = 1.0) -> None:
         """Stop a running motion and end the process (killed after `timeout`)."""
-        with self._lock:
-            self._send({"close": True})
-        try:
-            self._proc.wait(timeout)
-        except subprocess.TimeoutExpired:
-            self._proc.kill()
-            self._proc.wait()
+        if self._closed:
+            return
+        self._closed = True
+        self.slots.control[CONTROL["close"]] = 1.0
+        self.child.close(timeout)
+        self.slots.close()
 
-    def _send(self, msg: dict) -> None:
-        try:
-            self._proc.stdin.write(json.dumps(msg) + "\n")
-            self._proc.stdin.flush()
-        except (BrokenPipeError, ValueError, OSError):
-            pass                                    # the process is gone: _listen reports it
 
-    def _listen(self) -> None:
-        for line in self._proc.stdout:
+def serve(hand: LibfrankaHand, slots: HandSlots, parent_pid: int | None) -> bool:
+    """The hand process: each new motion in the slots to `hand`, stop requests, and every REPORT_PERIOD
+    the reading with the number of the last motion that finished. Returns True when the node is gone."""
+    got = slots.read_op()
+    started = done = got[0] if got is not None else 0     # a restarted process replays nothing
+    stops = slots.control[CONTROL["stop_req"]]
+    while not slots.control[CONTROL["close"]]:
+        if parent_pid is not None and os.getppid() != parent_pid:
+            return True
+        got = slots.read_op()
+        if got is not None and got[0] > started:
+            started = got[0]
             try:
-                m = json.loads(line)
-                r = gripper.HandReading(width=float(m["width"]), moving=bool(m["moving"]),
-                                        grasped=m["grasped"], error=str(m["error"]), failed=str(m["failed"]),
-                                        finger_velocity=float(m["v"]))
-                done = int(m["done"])
-            except (ValueError, KeyError, TypeError):
-                continue                            # not a reading (a stray print): ignored
-            with self._lock:
-                self._reading, self._done = r, max(self._done, done)
-        code = self._proc.wait()
-        with self._lock:
-            self._reading = gripper.HandReading(width=self._reading.width, moving=False,
-                                                error=f"the hand process exited with code {code}")
-            self._done = self._sent
-
-
-def _serve(hand: LibfrankaHand, out) -> None:
-    """The hand process: ops and stops from stdin to `hand`; its readings to `out` when they change
-    (at most every REPORT_PERIOD), with the number of the last op that finished."""
-    lock = threading.Lock()
-    started = [0, 0]                                 # [seq of the last op started, seq finished]
-    closing = threading.Event()
-
-    def commands() -> None:
-        for line in sys.stdin:
-            try:
-                m = json.loads(line)
-            except ValueError:
-                continue
-            if m.get("close"):
-                break
-            if m.get("stop"):
-                hand.stop()
-                continue
-            op = gripper.HandOp(int(m["op"]), float(m["width"]), float(m["speed"]), float(m["force"]),
-                                float(m["epsilon_inner"]), float(m["epsilon_outer"]))
-            with lock:
-                try:
-                    hand.start(op)
-                    started[0] = int(m["seq"])
-                except ConnectionError:
-                    started[0] = started[1] = int(m["seq"])     # refused: reported by the reading's error
-        closing.set()
-
-    threading.Thread(target=commands, name="hand-commands", daemon=True).start()
-    last = None
-    while not closing.is_set():
-        with lock:
-            r = hand.read()
-            if not r.moving:
-                started[1] = started[0]
-            msg = {"width": r.width if math.isfinite(r.width) else 0.0, "moving": r.moving,
-                   "grasped": r.grasped, "error": r.error, "failed": r.failed, "v": r.finger_velocity,
-                   "done": started[1]}
-        if msg != last:
-            out.write(json.dumps(msg) + "\n")
-            out.flush()
-            last = msg
-        closing.wait(REPORT_PERIOD)
-    hand.close()
+                hand.start(got[1])
+            except ConnectionError:
+                done = started                              # refused: the reading's error says why
+        if slots.control[CONTROL["stop_req"]] != stops:
+            stops = slots.control[CONTROL["stop_req"]]
+            hand.stop()
+        r = hand.read()
+        if not r.moving:
+            done = started
+        slots.write_reading(r, done)
+        time.sleep(REPORT_PERIOD)
+    return False
 
 
 def main(argv: list[str] | None = None) -> int:
-    """python -m vla_panda_bridge.libfranka_hand IP MAX_WIDTH BINDING"""
-    ip, max_width, binding = (argv if argv is not None else sys.argv[1:])
-    out = sys.stdout
-    sys.stdout = sys.stderr                          # stdout carries only readings
-    try:
-        _serve(LibfrankaHand(ip, float(max_width), open_gripper(binding)), out)
-    except BrokenPipeError:
-        return 0
+    """python -m vla_panda_bridge.libfranka_hand --slots PATH [--parent-pid PID] IP MAX_WIDTH BINDING"""
+    ap = argparse.ArgumentParser(description="the Franka Hand's process of the bridge")
+    ap.add_argument("--slots", required=True, help="the shared-memory file the bridge created")
+    ap.add_argument("--parent-pid", type=int, default=None, help="exit when it is gone")
+    ap.add_argument("ip")
+    ap.add_argument("max_width", type=float)
+    ap.add_argument("binding", choices=("auto", *BINDINGS))
+    args = ap.parse_args(argv)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)        # the bridge stops it through its slots
+    slots = HandSlots.attach(args.slots)
+    signal.signal(signal.SIGTERM, lambda *_: slots.control.__setitem__(CONTROL["close"], 1.0))
+    hand = LibfrankaHand(args.ip, args.max_width, open_gripper(args.binding))
+    orphaned = serve(hand, slots, args.parent_pid)
+    hand.close()
+    slots.close()
+    if orphaned:                                         # the bridge died without unlinking its slots
+        try:
+            os.unlink(args.slots)
+        except FileNotFoundError:
+            pass
     return 0
 
 

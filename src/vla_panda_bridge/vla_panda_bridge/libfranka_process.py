@@ -9,17 +9,15 @@ requests (each answered through the state slot).
 
 `fresh_sample()` returns a state only once, and only while the robot is talking: a silent robot
 (lost network, a server restart, a loop stuck in libfranka's 1 s UDP timeout) produces no samples,
-so joint_states are never republished as fresh. `poll()` supervises the loop process: one that
-exits is restarted with back-off, one whose slots stay unchanged for `stuck_timeout` is killed and
-restarted.
+so joint_states are never republished as fresh. `poll()` supervises the loop process as the bridge
+supervises each of its helpers (`child_process.ChildProcess`): one that exits is restarted with
+back-off, one whose slots stay unchanged for `stuck_timeout` is killed and restarted.
 """
 
 from __future__ import annotations
 
 import math
 import os
-import shlex
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -28,6 +26,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vla_panda_bridge.backend import JointSample
+from vla_panda_bridge.child_process import ChildProcess
 from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus, Mode
 from vla_panda_bridge.libfranka_slots import (
     CONTROL,
@@ -40,9 +39,6 @@ from vla_panda_bridge.libfranka_slots import (
     Slots,
     StateView,
 )
-
-RESTART_MIN = 0.5   # s before restarting a loop process that exited, doubled up to RESTART_MAX
-RESTART_MAX = 10.0
 
 
 @dataclass
@@ -94,22 +90,16 @@ class LoopProcess:
         """`clock`: monotonic seconds, how long the robot has been silent is measured on (a test's)."""
         self.settings = settings
         self._clock = clock
-        self._prefix = shlex.split(loop_prefix) if isinstance(loop_prefix, str) else list(loop_prefix)
-        self._python = python
-        self.stuck_timeout = stuck_timeout
         self.slots = Slots.create()
         self.slots.control[CONTROL["parent_pid"]] = os.getpid()
-        self._proc: subprocess.Popen | None = None
-        self._restart_at = 0.0
-        self._restart_wait = RESTART_MIN
-        self.restarts = 0
-        self.process_note = ""
+        self.child = ChildProcess("libfranka loop", "vla_panda_bridge.libfranka_loop",
+                                  ["--slots", self.slots.path, "--settings", settings.to_json(),
+                                   "--parent-pid", str(os.getpid())],
+                                  prefix=loop_prefix, python=python, stuck_timeout=stuck_timeout, clock=clock)
         self._last_cycle = -1.0
         self._fresh_cycle = -1.0
         self._history_cycle = 0
         self._cycle_seen_at = -math.inf
-        self._seq = -1.0
-        self._seq_seen_at = self._clock()
         self._state: StateView | None = None
         self._texts: dict[str, str] = {}
         self._closed = False
@@ -118,59 +108,23 @@ class LoopProcess:
     # ------------------------------------------------------------------------------ the process
     def start(self) -> None:
         """Start the loop process (it connects to the robot on its own and keeps retrying)."""
-        cmd = [*self._prefix, self._python, "-m", "vla_panda_bridge.libfranka_loop",
-               "--slots", self.slots.path, "--settings", self.settings.to_json(),
-               "--parent-pid", str(os.getpid())]
-        # A session of its own: a Ctrl-C in the terminal (SIGINT to the foreground process group) does
-        # not reach it, even while it is still importing; the bridge stops it through the shutdown
-        # flag after braking, and it stops the arm and exits by itself if the bridge is gone.
-        self._proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, start_new_session=True)
-        self._seq_seen_at = self._clock()
+        self.child.start()
 
     @property
     def pid(self) -> int | None:
-        return None if self._proc is None else self._proc.pid
+        return self.child.pid
+
+    @property
+    def restarts(self) -> int:
+        return self.child.restarts
+
+    @property
+    def process_note(self) -> str:
+        return self.child.note
 
     def poll(self) -> str:
         """Supervise the loop process; returns a note when something happened to it, else ""."""
-        if self._proc is None or self._closed:
-            return ""
-        now = self._clock()
-        code = self._proc.poll()
-        if code is None:
-            self._watch_progress(now)
-            if now - self._seq_seen_at > self.stuck_timeout:
-                self._proc.kill()
-                self._proc.wait()
-                self.process_note = (f"the libfranka loop process wrote nothing for {self.stuck_timeout:g} s "
-                                     "and was killed; restarting it")
-                self._schedule_restart(now)
-                return self.process_note
-            return ""
-        if self._restart_at == 0.0:
-            self.process_note = f"the libfranka loop process exited with code {code}; restarting it"
-            self._schedule_restart(now)
-            return self.process_note
-        if now >= self._restart_at:
-            self._restart_at = 0.0
-            self.restarts += 1
-            self.start()
-            self.process_note = f"libfranka loop process restarted ({self.restarts} restarts)"
-            return self.process_note
-        return ""
-
-    def _schedule_restart(self, now: float) -> None:
-        self._restart_at = now + self._restart_wait
-        self._restart_wait = min(2.0 * self._restart_wait, RESTART_MAX)
-
-    def _watch_progress(self, now: float) -> None:
-        seq = self.slots.state_seq
-        if seq != self._seq:
-            self._seq = seq
-            self._seq_seen_at = now
-            if self.process_note:
-                self._restart_wait = RESTART_MIN
-                self.process_note = ""
+        return self.child.poll(self.slots.state_seq)
 
     # ------------------------------------------------------------------------------- commands
     def submit(self, values: Sequence[float], arrived: float | None = None) -> int:
@@ -223,7 +177,6 @@ class LoopProcess:
         if s.cycle != self._last_cycle:
             self._last_cycle = s.cycle
             self._cycle_seen_at = now
-        self._watch_progress(now)
         return s
 
     def read(self) -> LibfrankaSample | None:
@@ -308,13 +261,6 @@ class LoopProcess:
             return True
         self._closed = True
         self.slots.control[CONTROL["shutdown"]] = 1.0
-        clean = True
-        if self._proc is not None and self._proc.poll() is None:
-            try:
-                self._proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                clean = False
-                self._proc.kill()
-                self._proc.wait()
+        clean = self.child.close(timeout)
         self.slots.close()
         return clean

@@ -1,10 +1,6 @@
-"""Latest-value slots in shared memory between the ROS node and the 1 kHz libfranka loop process.
-
-No queues and no locks: each side writes only its own blocks and never waits for the other.
-A block that holds several values is a seqlock (the writer makes the counter odd, writes, makes it
-even; a reader retries while it is odd or changed), so a reader never sees half a command or half a
-state. Single values (flags, request counters) are aligned 8-byte doubles, which x86-64 stores and
-loads whole. The file lives in /dev/shm; the creating side (the ROS node) unlinks it on close.
+"""Latest-value slots in shared memory between the ROS node and the 1 kHz libfranka loop process: the
+loop's layout of the bridge's one IPC (`shm.py`: seqlocked blocks, flags, texts; the hand's process
+has its own layout, `hand_slots.py`).
 
 Blocks (all float64 unless noted):
 - command (ROS -> loop, seqlock): count of values, command sequence, arrival time, 7 values;
@@ -19,12 +15,11 @@ Blocks (all float64 unless noted):
 
 from __future__ import annotations
 
-import mmap
-import os
-import tempfile
 from dataclasses import dataclass
 
 import numpy as np
+
+from vla_panda_bridge.shm import SharedFile, Texts, read_seqlock
 
 NUM_JOINTS = 7
 MAX_TEXT = 1024
@@ -116,10 +111,6 @@ _N_DOUBLES = _at("text")
 _TEXT_BYTES_AT = LAYOUT.fields["text"][1]
 
 
-def _shm_dir() -> str:
-    return "/dev/shm" if os.path.isdir("/dev/shm") else tempfile.gettempdir()
-
-
 @dataclass
 class StateView:
     """A consistent copy of the state block: its fields (STATE_DTYPE) as attributes (`s.q`, `s.status`),
@@ -135,19 +126,17 @@ class StateView:
         return self.raw[index].copy() if isinstance(index, slice) else float(self.raw[index])
 
 
-class Slots:
+class Slots(SharedFile):
     """The shared blocks over one mmap'ed file. `Slots.create()` on the ROS side, `Slots.attach(path)`
     in the loop process."""
 
-    def __init__(self, path: str, owner: bool):
-        self.path = path
-        self.owner = owner
-        fd = os.open(path, os.O_RDWR)
-        try:
-            self._mm = mmap.mmap(fd, SIZE)
-        finally:
-            os.close(fd)
-        d = np.frombuffer(self._mm, dtype=np.float64, count=_N_DOUBLES)
+    SIZE = SIZE
+    PREFIX = "vla-libfranka-"
+    VIEWS = ("_d", "_cmd_seq", "cmd", "control", "_state_seq", "state", "_text_seq", "_text_len",
+             "_ring_idx", "_text", "history", "texts")
+
+    def _views(self) -> None:
+        d = self.doubles(_N_DOUBLES)
         self._d = d
         self._cmd_seq = d[_CMD_AT:_CMD_AT + 1]
         self.cmd = d[_CMD_AT + 1:_CMD_AT + 1 + CMD_SIZE]
@@ -160,39 +149,13 @@ class Slots:
         self.rings = {name: d[_RING_AT + i * RING:_RING_AT + (i + 1) * RING] for i, name in enumerate(RINGS)}
         self.history = d[_HIST_AT:_HIST_AT + HISTORY * H_SIZE].reshape(HISTORY, H_SIZE)
         self._text = np.frombuffer(self._mm, dtype=np.uint8, count=2 * MAX_TEXT, offset=_TEXT_BYTES_AT)
+        self.texts = Texts(TEXTS, self._text_seq, self._text_len, self._text, MAX_TEXT)
         self._cmd_scratch = np.zeros(CMD_SIZE)
         self._state_scratch = np.zeros(STATE_SIZE)
 
-    @classmethod
-    def create(cls) -> Slots:
-        fd, path = tempfile.mkstemp(prefix="vla-libfranka-", suffix=".shm", dir=_shm_dir())
-        try:
-            os.ftruncate(fd, SIZE)
-        finally:
-            os.close(fd)
-        return cls(path, owner=True)
-
-    @classmethod
-    def attach(cls, path: str) -> Slots:
-        if os.path.getsize(path) != SIZE:
-            raise ValueError(f"{path} is {os.path.getsize(path)} bytes, expected {SIZE}: another layout")
-        return cls(path, owner=False)
-
     def close(self) -> None:
-        # Views into the map must go before the map itself can close.
-        for name in ("_d", "_cmd_seq", "cmd", "control", "_state_seq", "state", "_text_seq", "_text_len",
-                     "_ring_idx", "_text", "history"):
-            setattr(self, name, None)
         self.rings = {}
-        try:
-            self._mm.close()
-        except BufferError:
-            pass  # a StateView still refers to it; the OS frees it with the process
-        if self.owner:
-            try:
-                os.unlink(self.path)
-            except FileNotFoundError:
-                pass
+        super().close()
 
     # ------------------------------------------------------------------------------------ command
     def write_command(self, values, arrived: float) -> int:
@@ -214,15 +177,14 @@ class Slots:
         """Loop side: a consistent copy (a scratch array reused on every call: copy before keeping), or
         None while the ROS side is inside a write (it may be preempted there for milliseconds: the
         loop takes the command next cycle instead of waiting)."""
-        return _read_seqlock(self._cmd_seq, self.cmd, self._cmd_scratch, tries=20)
+        return read_seqlock(self._cmd_seq, self.cmd, self._cmd_scratch, tries=20)
 
     # -------------------------------------------------------------------------------------- state
     def claim_state_writer(self) -> None:
         """Loop side, at start: a predecessor killed inside a write leaves a counter odd; even it."""
-        for seq in (self._state_seq, self._text_seq):
-            for i in range(len(seq)):
-                if int(seq[i]) % 2:
-                    seq[i] += 1.0
+        if int(self._state_seq[0]) % 2:
+            self._state_seq[0] += 1.0
+        self.texts.even()
 
     def begin_state(self) -> np.ndarray:
         """Loop side: open the state block for writing; fill the returned array, then `end_state()`."""
@@ -239,7 +201,7 @@ class Slots:
 
     def read_state(self) -> StateView | None:
         """ROS side: a consistent copy of the latest state, or None while the loop is inside a write."""
-        out = _read_seqlock(self._state_seq, self.state, self._state_scratch, tries=1000)
+        out = read_seqlock(self._state_seq, self.state, self._state_scratch, tries=1000)
         return None if out is None else StateView(out.copy())
 
     # ------------------------------------------------------------------------------------ history
@@ -266,26 +228,11 @@ class Slots:
 
     # -------------------------------------------------------------------------------------- texts
     def write_text(self, which: str, text: str) -> None:
-        i = TEXTS.index(which)
-        data = text.encode("utf-8", "replace")[:MAX_TEXT]
-        seq = self._text_seq
-        seq[i] += 1.0
-        self._text[i * MAX_TEXT:i * MAX_TEXT + len(data)] = np.frombuffer(data, dtype=np.uint8)
-        self._text_len[i] = len(data)
-        seq[i] += 1.0
+        self.texts.write(which, text)
 
     def read_text(self, which: str) -> str | None:
         """ROS side: the text, or None while the loop is inside a write."""
-        i = TEXTS.index(which)
-        seq = self._text_seq
-        for _ in range(1000):
-            s1 = seq[i]
-            if int(s1) % 2 == 0:
-                n = int(self._text_len[i])
-                data = self._text[i * MAX_TEXT:i * MAX_TEXT + n].tobytes()
-                if seq[i] == s1:
-                    return data.decode("utf-8", "replace")
-        return None
+        return self.texts.read(which)
 
     # -------------------------------------------------------------------------------------- rings
     def ring_push(self, period: float, busy: float, latency: float) -> None:
@@ -307,14 +254,3 @@ class Slots:
     @property
     def ring_count(self) -> int:
         return int(self._ring_idx[0])
-
-
-def _read_seqlock(seq: np.ndarray, block: np.ndarray, out: np.ndarray, tries: int) -> np.ndarray | None:
-    """A consistent copy of `block` into `out`, or None if every try met a write in progress."""
-    for _ in range(tries):
-        s1 = seq[0]
-        if int(s1) % 2 == 0:
-            np.copyto(out, block)
-            if seq[0] == s1:
-                return out
-    return None

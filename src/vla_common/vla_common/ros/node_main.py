@@ -14,12 +14,13 @@
     then is a failure: a C-level watchdog (faulthandler, it needs no Python lock) prints where each
     thread is and ends the process with exit code 1.
   - The teardown (destroy_node, rclpy shutdown, the DDS participant's deletion, said to the other
-    participants) gets `TEARDOWN_S`, and then the process ends (`os._exit`) with its exit code: the
+    participants) gets what is left of `STOP_S` since the signal (at least `TEARDOWN_MIN_S`: at rest
+    about 1.7 s, after a long brake less), and then the process ends (`os._exit`) with its exit code: the
     node's duty is done, and Python's own finalization is skipped. That finalization ran after the
     watchdog was cancelled, unbounded: in 4 of 8 Ctrl-Cs of the teleop graph at load 12 it took
     2.0-2.9 s of the stop, and once it crashed the bridge (exit code -11, no Python frame); and a
     teardown starved at load 38 ran past the old 3 s watchdog in rclpy's logging shutdown (exit code
-    1, issue 32). A teardown that runs past `TEARDOWN_S` (Fast DDS 2.14 can busy-wait in participant
+    1, issue 32). A teardown that runs past its bound (Fast DDS 2.14 can busy-wait in participant
     deletion when several nodes leave at once, eProsima/Fast-DDS #6513) has its threads' stacks
     printed, and the process ends all the same with its code: a native timer calls `_exit`
     (glibc's `timer_create` with SIGEV_THREAD: no GIL, no Python lock needed).
@@ -47,6 +48,7 @@ import os
 import re
 import signal
 import sys
+import time
 import traceback
 from collections.abc import Callable
 from typing import Protocol
@@ -63,7 +65,8 @@ from vla_common.ros.qos import use_large_image_transport
 
 SPIN_SLICE_S = 0.1
 SHUTDOWN_GRACE_S = 3.0
-TEARDOWN_S = 0.5
+STOP_S = 1.9           # a node stops within 2 s of a signal (the project's rule)
+TEARDOWN_MIN_S = 0.3   # the teardown's bound when on_shutdown took most of STOP_S
 
 
 class ConfigError(ValueError):
@@ -87,11 +90,12 @@ class _Signals:
 
     def __init__(self) -> None:
         self.received: int | None = None
+        self.at: float | None = None   # monotonic s of the first signal
         self._previous = {s: signal.signal(s, self._on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
 
     def _on_signal(self, signum, frame) -> None:
         if self.received is None:
-            self.received = signum
+            self.received, self.at = signum, time.monotonic()
 
     def ignore(self) -> None:
         for s in self._previous:
@@ -138,10 +142,11 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
         code = 1
     finally:
         signals.ignore()
+        began = signals.at if signals.at is not None else time.monotonic()
         _shutdown(node, name)
     held = [node, executor]
     node = executor = None
-    _end_process(held, name, code)
+    _end_process(held, name, code, max(TEARDOWN_MIN_S, began + STOP_S - time.monotonic()))
     return code  # not reached
 
 
@@ -173,10 +178,10 @@ def _shutdown(node: Node | None, name: str) -> None:
         faulthandler.cancel_dump_traceback_later()
 
 
-def _end_process(held: list, name: str, code: int) -> None:
+def _end_process(held: list, name: str, code: int, bound: float) -> None:
     """Destroy the node, shut rclpy down and delete the DDS participant (the graph hears that it
-    left), bounded by TEARDOWN_S; then end the process with `code`, skipping Python's finalization."""
-    exit_after(TEARDOWN_S, code)
+    left), bounded by `bound` s; then end the process with `code`, skipping Python's finalization."""
+    exit_after(bound, code)
     context = rclpy.utilities.get_default_context()  # try_shutdown puts a new one in its place
     try:
         node, executor = held

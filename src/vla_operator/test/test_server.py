@@ -139,3 +139,32 @@ def wait(pred, timeout: float = 30.0, interval: float = 0.01) -> bool:
             return False
         threading.Event().wait(interval)
     return True
+
+
+def test_a_slow_request_never_holds_up_another_pages_estop(served, page_class):
+    """A request that takes long in the node (a settings file synced to a slow disk, a service call)
+    runs off the thread that reads the pages: an e-stop read meanwhile reaches the node at once. More
+    than max_pending such requests waiting are refused as busy."""
+    release, estops = threading.Event(), threading.Event()
+
+    def request(msg, reply):
+        if msg["type"] == "estop":
+            estops.set()
+        else:
+            release.wait(30.0)              # the slow one
+        reply({"what": msg["type"], "ok": True})
+    station, _ = served(Limits(max_pending=2), request=request)
+    driver, other = page_class(address(station)), page_class(address(station))
+    try:
+        assert driver.wait(lambda p: p.of("hello")) and other.wait(lambda p: p.of("hello"))
+        for _ in range(3):
+            driver.send({"type": "settings", "values": {"speed_scale": 0.5}})
+        assert driver.wait(lambda p: any("busy" in m.get("message", "") for m in p.of("reply")))
+        other.send({"type": "estop"})
+        assert estops.wait(30.0) and not release.is_set()     # while the slow ones still wait
+        release.set()
+        assert driver.wait(lambda p: sum(m.get("ok") is True for m in p.of("reply")) == 2)
+    finally:
+        release.set()
+        driver.close()
+        other.close()

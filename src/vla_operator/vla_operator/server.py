@@ -13,6 +13,8 @@ Everything reachable from the network is untrusted, so every page is bounded (is
   per s after it) is closed at once, what it had sent and not yet handled dropped with it;
 - a page's handler lets the others' messages through every few of its own, so a flood from one socket
   never holds back another page's e-stop, which goes to the bridge from this thread as it arrives;
+  every other request runs on a thread of its own (at most ``max_pending`` waiting), so none delays
+  the reading of an e-stop;
 - a connection that has not sent a whole request within ``request_timeout`` is closed.
 """
 from __future__ import annotations
@@ -23,6 +25,7 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -51,6 +54,7 @@ class Limits:
     send_timeout: float = 10.0     # s a send to a page may stay blocked before it is closed
     request_timeout: float = 10.0  # s to send a whole HTTP request (and to stay idle between two)
     yield_every: int = 8           # a page's messages handled before the other pages' get a turn
+    max_pending: int = 32          # requests waiting for the node (beyond: refused, busy)
 
 
 @dataclass(eq=False)
@@ -94,7 +98,12 @@ class Station:
         self.frames_sent = 0
         self._dropped_before = 0              # by pages closed since
         self.counters = {"over_budget": 0, "closed_flooding": 0, "closed_slow": 0, "refused_full": 0,
-                         "errors": 0}
+                         "errors": 0, "busy": 0}
+        # The node's requests other than the e-stop run here, one at a time and in order: a slow one (a
+        # settings file written and synced, a service call) never holds up the thread that reads the
+        # pages, so an e-stop is read and sent to the bridge while it runs.
+        self._requests = ThreadPoolExecutor(1, thread_name_prefix="operator-requests")
+        self._pending = 0                     # requests handed to that thread and not finished
         files = web_dir.iterdir() if web_dir.is_dir() else ()
         self._files = {f.name for f in files if f.suffix in (".js", ".css")}
 
@@ -147,6 +156,7 @@ class Station:
             pass
         self._loop.call_soon_threadsafe(self._loop.stop)
         self._thread.join(2.0)
+        self._requests.shutdown(wait=False, cancel_futures=True)
 
     # ------------------------------------------------------------------ from the node (any thread)
     def set_frame(self, jpeg: bytes, meta: dict) -> None:
@@ -346,15 +356,31 @@ class Station:
     def _dispatch(self, peer: Peer, request: dict) -> None:
         if request["type"] == "claim":
             self._broadcast_roles(taken_from=request["taken_from"])
-            return
-        cid = peer.cid
-        try:                      # an e-stop goes to the bridge from here, now
+        elif request["type"] == "estop":
+            self._run_request(peer.cid, request)      # to the bridge from here, now, ahead of all else
+        elif self._pending >= self.limits.max_pending:
+            self.counters["busy"] += 1
+            self._post(peer.cid, {"type": "reply", "what": request["type"], "ok": False,
+                                  "message": "the station is busy: try again in a moment"})
+        else:
+            self._pending += 1
+            self._requests.submit(self._run_request, peer.cid, request)
+
+    def _run_request(self, cid: int, request: dict) -> None:
+        """One request to the node; its failure is answered and never closes the page's link."""
+        try:
             self.request(request, lambda reply: self.reply(cid, reply))
-        except Exception as e:  # noqa: BLE001 - a node's failure never closes the page's link
+        except Exception as e:  # noqa: BLE001
             self.counters["errors"] += 1
             LOG.exception("request %s failed", request["type"])
-            self._post(cid, {"type": "reply", "what": request["type"], "ok": False,
+            self.reply(cid, {"what": request["type"], "ok": False,
                              "message": f"the station could not do this ({type(e).__name__})"})
+        finally:
+            if request["type"] != "estop":
+                self._call(self._request_done)
+
+    def _request_done(self) -> None:
+        self._pending -= 1
 
     def _refuse(self, peer: Peer, reason: str, what: str) -> bool:
         """Tell the page why (only the last few refusals wait for a page that does not read); close a

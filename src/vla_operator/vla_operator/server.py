@@ -64,8 +64,8 @@ class Peer:
     transport: asyncio.Transport | None
     limits: Limits
     outbox: Outbox = field(default_factory=Outbox)
-    messages: Budget = None
-    refusals: Budget = None
+    messages: Budget = field(init=False)     # what it may send
+    refusals: Budget = field(init=False)     # how often it may be refused before it is closed
     flooding: bool = False
 
     def __post_init__(self):

@@ -97,28 +97,10 @@ class StationNode(Node):
             self.set_parameters([Parameter("speed_scale", value=self.settings["speed_scale"])])
         self.joy_pub = self.create_publisher(Joy, "joy", 10)
         self.status_pub = self.create_publisher(DiagnosticStatus, "~/status", 10)
-        b, c, r = p["bridge"], p["controller"], p["recorder"]
         self.state: dict = {"tasks": list(p["tasks"]), "settings": self.settings,
                             "settings_problem": self.settings_problem, "questionnaire": None,
                             "motion_held": ""}
-        self.create_subscription(Image, "camera/image_raw", self._on_image, LATEST_IMAGE_QOS)
-        self.create_subscription(DetectionArray, "detections", self._on_dets, SENSOR_QOS)
-        self.create_subscription(ControllerStatus, f"{c}/status", self._on_ctrl, 10)
-        self.create_subscription(SafetyStatus, f"{b}/status", self._on_safety, 10)
-        self.create_subscription(GripperStatus, "gripper/status", self._on_gripper, 10)
-        self.create_subscription(RecorderStatus, f"{r}/status", self._on_recorder, 10)
-        self.clients_ = {
-            "estop": self.create_client(SetBool, f"{b}/estop"),
-            "teaching": self.create_client(SetBool, f"{b}/set_teaching"),
-            "gripper": self.create_client(GripperCommand, f"{b}/gripper"),
-            "select": self.create_client(SelectTarget, f"{c}/select_target"),
-            "redetect": self.create_client(Trigger, f"{c}/redetect"),
-            "start": self.create_client(StartEpisode, f"{r}/start_episode"),
-            "stop": self.create_client(Trigger, f"{r}/stop_episode"),
-            "discard": self.create_client(Trigger, f"{r}/discard_episode"),
-        }
-        self.ctrl_set = self.create_client(SetParameters, f"{c}/set_parameters")
-        self.ctrl_get = self.create_client(GetParameters, f"{c}/get_parameters")
+        self._connect_nodes(p["bridge"], p["controller"], p["recorder"])
         self._deadband_timer = self.create_timer(1.0, self._sync_deadband)
         self._ee_button = -1          # the controller's ee_mode_button, read once it is up
         self._mode_until = -1.0       # monotonic s: the mode button is held in the Joy until then
@@ -144,6 +126,27 @@ class StationNode(Node):
         gc.freeze()
         # printed once, not logged: the person who starts the graph finds it among the nodes' lines
         print(address_banner(self.address), flush=True)
+
+    def _connect_nodes(self, b: str, c: str, r: str) -> None:
+        """The other nodes' status (subscriptions) and services (clients): bridge, controller, recorder."""
+        self.create_subscription(Image, "camera/image_raw", self._on_image, LATEST_IMAGE_QOS)
+        self.create_subscription(DetectionArray, "detections", self._on_dets, SENSOR_QOS)
+        self.create_subscription(ControllerStatus, f"{c}/status", self._on_ctrl, 10)
+        self.create_subscription(SafetyStatus, f"{b}/status", self._on_safety, 10)
+        self.create_subscription(GripperStatus, "gripper/status", self._on_gripper, 10)
+        self.create_subscription(RecorderStatus, f"{r}/status", self._on_recorder, 10)
+        self.clients_ = {
+            "estop": self.create_client(SetBool, f"{b}/estop"),
+            "teaching": self.create_client(SetBool, f"{b}/set_teaching"),
+            "gripper": self.create_client(GripperCommand, f"{b}/gripper"),
+            "select": self.create_client(SelectTarget, f"{c}/select_target"),
+            "redetect": self.create_client(Trigger, f"{c}/redetect"),
+            "start": self.create_client(StartEpisode, f"{r}/start_episode"),
+            "stop": self.create_client(Trigger, f"{r}/stop_episode"),
+            "discard": self.create_client(Trigger, f"{r}/discard_episode"),
+        }
+        self.ctrl_set = self.create_client(SetParameters, f"{c}/set_parameters")
+        self.ctrl_get = self.create_client(GetParameters, f"{c}/get_parameters")
 
     def _token(self) -> str:
         """The token every page and socket must carry, loopback included (see access.py): token_file's,

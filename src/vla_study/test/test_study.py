@@ -61,9 +61,11 @@ def test_operator_reads_only_the_hand_the_object_and_the_status():
     assert set(vars(goal)) == {"kind", "direction", "distance", "object_height", "object_radius"}
     # all the runner can hand it: the goal, its own parameters, a seed, and observations of these fields
     assert {f.name for f in dataclasses.fields(part.Observation)} == ALLOWED_OBS
-    # the cycle is what the operator station shows: the names of the end-effector modes, in order
+    # the cycle is what the operator station shows: the names of the end-effector modes, in order; the
+    # lesson is what the participant's own practice trial showed it (participant.Lesson: two numbers)
     assert list(inspect.signature(part.HumanOperator).parameters) == ["params", "goal", "mode", "seed",
-                                                                      "reach_tol", "cycle"]
+                                                                      "reach_tol", "cycle", "lesson"]
+    assert all(isinstance(v, float) for v in vars(part.Lesson()).values())
     assert all(isinstance(v, (int, float)) for v in vars(part.HumanParams()).values())
     for mode in ("latent", "end_effector"):
         op = part.HumanOperator(part.HumanParams(), goal, mode, seed=1)

@@ -25,7 +25,7 @@ def _row(who, setting, ok, *, strategy="latent-YOLO", time_s=5.0, disp=0.12, k=0
 
 def _study(tmp_path, rows):
     out = tmp_path / "study"
-    out.mkdir()
+    out.mkdir(parents=True)
     (out / "trials.jsonl").write_text("".join(json.dumps(r) + "\n" for r in rows))
     return out
 
@@ -88,6 +88,9 @@ def test_simulated_results_are_labelled_and_worded_as_a_models(tmp_path):
         assert "simulated participants" in heading, heading
     assert "not what a person would" in text and "a calibration, not a finding" in text
     assert (out / "figure4_success.png").is_file()
+    people = _study(tmp_path / "people", [{**r, "simulated": False, "participant": "P01"} for r in rows])
+    text = "\n".join(analyse(people, people, time_limit=30.0))
+    assert "simulated" not in text and "Herlant et al. 2016 measured 17.4 %" in text
 
 
 def test_the_paths_are_regenerated_from_the_rows_and_their_seeds(tmp_path):

@@ -27,10 +27,11 @@ import numpy as np  # noqa: E402
 from vla_study.outcome import THROWN_M, thrown, trial_time  # noqa: E402
 
 EQUAL = "settings, equal weight"
-HERLANT = ("Switching share: mode-switch time (decisions and presses) over execution time. The simulated "
-           "participants' button timing was calibrated on development trials towards Herlant et al. "
-           "2016's 17.4 % (protocols/development/ee_calibration.yaml), so the share is a calibration, not a "
-           "finding.")
+SHARE = "Switching share: mode-switch time (decisions and presses) over execution time. "
+HERLANT = {True: "The simulated participants' button timing was calibrated on development trials "
+                 "towards Herlant et al. 2016's 17.4 % (protocols/development/ee_calibration.yaml), so the "
+                 "share is a calibration, not a finding.",
+           False: "Herlant et al. 2016 measured 17.4 % with a joystick."}
 
 
 def load_rows(out: Path) -> list[dict]:
@@ -203,7 +204,8 @@ def _effort_table(st: Study) -> list[str]:
         cells += [st.cell(m, s, fmt="{:.1f}") for m in ("n_inputs", "mode_switches")]
         cells.append("–" if share is None else f"{100 * share:.1f} %")
         lines.append(f"| {s} | " + " | ".join(cells) + " |")
-    return lines + ["", "SPARC, LDLJ: closer to 0 is smoother. " + HERLANT, ""]
+    simulated = st.who.startswith("simulated")
+    return lines + ["", "SPARC, LDLJ: closer to 0 is smoother. " + SHARE + HERLANT[simulated], ""]
 
 
 def _switching_share(st: Study, s: str) -> float | None:

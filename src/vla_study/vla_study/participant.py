@@ -6,10 +6,17 @@ where the hand (TCP) is, where the object is and how big it looks, and the goal 
 it ("push the cereal box 15 cm south", "circle the cereal box"). On latent actions it pushes the
 stick, watches after its reaction delay whether the task looks nearer done (the hand behind the
 object, then the object moving; the angle gone round it) and keeps or reverses the direction: the
-path is the robot's. On the end-effector baseline it makes its own plan of hand positions (above and
-behind the object, down, through) and moves one Cartesian axis at a time, switching modes with a
-button. (A first version steered the latent axis towards its own plan of hand positions too; the
-learned motion takes other paths, so it reversed while the arm was progressing: docs/results/study.)
+path is the robot's. On the end-effector baseline it makes its own plan of hand positions, no better
+than a person told the goal makes (above and behind the object, down, through; round a circled object's
+corners) and moves one Cartesian axis at a time, switching modes with a button. (A first version
+steered the latent axis towards its own plan of hand positions too; the learned motion takes other
+paths, so it reversed while the arm was progressing: docs/results/study.)
+
+Both learn from their practice trial of a setting the same kind of thing (`Lesson`): on latent actions
+which way of the stick brought the task nearer, on the end effector whether the object moved before
+the hand was in place (then it gives the object more room). Earlier versions gave the end-effector
+participant practised knowledge the latent one had not: a ring of ten points for the circle and extra
+wrist clearance for pushes towards the robot (issue 33).
 
 Human parameters, from the literature:
 - reaction delay: 0.24 s mean (Card, Moran & Newell 1983, The Psychology of Human-Computer
@@ -127,31 +134,60 @@ class Action:
     done: bool = False  # the person thinks the task is done
 
 
-def plan_hand_points(goal: TaskGoal, hand: np.ndarray, obj: np.ndarray) -> list[np.ndarray]:
-    """The person's own plan of hand positions from what they see (not the robot's planner)."""
+@dataclass(frozen=True)
+class Lesson:
+    """What a participant took from their practice trial of a setting, carried to its test trials (the
+    paper's participants practised each strategy first). The same kind of knowledge for both
+    strategies: one thing seen to work or to go wrong in practice.
+    - latent actions: which way of the stick brought the task nearer (`direction`);
+    - end effector: the object moved before the hand was in place to push it (or was knocked on the way
+      round), so give it more room (`clearance_m`, 5 cm more each time, at most 15 cm)."""
+
+    direction: float = 1.0
+    clearance_m: float = 0.0
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> Lesson:
+        return cls(**{k: float(v) for k, v in (d or {}).items() if k in ("direction", "clearance_m")})
+
+
+CLEARANCE_STEP, CLEARANCE_MAX = 0.05, 0.15
+MOVED_M = 0.04  # the object seen this far from where it stood (5-view means) has moved
+
+
+def plan_hand_points(goal: TaskGoal, hand: np.ndarray, obj: np.ndarray, clearance: float = 0.0
+                     ) -> list[np.ndarray]:
+    """The plan of hand positions a person told the goal makes from what they see (not the robot's
+    planner, and no practised trick: what practice taught comes in as `clearance`). A push: above and
+    behind the object, down, through. A circle: round the object's corners one axis at a time (as the
+    end-effector's modes move), once and a quarter more."""
     obj = np.asarray(obj, float)[:2]
     if goal.kind == "push":
         d = np.asarray(goal.direction, float)
-        # A hand pointing down has the wrist ~9 cm towards the robot (-x) of the fingers: pushing
-        # towards -x the person (after practice) starts further back so the wrist clears the object.
-        behind = obj - d * (goal.object_radius + 0.04 + 0.10 * max(0.0, -float(d[0])))
+        behind = obj - d * (goal.object_radius + 0.04 + clearance)
         hover = max(0.18, goal.object_height + 0.08)
         low = 0.03
         through = behind + d * (goal.distance + 0.06)
         return [np.array([*behind, hover]), np.array([*behind, low]), np.array([*through, low])]
-    r = goal.object_radius + 0.065
+    r = goal.object_radius + 0.04 + clearance
     z = goal.object_height + 0.07
-    a0 = math.atan2(hand[1] - obj[1], hand[0] - obj[0])
-    angles = a0 + np.linspace(0.0, 2 * math.pi * 1.05, 10)
-    return [np.array([obj[0] + r * math.cos(a), obj[1] + r * math.sin(a), z]) for a in angles]
+    signs = ((1, 1), (-1, 1), (-1, -1), (1, -1))   # round the object's corners, anticlockwise from above
+    corners = [np.array([obj[0] + sx * r, obj[1] + sy * r, z]) for sx, sy in signs]
+    first = int(np.argmin([np.linalg.norm(c[:2] - np.asarray(hand, float)[:2]) for c in corners]))
+    return [corners[(first + i) % 4] for i in range(6)]
 
 
 class HumanOperator:
     """Steps at the control rate; `act(obs)` returns the stick (and the mode button)."""
 
     def __init__(self, params: HumanParams, goal: TaskGoal, mode: str, seed: int = 0,
-                 reach_tol: float | None = None, cycle: tuple[str, ...] = EE_CYCLE) -> None:
-        """`cycle`: the axes the end-effector mode button cycles (the controller's ee_axes; with x, y, z)."""
+                 reach_tol: float | None = None, cycle: tuple[str, ...] = EE_CYCLE,
+                 lesson: Lesson | None = None) -> None:
+        """`cycle`: the axes the end-effector mode button cycles (the controller's ee_axes; with x, y, z).
+        `lesson`: what the participant's practice trial of this setting taught (None: no practice)."""
         if mode not in ("latent", "end_effector"):
             raise ValueError(f"mode must be latent or end_effector, got {mode!r}")
         if not set(XYZ) <= set(cycle):
@@ -163,7 +199,12 @@ class HumanOperator:
         self.plan: list[np.ndarray] | None = None
         self.start_obj: np.ndarray | None = None
         self.k = 0  # current plan point
-        self.direction = 1.0
+        self.taught = lesson or Lesson()
+        self.direction = self.taught.direction
+        self.progress = {1.0: 0.0, -1.0: 0.0}  # latent: how much nearer each way of the stick brought it
+        self.obj_views: deque[np.ndarray] = deque(maxlen=5)  # the object, last seen (for moved_early)
+        self.start_views: list[np.ndarray] = []  # the object, first seen
+        self.moved_early = False  # end effector: the object moved before the hand was in place
         self.judge_at = 0.0
         self.last_cost = math.inf
         self.busy_until = 0.0  # lapse, switch decision or press
@@ -232,6 +273,28 @@ class HumanOperator:
         if not self.sweep_sign and abs(self.sweep) > 0.5:
             self.sweep_sign = math.copysign(1.0, self.sweep)
 
+    def _watch_object(self, obj: np.ndarray) -> None:
+        """Whether the object moved before the hand was in place to push it (before the plan's point
+        behind and low; for a circle, at any time): a lesson for the next trial (`lesson`)."""
+        if len(self.start_views) < 5:
+            self.start_views.append(obj)
+            return
+        self.obj_views.append(obj)
+        in_place = self.goal.kind == "push" and self.k >= 2
+        moved = float(np.linalg.norm(np.mean(self.obj_views, axis=0) - np.mean(self.start_views, axis=0)))
+        if len(self.obj_views) == self.obj_views.maxlen and not in_place and moved > MOVED_M:
+            self.moved_early = True
+
+    def lesson(self) -> Lesson:
+        """What this trial teaches the next ones of its setting (it was a practice trial)."""
+        if self.mode == "latent":
+            best = max(self.progress, key=self.progress.get)
+            return Lesson(direction=best if self.progress[best] > 0 else self.taught.direction,
+                          clearance_m=self.taught.clearance_m)
+        more = CLEARANCE_STEP if self.moved_early else 0.0
+        return Lesson(direction=self.taught.direction,
+                      clearance_m=round(min(CLEARANCE_MAX, self.taught.clearance_m + more), 3))
+
     def _task_cost(self, hand: np.ndarray, obj: np.ndarray) -> float:
         """How far from done the task looks (m): what a person watches on a latent axis. They do not
         know the path the robot will take (the demonstrations'), only where it has to end up: for a
@@ -269,8 +332,9 @@ class HumanOperator:
             return self._out(0.0, done=self.done)
         hand, obj = self._perceive(view)
         if self.plan is None:
-            self.plan = plan_hand_points(self.goal, hand, obj)
+            self.plan = plan_hand_points(self.goal, hand, obj, self.taught.clearance_m)
             self.start_obj = obj.copy()
+        self._watch_object(obj)
         if self.mode == "latent":
             self._follow_sweep(hand)
         if self._finished(obj):
@@ -344,6 +408,7 @@ class HumanOperator:
                         self.stalls = 0
                 else:
                     self.stalls = 0
+                    self.progress[self.direction] += self.last_cost - cost
             self.magnitude = 1.0 if self.stalls >= self.p.stall_push else float(
                 np.clip(self.p.gain * cost / 0.15, 0.4, 1.0))
             self.last_cost = cost

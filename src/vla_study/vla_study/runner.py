@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from vla_study.backends import BACKENDS, Where, backend_name, make_backend
-from vla_study.participant import HumanParams, population
+from vla_study.participant import HumanParams, Lesson, population
 from vla_study.person import Experimenter, TerminalExperimenter
 from vla_study.protocol import Protocol, latin_square, load_protocol, robot_refusal
 from vla_study.questionnaire import LABELS, SCALE, likert_row, station_for
@@ -225,6 +225,7 @@ def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None
 def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backend, log, ask, limit,
                 out: Path) -> None:
     params = participant_params(protocol)
+    restore_lessons(backend, store.done.values())
     asked = {(r["participant"], r["strategy"]) for r in _likert_rows(out)}
     _ask_left_over(store, todo, backend, log, ask, out)
     for n, trial in enumerate(todo):
@@ -248,6 +249,17 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
                                    for t in todo[n + 1:])
         if last_of_strategy and not who.startswith("sim:") and (who, trial.strategy) not in asked:
             _likert(store, who, trial.strategy, backend, log, ask)
+
+
+def restore_lessons(backend, rows) -> None:
+    """What the recorded practice trials taught, back into the backend (a resumed study's test trials
+    get their participant's practice as if the study had not stopped), in session order."""
+    lessons = getattr(backend, "lessons", None)
+    if lessons is None:
+        return
+    for r in sorted((r for r in rows if r.get("phase") == "practice" and r.get("lesson")),
+                    key=lambda r: (r["participant"], r.get("order", 0))):
+        lessons[(r["participant"], r["strategy"], r["setting"])] = Lesson.from_dict(r["lesson"])
 
 
 def _likert(store: StudyStore, who: str, strategy: str, backend, log, ask) -> None:

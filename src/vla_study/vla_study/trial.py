@@ -18,7 +18,7 @@ from vla_common.objects import ObjectPose
 from vla_common.tasks import parse_task
 
 from vla_study.outcome import thrown, trial_time
-from vla_study.participant import HumanOperator, HumanParams, TaskGoal
+from vla_study.participant import HumanOperator, HumanParams, Lesson, TaskGoal
 from vla_study.person import InputTally
 from vla_study.protocol import STRATEGIES, Protocol
 from vla_study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
@@ -97,11 +97,23 @@ class Measured:
 Participant = HumanOperator | InputTally
 
 
+def lesson_key(trial: Trial) -> tuple[str, str, str]:
+    """Whose practice a lesson is, and where it applies: the participant, the strategy, the setting."""
+    return trial.participant, trial.strategy, trial.setting
+
+
 class TrialBackend:
-    """The skeleton of a trial (`run`); a backend implements `prepare` and `drive` (and `close`)."""
+    """The skeleton of a trial (`run`); a backend implements `prepare` and `drive` (and `close`).
+    A simulated participant's practice trial teaches the trials after it of the same strategy and
+    setting (participant.Lesson): the row keeps it (`lesson`), `lessons` carries it on."""
 
     protocol: Protocol
     catalogue: Catalogue
+
+    @property
+    def lessons(self) -> dict[tuple[str, str, str], Lesson]:
+        """What each participant's practice taught, by `lesson_key` (the runner restores it on resume)."""
+        return self.__dict__.setdefault("_lessons", {})
 
     def run(self, trial: Trial, params: HumanParams | None, operator_seed: int) -> tuple[dict, dict]:
         """One trial: `params` of a simulated participant, None for a person."""
@@ -112,6 +124,11 @@ class TrialBackend:
                                 t_done=m.t_done, t_end=m.t_end, fse=m.fse, interventions=m.interventions,
                                 start=scene.start, note=scene.note, time_limit=self.protocol.time_limit)
         row.update(m.extra)
+        if isinstance(op, HumanOperator):
+            row["taught"] = op.taught.to_dict()   # what the participant knew going in
+            if trial.phase == "practice":
+                self.lessons[lesson_key(trial)] = op.lesson()
+                row["lesson"] = self.lessons[lesson_key(trial)].to_dict()
         return row, arrays
 
     def prepare(self, trial: Trial) -> Scene:
@@ -125,8 +142,9 @@ class TrialBackend:
         `params` None."""
         if params is None:
             raise ValueError(f"{trial.participant}: this backend has no input for a person")
+        taught = self.lessons.get(lesson_key(trial))
         return HumanOperator(params, task_goal(trial.task, self.catalogue), scene.mode, seed=seed,
-                             cycle=self.protocol.end_effector_axes)
+                             cycle=self.protocol.end_effector_axes, lesson=taught)
 
     def close(self) -> None:
         """Let go of what the backend started."""

@@ -25,6 +25,7 @@ class Page:
                                               timeout=30, suppress_origin=origin == "")
         self.got: list[dict] = []
         self.jpegs = 0
+        self.invalid = 0            # messages a browser could not parse
         self.closed = False
         self.cv = threading.Condition()
         self.thread = threading.Thread(target=self._run, daemon=True)
@@ -46,7 +47,11 @@ class Page:
                 if isinstance(raw, bytes):
                     self.jpegs += 1
                 else:
-                    self.got.append(json.loads(raw))
+                    try:                    # as a browser's JSON.parse: no NaN, no Infinity
+                        self.got.append(json.loads(raw, parse_constant=_not_json))
+                    except ValueError:
+                        self.invalid += 1
+                        self.got.append(json.loads(raw))
                 self.cv.notify_all()
 
     def send(self, msg: dict | str) -> None:
@@ -71,6 +76,10 @@ class Page:
         except Exception:
             pass
         self.thread.join(5.0)
+
+
+def _not_json(constant: str):
+    raise ValueError(f"{constant} is not JSON")
 
 
 @pytest.fixture

@@ -110,3 +110,41 @@ def test_a_stale_view_stops_the_arm_only_with_the_caregivers_setting(station_nod
         assert h.spin_until(lambda: any(j.axes[0] == 0.5 for j in joys[k:]), 30.0)   # moves again
     finally:
         page.close()
+
+
+def test_what_a_dds_peer_publishes_reaches_the_page_as_json_it_can_parse_and_bounded(station_node,
+                                                                                      page_class):
+    """Any peer may publish detections and status: a NaN or an infinity in them used to reach the page
+    as NaN/Infinity, which JSON.parse refuses (the page dropped that state or frame); every detection
+    went with every frame to every page."""
+    from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray
+
+    node = station_node()
+    h = station_node.harness
+    cam = h.add(Camera(h.context))
+    peer = h.add(Node("test_view_peer", context=h.context))
+    dets = peer.create_publisher(DetectionArray, "detections", 10)
+    ctrl = peer.create_publisher(ControllerStatus, f"{node.p['controller']}/status", 10)
+    page = page_class(node.address)
+    try:
+        assert h.spin_until(lambda: page.jpegs >= 2, 30.0)
+        nan, inf = float("nan"), float("inf")
+        many = DetectionArray(image_width=64, image_height=48, detections=[
+            Detection(class_id="x" * 100, score=nan, center_x=inf, center_y=1.0, size_x=2.0, size_y=3.0)
+            for _ in range(500)])
+        status = ControllerStatus(code=1, latched_x=nan, latched_y=-inf, reason="r" * 5000)
+
+        def sent() -> bool:
+            dets.publish(many)
+            ctrl.publish(status)
+            frames = page.of("frame")
+            state = page.last("state") or {}
+            return bool(frames and frames[-1]["boxes"] and state.get("controller"))
+        assert h.spin_until(sent, 30.0)
+        frame, state = page.of("frame")[-1], page.last("state")
+        assert page.invalid == 0 and cam.sent > 0
+        assert len(frame["boxes"]) == 32 and len(frame["boxes"][0]["class_id"]) == 64
+        assert frame["boxes"][0]["score"] is None and frame["boxes"][0]["cx"] is None
+        assert state["controller"]["latched_x"] is None and len(state["controller"]["reason"]) == 300
+    finally:
+        page.close()

@@ -22,6 +22,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable
@@ -197,7 +198,7 @@ class Station:
     def _post_state(self) -> None:
         self._scheduled["state"] = False
         if self._state is not None:
-            text = json.dumps({"type": "state", **self._state})    # once for every page
+            text = to_json({"type": "state", **self._state})    # once for every page
             for peer in self._peers.values():
                 peer.outbox.latest("state", text)
 
@@ -210,7 +211,7 @@ class Station:
     def _post(self, cid: int, msg: dict) -> None:
         peer = self._peers.get(cid)
         if peer is not None:
-            peer.outbox.put(json.dumps(msg))
+            peer.outbox.put(to_json(msg))
 
     def _broadcast_roles(self, taken_from: int | None = None) -> None:
         """Every page's role; the page that drove before a watcher took control is told so."""
@@ -228,7 +229,7 @@ class Station:
                     if kind == "frame":
                         meta, jpeg = payload
                         age = (time.monotonic() - meta["received"]) * 1000.0
-                        await peer.ws.send_str(json.dumps({**meta, "type": "frame", "age_ms": age}))
+                        await peer.ws.send_str(to_json({**meta, "type": "frame", "age_ms": age}))
                         await peer.ws.send_bytes(jpeg)
                         self.frames_sent += 1
                     else:
@@ -302,7 +303,7 @@ class Station:
         self._post(peer.cid, {"type": "hello", "client": peer.cid, "driver": client.driver,
                               "driver_present": driver_present, "stale_after": self.link.params.stale_after})
         if self._state is not None:
-            peer.outbox.latest("state", json.dumps({"type": "state", **self._state}))
+            peer.outbox.latest("state", to_json({"type": "state", **self._state}))
         sender = asyncio.ensure_future(self._sender(peer))
         try:
             await self._receive(peer)
@@ -398,6 +399,25 @@ class Station:
             return ""
         msg = parse(data)
         return msg["type"] if isinstance(msg, dict) and msg["type"] in MODELS else ""   # ours only
+
+
+def to_json(obj) -> str:
+    """JSON a browser parses: a NaN or an infinity (from any DDS peer's message) becomes null. Python's
+    json writes them as NaN and Infinity, which JSON.parse refuses: the page would drop that state."""
+    try:
+        return json.dumps(obj, allow_nan=False)
+    except ValueError:
+        return json.dumps(_finite(obj), allow_nan=False)
+
+
+def _finite(obj):
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _finite(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_finite(v) for v in obj]
+    return obj
 
 
 def _is_estop(data: str | bytes) -> bool:

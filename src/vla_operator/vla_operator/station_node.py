@@ -38,6 +38,7 @@ from vla_operator.words import controller_words, safety_words
 NODE_NAME = "operator_station"
 DEFAULT_TOKEN_FILE = Path("~/.config/vla_operator/token")
 TEXT_CHARS = 300      # a status text shown to the person: longer ones are cut
+MAX_BOXES = 32        # detections drawn and offered on the page (a detector gives a handful)
 # Only the newest frame kept (reliable, as the camera): a station that fell behind shows the latest
 # frame and never works through a backlog (IMAGE_QOS keeps 30, for the detector and the recorder).
 LATEST_IMAGE_QOS = image_qos(depth=1)
@@ -372,9 +373,12 @@ class StationNode(Node):
                            {"width": msg.width, "height": msg.height, **self._dets}, step=msg.step)
 
     def _on_dets(self, msg: DetectionArray) -> None:
+        """The boxes drawn over the view and offered as targets: the first MAX_BOXES of a peer's message
+        (it goes with every frame to every page), class names cut, numbers as they are (the server
+        sends a NaN as null)."""
         self._dets = {"size": [msg.image_width, msg.image_height], "boxes": [
-            {"class_id": d.class_id, "score": round(d.score, 3), "cx": d.center_x, "cy": d.center_y,
-             "w": d.size_x, "h": d.size_y} for d in msg.detections]}
+            {"class_id": d.class_id[:64], "score": d.score, "cx": d.center_x, "cy": d.center_y,
+             "w": d.size_x, "h": d.size_y} for d in msg.detections[:MAX_BOXES]]}
 
     # Any DDS peer may publish these: their texts are cut to TEXT_CHARS (a person reads a sentence, not
     # 60 KB; issue 32's peer sent 60 KB texts at 350 Hz), and the pages get only the newest state.

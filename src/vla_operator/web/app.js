@@ -223,7 +223,8 @@ function scanItems() {   // the open dialog's buttons, else the questionnaire, e
   if (dialog) return [...dialog.querySelectorAll('button')].map((b) => b.id);
   const q = quest.scanItems();
   if (q) return q;
-  return [...(state.word === 'E-stop' ? ['release'] : []), ...SCAN.filter((id) => !$(id).hidden)];
+  const shown = (id) => $(id).getClientRects().length > 0;   // on the page now (not hidden, nor its view)
+  return [...(state.word === 'E-stop' ? ['release'] : []), ...SCAN.filter(shown)];
 }
 function scanning() { return state.settings.input_device === 'switch1'; }
 function keyAction(e) {

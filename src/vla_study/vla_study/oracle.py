@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     for r in rows:
         tally[(r["strategy"], r["setting"])].append(r["success"])
     for (strategy, setting), v in sorted(tally.items()):
-        print(f"oracle {strategy} {setting}: {sum(v)}/{len(v)}")
+        print(f"oracle teleoperator (simulated), {strategy} {setting}: {sum(v)}/{len(v)}")
     return 0
 
 

@@ -553,3 +553,39 @@ def test_where_the_latent_stops_short_the_node_aligns_in_end_effector_mode_then_
     assert up and max(up) > 0.1                          # past the deadband, up over the bottle first
     assert all(j.axes[0] == 0.0 for axis, j in ee if axis != "z")   # the stick rests on the wrong axis
     assert joys[-1][2].axes[0] == 0.0
+
+
+@pytest.mark.ros
+def test_in_lockstep_every_joint_state_gets_exactly_one_joy_between_episodes_too(ros, tmp_path):
+    """The controller waits for the joy of each joint state (lockstep): the teleoperator answers every
+    one, at its stamp, with the stick at rest and no button while no episode runs."""
+    from builtin_interfaces.msg import Time
+    from rclpy.node import Node
+    from rclpy.parameter import Parameter
+    from sensor_msgs.msg import JointState, Joy
+    from vla_evaluation.sim_teleoperator_node import SimTeleoperatorNode
+
+    ctx, ex, nodes = ros
+    random_model(tmp_path / "m")
+    tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[
+        Parameter("model_path", value=str(tmp_path / "m")), Parameter("lockstep", value=True),
+        Parameter("enable_button", value=1)])
+    peer = Node("peer", context=ctx)
+    nodes += [tele, peer]
+    ex.add_node(tele)
+    ex.add_node(peer)
+    joys = []
+    peer.create_subscription(Joy, "joy", joys.append, 100)
+    js_pub = peer.create_publisher(JointState, "joint_states", 100)
+    _spin_until(ex, lambda: js_pub.get_subscription_count() > 0, 10.0)
+    names = [f"panda_joint{i}" for i in range(1, 8)]
+    sent = []
+    for k in range(5):
+        js = JointState(name=names, position=Q0.tolist())
+        js.header.stamp = Time(sec=1, nanosec=10_000_000 * k)
+        js_pub.publish(js)
+        sent.append((1, 10_000_000 * k))
+        _spin_until(ex, lambda k=k: len(joys) > k, 10.0)
+    _spin_until(ex, lambda: False, 0.2)
+    assert [(j.header.stamp.sec, j.header.stamp.nanosec) for j in joys] == sent
+    assert all(j.axes[0] == 0.0 and j.buttons[1] == 0 for j in joys)

@@ -97,8 +97,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output folder")
     gg = p.add_argument_group("physics and graph modes")
     gg.add_argument("--stop-on-success", action="store_true", help="end an episode 1 s after success")
-    gg.add_argument("--real-time-factor", type=float, default=2.0,
-                    help="graph: simulated seconds per wall second")
+    gg.add_argument("--real-time-factor", type=float, default=0.0,
+                    help="graph: simulated seconds per wall second at most (default 0: as fast as the CPU "
+                         "allows; in lockstep it only slows the run, the results are the same)")
+    gg.add_argument("--free-running", action="store_true",
+                    help="graph: no lockstep, the simulation paced by the wall clock at --real-time-factor "
+                         "(how it ran before issue 33: outcomes then depend on the machine's load)")
     gg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for the graph (default: own)")
     add_teleop_arguments(p, rate=20.0)
 
@@ -124,8 +128,10 @@ def run(args) -> int:
         results = _physics(model_dir, det_path, tasks, seeds, settings, args.objects, args.stop_on_success,
                            catalogue)
     else:
+        rtf = args.real_time_factor or (2.0 if args.free_running else 0.0)
         cfg = GraphConfig(model_path=str(model_dir), detector_model=str(det_path),
-                          real_time_factor=args.real_time_factor, rate=settings.rate, settings=settings,
+                          lockstep=not args.free_running, real_time_factor=rtf, rate=settings.rate,
+                          settings=settings,
                           stop_on_success=args.stop_on_success, domain_id=args.domain_id,
                           log_dir=args.out / "logs", catalogue=args.catalogue)
         results = [rec.result for rec in evaluate_graph(cfg, tasks, seeds, label=Path(model_dir).name,

@@ -7,8 +7,12 @@ The launch file starts, through vla_launch (the same Launcher, parameter files a
   controller_node (latent-action decoder; joy -> joint_velocity_cmd)
   sim_teleoperator (the paper's simulated user; publishes joy)
 all but the bridge on simulated time, so the graph runs faster than real time and stays consistent.
-What is fixed at startup (rates, real-time factor, models) goes in as launch arguments; the
-teleoperator's and the controller's settings and a model change go through their parameter services.
+In lockstep (the default, `GraphConfig.lockstep`) the bridge owns time: it moves one joint state at a
+time, once the controller has answered it, and the controller answers once the teleoperator's joy for
+that state is in (vla_common.lockstep); the outcome and every measure of an episode are then a
+function of its seeds and the code, whatever the machine's load. What is fixed at startup (rates,
+real-time factor, models) goes in as launch arguments; the teleoperator's and the controller's
+settings and a model change go through their parameter services.
 
 This process hosts a small orchestrator node: per episode it resets the scene to a fresh layout
 through the bridge's `~/reset`, waits for detections of the new scene, asks the controller to latch
@@ -21,6 +25,7 @@ from __future__ import annotations
 import math
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -41,6 +46,7 @@ from vla_common.tasks import parse_task
 
 from vla_evaluation.graph_runner import GraphRunner
 from vla_evaluation.kinematic import TeleopSettings, plan_waypoints, plannable_layout
+from vla_evaluation.lockstep_client import LockstepClient
 from vla_evaluation.metrics import (
     EpisodeResult,
     LimitMonitor,
@@ -61,6 +67,10 @@ from vla_interfaces.srv import ResetScene, StartEpisode
 BRIDGE, DETECTOR, CONTROLLER, TELEOP = "panda_bridge", "detector_node", "controller_node", "sim_teleoperator"
 LAUNCH_FILE = ("vla_evaluation", "demo.launch.yaml")
 CAMERA_SIZE = (640, 480)  # the bridge's camera (config/panda_bridge.yaml)
+# Lockstep: the fixed counts of steps between what the orchestrator does (vla_common.lockstep).
+STARTUP_S = 0.2   # sim s run once at startup: every node's status published, nothing else moved
+FINAL_S = 0.1     # sim s after an episode's end before its final state is read (the next scene update)
+RELIABLE = 1000   # lockstep: the orchestrator's subscriptions keep every message (reliable, this deep)
 
 
 class GraphError(RuntimeError):
@@ -71,7 +81,8 @@ class GraphError(RuntimeError):
 class GraphConfig:
     model_path: str
     detector_model: str
-    real_time_factor: float = 2.0
+    real_time_factor: float = 0.0  # 0: as fast as the CPU allows (lockstep); paced for a person above 0
+    lockstep: bool = False  # the simulation waits for the controller every step: results repeat at any load
     rate: float = 100.0  # controller and teleoperator (Hz of sim time)
     state_rate: float = 100.0
     camera_rate: float = 5.0
@@ -105,6 +116,7 @@ class GraphConfig:
             station["use_teleoperator"] = False
         return {"catalogue": str(Path(self.catalogue).absolute()) if self.catalogue else "",
                 "use_sim_time": True, "real_time_factor": float(self.real_time_factor),
+                "lockstep": bool(self.lockstep), "lockstep_hold": bool(self.lockstep),
                 "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
                 "rate": float(self.rate), "detector_model": str(self.detector_model),
                 "controller_model": str(self.model_path), "log_level": self.log_level, **station}
@@ -129,6 +141,14 @@ class GraphConfig:
             params.pop(TELEOP, None)
         return params
 
+    def steps(self, seconds: float) -> int:
+        """Lockstep: the steps (joint states) in `seconds` of simulated time."""
+        return max(0, round(seconds * self.state_rate))
+
+    def frame_steps(self) -> int:
+        """Lockstep: the steps between camera frames (the bridge counts them from each reset)."""
+        return max(1, round(self.state_rate / self.camera_rate)) if self.camera_rate > 0 else 0
+
     def model_nodes(self) -> tuple[str, ...]:
         """The nodes that load the latent model (its `model_path`)."""
         return (CONTROLLER, TELEOP) if self.teleoperator else (CONTROLLER,)
@@ -150,8 +170,9 @@ def image_to_rgb(msg: Image) -> np.ndarray | None:
 class GraphObserver:
     """The orchestrator's ROS side: subscriptions, service clients and the latest values seen."""
 
-    def __init__(self, ctx, keep_frames: bool, use_sim_time: bool = True) -> None:
-        """`use_sim_time`: follow /clock (a simulated graph); False on a real robot's graph."""
+    def __init__(self, ctx, keep_frames: bool, use_sim_time: bool = True, lockstep: bool = False) -> None:
+        """`use_sim_time`: follow /clock (a simulated graph); False on a real robot's graph. `lockstep`:
+        keep every message (reliable), since what an episode measures is everything the bridge sent."""
         self.node = Node("vla_evaluation", context=ctx,
                          parameter_overrides=[Parameter("use_sim_time", Parameter.Type.BOOL, use_sim_time)])
         self.cond = threading.Condition()
@@ -166,9 +187,10 @@ class GraphObserver:
         self.ctrl_recv = -math.inf
         self.teleop = None
         self.teleop_recv = -math.inf
+        self._teleop_seen: deque = deque(maxlen=64)   # (stamp, status): the trace pairs states by stamp
         self.safety = None
         self.monitor: EpisodeMonitor | None = None
-        n, sensor = self.node, SENSOR_QOS
+        n, sensor = self.node, (RELIABLE if lockstep else SENSOR_QOS)
         n.create_subscription(JointState, "joint_states", self._joints, sensor)
         n.create_subscription(SceneObjectArray, "scene/objects", self._objects, sensor)
         n.create_subscription(DetectionArray, "detections", self._dets, sensor)
@@ -178,6 +200,9 @@ class GraphObserver:
         if keep_frames:
             n.create_subscription(Image, "camera/image_raw", self._image, IMAGE_QOS)
         self.reset_cli = n.create_client(ResetScene, f"{BRIDGE}/reset")
+        # lockstep: run the simulation a count of steps at a time (before spinning: the executor takes
+        # the node's entities as they are then)
+        self.steps = LockstepClient(n, self.cond, lambda: self.q_stamp, GraphError) if lockstep else None
         self.redetect_cli = n.create_client(Trigger, f"{CONTROLLER}/redetect")
         self.start_cli = n.create_client(StartEpisode, f"{TELEOP}/start_episode")
         self.stop_cli = n.create_client(Trigger, f"{TELEOP}/stop")
@@ -199,7 +224,7 @@ class GraphObserver:
             self.q, self.dq, self.q_stamp = q, dq, _stamp(msg)
             self.cond.notify_all()
         if (m := self.monitor) is not None:
-            m.on_joint_state(self.q_stamp, q, dq, self.teleop)
+            m.on_joint_state(self.q_stamp, q, dq, self.teleop_before(self.q_stamp))
 
     def _objects(self, msg) -> None:
         # with the height: a pick-and-place is judged put down (an object held over its target is not)
@@ -223,7 +248,14 @@ class GraphObserver:
     def _teleop(self, msg) -> None:
         with self.cond:
             self.teleop, self.teleop_recv = msg, self.now()
+            self._teleop_seen.append((_stamp(msg), msg))
             self.cond.notify_all()
+
+    def teleop_before(self, stamp: float):
+        """The teleoperator's latest status stamped before `stamp` (what it said when that joint state
+        was published: a status of the state's own step may have come first or not)."""
+        with self.cond:
+            return next((m for t, m in reversed(self._teleop_seen) if t < stamp), None)
 
     def _safety(self, msg) -> None:
         with self.cond:
@@ -363,10 +395,15 @@ class GraphEvaluator:
         log_path = Path(cfg.log_dir) / "graph.log" if cfg.log_dir else None
         self.runner = GraphRunner(LAUNCH_FILE, cfg.launch_arguments(), domain=cfg.domain_id,
                                   log_path=log_path, error=GraphError)
+        extra = {"lockstep": True} if cfg.lockstep else {}
         try:
-            self.obs = self.runner.start(lambda ctx: self.observer(ctx, cfg.keep_frames))
+            self.obs = self.runner.start(lambda ctx: self.observer(ctx, cfg.keep_frames, **extra))
             self.log(f"[graph] vla launch {' '.join(LAUNCH_FILE)} (ROS_DOMAIN_ID {self.runner.domain}, "
                      f"output in {self.runner.session.log_path})")
+            if cfg.lockstep:
+                st = self.obs.steps
+                st.alive, st.unit = self.alive, 1.0 / cfg.state_rate
+                st.real_time_factor = cfg.real_time_factor
             self._wait_ready()
             self.configure()
         except BaseException:
@@ -383,17 +420,39 @@ class GraphEvaluator:
         clients = (obs.reset_cli, obs.redetect_cli, *(obs.param_clis[n] for n in self.config.model_nodes()))
         if self.config.teleoperator:
             clients += (obs.start_cli,)
+        if obs.steps is not None:
+            clients += (obs.steps.client,)
         for cli in clients:
             while not cli.wait_for_service(timeout_sec=0.5):
                 self.alive()
                 if time.monotonic() - t0 > t:
                     raise GraphError(f"service {cli.srv_name} did not appear within {t:.0f} s")
+        if obs.steps is not None:
+            self._start_lockstep()
         obs.wait_for(lambda: obs.q is not None, t, "joint_states from the bridge", self.alive)
         obs.wait_for(lambda: obs.detections is not None, t, "detections from the detector", self.alive)
         obs.wait_for(lambda: obs.ctrl is not None, t, "the controller's status", self.alive)
         if self.config.teleoperator:
             obs.wait_for(lambda: obs.teleop is not None, t, "the teleoperator's status", self.alive)
         self.log(f"[graph] up in {time.monotonic() - t0:.1f} s")
+
+    def _start_lockstep(self) -> None:
+        """Lockstep: run STARTUP_S (every node answers and says its status), then make sure the detector
+        sees the camera: a reset at the held step renders a frame, whose detections must come (else a
+        latch would wait for a detector that never got its frame). Only counts of steps pass."""
+        obs, cfg = self.obs, self.config
+        t_held = obs.steps.run(cfg.steps(STARTUP_S), "the graph's first steps")
+        for attempt in range(1, 6):
+            res = obs.call(obs.reset_cli, ResetScene.Request(use_seed=True, seed=0), 30.0, "reset")
+            if not res.success:
+                raise GraphError(f"reset refused: {res.message}")
+            try:
+                obs.wait_for(lambda: obs.detections_stamp >= t_held, 10.0 * attempt,
+                             "the detector's answer to a frame", self.alive)
+                return
+            except GraphError:
+                self.log(f"[graph] lockstep: no detections of the first frame yet (attempt {attempt}/5)")
+        raise GraphError("the detector did not answer a camera frame in 5 tries: is it subscribed?")
 
     def configure(self) -> None:
         """Set the controller's and the teleoperator's run-time parameters from the config."""
@@ -453,9 +512,12 @@ class GraphEvaluator:
         res = obs.call(obs.reset_cli, reset_request(objects, READY_POSE), 30.0, "reset")
         if not res.success:
             raise GraphError(f"reset refused: {res.message}")
-        settled = obs.now() + cfg.settle_time
-        obs.wait_for(lambda: obs.detections_stamp >= settled and obs.objects_stamp >= settled,
-                     30.0, "detections of the new scene", self.alive)
+        if obs.steps is not None:   # a fixed count of steps: the scene settles, frames are rendered
+            obs.steps.run(cfg.steps(cfg.settle_time), "the new scene to settle")
+        else:
+            settled = obs.now() + cfg.settle_time
+            obs.wait_for(lambda: obs.detections_stamp >= settled and obs.objects_stamp >= settled,
+                         30.0, "detections of the new scene", self.alive)
         with obs.cond:
             start_pose = obs.objects.get(spec.object_class)
             q_now = obs.q.copy()
@@ -466,6 +528,8 @@ class GraphEvaluator:
     def latch(self, attempts: int = 3, timeout: float = 10.0) -> str:
         """Ask the controller to latch the new scene's detection (retried); "" when it did, else why not."""
         obs = self.obs
+        if obs.steps is not None:
+            return self._latch_lockstep(attempts)
         why = ""
         for attempt in range(attempts):
             t_redetect = obs.now()
@@ -485,6 +549,23 @@ class GraphEvaluator:
                 self.log(f"[graph] no latch after redetect (attempt {attempt + 1}/{attempts}): {why}")
         return why
 
+    def _latch_lockstep(self, attempts: int) -> str:
+        """Lockstep: ~/redetect while held, then run to one step past the next camera frame (the
+        controller waits for that frame's detections); "" when it latched, else why not."""
+        obs, why = self.obs, ""
+        for attempt in range(attempts):
+            obs.call(obs.redetect_cli, Trigger.Request(), 10.0, "redetect")
+            obs.steps.run(self.config.frame_steps() + 1, "the controller to latch a detection")
+            with obs.cond:
+                st, dets = obs.ctrl, obs.detections
+            if st is not None and st.latched_class and st.code != ControllerStatus.WAITING_FOR_DETECTION:
+                return ""
+            seen = sorted({d.class_id for d in dets.detections}) if dets is not None else []
+            why = (f"controller: code {st.code if st else '?'} ({st.reason if st else 'no status'}); "
+                   f"last detections: {seen}")
+            self.log(f"[graph] no latch after redetect (attempt {attempt + 1}/{attempts}): {why}")
+        return why
+
     def _score_unlatched(self, result: EpisodeResult, spec: TaskSpec, start_pose: ObjectPose,
                          q_now: np.ndarray, why: str) -> None:
         """Like a person facing a controller that waits for a detection: nothing moves. The episode
@@ -499,6 +580,8 @@ class GraphEvaluator:
         """The simulated user takes the stick until the time limit (or success + linger); returns the
         final waypoint, the arm's and the object's final state, and the episode's duration (sim s)."""
         obs, cfg = self.obs, self.config
+        if obs.steps is not None:
+            return self._drive_lockstep(task, monitor)
         t_request = obs.now()
         res = obs.call(obs.start_cli, StartEpisode.Request(task=task), 10.0, "start_episode")
         if not res.success:
@@ -536,6 +619,45 @@ class GraphEvaluator:
         # let the arm come to rest and the last scene state arrive
         obs.wait_for(lambda: obs.objects_stamp > t_end and obs.q_stamp > t_end, 10.0, "final state",
                      self.alive)
+        with obs.cond:
+            q_final = obs.q.copy()
+            end_pose = obs.objects.get(monitor.spec.object_class)
+        return final_wp, q_final, end_pose, t_end - monitor.t_start
+
+    def _drive_lockstep(self, task: str, monitor: EpisodeMonitor):
+        """`_drive` in lockstep: the episode starts while the simulation holds, runs its time limit (in
+        chunks of a scene update when it may stop on success) and FINAL_S more; only counts of steps."""
+        obs, cfg = self.obs, self.config
+        t_request = obs.steps.stamp
+        res = obs.call(obs.start_cli, StartEpisode.Request(task=task), 10.0, "start_episode")
+        if not res.success:
+            raise GraphError(f"teleoperator refused {task}: {res.message}")
+
+        def mine() -> bool:   # a status of this episode (the last one's, same task, is older)
+            return obs.teleop is not None and obs.teleop.task == task and _stamp(obs.teleop) > t_request
+
+        limit = cfg.steps(cfg.settings.time_limit)
+        for _ in range(limit):          # it starts once its inputs are in (a step or a few)
+            obs.steps.run(1, f"the teleoperator to start {task}")
+            if mine() and obs.teleop.state != TeleopStatus.WAITING:
+                break
+        if not mine() or obs.teleop.state == TeleopStatus.FAILED:
+            raise GraphError(f"teleoperator failed to start {task}: "
+                             f"{obs.teleop.reason if obs.teleop else 'no status'}")
+        monitor.t_start = _stamp(obs.teleop) - float(obs.teleop.elapsed)
+        chunk = cfg.steps(0.1) if cfg.stop_on_success else limit
+        done = (TeleopStatus.DONE, TeleopStatus.FAILED)
+        while obs.teleop.state not in done:
+            obs.steps.run(max(1, chunk), f"the {task} episode")
+            tts = monitor.tracker.time_to_success
+            elapsed = obs.steps.stamp - monitor.t_start
+            if cfg.stop_on_success and tts is not None and elapsed >= tts + cfg.linger:
+                obs.call(obs.stop_cli, Trigger.Request(), 10.0, "stop")
+                break
+            chunk = cfg.steps(0.1)      # past the limit: the teleoperator's own end is a step or two on
+        final_wp = np.asarray(obs.teleop.final_waypoint, float)
+        t_end = _stamp(obs.teleop) if obs.teleop.state in done else obs.steps.stamp
+        obs.steps.run(cfg.steps(FINAL_S), "the final state")
         with obs.cond:
             q_final = obs.q.copy()
             end_pose = obs.objects.get(monitor.spec.object_class)

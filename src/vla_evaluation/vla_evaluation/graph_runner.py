@@ -16,7 +16,8 @@ from typing import Generic, Protocol, TypeVar
 
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import ExternalShutdownException
+from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 from vla_common.ros.domain import DISCOVERY_VARIABLE, DomainError, isolated_env
@@ -42,7 +43,7 @@ class NodeSpinner(Generic[N]):
     def __init__(self, domain: int) -> None:
         self.domain = domain
         self.ctx: Context | None = None
-        self.executor: SingleThreadedExecutor | None = None
+        self.executor: EventsExecutor | None = None
         self.owner: N | None = None
         self._stop = threading.Event()
         self._spinner: threading.Thread | None = None
@@ -55,7 +56,8 @@ class NodeSpinner(Generic[N]):
             rclpy.init(context=self.ctx, domain_id=self.domain,
                        signal_handler_options=SignalHandlerOptions.NO)
             self.owner = make(self.ctx)
-            self.executor = SingleThreadedExecutor(context=self.ctx)
+            # in arrival order (a lockstep orchestrator reads a held step after everything it published)
+            self.executor = EventsExecutor(context=self.ctx)
             self.executor.add_node(self.owner.node)
             self._spinner = threading.Thread(target=self._spin, daemon=True)
             self._spinner.start()

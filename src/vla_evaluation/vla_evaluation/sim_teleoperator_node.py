@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 from rclpy.node import Node
+from rclpy.qos import QoSProfile
 from rclpy.time import Time
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
@@ -128,6 +129,9 @@ PARAMETERS = ParameterTable([
     Param("trigger", "timer", "timer: a stick value every 1/rate s; joint_states: one for every joint state, "
           "from that state (for a simulation stepped in lockstep with the commands)",
           choices=TRIGGERS),
+    Param("lockstep", False, "answer the bridge's lockstep simulation: trigger joint_states, and exactly one "
+          "Joy for every joint state, stamped with it (the stick at rest between episodes: the controller "
+          "waits for it), from inputs that every run sees alike (vla_common.lockstep)"),
 ])
 
 
@@ -167,13 +171,18 @@ class SimTeleoperatorNode(Node):
         self.image_time: Time | None = None
         self._image_sub = None
         self._state_time: Time | None = None  # trigger joint_states: the latest joint state's stamp
+        self._lockstep = bool(self.p["lockstep"])
+        self._images: list[tuple[Time, np.ndarray]] = []  # lockstep: frames not yet usable (stamped later)
+        self._joy_sent: Time | None = None    # the stamp of the last Joy published
+        reliable = QoSProfile(depth=100)      # lockstep: a lost message is a hang or a different input
+        sensor = reliable if self._lockstep else SENSOR_QOS
 
         self.joy_pub = self.create_publisher(Joy, "joy", 10)
         self.status_pub = self.create_publisher(TeleopStatus, "~/status", 10)
-        self.create_subscription(JointState, "joint_states", self._on_joints, SENSOR_QOS)
-        self.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, SENSOR_QOS)
+        self.create_subscription(JointState, "joint_states", self._on_joints, sensor)
+        self.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, sensor)
         self._ctrl_sub = self.create_subscription(ControllerStatus, self.p["controller_status_topic"],
-                                                  self._on_ctrl, SENSOR_QOS)
+                                                  self._on_ctrl, sensor)
         self.create_subscription(SafetyStatus, self.p["safety_status_topic"], self._on_safety, 10)
         self.hand: GripperStatus | None = None      # the bridge's gripper/status (what a person sees)
         self._hand_failed = False                   # a grasp failure not yet shown to the button core
@@ -204,7 +213,8 @@ class SimTeleoperatorNode(Node):
         rate = float(self.p["rate"])
         self._status_every = max(1, int(round(rate / 10.0)))
         self._ticks = 0
-        self.timer = self.create_timer(1.0 / rate, self._tick) if self.p["trigger"] == "timer" else None
+        timed = self.p["trigger"] == "timer" and not self._lockstep
+        self.timer = self.create_timer(1.0 / rate, self._tick) if timed else None
         if self.p["task"]:
             try:
                 self._request(self.p["task"])
@@ -242,7 +252,13 @@ class SimTeleoperatorNode(Node):
             self.q = q
             if self.timer is None:  # trigger joint_states: decide on this very state, at its time
                 self._state_time = Time.from_msg(msg.header.stamp, clock_type=self.get_clock().clock_type)
+                if self._lockstep:
+                    self._use_images_before(self._state_time)
+                    self._joy_sent = None
                 self._tick()
+                if self._lockstep and self._joy_sent is None:
+                    self._publish_joy(0.0)    # the step's answer: a Joy for every state (step 0 comes
+                    #                           again until answered: the controller may have missed it)
 
     def _now(self) -> Time:
         """The node's time: with trigger joint_states the latest joint state's stamp (its simulated
@@ -269,8 +285,20 @@ class SimTeleoperatorNode(Node):
             return
         a = np.frombuffer(bytes(msg.data), np.uint8).reshape(msg.height, msg.step)[:, :msg.width * 3]
         a = a.reshape(msg.height, msg.width, 3)
-        self.image = a[:, :, ::-1].copy() if msg.encoding == "bgr8" else a.copy()
+        image = a[:, :, ::-1].copy() if msg.encoding == "bgr8" else a.copy()
+        if self._lockstep:   # usable from the first step after its stamp, whenever it arrived
+            self._images.append((Time.from_msg(msg.header.stamp, clock_type=self.get_clock().clock_type),
+                                 image))
+            return
+        self.image = image
         self.image_time = self._now()
+
+    def _use_images_before(self, t: Time) -> None:
+        """Lockstep: the latest frame stamped before the step `t` becomes the image seen (at its stamp)."""
+        ready = [(stamp, im) for stamp, im in self._images if stamp < t]
+        if ready:
+            self.image_time, self.image = max(ready, key=lambda x: x[0].nanoseconds)
+            self._images = [(stamp, im) for stamp, im in self._images if not stamp < t]
 
     # ------------------------------------------------------------------ episodes
     def _srv_start(self, req: StartEpisode.Request, res: StartEpisode.Response):
@@ -443,6 +471,8 @@ class SimTeleoperatorNode(Node):
             self._try_start()
             if self.state == TeleopStatus.WAITING:
                 self._publish_joy(0.0)                # a person waits with the stick at rest
+            elif self.state == TeleopStatus.RUNNING:
+                self._publish_status()                # the start at once (its time is the episode's)
         if self.state == TeleopStatus.RUNNING:
             t = (self._now() - self.t0).nanoseconds * 1e-9
             q = self.q if self.q is not None else np.full(7, np.nan)
@@ -470,7 +500,7 @@ class SimTeleoperatorNode(Node):
             self._switched = mode != "latent"
             return True
         self._switched = True
-        now = self.get_clock().now().nanoseconds * 1e-9
+        now = self._now().nanoseconds * 1e-9
         if (self._mode_call is None or self._mode_call.done()) and now - self._mode_asked >= 1.0:
             self._mode_asked = now
             if self._mode_client.service_is_ready():
@@ -497,7 +527,8 @@ class SimTeleoperatorNode(Node):
         axis = int(self.p["axis"])
         enable = int(self.p["enable_button"])
         msg = Joy()
-        msg.header.stamp = self._now().to_msg()
+        self._joy_sent = self._now()
+        msg.header.stamp = self._joy_sent.to_msg()
         msg.header.frame_id = ""  # a Joy has no geometry: no TF frame (test_frames)
         axes = [0.0] * max(int(self.p["num_axes"]), axis + 1)
         axes[axis] = float(value)

@@ -8,16 +8,18 @@ from __future__ import annotations
 
 import math
 import sys
+import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from ament_index_python.packages import PackageNotFoundError, get_package_share_directory
+from rclpy.clock import Clock, ClockType
 from rclpy.duration import Duration
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
@@ -26,25 +28,28 @@ from vla_common.image_convert import to_rgb
 from vla_common.kinematics import PandaKinematics
 from vla_common.robot import JOINT_NAMES, ROBOTS
 from vla_common.ros import vision
-from vla_common.ros.convert import detections_from_array
+from vla_common.ros.convert import detections_from_array, ns_from_stamp, stamp_from_ns
 from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
 
-from vla_interfaces.msg import ControllerStatus, DetectionArray
+from vla_interfaces.msg import ControllerStatus, DetectionArray, StepAnswer
 from vla_interfaces.srv import GripperCommand, SelectTarget, SetMode
 from vla_latent_controller.artifacts import ModelError
 from vla_latent_controller.assistance import LEVELS
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
 from vla_latent_controller.ee_baseline import axes_text, parse_axes
 from vla_latent_controller.joints import parse_joint_map
+from vla_latent_controller.lockstep import DETECTIONS, IMAGE, JOY, LockstepInputs
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.status_log import StatusLog
 from vla_latent_controller.teleop import MODES, NEUTRAL_CODES, Code, Status, TeleopCore, TeleopParams
 
 NODE_NAME = "controller_node"
 BASE_FRAME = "panda_link0"
+LOCKSTEP_QOS = QoSProfile(depth=100)  # reliable: in lockstep a lost message is a hang
+LOCKSTEP_WARN_S = 10.0  # wall s a lockstep step may wait for its inputs before the node says what is missing
 
 
 def _xyz(value: Any) -> str | None:
@@ -79,7 +84,10 @@ PARAMETERS = ParameterTable([
     Param("model_path", "", "trained model directory (config.json + model.safetensors); empty: the "
           "shipped default; setting it reloads the model", dynamic=True),
     _core("mode", "latent or end_effector (also ~/set_mode)", choices=MODES, dynamic=True),
-    Param("rate", 100.0, "command publish rate (Hz)", range=(1.0, 1000.0)),
+    Param("rate", 100.0, "command publish rate (Hz; not in lockstep)", range=(1.0, 1000.0)),
+    Param("lockstep", False, "answer the bridge's lockstep simulation: one command per joint state, once "
+          "the operator's joy stamped with that state is in, sent in a vla_interfaces/StepAnswer on "
+          "lockstep/answer (not joint_velocity_cmd); no timer (vla_latent_controller.lockstep)"),
     Param("status_rate", 10.0, "~/status publish rate (Hz); also published on every change of code",
           range=(0.1, 1000.0), dynamic=True),
     _core("axis", "joystick axis that drives the latent action (or the end-effector axis)",
@@ -196,22 +204,33 @@ class ControllerNode(Node):
         if reason:
             raise ConfigError(f"parameter 'goal_selection': {reason}")
         self._msg = Float64MultiArray()
-        self._last_code: int | None = None
+        self._last_status: tuple | None = None
         self._status_log = StatusLog()
         self._last_status_t = -math.inf
         self._status_period = 1.0 / values["status_rate"]
+        self._lockstep = LockstepInputs() if values["lockstep"] else None
+        self._step_ns: int | None = None   # lockstep: the step being computed or last answered
+        self._answer: StepAnswer | None = None   # lockstep: the last answer (sent again on a repeat)
         self._create_interfaces()
-        self.timer = self.create_timer(1.0 / values["rate"], self._tick)
+        if self._lockstep is None:
+            self.timer = self.create_timer(1.0 / values["rate"], self._tick)
+            pace = f"{values['rate']:g} Hz"
+        else:
+            self._pending_since: float | None = None
+            self.create_timer(1.0, self._lockstep_watch, clock=Clock(clock_type=ClockType.STEADY_TIME))
+            pace = "lockstep (a command per joint state)"
         m = self.core.model
         what = f"{m.encoder} model from {m.artifacts.path}" if m is not None else "no model"
         mapped = f", joint_map {self.core.joint_map}" if self.core.joint_map else ""
-        self.get_logger().info(f"mode {self.core.mode}, {what}, {values['rate']:g} Hz{mapped}")
+        self.get_logger().info(f"mode {self.core.mode}, {what}, {pace}{mapped}")
 
     def _create_interfaces(self) -> None:
         self.cmd_pub = self.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
         self.status_pub = self.create_publisher(ControllerStatus, "~/status", 10)
+        self.answer_pub = (self.create_publisher(StepAnswer, "lockstep/answer", LOCKSTEP_QOS)
+                           if self._lockstep is not None else None)
         self.diagnostics = Diagnostics(self)
-        sensor = qos_profile_sensor_data
+        sensor = qos_profile_sensor_data if self._lockstep is None else LOCKSTEP_QOS
         self.create_subscription(Joy, "joy", self._on_joy, sensor)
         self.create_subscription(JointState, "joint_states", self._on_joint_states, sensor)
         self.create_subscription(DetectionArray, "detections", self._on_detections, sensor)
@@ -291,8 +310,51 @@ class ControllerNode(Node):
                 Image, "camera/image_raw", self._on_image, IMAGE_QOS
             )
 
+    # ------------------------------------------------------------------ lockstep
+    def _lockstep_try(self) -> None:
+        """Compute and answer the pending step once everything it needs is in (module lockstep)."""
+        ls = self._lockstep
+        if ls.state is not None and self._pending_since is None:
+            self._pending_since = time.monotonic()
+        wanted = None
+        if ls.state is not None:
+            since = self.core.detection_wanted(ls.state[0] * 1e-9)
+            wanted = None if since is None else (-1 if since == -math.inf else math.ceil(since * 1e9 - 0.5))
+        if wanted == -1:
+            wanted = None   # never asked to re-latch (startup): latch what comes, no frame to wait for
+        if ls.missing(wanted) is not None:
+            return
+        t_ns, msg, due = ls.take()
+        self._step_ns, self._pending_since = t_ns, None
+        for kind, stamp, value in due:
+            t = stamp * 1e-9
+            if kind == JOY:
+                self._joy_to_core(value, t)
+            elif kind == DETECTIONS:
+                self.core.on_detections(*value, t)
+            elif kind == IMAGE:
+                self.core.on_image(value, t)
+        self.core.on_joint_states(msg.name, msg.position, t_ns * 1e-9)
+        cmd = self._tick()
+        self._answer = StepAnswer(header=msg.header, node=self.get_name(), command=cmd)
+        self.answer_pub.publish(self._answer)
+
+    def _lockstep_watch(self) -> None:
+        """Steady clock, 1 Hz: say what a step has waited for this long (a hang is the bridge's to report;
+        this only says why, and reads the wall clock for nothing else)."""
+        ls, since = self._lockstep, self._pending_since
+        if since is not None and time.monotonic() - since > LOCKSTEP_WARN_S and ls.state is not None:
+            wanted = self.core.detection_wanted(ls.state[0] * 1e-9)
+            wanted_ns = None if wanted is None or wanted == -math.inf else math.ceil(wanted * 1e9 - 0.5)
+            self.get_logger().warn(f"lockstep: the joint state stamped {ls.state[0]} ns has waited "
+                                   f"{time.monotonic() - since:.0f} s for {ls.missing(wanted_ns)}",
+                                   throttle_duration_sec=LOCKSTEP_WARN_S)
+
     # ------------------------------------------------------------------ inputs
     def _now(self) -> float:
+        """The node's time; in lockstep the step's (its joint state's stamp), whatever /clock says yet."""
+        if self._step_ns is not None:
+            return self._step_ns * 1e-9
         return self.get_clock().now().nanoseconds * 1e-9
 
     def _input_time(self) -> float | None:
@@ -302,13 +364,20 @@ class ControllerNode(Node):
         return now if now > 0.0 else None
 
     def _on_joy(self, msg: Joy) -> None:
+        if self._lockstep is not None:
+            self._lockstep.on_joy(ns_from_stamp(msg.header.stamp), msg)
+            self._lockstep_try()
+            return
         if (now := self._input_time()) is None:
             return
         before = self.core.stick_code(now)
-        self.core.on_joy(msg.axes, msg.buttons, now)
+        self._joy_to_core(msg, now)
         if self.core.stick_code(now) != before:
             self._tick()   # a press, a release or the input back after a timeout: its command now, not
             #                up to a period later (the operator station's key -> command latency)
+
+    def _joy_to_core(self, msg: Joy, now: float) -> None:
+        self.core.on_joy(msg.axes, msg.buttons, now)
         if self.core.grasp_presses != self._grasp_presses:    # one toggle per press; the bridge
             self._grasp_presses = self.core.grasp_presses      # refuses presses too close together
             self._toggle_hand()
@@ -331,11 +400,19 @@ class ControllerNode(Node):
             self.get_logger().warn(f"grasp button refused: {res.message}", throttle_duration_sec=1.0)
 
     def _on_joint_states(self, msg: JointState) -> None:
+        if self._lockstep is not None:
+            if self._lockstep.on_state(ns_from_stamp(msg.header.stamp), msg) and self._answer is not None:
+                self.answer_pub.publish(self._answer)      # the same answer again
+            self._lockstep_try()
+            return
         if (now := self._input_time()) is not None:
             self.core.on_joint_states(msg.name, msg.position, now)
 
     def _on_detections(self, msg: DetectionArray) -> None:
-        if (now := self._input_time()) is not None:
+        if self._lockstep is not None:
+            self._lockstep.on_detections(ns_from_stamp(msg.header.stamp), detections_from_array(msg))
+            self._lockstep_try()
+        elif (now := self._input_time()) is not None:
             dets, size = detections_from_array(msg)
             self.core.on_detections(dets, size, now)
 
@@ -345,8 +422,12 @@ class ControllerNode(Node):
             self.get_logger().warn("vision_msgs detections ignored until camera/camera_info gives the "
                                    "image size", throttle_duration_sec=5.0)
             return
-        if (now := self._input_time()) is not None:
-            classes = list(self.core.model.classes) if self.core.model is not None else []
+        classes = list(self.core.model.classes) if self.core.model is not None else []
+        if self._lockstep is not None:
+            dets = vision.from_detection2d_array(msg, classes)
+            self._lockstep.on_detections(ns_from_stamp(msg.header.stamp), (dets, self._image_size))
+            self._lockstep_try()
+        elif (now := self._input_time()) is not None:
             self.core.on_detections(vision.from_detection2d_array(msg, classes), self._image_size, now)
 
     def _on_image(self, msg: Image) -> None:
@@ -355,10 +436,14 @@ class ControllerNode(Node):
         except ValueError as e:
             self.get_logger().warn(f"camera image ignored: {e}", throttle_duration_sec=5.0)
             return
-        if (now := self._input_time()) is not None:
+        if self._lockstep is not None:
+            self._lockstep.on_image(ns_from_stamp(msg.header.stamp), rgb)
+        elif (now := self._input_time()) is not None:
             self.core.on_image(rgb, now)
 
     def _on_camera_info(self, msg: CameraInfo) -> None:
+        if self._lockstep is not None:
+            self._lockstep.on_frame(ns_from_stamp(msg.header.stamp))   # its detections will follow
         k = msg.k
         if msg.width > 0 and msg.height > 0:
             self._image_size = (int(msg.width), int(msg.height))
@@ -403,31 +488,40 @@ class ControllerNode(Node):
         return resp
 
     # ------------------------------------------------------------------ loop
-    def _tick(self) -> None:
+    def _tick(self) -> list[float]:
+        """One command (published on joint_velocity_cmd, or returned for the lockstep answer) and the
+        status: at status_rate, and at once when what it says changes (code, mode, end-effector axis,
+        latched object)."""
         now = self._now()
         cmd, st = self.core.step(now)
-        self._msg.data = cmd.tolist()
-        self.cmd_pub.publish(self._msg)
-        changed = st.code != self._last_code
+        values = cmd.tolist()
+        if self._lockstep is None:
+            self._msg.data = values
+            self.cmd_pub.publish(self._msg)
+        said = (st.code, st.mode, st.ee_axis, st.latched_class, st.latched_by)
+        changed = said != self._last_status
         if changed or now - self._last_status_t >= self._status_period or now < self._last_status_t:
-            level = self._status_log.level(st.code) if changed else None
-            said = f"zero command: {st.code.name}: {st.reason}"
+            code_changed = self._last_status is None or st.code != self._last_status[0]
+            level = self._status_log.level(st.code) if code_changed else None
+            text = f"zero command: {st.code.name}: {st.reason}"
             if level == "info":        # a routine code, the first time (status_log.py)
-                self.get_logger().info(said)
+                self.get_logger().info(text)
             elif level == "problem":
-                self.get_logger().info(said, throttle_duration_sec=2.0)
+                self.get_logger().info(text, throttle_duration_sec=2.0)
             elif level == "debug":     # a routine code again
-                self.get_logger().debug(said)
-            self._last_code = st.code
+                self.get_logger().debug(text)
+            self._last_status = said
             self._last_status_t = now
             self.status_pub.publish(self._status_msg(st))
             level = "ok" if st.code == Code.ACTIVE or st.code in NEUTRAL_CODES else "warn"
             self.diagnostics.update(level, st.reason or st.code.name, mode=st.mode, code=st.code.name,
                                     latched_class=st.latched_class)
+        return values
 
     def _status_msg(self, st: Status) -> ControllerStatus:
         m = ControllerStatus()
-        m.header.stamp = self.get_clock().now().to_msg()
+        m.header.stamp = (stamp_from_ns(self._step_ns) if self._step_ns is not None
+                          else self.get_clock().now().to_msg())
         m.header.frame_id = BASE_FRAME  # the status holds no geometry; the robot's base frame
         m.mode, m.code, m.reason = st.mode, int(st.code), st.reason
         m.latched_class = st.latched_class

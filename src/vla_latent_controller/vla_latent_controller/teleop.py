@@ -576,6 +576,21 @@ class TeleopCore:
             image = self._image
         return self._latch(det, image)
 
+    def detection_wanted(self, now: float) -> float | None:
+        """The time from which a detection would be latched by a step at `now`, or None when that step
+        latches none (a lockstep controller waits for such a detection: vla_latent_controller.lockstep)."""
+        p, m, lat = self.params, self.model, self.latched
+        if self.mode != "latent" or m is None:
+            return None
+        fixed_class = p.goal_selection not in GOAL_SELECTIONS
+        if not (m.encoder == "detector" or (m.encoder == "localization" and not fixed_class)):
+            return None
+        if lat is None:
+            return self._latch_after
+        if p.detection_max_age > 0 and now - lat.t > p.detection_max_age:
+            return max(self._latch_after, now - p.detection_max_age)
+        return None
+
     def _expire_latch(self, now: float) -> None:
         """Drop a latch older than detection_max_age (0: never); the next one must be newer."""
         p, lat = self.params, self.latched

@@ -1,7 +1,10 @@
 """The simulated Panda as a bridge backend: PandaSim stepped by the bridge in fixed physics increments
 that equal the filter's period, paced to `real_time_factor` by vla_sim.sim_clock.SimPacer on a
 steady-clock timer (so it runs with use_sim_time too), with /clock, the camera (rendered by
-vla_sim.camera_worker in a thread of its own) and the ground-truth scene.
+vla_sim.camera_worker in a thread of its own) and the ground-truth scene. With `lockstep` the
+simulation owns time instead: it moves one state period at a time, once every lockstep participant
+has answered the current joint state (lockstep_sim; its clock starts at vla_common.lockstep.EPOCH_NS,
+its frames, scene and status come at fixed counts of states, counted from the last reset).
 
 The simulated arm behaves like a real Panda at its limits: where contact forces a joint past its
 position, velocity or torque limit the arm stops itself (PandaSim.hold) and the backend reports the
@@ -23,6 +26,7 @@ import numpy as np
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import CameraInfo, Image
 from vla_common.catalogue import CatalogueError, load_catalogue
+from vla_common.lockstep import EPOCH_NS
 from vla_common.objects import ObjectPose
 from vla_common.ros.convert import pose_msg, stamp_from_ns
 from vla_sim.camera_worker import CameraWorker
@@ -32,12 +36,14 @@ from vla_sim.sim_clock import SimPacer
 from vla_interfaces.msg import SceneObject, SceneObjectArray
 from vla_panda_bridge import gripper
 from vla_panda_bridge.backend import RESET, TEACHING, BackendBase, BackendError, Host, JointSample
+from vla_panda_bridge.lockstep_sim import Lockstep
 
 # A simulated hand's motion ends when its fingers have stood still (under STILL_SPEED) this long with
 # the servo's target at its goal or its force at the limit (squeezing what stopped them).
 STILL_SPEED = 1e-3   # m/s
 STILL_TIME = 0.03    # s of simulated time
 MOVE_FORCE = 20.0    # N: what a move (not a grasp) may push with
+FRAME_WAIT_S = 60.0  # wall s a lockstep step waits for the last frame to be rendered and published
 
 
 class SimHandDriver:
@@ -118,7 +124,9 @@ class MujocoBackend(BackendBase):
         self._teaching_damping = damping
         self._dt_ns = round(1e9 * self.sim.physics_dt)
         self._steps = 0                               # physics steps since start: the sim clock
-        self._clock_origin_ns = time.time_ns()        # sim time starts at the wall time of startup
+        self._lockstep: Lockstep | None = None
+        # sim time starts at the wall time of startup; in lockstep at a fixed epoch (every run alike)
+        self._clock_origin_ns = EPOCH_NS if p["lockstep"] else time.time_ns()
         self._steps_per_state = max(1, round(p["control_rate"] / p["state_rate"]))
         self.state_rate = p["control_rate"] / self._steps_per_state
         if abs(self.state_rate - p["state_rate"]) > 1e-3 * p["state_rate"]:
@@ -126,6 +134,11 @@ class MujocoBackend(BackendBase):
                 f"state_rate {p['state_rate']:g} Hz is not a divisor of control_rate; "
                 f"publishing every {self._steps_per_state} steps = {self.state_rate:.4g} Hz")
         self._pacer = SimPacer(self._steps_per_state * self._dt, self._rtf)
+        # lockstep: outputs every so many states, counted from the last reset (0: never)
+        self._every = {what: max(1, round(self.state_rate / p[rate])) if p[rate] > 0 else 0
+                       for what, rate in (("frame", "camera_rate"), ("scene", "scene_rate"),
+                                          ("status", "status_rate"))}
+        self._states_since_reset = 0
         self._frame_steps = p["control_rate"] / p["camera_rate"] if p["camera_rate"] > 0 else 0.0
         self._frame_index = 0
         self._scene_steps = p["control_rate"] / p["scene_rate"] if p["scene_rate"] > 0 else 0.0
@@ -146,10 +159,17 @@ class MujocoBackend(BackendBase):
 
     # ---------------------------------------------------------------------------------- protocol
     def start(self, host: Host) -> None:
+        self._wall_start = time.monotonic()
+        if host.params["lockstep"]:
+            self._lockstep = Lockstep(host, self._steps_per_state * self._dt, self._lockstep_period,
+                                      self.now_ns)
+            self._lockstep_outputs()
+            host.publish_state()
+            self._lockstep.begin()
+            return
         self.publish_scene()
         host.publish_state()
         self._request_frame()
-        self._wall_start = time.monotonic()
         self._pacer.start(self._wall_start, 0.0)
         self._timer = host.create_wall_timer(self._pacer.timer_period(), self._tick)
 
@@ -197,8 +217,10 @@ class MujocoBackend(BackendBase):
                f"{1000 * self._camera.render_seconds / max(self._camera.frames, 1):.1f} ms a frame)"
                if self._camera is not None else "")
         sim_s = self.now()
+        lag = self._lockstep.pacer.lag_events if self._lockstep else self._pacer.lag_events
+        hangs = f", {self._lockstep.hangs} lockstep hangs" if self._lockstep else ""
         print(f"panda_bridge: {sim_s:.1f} s simulated in {wall:.1f} s (x{sim_s / max(wall, 1e-9):.2f}, "
-              f"fell behind {self._pacer.lag_events} times){cam}; command zeroed", file=sys.stderr)
+              f"fell behind {lag} times{hangs}){cam}; command zeroed", file=sys.stderr)
         return True
 
     def describe(self) -> str:
@@ -206,6 +228,8 @@ class MujocoBackend(BackendBase):
         cam = (f"camera {p['camera_width']}x{p['camera_height']} at {p['camera_rate']:g} Hz"
                if self._camera else "camera off")
         rtf = "as fast as possible" if self._rtf == 0 else f"x{self._rtf:g}"
+        if self._lockstep is not None:
+            rtf += f", {self._lockstep.describe()}"
         return (f"mujoco Panda: {p['control_rate']} Hz physics+safety, joint_states {self.state_rate:g} Hz, "
                 f"real time {rtf}, {cam}; {len(self.layout)} objects "
                 f"({', '.join(o.class_id for o in self.layout)})")
@@ -251,7 +275,10 @@ class MujocoBackend(BackendBase):
         self.fault = ""
         self.hand.reset()
         self.publish_scene()
-        self._host.publish_state()
+        if self._lockstep is None:
+            self._host.publish_state()
+        else:   # the new scene's state is the next step's; frames and scene count from here
+            self._states_since_reset = 0
         self._request_frame()
         response.success = True
         response.objects = [scene_object_msg(o) for o in self.layout]
@@ -263,25 +290,55 @@ class MujocoBackend(BackendBase):
         """Timer: advance whole state periods of simulated time (see SimPacer), publishing as it goes."""
         if self._closed:
             return
-        host, sim = self._host, self.sim
         units = self._pacer.units_due(time.monotonic(), self.now())
         for _ in range(units):
-            self._measure = True
-            for _ in range(self._steps_per_state):
-                host.control_step()
-                sim.step(1)
-                self._steps += 1
-                if sim.reflex() is not None and not self.fault:
-                    self._reflex(sim.reflex())
-                if self._frame_steps and self._steps >= (self._frame_index + 1) * self._frame_steps - 1e-9:
-                    self._frame_index += 1
-                    self._request_frame()
-                if self._scene_steps and self._steps >= (self._scene_index + 1) * self._scene_steps - 1e-9:
-                    self._scene_index += 1
-                    self.publish_scene()
-            host.publish_state()
+            self._physics_period(scheduled=True)
+            self._host.publish_state()
         if self._clock_pub is not None and units:
             self._clock_pub.publish(Clock(clock=stamp_from_ns(self.now_ns())))
+
+    def _physics_period(self, scheduled: bool) -> None:
+        """One state period of physics, a filter update per step; `scheduled`: frames and scene on
+        their own schedule of physics steps (free running)."""
+        host, sim = self._host, self.sim
+        self._measure = True
+        for _ in range(self._steps_per_state):
+            host.control_step()
+            sim.step(1)
+            self._steps += 1
+            if sim.reflex() is not None and not self.fault:
+                self._reflex(sim.reflex())
+            if not scheduled:
+                continue
+            if self._frame_steps and self._steps >= (self._frame_index + 1) * self._frame_steps - 1e-9:
+                self._frame_index += 1
+                self._request_frame()
+            if self._scene_steps and self._steps >= (self._scene_index + 1) * self._scene_steps - 1e-9:
+                self._scene_index += 1
+                self.publish_scene()
+
+    def _lockstep_period(self) -> None:
+        """Lockstep: the last step's camera frame is out (it may only render while the nodes answer),
+        then one state period; its outputs go before its joint state (vla_common.lockstep)."""
+        if self._camera is not None and not self._camera.wait_idle(timeout=FRAME_WAIT_S):
+            self._host.get_logger().error(f"lockstep: a camera frame took over {FRAME_WAIT_S:.0f} s to "
+                                          "render; the next joint state may overtake it")
+        self._physics_period(scheduled=False)
+        self._states_since_reset += 1
+        self._lockstep_outputs()
+        self._host.publish_state()
+
+    def _lockstep_outputs(self) -> None:
+        """/clock, and at their counts of states the scene, a camera frame and the periodic status."""
+        if self._clock_pub is not None:
+            self._clock_pub.publish(Clock(clock=stamp_from_ns(self.now_ns())))
+        n, every = self._states_since_reset, self._every
+        if every["scene"] and n % every["scene"] == 0:
+            self.publish_scene()
+        if every["frame"] and n % every["frame"] == 0:
+            self._request_frame()
+        if every["status"] and self._lockstep.barrier.step % every["status"] == 0:
+            self._host.publish_periodic()
 
     def _reflex(self, text: str) -> None:
         """The arm went past a limit: it stops itself where it is (servos on), the node holds the filter."""
@@ -304,7 +361,7 @@ class MujocoBackend(BackendBase):
     def _request_frame(self) -> None:
         if self._camera is None:
             return
-        if self._rtf == 0.0:
+        if self._rtf == 0.0 or self._lockstep is not None:
             self._camera.wait_idle(timeout=5.0)  # as fast as possible, but every frame
         self._camera.request(self.sim.data.qpos.copy(), self.now_ns())
 

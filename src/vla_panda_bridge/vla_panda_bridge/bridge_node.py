@@ -89,6 +89,16 @@ PARAMETERS = ParameterTable([
     Param("real_time_factor", 1.0, "mujoco: simulated seconds per wall second; 0 = as fast as possible",
           range=(0.0, 100.0)),
     Param("publish_clock", True, "mujoco: publish /clock so nodes with use_sim_time follow the simulation"),
+    Param("lockstep", False, "mujoco: the simulation owns time: it moves one state period at a time, once "
+          "every lockstep_participant has answered the current joint state (vla_interfaces/StepAnswer on "
+          "lockstep/answer); real_time_factor only delays it (0: as fast as the answers come); the clock "
+          "starts at 1 s; ~/lockstep_run, ~/lockstep (README 'Lockstep')"),
+    Param("lockstep_participants", ["controller_node"], "mujoco, lockstep: the nodes that answer every "
+          "step (their StepAnswer.node)", array="string_array"),
+    Param("lockstep_hold", False, "mujoco, lockstep: start held at step 0 (an orchestrator moves it with "
+          "~/lockstep_run); false: run freely"),
+    Param("lockstep_timeout", 60.0, "mujoco, lockstep: wall seconds a step may wait for its answers before "
+          "it is reported as a hang (on ~/lockstep and the log; it is never skipped)", range=(0.1, 3600.0)),
     Param("camera_rate", 30.0, "mujoco: camera/image_raw rate in simulated Hz (0 = camera off)",
           range=(0.0, 120.0)),
     Param("camera_width", 640, "mujoco: image width (px)", range=(16, MAX_CAMERA_SIZE[0])),
@@ -216,8 +226,9 @@ class PandaBridge(LifecycleNode):
         self.create_service(Trigger, "~/recover", self._on_recover)
         self.create_service(SetBool, "~/set_teaching", self._on_set_teaching)
         self.create_service(ResetScene, "~/reset", self._on_reset)
-        self.create_timer(1.0 / p["status_rate"], self._publish_status)
-        self.create_timer(1.0 / p["status_rate"], self._publish_gripper)
+        if not p["lockstep"]:   # in lockstep the backend calls publish_periodic in simulated time
+            self.create_timer(1.0 / p["status_rate"], self._publish_status)
+            self.create_timer(1.0 / p["status_rate"], self._publish_gripper)
         if p["autostart"]:
             if self.trigger_configure() != TransitionCallbackReturn.SUCCESS:
                 raise ConfigError(self._config_error or "configure failed")
@@ -331,6 +342,11 @@ class PandaBridge(LifecycleNode):
     def create_service(self, *args, **kwargs):
         return self._own(super().create_service(*args, **kwargs))
 
+    def publish_periodic(self) -> None:
+        """~/status and the hand's status at status_rate, when the backend's clock says (lockstep)."""
+        self._publish_status()
+        self._publish_gripper()
+
     def _publish_gripper(self) -> None:
         """The hand's status at status_rate; followed here too, so a silent arm (no joint_states) does
         not hide a hand that was lost or came back."""
@@ -350,6 +366,13 @@ class PandaBridge(LifecycleNode):
                               f"'control_rate' ({p['control_rate']} Hz)")
         if p["camera_rate"] > p["control_rate"]:
             raise ConfigError("parameter 'camera_rate' must not exceed 'control_rate'")
+        if p["lockstep"] and row.name != "mujoco":
+            raise ConfigError(f"parameter 'lockstep': only the simulated arm (backend 'mujoco') runs in "
+                              f"lockstep; a {row.name} robot keeps real time")
+        names = list(p["lockstep_participants"])
+        if p["lockstep"] and (not names or "" in names or len(set(names)) != len(names)):
+            raise ConfigError(f"parameter 'lockstep_participants': the names of the nodes that answer "
+                              f"every step, at least one, each once; got {names}")
 
     # ------------------------------------------------------------------------- the control path
     def control_step(self) -> None:
@@ -375,10 +398,14 @@ class PandaBridge(LifecycleNode):
         self._publish_status(SafetyCode.REFLEX, f"robot reflex ({text}): holding until ~/recover")
 
     def _on_command(self, msg: Float64MultiArray) -> None:
+        self.submit_command(msg.data)
+
+    def submit_command(self, values) -> None:
+        """A joint-velocity command (joint_velocity_cmd, or a lockstep answer's) into the one filter."""
         if not self._active:
             self.get_logger().warn(self._status_text or self._inactive_text(), throttle_duration_sec=1.0)
             return
-        code, text = self.filter.submit(msg.data, self.backend.now())
+        code, text = self.filter.submit(values, self.backend.now())
         if code != SafetyCode.OK:
             self.get_logger().warn(text, throttle_duration_sec=1.0)
             self._publish_status(code, text)

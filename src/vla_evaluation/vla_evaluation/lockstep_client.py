@@ -1,0 +1,93 @@
+"""An orchestrator's handle on the bridge's lockstep simulation (vla_common.lockstep): run a fixed count
+of steps, then wait until the simulation holds with every answer in, so that what the orchestrator does
+next (a reset, a re-detection, an episode's start) happens at a step that depends on nothing but the
+counts. A hang the bridge reports (a participant that never answered) fails at once, loudly; the
+wall-clock bound here is only against a bridge that says nothing at all.
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections.abc import Callable
+
+from vla_interfaces.msg import LockstepStatus
+from vla_interfaces.srv import LockstepRun
+
+BRIDGE = "panda_bridge"
+# Wall-clock bound on a run: a base plus this per simulated second (a step takes ~2-5 ms of CPU at real
+# time factor 0; two busy loops beside it make that ~3x). Only against a silent hang: the bridge
+# reports a step unanswered for its lockstep_timeout itself.
+RUN_BASE_S, RUN_PER_SIM_S = 120.0, 20.0
+
+
+class LockstepError(RuntimeError):
+    """The simulation could not move on: a participant did not answer (the bridge's report)."""
+
+
+def stamp_s(msg) -> float:
+    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+
+
+class LockstepClient:
+    """`run(steps)` runs that many steps and returns once the bridge holds, every answer in.
+
+    Made with the orchestrator's node before it spins: `cond` is the condition its callbacks notify,
+    `state_stamp()` the stamp (s) of the last joint state it has seen (so that it has everything the
+    held step published). Set `alive` (raises when a process of the graph has ended), `unit` (simulated
+    s per step) and `real_time_factor` before the first run."""
+
+    def __init__(self, node, cond: threading.Condition, state_stamp: Callable[[], float],
+                 error: type[Exception] = LockstepError) -> None:
+        self.cond, self.state_stamp, self.error = cond, state_stamp, error
+        self.alive: Callable[[], None] = lambda: None
+        self.unit, self.real_time_factor = 0.01, 0.0
+        self.status: LockstepStatus | None = None
+        self.client = node.create_client(LockstepRun, f"{BRIDGE}/lockstep_run")
+        node.create_subscription(LockstepStatus, f"{BRIDGE}/lockstep", self._on_status, 50)
+        self.step = 0          # where it holds (after the last run)
+        self.stamp = math.nan  # the simulated time (s) of that step
+
+    def _on_status(self, msg: LockstepStatus) -> None:
+        with self.cond:
+            self.status = msg
+            self.cond.notify_all()
+
+    def run(self, steps: int, what: str = "") -> float:
+        """Run `steps` steps from where it holds (0: just wait for the hold) and wait until it holds
+        again; returns the held step's simulated time (s)."""
+        if not self.client.wait_for_service(timeout_sec=30.0):
+            raise self.error(f"service {self.client.srv_name} not available: is the bridge in lockstep?")
+        done = threading.Event()
+        fut = self.client.call_async(LockstepRun.Request(steps=int(steps)))
+        fut.add_done_callback(lambda _f: done.set())
+        if not done.wait(30.0):
+            raise self.error(f"{self.client.srv_name} did not answer within 30 s")
+        target = int(fut.result().hold_step)
+        sim_s = max(0, int(steps)) * self.unit
+        paced = sim_s / self.real_time_factor * 4 if self.real_time_factor > 0 else 0.0
+        bound = RUN_BASE_S + RUN_PER_SIM_S * sim_s + paced
+        self._wait_held(target, bound, what or f"{steps} steps")
+        self.step, self.stamp = target, stamp_s(self.status)
+        return self.stamp
+
+    def _wait_held(self, target: int, bound: float, what: str) -> None:
+        deadline = time.monotonic() + bound
+        with self.cond:
+            while True:
+                st = self.status
+                if st is not None and st.hung:
+                    raise self.error(f"{what}: {st.text}")
+                if st is not None and st.held and st.step == target and self.state_stamp() >= stamp_s(st):
+                    return
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    waiting = f"; it last said: {st.text}" if st is not None else ""
+                    raise self.error(f"{what}: the simulation did not reach step {target} within "
+                                     f"{bound:.0f} s{waiting}")
+                self.cond.wait(min(left, 0.5))
+                self.cond.release()
+                try:
+                    self.alive()
+                finally:
+                    self.cond.acquire()

@@ -1,0 +1,117 @@
+"""The controller node in lockstep, in-process: one answer per joint state, once the operator's joy
+stamped with it is in, the command in the answer; a re-latch waits for the detections of the first
+frame it may use. The io node plays bridge, operator and detector, in either order of arrival."""
+import numpy as np
+import pytest
+import rclpy
+from rclpy.parameter import Parameter
+from sensor_msgs.msg import CameraInfo, JointState, Joy
+from std_msgs.msg import Float64MultiArray
+from std_srvs.srv import Trigger
+from vla_common.ros.convert import stamp_from_ns
+from vla_common.ros.testing import RosHarness
+from vla_latent_controller.controller_node import ControllerNode
+from vla_latent_controller.testing import READY
+
+from vla_interfaces.msg import ControllerStatus, Detection, DetectionArray, StepAnswer
+
+pytestmark = pytest.mark.ros
+NAMES = [f"panda_joint{i}" for i in range(1, 8)]
+STEP = 10_000_000          # ns: a 100 Hz joint state
+T0 = 1_000_000_000         # the lockstep clock's start
+
+
+class Harness(RosHarness):
+    def __init__(self, model_dir):
+        super().__init__()
+        overrides = [Parameter("model_path", value=str(model_dir)), Parameter("lockstep", value=True)]
+        self.node = self.add(ControllerNode(context=self.context, parameter_overrides=overrides))
+        self.io = self.add(rclpy.create_node("lockstep_io", context=self.context))
+        self.js = self.io.create_publisher(JointState, "joint_states", 100)
+        self.joy = self.io.create_publisher(Joy, "joy", 100)
+        self.det = self.io.create_publisher(DetectionArray, "detections", 100)
+        self.info = self.io.create_publisher(CameraInfo, "camera/camera_info", 100)
+        self.answers, self.cmds, self.status = [], [], []
+        self.io.create_subscription(StepAnswer, "lockstep/answer", self.answers.append, 100)
+        self.io.create_subscription(Float64MultiArray, "joint_velocity_cmd", self.cmds.append, 100)
+        self.io.create_subscription(ControllerStatus, "controller_node/status", self.status.append, 100)
+        pubs = (self.js, self.joy, self.det, self.info)
+        assert self.spin_until(lambda: all(p.get_subscription_count() > 0 for p in pubs))
+
+    def state(self, t: int) -> None:
+        msg = JointState(name=NAMES, position=[float(v) for v in READY])
+        msg.header.stamp = stamp_from_ns(t)
+        self.js.publish(msg)
+
+    def stick(self, t: int, axis: float = 0.8) -> None:
+        msg = Joy(axes=[float(axis), 0.0], buttons=[0, 0])
+        msg.header.stamp = stamp_from_ns(t)
+        self.joy.publish(msg)
+
+    def frame(self, t: int) -> None:
+        msg = CameraInfo(width=640, height=480)
+        msg.header.stamp = stamp_from_ns(t)
+        self.info.publish(msg)
+
+    def detections(self, t: int) -> None:
+        msg = DetectionArray(image_width=640, image_height=480)
+        msg.header.stamp = stamp_from_ns(t)
+        msg.detections = [Detection(class_id="bread", score=0.9, center_x=320.0, center_y=240.0)]
+        self.det.publish(msg)
+
+    def answered(self, t: int, timeout: float = 10.0) -> bool:
+        return self.spin_until(lambda: any(_ns(a) == t for a in self.answers), timeout)
+
+
+def _ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
+@pytest.fixture
+def harness(random_model_dir):
+    h = Harness(random_model_dir)
+    yield h
+    h.shutdown()
+
+
+def test_each_state_is_answered_once_its_joy_is_in_whichever_came_first(harness):
+    h = harness
+    h.detections(T0 - STEP)
+    h.state(T0)
+    h.spin_for(0.3)
+    assert not h.answers                                  # no joy for this state yet: no answer
+    h.stick(T0, 0.0)
+    assert h.answered(T0)
+    h.stick(T0 + STEP)                                    # the operator's joy before the state
+    h.spin_for(0.2)
+    h.state(T0 + STEP)
+    assert h.answered(T0 + STEP)
+    assert [_ns(a) for a in h.answers] == [T0, T0 + STEP]
+    assert all(a.node == "controller_node" and len(a.command) == 7 for a in h.answers)
+    assert not h.cmds                                      # in lockstep the command is in the answer
+    assert _ns(h.status[0]) == T0                          # stamped with the step, not the clock
+
+
+def test_a_relatch_waits_for_the_first_usable_frames_detections(harness):
+    h = harness
+    h.detections(T0 - STEP)
+    for k in range(3):                                    # latched (at startup, whatever came), armed
+        h.state(T0 + k * STEP)
+        h.stick(T0 + k * STEP, 0.0 if k < 2 else 0.8)
+        assert h.answered(T0 + k * STEP)
+    assert np.linalg.norm(h.answers[-1].command) > 0
+    assert h.call(h.io.create_client(Trigger, "controller_node/redetect"), Trigger.Request()).success
+    t = T0 + 3 * STEP
+    h.frame(t)                                            # the frame of this step: usable from the next
+    h.state(t)
+    h.stick(t)
+    assert h.answered(t)
+    assert np.linalg.norm(h.answers[-1].command) == 0     # waiting for a new detection: zero
+    h.state(t + STEP)
+    h.stick(t + STEP)
+    h.spin_for(0.3)
+    assert not any(_ns(a) == t + STEP for a in h.answers)  # the frame's detections are not in yet
+    h.detections(t)
+    assert h.answered(t + STEP)
+    assert h.spin_until(lambda: h.status[-1].latched_class == "bread")
+    assert _ns(h.status[-1]) == t + STEP

@@ -1,0 +1,59 @@
+"""The controller's lockstep inputs (no ROS): a step is computed once its joy is in, and a re-latch
+waits for the detections of the first frame it may use, whatever order the writers' messages came in."""
+from vla_latent_controller.lockstep import DETECTIONS, JOY, LockstepInputs
+
+
+def test_a_step_needs_its_own_joy_whichever_came_first():
+    for joy_first in (False, True):
+        ls = LockstepInputs()
+        if joy_first:
+            ls.on_joy(10, "joy@10")
+        ls.on_state(10, "state@10")
+        if not joy_first:
+            assert "joy stamped 10" in ls.missing(None)
+            ls.on_joy(10, "joy@10")
+        assert ls.missing(None) is None
+        t, state, due = ls.take()
+        assert (t, state, due) == (10, "state@10", [(JOY, 10, "joy@10")])
+        assert ls.missing(None) == "a joint state"
+
+
+def test_a_state_already_answered_is_not_answered_again():
+    ls = LockstepInputs()
+    ls.on_state(10, "s")
+    ls.on_joy(10, "j")
+    ls.take()
+    ls.on_state(10, "s again")      # the bridge repeats step 0 until every participant has it
+    assert ls.state is None
+
+
+def test_a_relatch_waits_for_the_detections_of_the_first_frame_after_the_request():
+    ls = LockstepInputs()
+    ls.on_frame(5)                   # before the re-detection: never waited for
+    ls.on_frame(20)
+    ls.on_state(30, "s")
+    ls.on_joy(30, "j")
+    assert ls.missing(None) is None                       # no re-latch: frames do not matter
+    assert "frame stamped 20" in ls.missing(wanted_since_ns=10)
+    ls.on_detections(20, "dets@20")
+    assert ls.missing(wanted_since_ns=10) is None
+    assert [k for k, _, _ in ls.take()[2]] == [DETECTIONS, JOY]
+
+
+def test_the_steps_own_frame_is_the_next_steps():
+    ls = LockstepInputs()
+    ls.on_frame(30)
+    ls.on_state(30, "s")
+    ls.on_joy(30, "j")
+    assert ls.missing(wanted_since_ns=10) is None          # stamped at the step itself: not yet usable
+    ls.on_detections(30, "dets@30")
+    assert [k for k, _, _ in ls.take()[2]] == [JOY]        # ... and its detections wait for step 40
+
+
+def test_detections_that_overtook_their_frame_count():
+    ls = LockstepInputs()
+    ls.on_detections(20, "dets@20")
+    ls.on_frame(20)
+    ls.on_state(30, "s")
+    ls.on_joy(30, "j")
+    assert ls.missing(wanted_since_ns=10) is None

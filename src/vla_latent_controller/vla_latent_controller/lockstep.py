@@ -1,0 +1,79 @@
+"""The controller's side of a lockstep simulation (no rclpy; vla_common.lockstep says why it works).
+
+In lockstep the controller commands once per joint state, in answer to it: step k (the state stamped
+t_k) is computed once the operator's Joy stamped t_k is in, from the inputs stamped for it (the Joy of
+this step; frames and detections stamped before it), and its command goes back in the step's answer.
+A re-latch waits for the detections of the first camera frame it may use: the frame itself came
+before the joint state (the bridge publishes it first), but the detector answers in its own time, so
+without the wait the latched detection would depend on the detector's speed.
+"""
+from __future__ import annotations
+
+from typing import Any
+
+from vla_common.lockstep import StampedInputs
+
+JOY, DETECTIONS, IMAGE = "joy", "detections", "image"
+KEEP_EARLY = 100   # detections remembered that came before their frame's camera_info
+
+
+class LockstepInputs:
+    """The pending joint state, the other inputs by stamp, and the frames whose detections are out."""
+
+    def __init__(self) -> None:
+        self.inputs = StampedInputs()
+        self.state: tuple[int, Any] | None = None     # (stamp ns, message) of the step to answer
+        self.answered_ns = -1                          # the last step answered
+        self._frames: set[int] = set()                 # camera frames (their stamps) without detections
+        self._detected: set[int] = set()               # frames whose detections came before the frame
+
+    def on_state(self, stamp_ns: int, msg: Any) -> bool:
+        """Keep a new step's joint state; True when it is the step just answered again (the bridge
+        repeats step 0 until every participant has answered: the answer may have been lost)."""
+        if stamp_ns > self.answered_ns:
+            self.state = (int(stamp_ns), msg)
+        return stamp_ns == self.answered_ns
+
+    def on_joy(self, stamp_ns: int, msg: Any) -> None:
+        self.inputs.add(JOY, stamp_ns, msg)
+
+    def on_image(self, stamp_ns: int, value: Any) -> None:
+        self.inputs.add(IMAGE, stamp_ns, value)
+
+    def on_frame(self, stamp_ns: int) -> None:
+        """A camera frame was published (its camera_info): its detections will follow."""
+        if stamp_ns in self._detected:
+            self._detected.discard(stamp_ns)
+        else:
+            self._frames.add(int(stamp_ns))
+
+    def on_detections(self, stamp_ns: int, value: Any) -> None:
+        self.inputs.add(DETECTIONS, stamp_ns, value)
+        if stamp_ns in self._frames:
+            self._frames.discard(stamp_ns)
+        else:
+            self._detected.add(int(stamp_ns))
+            while len(self._detected) > KEEP_EARLY:   # a frame whose camera_info never comes
+                self._detected.discard(min(self._detected))
+
+    def missing(self, wanted_since_ns: int | None) -> str | None:
+        """What the pending step still waits for (None: it can be computed). `wanted_since_ns`: the
+        controller waits to latch a detection of a frame stamped at or after this (None: it needs none)."""
+        if self.state is None:
+            return "a joint state"
+        t = self.state[0]
+        if not self.inputs.has(JOY, t):
+            return f"the operator's joy stamped {t} ns"
+        if wanted_since_ns is not None:
+            for frame in sorted(self._frames):
+                if frame < wanted_since_ns:
+                    self._frames.discard(frame)       # older than the re-latch: never needed
+                elif frame < t:
+                    return f"the detections of the camera frame stamped {frame} ns"
+        return None
+
+    def take(self) -> tuple[int, Any, list[tuple[str, int, Any]]]:
+        """(stamp, joint state, inputs due in that step in stamp order); the step counts as answered."""
+        t, msg = self.state
+        self.state, self.answered_ns = None, t
+        return t, msg, self.inputs.due(t, now_kinds=(JOY,))

@@ -225,6 +225,11 @@ class GraphObserver:
             self.cond.notify_all()
         if (m := self.monitor) is not None:
             m.on_joint_state(self.q_stamp, q, dq, self.teleop_before(self.q_stamp))
+        self.on_state(msg)
+
+    def on_state(self, msg: JointState) -> None:
+        """Each joint state, after the measurements: a subclass that answers it in lockstep (the study's
+        participant publishes its Joy for it) does so here, in the order the states came."""
 
     def _objects(self, msg) -> None:
         # with the height: a pick-and-place is judged put down (an object held over its target is not)
@@ -378,6 +383,7 @@ class GraphEvaluator:
         self.log = log
         self.observer = observer
         self.runner: GraphRunner[GraphObserver] | None = None
+        self.reset_stamp = math.nan   # lockstep: the simulated time (s) of the last reset
         self.obs: GraphObserver | None = None
         self.kin = PandaKinematics()
 
@@ -513,6 +519,7 @@ class GraphEvaluator:
         if not res.success:
             raise GraphError(f"reset refused: {res.message}")
         if obs.steps is not None:   # a fixed count of steps: the scene settles, frames are rendered
+            self.reset_stamp = obs.steps.stamp
             obs.steps.run(cfg.steps(cfg.settle_time), "the new scene to settle")
         else:
             settled = obs.now() + cfg.settle_time

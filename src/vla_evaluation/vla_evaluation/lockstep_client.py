@@ -11,6 +11,8 @@ import threading
 import time
 from collections.abc import Callable
 
+from vla_common.lockstep import EPOCH_NS
+
 from vla_interfaces.msg import LockstepStatus
 from vla_interfaces.srv import LockstepRun
 
@@ -47,6 +49,8 @@ class LockstepClient:
         node.create_subscription(LockstepStatus, f"{BRIDGE}/lockstep", self._on_status, 50)
         self.step = 0          # where it holds (after the last run)
         self.stamp = math.nan  # the simulated time (s) of that step
+        self._target: int | None = None   # the hold the current run waits for
+        self._lowered: int | None = None  # a hold a participant set during the run (hold_after)
 
     def _on_status(self, msg: LockstepStatus) -> None:
         with self.cond:
@@ -59,23 +63,38 @@ class LockstepClient:
         if not self.client.wait_for_service(timeout_sec=30.0):
             raise self.error(f"service {self.client.srv_name} not available: is the bridge in lockstep?")
         done = threading.Event()
+        with self.cond:
+            self._target = self._lowered = None
         fut = self.client.call_async(LockstepRun.Request(steps=int(steps)))
         fut.add_done_callback(lambda _f: done.set())
         if not done.wait(30.0):
             raise self.error(f"{self.client.srv_name} did not answer within 30 s")
-        target = int(fut.result().hold_step)
+        with self.cond:   # a participant may have lowered the hold already (a trial that ends at once)
+            asked = int(fut.result().hold_step)
+            self._target = asked if self._lowered is None else min(asked, self._lowered)
         sim_s = max(0, int(steps)) * self.unit
         paced = sim_s / self.real_time_factor * 4 if self.real_time_factor > 0 else 0.0
         bound = RUN_BASE_S + RUN_PER_SIM_S * sim_s + paced
-        self._wait_held(target, bound, what or f"{steps} steps")
-        self.step, self.stamp = target, stamp_s(self.status)
+        self._wait_held(bound, what or f"{steps} steps")
+        self.step, self.stamp = self._target, stamp_s(self.status)
         return self.stamp
 
-    def _wait_held(self, target: int, bound: float, what: str) -> None:
+    def hold_after(self, stamp_ns: int, steps: int) -> None:
+        """From a participant's answer to the joint state stamped `stamp_ns` (its callback, before it
+        answers): hold `steps` after that step instead. The bridge is at that step until the answer
+        comes, so the hold is exact; the run under way returns there."""
+        step = (int(stamp_ns) - EPOCH_NS) // max(1, round(self.unit * 1e9))
+        with self.cond:
+            self._lowered = step + int(steps)
+            if self._target is not None:
+                self._target = min(self._target, self._lowered)
+        self.client.call_async(LockstepRun.Request(steps=int(steps)))
+
+    def _wait_held(self, bound: float, what: str) -> None:
         deadline = time.monotonic() + bound
         with self.cond:
             while True:
-                st = self.status
+                st, target = self.status, self._target
                 if st is not None and st.hung:
                     raise self.error(f"{what}: {st.text}")
                 if st is not None and st.held and st.step == target and self.state_stamp() >= stamp_s(st):

@@ -162,7 +162,7 @@ class MujocoBackend(BackendBase):
         self._wall_start = time.monotonic()
         if host.params["lockstep"]:
             self._lockstep = Lockstep(host, self._steps_per_state * self._dt, self._lockstep_period,
-                                      self.now_ns)
+                                      self.now_ns, self.publish_scene)
             self._lockstep_outputs()
             host.publish_state()
             self._lockstep.begin()

@@ -27,13 +27,15 @@ REPEAT_FIRST_S = 0.25                # step 0's joint state again this often unt
 
 class Lockstep:
     """The barrier's ROS side. `period()` advances one state period and publishes it (the backend's);
-    `stamp_ns()` is the current step's simulated time. Step 0's joint state is published again every
-    REPEAT_FIRST_S until every participant has answered it: the bridge starts before the nodes that
-    answer it, and a state they never received would be a hang (nothing moves meanwhile)."""
+    `stamp_ns()` is the current step's simulated time; `on_hold()` publishes what an orchestrator reads
+    when it holds (the scene: a trial's end state is read there). Step 0's joint state is published
+    again every REPEAT_FIRST_S until every participant has answered it: the bridge starts before the
+    nodes that answer it, and a state they never received would be a hang (nothing moves meanwhile)."""
 
-    def __init__(self, host, unit: float, period: Callable[[], None], stamp_ns: Callable[[], int]) -> None:
+    def __init__(self, host, unit: float, period: Callable[[], None], stamp_ns: Callable[[], int],
+                 on_hold: Callable[[], None]) -> None:
         p = host.params
-        self._host, self._period, self._stamp_ns = host, period, stamp_ns
+        self._host, self._period, self._stamp_ns, self._on_hold = host, period, stamp_ns, on_hold
         self.barrier = StepBarrier(p["lockstep_participants"], hold=p["lockstep_hold"])
         self.pacer = StepPacer(unit, p["real_time_factor"])
         self.timeout = float(p["lockstep_timeout"])
@@ -71,6 +73,7 @@ class Lockstep:
             if not self._held_reported:
                 self._held_reported = True
                 self.pacer.restart()
+                self._on_hold()
                 self.publish_status("held: every participant answered; ~/lockstep_run moves on")
             return
         if not b.may_advance() or not self._pace_timer.is_canceled():

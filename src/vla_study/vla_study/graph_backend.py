@@ -11,7 +11,12 @@ as `vla_evaluation evaluate --mode graph` and `demo` do) plus the recorder, and 
   `scene/objects`, what a person sees on the table) and the controller's status, and publishes `joy`:
   the stick on axis 0, the end-effector mode button as button 0 (the controller's `ee_mode_button`).
   The controller turns it into a command (the decoder, or the end-effector baseline), and the bridge's
-  safety layer into motion: every command takes the path a person's would;
+  safety layer into motion: every command takes the path a person's would. A simulated participant
+  runs in lockstep (vla_common.lockstep): it answers every joint state with a Joy stamped like it (its
+  decision at the protocol's rate, the stick held between), the controller waits for that Joy and the
+  bridge for the controller, and the steps between the reset, the latch, the trial's start and its end
+  are fixed counts, so a trial's row is a function of its seeds at any load (at real time factor 0: as
+  fast as the CPU allows);
 - ends at the participant's "done" or the time limit, releases the stick, lets the arm come to rest
   (0.5 s), closes the bag and, while the recorder closes it, scores the trial with `trial.trial_row`,
   the physics backend's scorer. Each row carries `wall_phases` (wall s of each step above) and
@@ -39,6 +44,7 @@ import numpy as np
 from sensor_msgs.msg import Joy
 from std_srvs.srv import Trigger
 from vla_common.kinematics import PandaKinematics
+from vla_common.ros.convert import ns_from_stamp
 from vla_common.tasks import parse_task
 from vla_evaluation.graph import (
     CONTROLLER,
@@ -70,29 +76,43 @@ CAMERA_RATE = 2.0
 
 
 class TrialDriver:
-    """One trial's participant on the observer's timer: observation in, Joy out."""
+    """One trial's participant on the observer's timer (or, in lockstep, on every joint state, deciding
+    every `every` states and holding the stick between): observation in, Joy out."""
 
     def __init__(self, op: HumanOperator, object_class: str, t_start: float, time_limit: float, kin,
-                 end_effector: bool) -> None:
+                 end_effector: bool, every: int = 0) -> None:
         self.op, self.cls, self.t_start, self.time_limit = op, object_class, t_start, time_limit
         self.kin, self.end_effector = kin, end_effector
         self.sticks: list[float] = []
         self.t_done: float | None = None
         self.t_end: float | None = None
         self.finished = threading.Event()
+        self.every, self._states, self._axis = every, 0, 0.0   # lockstep: states per decision
 
-    def tick(self, obs: StudyObserver) -> None:
+    def answer(self, obs: StudyObserver, msg) -> None:
+        """Lockstep: this joint state's Joy, stamped like it (a decision every `every` states)."""
+        stamp = msg.header.stamp
+        if self.finished.is_set():
+            obs.publish_stick(0.0, stamp=stamp)
+            return
+        self._states += 1
+        if (self._states - 1) % self.every:
+            obs.publish_stick(self._axis, stamp=stamp)          # the stick held between decisions
+            return
+        self.tick(obs, stamp)
+
+    def tick(self, obs: StudyObserver, stamp=None) -> None:
         if self.finished.is_set():
             return
-        t = obs.now() - self.t_start
+        t = (obs.now() if stamp is None else stamp.sec + stamp.nanosec * 1e-9) - self.t_start
         with obs.cond:
             q, objs, ctrl, safety = obs.q, obs.objects, obs.ctrl, obs.safety
         obj = objs.get(self.cls)
         if t >= self.time_limit or q is None or obj is None:
             if t >= self.time_limit:
-                self._end(obs, t)
+                self._end(obs, t, stamp)
             else:
-                obs.publish_stick(0.0)
+                obs.publish_stick(0.0, stamp=stamp)
             return
         code = int(ctrl.code) if ctrl is not None else 0
         if safety is not None and safety.code == SafetyStatus.AWAITING_ZERO:
@@ -104,13 +124,16 @@ class TrialDriver:
         act = self.op.act(seen)
         if act.done:
             self.t_done = t
-            self._end(obs, t)
+            self._end(obs, t, stamp)
             return
-        obs.publish_stick(act.axis, press=act.press)
+        obs.publish_stick(act.axis, press=act.press, stamp=stamp)
+        self._axis = act.axis
         self.sticks.append(act.axis)
 
-    def _end(self, obs: StudyObserver, t: float) -> None:
-        obs.publish_stick(0.0)  # the participant lets go
+    def _end(self, obs: StudyObserver, t: float, stamp=None) -> None:
+        if stamp is not None:     # lockstep: the arm rests SETTLE_S from this very step, then it holds
+            obs.steps.hold_after(ns_from_stamp(stamp), obs.settle_steps)
+        obs.publish_stick(0.0, stamp=stamp)  # the participant lets go
         self.t_end = t
         with obs.cond:
             self.finished.set()
@@ -121,10 +144,11 @@ class StudyObserver(GraphObserver):
     """The evaluation's observer plus the participant's stick (`joy`) and the recorder's services."""
 
     def __init__(self, ctx, keep_frames: bool, rate: float, persons: bool = False,
-                 use_sim_time: bool = True) -> None:
-        super().__init__(ctx, keep_frames, use_sim_time)
+                 use_sim_time: bool = True, lockstep: bool = False) -> None:
+        super().__init__(ctx, keep_frames, use_sim_time, lockstep=lockstep)
         n = self.node
-        self.joy_pub = n.create_publisher(Joy, "joy", 10)
+        self.joy_pub = n.create_publisher(Joy, "joy", 100 if lockstep else 10)
+        self.settle_steps = 0   # lockstep: the steps of SETTLE_S (set by the backend)
         if persons:   # what a person sends (the station, a joystick), counted by their trial's driver
             n.create_subscription(Joy, "joy", self._joy, 50)
         self.rec_start_cli = n.create_client(StartEpisode, f"{RECORDER}/start_episode")
@@ -133,7 +157,8 @@ class StudyObserver(GraphObserver):
         self.recorder_stamp = -np.inf
         n.create_subscription(RecorderStatus, f"{RECORDER}/status", self._recorder, 10)
         self.driver: TrialDriver | None = None
-        n.create_timer(1.0 / float(rate), self._tick)  # simulated time (use_sim_time)
+        if not lockstep:   # in lockstep the participant answers every joint state instead (on_state)
+            n.create_timer(1.0 / float(rate), self._tick)  # simulated time (use_sim_time)
 
     def _recorder(self, msg: RecorderStatus) -> None:
         with self.cond:
@@ -146,14 +171,25 @@ class StudyObserver(GraphObserver):
         if d is not None:
             d.tick(self)
 
+    def on_state(self, msg) -> None:
+        """Lockstep: every joint state gets the participant's Joy (the stick at rest between trials)."""
+        if self.steps is None:
+            return
+        d = self.driver
+        if isinstance(d, TrialDriver):
+            d.answer(self, msg)
+        else:
+            self.publish_stick(0.0, stamp=msg.header.stamp)
+
     def _joy(self, msg: Joy) -> None:
         d = self.driver
         if isinstance(d, PersonDriver):
             d.op.on_joy(msg.axes, msg.buttons)
 
-    def publish_stick(self, axis: float, press: bool = False) -> None:
+    def publish_stick(self, axis: float, press: bool = False, stamp=None) -> None:
+        """The stick (and the mode button), stamped `stamp` (lockstep: the joint state it answers)."""
         msg = Joy()
-        msg.header.stamp = self.node.get_clock().now().to_msg()
+        msg.header.stamp = stamp if stamp is not None else self.node.get_clock().now().to_msg()
         msg.header.frame_id = ""  # a Joy has no geometry
         axes = [0.0] * NUM_AXES
         axes[AXIS] = float(axis)
@@ -164,12 +200,13 @@ class StudyObserver(GraphObserver):
 
 
 def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0,
-                       operator_port: int | None = None) -> GraphConfig:
+                       operator_port: int | None = None, lockstep: bool = False) -> GraphConfig:
+    """`lockstep`: simulated participants (a person drives in real time)."""
     return GraphConfig(
         model_path=str(latent_model_dir("default")), detector_model=str(detector_model_path()),
         # the controller commands at its shipped 100 Hz (the bridge's 0.1 s watchdog then survives a
         # stalled period); the participant's stick comes at the protocol's rate
-        real_time_factor=real_time_factor, rate=100.0, camera_rate=CAMERA_RATE,
+        real_time_factor=real_time_factor, rate=100.0, camera_rate=CAMERA_RATE, lockstep=lockstep,
         settings=TeleopSettings(rate=float(p.rate), time_limit=float(p.time_limit)),
         log_dir=Path(out) / "logs", record_dir=Path(out) / "bags", teleoperator=False,
         operator_port=operator_port,
@@ -227,12 +264,17 @@ class GraphBackend(TrialBackend):
         Path(out, "bags").mkdir(parents=True, exist_ok=True)
         self.out = Path(out)
         persons = experimenter is not None
-        cfg = study_graph_config(protocol, out, real_time_factor, operator_port if persons else None)
-        self.ev = GraphEvaluator(cfg, log, observer=lambda ctx, keep: StudyObserver(ctx, keep, protocol.rate,
-                                                                                   persons))
+        # simulated participants in lockstep, as fast as the CPU allows; a person in real time
+        lockstep = not persons
+        cfg = study_graph_config(protocol, out, 0.0 if lockstep else real_time_factor,
+                                 operator_port if persons else None, lockstep=lockstep)
+        self.ev = GraphEvaluator(cfg, log, observer=lambda ctx, keep, **kw: StudyObserver(
+            ctx, keep, protocol.rate, persons, **kw))
         self.kin = PandaKinematics()
         self.mode: str | None = None
         self.ev.start()
+        if lockstep:
+            self.ev.obs.settle_steps = cfg.steps(SETTLE_S)
         self.catalogue = self.ev.catalogue
         self.station = ""
         if persons:
@@ -300,22 +342,28 @@ class GraphBackend(TrialBackend):
         ev, obs, p = self.ev, self.ev.obs, self.protocol
         monitor = self._monitor(scene)
         obs.monitor = monitor
-        monitor.t_start = obs.now()
+        monitor.t_start = obs.now() if obs.steps is None else obs.steps.stamp   # lockstep: the held step
         if isinstance(op, InputTally):
             driver = PersonDriver(op, monitor.t_start, float(p.time_limit))
         else:
+            every = ev.config.steps(1.0 / p.rate) if obs.steps is not None else 0
             driver = TrialDriver(op, scene.spec.object_class, monitor.t_start, float(p.time_limit), self.kin,
-                                 scene.mode == "end_effector")
-        self._until_the_end(trial, driver, p.time_limit / max(ev.config.real_time_factor, 0.05) * 4 + 60)
+                                 scene.mode == "end_effector", every=every)
+        if obs.steps is not None:
+            self._lockstep_trial(trial, driver)       # it holds SETTLE_S after the end
+        else:
+            self._until_the_end(trial, driver, p.time_limit / max(ev.config.real_time_factor, 0.05) * 4 + 60)
         scene.clock.mark("trial")
         t_end = driver.t_start + driver.t_end
-        obs.wait_for(lambda: obs.objects_stamp >= t_end + SETTLE_S and obs.q_stamp >= t_end + SETTLE_S,
-                     60.0, "the arm to rest after the trial", ev.alive)
+        if obs.steps is None:
+            obs.wait_for(lambda: obs.objects_stamp >= t_end + SETTLE_S and obs.q_stamp >= t_end + SETTLE_S,
+                         60.0, "the arm to rest after the trial", ev.alive)
         obs.monitor = None
         with obs.cond:
             q_final, end = obs.q.copy(), obs.objects.get(scene.spec.object_class)
         scene.clock.mark("settle")
-        bag_closed = self._stop_bag(t_end + SETTLE_S, scene.bag_path)  # the recorder closes it as we score
+        # the recorder closes it as we score (in lockstep its clock passed the end while the arm rested)
+        bag_closed = self._stop_bag(t_end + (SETTLE_S if obs.steps is None else 0.0), scene.bag_path)
         scene.clock.mark("bag_stop")
         if end is None:
             raise GraphError(f"{scene.spec.object_class} missing from scene/objects after trial {trial.key}")
@@ -341,6 +389,19 @@ class GraphBackend(TrialBackend):
         every = max(1, round(self.ev.config.state_rate / 20.0))
         return EpisodeMonitor(scene.spec, scene.start, self.kin, every, False)
 
+    def _lockstep_trial(self, trial: Trial, driver: TrialDriver) -> None:
+        """Lockstep: run to the time limit and the rest after it; the participant answers every joint
+        state and, at its end, holds the simulation SETTLE_S later (so a trial that ends early does not
+        run on to the limit)."""
+        obs, cfg = self.ev.obs, self.ev.config
+        obs.driver = driver
+        try:
+            obs.steps.run(cfg.steps(self.protocol.time_limit) + obs.settle_steps + 2, f"trial {trial.key}")
+        finally:
+            obs.driver = None
+        if not driver.finished.is_set():
+            raise GraphError(f"trial {trial.key}: the participant did not end by the time limit")
+
     def _until_the_end(self, trial: Trial, driver, wall_limit: float) -> None:
         """Let the driver run on the observer's timer until the trial ends (a person's: at the
         experimenter's word or the limit)."""
@@ -357,7 +418,9 @@ class GraphBackend(TrialBackend):
     def _start_bag(self, trial) -> Callable[[], StartEpisode.Response]:
         """Ask the recorder for the trial's bag once its clock has passed the reset; returns the wait."""
         obs = self.ev.obs
-        t_reset = obs.q_stamp  # the recorder's clock can lag the bridge's: start after the reset
+        # the recorder's clock can lag the bridge's: start after the reset (in lockstep the scene settled
+        # since, so the recorder's clock is past the reset itself)
+        t_reset = obs.q_stamp if obs.steps is None else self.ev.reset_stamp
         obs.wait_for(lambda: obs.recorder_stamp >= t_reset, 30.0, "the recorder's clock to pass the reset",
                      self.ev.alive)
         return obs.request(obs.rec_start_cli, StartEpisode.Request(task=trial.task, note=json.dumps(

@@ -102,8 +102,8 @@ class KeyboardPerson(PagePerson):
         from selenium.webdriver.common.action_chains import ActionChains
         from selenium.webdriver.common.keys import Keys
 
-        self.d.execute_script("document.querySelector('input[name=speed]:checked').focus();")
-        ActionChains(self.d).send_keys(Keys.ARROW_RIGHT).perform()      # Medium -> Fast in the group
+        self.d.execute_script("document.querySelector('input[name=speed][value=\"1.0\"]').focus();")
+        ActionChains(self.d).send_keys(Keys.SPACE).perform()            # Fast chosen in the group
         self.d.execute_script("document.activeElement.blur();")         # keys drive outside a field
 
     def press(self) -> bool:

@@ -87,6 +87,7 @@ def push_bread_east(ev, b, person_cls, seed: int = SEED) -> dict:
     need(not why and obs.ctrl.latched_class == "bread", f"the bread is not latched: {why or obs.ctrl}")
     person = person_cls(b.driver)
     person.setup(lambda **v: save_settings(b, **v))
+    need(b.driver.execute_script("return window.station.speed") == 1.0, "the page's speed is not Fast")
     need(until(lambda: person.word() == "Stopped", 30.0), f"the page says {person.word()!r}, not Stopped")
     monitor = EpisodeMonitor(spec, start, ev.kin, 5, False)
     obs.monitor, monitor.t_start = monitor, obs.now()

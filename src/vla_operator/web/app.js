@@ -119,8 +119,10 @@ function showRecorder(s) {
 // The state bar: one word and what to do (announced: a live region, changed only when it changes), and
 // the look of the whole page (a latched e-stop turns it red and says so).
 function render() {
-  const [look, word, detail] = armState({ connected: state.connected, ctrl: state.ctrl, safety: state.safety,
-                                          driver: state.driver, refused: state.refusedHeld });
+  const now = () => armState({ connected: state.connected, ctrl: state.ctrl, safety: state.safety,
+                               driver: state.driver, refused: state.refusedHeld });
+  let [look, word, detail] = now();
+  if (letGoWhenTold(look)) [look, word, detail] = now();
   state.word = word;
   setText($('state-word'), word);
   setText($('state-detail'), state.stale ? `${detail} ${state.stale}` : detail);
@@ -184,16 +186,27 @@ function pressedLook(dir) {
   setAttr($('back'), 'aria-pressed', String(dir < 0));
 }
 
-// The station refused this page's input (late under load, or a neutral needed first): stop what is
-// held, send the neutral that lets the next press move, clear the pressed look, and say what to do.
+// The station refused this page's input. Nothing can move until a neutral (the station needs one), or
+// the arm is not moving with it: stop what is held, send the neutral that lets the next press move,
+// clear the pressed look, and say what to do. One late input while the arm moves with this page's input
+// changes nothing (the next one, 40 ms later, counts): a busy machine does not stop a working drive.
+function holding() { return state.held !== 0 || state.toggled !== 0 || state.padAxis !== 0 || link.axis !== 0; }
 function refusedInput(reason) {
   if (/another station|watch/.test(reason)) { letGo(false); say(`Not moving: ${reason}.`); render(); return; }
-  const held = state.held !== 0 || state.toggled !== 0 || state.padAxis !== 0 || link.axis !== 0;
-  letGo(held);
-  const why = /late/.test(reason) ? 'your input arrived late (a busy computer or network)'
-    : /neutral/.test(reason) ? 'the station needs you to let go first' : reason;
-  say(`Not moving: ${why}. Let go and press again.`);
+  const needsNeutral = /neutral/.test(reason);
+  if (!holding() || (!needsNeutral && state.word === 'Moving')) return;
+  letGo(true);
+  say(`Not moving: ${needsNeutral ? 'the station needs you to let go first'
+                                  : 'your input arrived late (a busy computer or network)'}. Let go and press again.`);
   render();
+}
+// The controller or the bridge waits for a neutral while this page holds an input (a stop it did not
+// choose): the page lets go itself, so the pressed look goes and the next press moves.
+function letGoWhenTold(look) {
+  if (look !== 'letgo' || state.refusedHeld || !holding()) return false;
+  letGo(true);
+  say('Stopped: let go and press again.');
+  return true;
 }
 function letGo(mustRelease) {
   clearTimeout(state.stepTimer); state.held = 0; state.toggled = 0;

@@ -67,9 +67,11 @@ class Harness(RosHarness):
             self.joy.publish(Joy(axes=[float(axis), 0.0], buttons=[0, 0]))
 
     def settle(self, code, **send):
-        """Keep inputs fresh until the status reports `code`; the last command. Like an operator, it
-        returns the stick to neutral when the controller asks for it (AWAITING_NEUTRAL)."""
-        end = time.monotonic() + 5.0
+        """Keep inputs fresh until the status reports `code`; the command of that same tick (the one the
+        status names, published just before it: a later one may already be a joy timeout's zero on a
+        loaded machine). Like an operator, it returns the stick to neutral when the controller asks for
+        it (AWAITING_NEUTRAL). 60 s of wall time only against a hang."""
+        end = time.monotonic() + 60.0
         while time.monotonic() < end:
             asked = self.status and self.status[-1].code == ControllerStatus.AWAITING_NEUTRAL
             release = asked and code != ControllerStatus.AWAITING_NEUTRAL
@@ -77,10 +79,16 @@ class Harness(RosHarness):
             self.status.clear()
             self.spin_until(lambda: self.status, timeout=0.05)
             if self.status and self.status[-1].code == code:
-                n = len(self.cmds) + 1
-                self.spin_until(lambda n=n: len(self.cmds) > n, timeout=1.0)
-                return self.status[-1], np.array(self.cmds[-1])
+                st = self.status[-1]
+                assert self.spin_until(lambda st=st: self._sent_with(st) is not None, timeout=60.0), st
+                return st, self._sent_with(st)
+
         raise AssertionError(f"status never {code}: {self.status[-1:] if self.status else 'none'}")
+
+    def _sent_with(self, st: ControllerStatus) -> np.ndarray | None:
+        """The last command published with the values `st` names (its tick's), or None."""
+        want = np.asarray(st.command, float)
+        return next((np.array(c) for c in reversed(self.cmds) if np.array_equal(np.array(c), want)), None)
 
     def call_service(self, srv_type, name, req):
         return self.call(self.io.create_client(srv_type, name), req)

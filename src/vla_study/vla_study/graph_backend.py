@@ -62,7 +62,7 @@ from vla_interfaces.msg import ControllerStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import StartEpisode
 from vla_study.participant import HumanOperator, HumanParams, Observation
 from vla_study.person import Experimenter, InputTally, PersonDriver, run_person_trial
-from vla_study.protocol import Protocol
+from vla_study.protocol import Protocol, model_for
 from vla_study.trial import Measured, Participant, Scene, Trial, TrialBackend, strategy_mode
 
 RECORDER = "recorder"
@@ -304,7 +304,7 @@ class GraphBackend(TrialBackend):
             self.ev.obs.set_parameters(CONTROLLER, {"mode": mode})
             self.mode = mode
         if mode == "latent":
-            self.ev.set_model(str(latent_model_dir(self.protocol.models[trial.strategy][trial.setting])))
+            self.ev.set_model(str(latent_model_dir(model_for(self.protocol, trial))))
         return mode
 
     def prepare(self, trial: Trial) -> GraphScene:

@@ -24,7 +24,7 @@ from vla_panda_bridge.safety import SafetyConfig, SafetyFilter
 from vla_sim.sim import PandaSim
 
 from vla_study.participant import Observation
-from vla_study.protocol import Protocol
+from vla_study.protocol import Protocol, model_for
 from vla_study.trial import Measured, Participant, Scene, Trial, TrialBackend, strategy_mode
 
 JUDGE_S = 0.1  # s between two checks of the object's pose (the bridge's scene/objects rate)
@@ -66,7 +66,7 @@ class PhysicsBackend(TrialBackend):
         scene = PhysicsScene(mode, parse_task(trial.task, self.catalogue), start, layout=layout)
         if mode == "latent":
             try:
-                model = self.model(p.models[trial.strategy][trial.setting])
+                model = self.model(model_for(p, trial))
                 scene.command, _ = layout_command(model, layout, TeleopSettings(rate=p.rate,
                                                                                 time_limit=p.time_limit))
             except ValueError as e:  # no context latched: the controller waits, nothing moves

@@ -35,7 +35,8 @@ DEFAULT_MODELS = {"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_so
 PAPER = Path(__file__).with_name("protocols") / "paper.yaml"
 SHIPPED = PAPER.with_name("shipped.yaml")  # the paper's procedure with latent-YOLO and the end-effector only
 MAX_BYTES = 256 * 1024  # a protocol is a page of YAML
-__all__ = ["EE_AXES", "STRATEGIES", "Protocol", "ProtocolError", "load_protocol", "robot_refusal"]
+__all__ = ["EE_AXES", "STRATEGIES", "Protocol", "ProtocolError", "load_protocol", "model_for", "model_names",
+           "robot_refusal"]
 
 
 class ProtocolError(ValueError):
@@ -59,7 +60,8 @@ class Protocol:
     counterbalance: str
     time_limit: float
     rate: float
-    models: dict[str, dict[str, str]] = field(default_factory=dict)
+    # strategy -> setting -> a model, or a list of models (one per training seed; model_for says whose)
+    models: dict[str, dict[str, str | list[str]]] = field(default_factory=dict)
     backend: str = "graph"
     # what the end-effector mode button cycles (the controller's ee_axes); the participant needs x, y, z
     end_effector_axes: tuple[str, ...] = EE_AXES
@@ -82,6 +84,22 @@ class Protocol:
              if k not in ("source", "participants", "origin", "role", "development")
              and not (k in defaults and v == defaults[k])}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+def model_names(p: Protocol, strategy: str, setting: str) -> list[str]:
+    """Every model the protocol names for a latent strategy and setting (one per training seed)."""
+    names = p.models[strategy][setting]
+    return [names] if isinstance(names, str) else list(names)
+
+
+def model_for(p: Protocol, trial) -> str:
+    """The model a latent trial drives: the one named for its strategy and setting or, where a list
+    (one model per training seed) is named, the participant's: participant i (0-based, in the order of
+    the protocol's participants, as trial_plan numbers them) drives the model at i mod the list's
+    length, in every setting and for every trial. So the training seeds spread evenly over the
+    participants, and a participant's practice and test trials use one model."""
+    names = model_names(p, trial.strategy, trial.setting)
+    return names[p.participants.index(trial.participant) % len(names)]
 
 
 def robot_refusal(p: Protocol) -> str | None:
@@ -189,9 +207,11 @@ def _model_errors(f: ProtocolFile, where: str, lines: Lines, model_exists) -> li
             if m is None:
                 errors.append(f"{where}:{at}: strategy {s!r} has no model for setting {key_name(setting)} "
                               "(give it under models)")
-            elif model_exists is not None and not model_exists(m):
-                errors.append(f"{where}:{at}: strategy {s!r}, setting {key_name(setting)}: model "
-                              f"{key_name(m)} is not installed")
+                continue
+            for name in ([m] if isinstance(m, str) else m):
+                if model_exists is not None and not model_exists(name):
+                    errors.append(f"{where}:{at}: strategy {s!r}, setting {key_name(setting)}: model "
+                                  f"{key_name(name)} is not installed")
     return errors
 
 

@@ -55,6 +55,17 @@ def _study_task(task: str, info: ValidationInfo) -> str:
 
 
 Task = Annotated[str, Field(max_length=200), AfterValidator(_study_task)]
+ModelName = Annotated[str, Field(min_length=1, max_length=200)]
+
+
+def _distinct_models(names: list[str]) -> list[str]:
+    if len(set(names)) != len(names):
+        raise ValueError("a model is listed twice for one setting")
+    return names
+
+
+ModelNames = ModelName | Annotated[list[ModelName], Field(min_length=1, max_length=20),
+                                   AfterValidator(_distinct_models)]
 
 
 class Strict(BaseModel):
@@ -87,7 +98,9 @@ class ProtocolFile(Strict):
     counterbalance: Literal["latin_square", "none"] = "latin_square"
     time_limit: float = Field(30.0, ge=1, le=600)
     rate: float = Field(20.0, ge=5, le=200)
-    models: dict[Strategy, dict[str, str]] = {}
+    # per latent strategy and setting a model, or a list of models (one per training seed): participant
+    # i (0-based, in the order of participants) drives the model at i mod the list's length
+    models: dict[Strategy, dict[str, ModelNames]] = {}
     backend: Backend = "graph"
     robot: Robot = "sim"
     end_effector_axes: list[EeAxis] = list(EE_AXES)

@@ -27,7 +27,7 @@ import numpy as np
 from vla_study.backends import BACKENDS, Where, backend_name, make_backend
 from vla_study.participant import HumanParams, Lesson, population
 from vla_study.person import Experimenter, TerminalExperimenter
-from vla_study.protocol import Protocol, latin_square, load_protocol, robot_refusal
+from vla_study.protocol import STRATEGIES, Protocol, latin_square, load_protocol, model_for, robot_refusal
 from vla_study.questionnaire import LABELS, SCALE, likert_row, station_for
 from vla_study.trial import Trial, TrialBackend, hash_seed
 
@@ -238,7 +238,7 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
         row.update({"key": trial.key, "file": trial.file_stem, "participant": who,
                     "strategy": trial.strategy, "setting": trial.setting, "task": trial.task,
                     "trial": trial.trial, "phase": trial.phase, "layout_seed": trial.layout_seed,
-                    "operator_seed": seed,
+                    "operator_seed": seed, "model": _model(protocol, trial),
                     "order": trial.order, "simulated": who.startswith("sim:"), "backend": protocol.backend,
                     "wall_s": round(time.monotonic() - wall0, 2)})
         store.record(row, arrays)
@@ -249,6 +249,11 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
                                    for t in todo[n + 1:])
         if last_of_strategy and not who.startswith("sim:") and (who, trial.strategy) not in asked:
             _likert(store, who, trial.strategy, backend, log, ask)
+
+
+def _model(protocol: Protocol, trial: Trial) -> str | None:
+    """The latent model a trial drove (its training seed, where the protocol names one per seed)."""
+    return model_for(protocol, trial) if STRATEGIES[trial.strategy] == "latent" else None
 
 
 def restore_lessons(backend, rows) -> None:

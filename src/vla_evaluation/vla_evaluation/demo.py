@@ -56,7 +56,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help=f"base, unseen, all, or comma-separated task names (default: {DEMO_TASKS})")
     p.add_argument("--layouts", type=int, default=1, help="fresh layouts per task")
     p.add_argument("--seed", type=int, default=200_000, help="first layout seed (unseen in training)")
-    p.add_argument("--real-time-factor", type=float, default=2.5, help="simulated seconds per wall second")
+    p.add_argument("--real-time-factor", type=float, default=None,
+                   help="simulated seconds per wall second at most (default: as fast as the CPU allows; "
+                        "1 with --record-page, so that the page plays at real time); the graph runs in "
+                        "lockstep, so the results are the same")
+    p.add_argument("--free-running", action="store_true",
+                   help="no lockstep: the simulation paced by the wall clock (2.5 x real time unless set), "
+                        "as before issue 33; outcomes then depend on the machine's load")
     p.add_argument("--stop-on-success", action="store_true", help="end an episode 1 s after success")
     p.add_argument(
         "--models",
@@ -100,10 +106,14 @@ def run(args) -> int:
         model_dirs.update(made)
 
     settings = settings_from(args)
+    rtf = args.real_time_factor
+    if rtf is None:
+        rtf = 2.5 if args.free_running else (1.0 if args.record_page else 0.0)
     cfg = GraphConfig(
         model_path=str(model_dirs[model_name_for(tasks[0])]),
         detector_model=str(det),
-        real_time_factor=args.real_time_factor,
+        lockstep=not args.free_running,
+        real_time_factor=rtf,
         rate=settings.rate,
         settings=settings,
         stop_on_success=args.stop_on_success,
@@ -143,7 +153,8 @@ def run(args) -> int:
         "models": {n: str(d) for n, d in model_dirs.items()},
         "detector_model": str(det),
         "settings": vars(settings),
-        "real_time_factor": args.real_time_factor,
+        "real_time_factor": rtf,
+        "lockstep": cfg.lockstep,
         "base_success_rate": (sum(bool(r.success) for r in base) / len(base)) if base else None,
         "wall_s": round(time.monotonic() - t_all, 1),
         "files": {k: str(v) for k, v in files.items()},

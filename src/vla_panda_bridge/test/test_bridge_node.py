@@ -1,7 +1,10 @@
 """The bridge node with the MuJoCo backend, in-process (private rclpy Context and executor).
 
 Small cameras and real_time_factor > 1 keep it quick; the node steps physics and the safety filter
-at 1 kHz either way.
+at 1 kHz either way. The simulation runs at whatever pace the machine gives it (0.1x real time on a
+loaded one), so every wait here is for a simulated event (a state, a stamp, a status) with a wall
+bound only against a hang (HANG_S), and a held stick is a command on every few joint states, not on a
+wall-clock timer (Harness.stream).
 """
 import math
 import os
@@ -32,6 +35,8 @@ from vla_interfaces.msg import SafetyStatus, SceneObject, SceneObjectArray
 from vla_interfaces.srv import ResetScene
 
 pytestmark = pytest.mark.ros
+HANG_S = 120.0   # wall s: the bound on any wait for the simulation, only against a hang
+STREAM_EVERY = 4  # a held stick: a command on every 4th joint state (20 ms of simulated time at 200 Hz)
 
 
 class Harness:
@@ -52,20 +57,36 @@ class Harness:
         self.status: list[SafetyStatus] = []
         self.scenes: list[SceneObjectArray] = []
         self.clock: list[Clock] = []
-        self.probe.create_subscription(JointState, "joint_states", self.states.append, 200)
+        self._stream = None
+        self.probe.create_subscription(JointState, "joint_states", self._on_state, 200)
         self.probe.create_subscription(SafetyStatus, "panda_bridge/status", self.status.append, 50)
         self.probe.create_subscription(SceneObjectArray, "scene/objects", self.scenes.append, 10)
         self.probe.create_subscription(Clock, "/clock", self.clock.append, 10)
         self.cmd_pub = self.probe.create_publisher(Float64MultiArray, "joint_velocity_cmd", 10)
         self.wait(lambda: self.cmd_pub.get_subscription_count() > 0 and self.states, 10.0)
 
-    def wait(self, pred, timeout: float) -> bool:
-        end = time.monotonic() + timeout
+    def _on_state(self, msg: JointState) -> None:
+        self.states.append(msg)
+        if self._stream is not None and len(self.states) % STREAM_EVERY == 0:
+            self.command(self._stream())
+
+    def stream(self, values) -> None:
+        """Hold the stick: the command `values()` on every STREAM_EVERY-th joint state (simulated time)."""
+        self._stream = values
+
+    def wait(self, pred, timeout: float = HANG_S) -> bool:
+        """Spin until `pred()` (a simulated event); `timeout` wall s, never less than HANG_S."""
+        end = time.monotonic() + max(timeout, HANG_S)
         while time.monotonic() < end:
             if pred():
                 return True
             self.executor.spin_once(timeout_sec=0.01)
         return bool(pred())
+
+    def run_for(self, seconds: float) -> None:
+        """Let `seconds` of simulated time pass (joint states stamped that much later)."""
+        t0 = _stamp(self.states[-1])
+        assert self.wait(lambda: _stamp(self.states[-1]) >= t0 + seconds)
 
     def command(self, values) -> None:
         self.cmd_pub.publish(Float64MultiArray(data=[float(v) for v in values]))
@@ -109,7 +130,7 @@ def test_constant_command_moves_joints_as_integrated(harness):
     h = harness(real_time_factor=0.0, command_timeout=1.0)   # as fast as possible; commands every 20 ms wall
     cmd = np.array([0.2, -0.1, 0.15, 0.1, -0.2, 0.2, 0.3])
     h.command(cmd)
-    h.probe.create_timer(0.02, lambda: h.command(cmd))  # keep the watchdog fed
+    h.stream(lambda: cmd)  # keep the watchdog fed
     t_cmd = _stamp(h.states[-1])
     window = []
 
@@ -165,15 +186,15 @@ def test_estop_latches_until_released(harness):
     q_stop = h.states[-1].position[6]
     for _ in range(10):                                  # commands are ignored while latched
         h.command(cmd)
-        h.wait(lambda: False, 0.02)
+        h.run_for(0.04)
     assert abs(h.states[-1].position[6] - q_stop) < 1e-3
     assert h.status[-1].estop_active and h.status[-1].code == SafetyStatus.ESTOP
     res = h.call(SetBool, "panda_bridge/estop", SetBool.Request(data=False))
     assert res.success
-    h.wait(lambda: False, 0.1)
+    h.run_for(0.2)
     assert abs(h.states[-1].position[6] - q_stop) < 1e-3   # release alone does not move it
     h.command(cmd)                                       # nor the stick still held: a zero first
-    h.wait(lambda: False, 0.2)
+    h.run_for(0.4)
     assert abs(h.states[-1].position[6] - q_stop) < 1e-3
     assert h.status[-1].code == SafetyStatus.AWAITING_ZERO and not h.status[-1].estop_active
     h.command([0.0] * 7)
@@ -186,7 +207,7 @@ def test_estop_release_with_the_stick_held_starts_no_motion(harness):
     stream has passed through zero."""
     h = harness(real_time_factor=2.0, command_timeout=0.2)
     stream = {"cmd": [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.4]}
-    h.probe.create_timer(0.02, lambda: h.command(stream["cmd"]))
+    h.stream(lambda: stream["cmd"])
     assert h.wait(lambda: h.states[-1].velocity[6] > 0.35, 5.0)
     assert h.call(SetBool, "panda_bridge/estop", SetBool.Request(data=True)).success
     assert h.wait(lambda: abs(h.states[-1].velocity[6]) < 1e-6, 5.0)
@@ -214,7 +235,7 @@ def test_a_reflex_holds_the_arm_until_recover_and_recovery_needs_a_zero_command(
     assert h.call(ResetScene, "panda_bridge/reset", ResetScene.Request(initial_positions=q0)).success
     down = [0.0, 2.175, 0.0, 0.0, 0.0, 0.0, 0.0]
     stream = {"cmd": down}
-    h.probe.create_timer(0.01, lambda: h.command(stream["cmd"]))
+    h.stream(lambda: stream["cmd"])
     assert h.wait(lambda: any(s.code == SafetyStatus.REFLEX for s in h.status), 20.0)
     reflex = next(s for s in h.status if s.code == SafetyStatus.REFLEX)
     assert "joint_reflex" in reflex.text or "violation" in reflex.text, reflex.text
@@ -293,7 +314,7 @@ def test_teaching_mode_follows_a_pushed_hand_records_it_and_leaves_holding_the_p
     hand = sim.model.body("panda_hand").id
     q0 = sim.q
     stream = {"cmd": [0.3] * 7}
-    h.probe.create_timer(0.02, lambda: h.command(stream["cmd"]))   # ignored while teaching
+    h.stream(lambda: stream["cmd"])                   # ignored while teaching
     sim.data.xfrc_applied[hand, :3] = [0.0, 8.0, 0.0]    # a hand pulls sideways ...
     t_push = now()
     assert h.wait(lambda: now() > t_push + 0.4, 10.0)

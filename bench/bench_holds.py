@@ -2,7 +2,8 @@
 the ready pose on fresh layouts for each base task, through the graph on MuJoCo (the shipped models).
 Prints per task: holds, reflexes, task done, worst measured |dq|/dq_max; then the totals. A hold the
 graph does not finish (a timeout on a loaded machine) counts as a failed hold, is listed, and the run
-goes on with a restarted graph.
+goes on with a restarted graph. The holds run as units on Ray (a local Ray, `--ray-address` a cluster,
+`--serial` one graph in this process), each worker with its own graph on its own ROS domain.
 
     python bench/bench_holds.py [--n 50] [--seconds 6] [--stick 1] [--path-fraction 0.65] [--tasks base]
                                 [--log-dir DIR]
@@ -19,6 +20,8 @@ from vla_evaluation.graph import GraphConfig
 from vla_evaluation.holds import FRESH_SEED, hold_config, run_holds
 from vla_evaluation.kinematic import TeleopSettings
 from vla_evaluation.resources import detector_model_path, latent_model_dir
+from vla_evaluation.sweep import add_arguments as add_engine_arguments
+from vla_evaluation.sweep import engine_from
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -35,11 +38,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--real-time-factor", type=float, default=GraphConfig.real_time_factor,
                    help="simulated seconds per wall second; lower it on a loaded machine, where joy "
                         "gaps of 0.25 simulated s stop the arm until neutral (default: %(default)s)")
+    add_engine_arguments(p)
     a = parse(p, argv, n=1, tasks="bread/push_east")
     cfg = hold_config(str(latent_model_dir(a.model)), str(detector_model_path()), a.seconds, a.stick,
                       a.path_fraction, log_dir=a.log_dir, real_time_factor=a.real_time_factor)
     t0 = time.monotonic()
-    tallies = run_holds(cfg, task_list(a.tasks), a.n, a.first_seed)
+    tallies = run_holds(cfg, task_list(a.tasks), a.n, a.first_seed, engine=engine_from(a))
     wall = time.monotonic() - t0
     print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task, path_fraction "
           f"{a.path_fraction:g}, real-time factor "

@@ -1,6 +1,7 @@
 """Sweeps on a Ray cluster of two nodes on this machine (each its own processes, one CPU): a slice of the
-paper's experiments gives the rows of a serial run of the same slice, its models spread over both
-nodes; and a worker killed in the middle of a unit costs a rerun, never a lost or duplicated model."""
+paper's experiments and a slice of the user study give the rows of a serial run of the same slice, their
+units spread over both nodes; and a worker killed in the middle of a unit costs a rerun, never a lost
+or duplicated model."""
 from __future__ import annotations
 
 import csv
@@ -19,8 +20,22 @@ from ray_cluster import RayCluster
 # 4 models (detector encoder, 1 and 2 demos per object, 2 runs), each evaluated on 4 layouts per task
 SLICE = ["experiments", "--quick", "--only", "2a", "--encoders", "detector", "--counts", "1,2", "--runs", "2",
          "--layouts", "4", "--epochs", "5", "--min-steps", "5"]
-TIME_FIELDS = ("train_s", "eval_s")
+TIME_FIELDS = ("train_s", "eval_s", "train_cpu_s", "eval_cpu_s")
 STARTED = re.compile(r"\[experiments\] (\S+) started in pid (\d+) on node (\w+)")
+STUDY_STARTED = re.compile(r"\[study\] (\S+) started in pid (\d+) on node (\w+)")
+# 2 simulated participants x 2 strategies: a practice trial (what it teaches, the test trials of its
+# setting use: one unit each) and one 4 s trial on each of 2 tasks; 12 trials on the physics backend
+STUDY = """study: ray-slice
+participants: sim:2
+strategies: [latent-YOLO, end-effector]
+settings:
+  Seen: [cereal_box/push_south, bread/push_east]
+trials: 1
+practice: {trials: 1, reset_seed: 7}
+time_limit: 4
+rate: 20
+backend: physics
+"""
 RUN_TIMEOUT_S = 900.0
 
 
@@ -35,11 +50,11 @@ def store_keys(work: Path) -> list[str]:
 
 
 class Driver:
-    """`vla_evaluation <args>` in a process of its own, its output read line by line as it comes."""
+    """A command in a process of its own, its output read line by line as it comes."""
 
     def __init__(self, args: list[str], env: dict) -> None:
         self.lines: list[str] = []
-        self.proc = subprocess.Popen(["vla_evaluation", *args], env=env, stdout=subprocess.PIPE,
+        self.proc = subprocess.Popen(args, env=env, stdout=subprocess.PIPE,
                                      stderr=subprocess.STDOUT, text=True, bufsize=1)
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
@@ -67,10 +82,16 @@ class Driver:
         return "\n".join(self.lines)
 
 
+def study_rows(out: Path) -> dict[str, dict]:
+    rows = [json.loads(x) for x in (out / "trials.jsonl").read_text().splitlines() if x.strip()]
+    return {r["key"]: {k: v for k, v in r.items() if k != "wall_s"} for r in rows}
+
+
 @pytest.fixture(scope="module")
 def serial_slice(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("serial")
-    d = Driver([*SLICE, "--serial", "--out", str(tmp / "out"), "--work", str(tmp / "work")], dict(os.environ))
+    d = Driver(["vla_evaluation", *SLICE, "--serial", "--out", str(tmp / "out"), "--work", str(tmp / "work")],
+               dict(os.environ))
     assert d.finish(RUN_TIMEOUT_S) == 0, d.text()[-4000:]
     return rows(tmp / "out")
 
@@ -85,7 +106,7 @@ def cluster():
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_an_experiment_slice_on_two_nodes_gives_the_serial_rows(cluster, serial_slice, tmp_path):
-    d = Driver([*SLICE, "--ray-address", cluster.address, "--out", str(tmp_path / "out"),
+    d = Driver(["vla_evaluation", *SLICE, "--ray-address", cluster.address, "--out", str(tmp_path / "out"),
                 "--work", str(tmp_path / "work")], cluster.env)
     assert d.finish(RUN_TIMEOUT_S) == 0, d.text()[-4000:]
     assert "2 CPUs, 0 GPUs, 2 nodes" in d.text()
@@ -98,7 +119,7 @@ def test_an_experiment_slice_on_two_nodes_gives_the_serial_rows(cluster, serial_
 @pytest.mark.slow
 @pytest.mark.timeout(1800)
 def test_a_worker_killed_mid_model_costs_a_rerun_and_no_duplicate(cluster, serial_slice, tmp_path):
-    d = Driver([*SLICE, "--ray-address", cluster.address, "--out", str(tmp_path / "out"),
+    d = Driver(["vla_evaluation", *SLICE, "--ray-address", cluster.address, "--out", str(tmp_path / "out"),
                 "--work", str(tmp_path / "work")], cluster.env)
     first = d.wait_for(STARTED, RUN_TIMEOUT_S)
     os.kill(int(first[2]), signal.SIGKILL)  # the worker's process, in the middle of its model
@@ -108,3 +129,22 @@ def test_a_worker_killed_mid_model_costs_a_rerun_and_no_duplicate(cluster, seria
     keys = store_keys(tmp_path / "work")
     assert len(keys) == len(set(keys)) == 4, keys
     assert rows(tmp_path / "out") == serial_slice
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(1800)
+def test_a_study_slice_on_two_nodes_gives_the_serial_rows(cluster, tmp_path):
+    proto = tmp_path / "slice.yaml"
+    proto.write_text(STUDY)
+    runs = {}
+    for name, extra, env in (("serial", ["--serial"], dict(os.environ)),
+                             ("ray", ["--ray-address", cluster.address], cluster.env)):
+        d = Driver(["vla_study", "--protocol", str(proto), "--out", str(tmp_path / name), *extra], env)
+        assert d.finish(RUN_TIMEOUT_S) == 0, d.text()[-4000:]
+        runs[name] = (study_rows(tmp_path / name), d.text())
+    (serial, _), (on_ray, text) = runs["serial"], runs["ray"]
+    assert len(serial) == 12 and sum(r["phase"] == "practice" for r in serial.values()) == 4
+    assert on_ray == serial
+    assert len({m[3] for m in STUDY_STARTED.finditer(text)}) == 2, text[-3000:]
+    for key in serial:  # each trial's arrays, written by the driver
+        assert (tmp_path / "ray" / "trials" / f"{serial[key]['file']}.npz").is_file()

@@ -2,7 +2,7 @@
 
 import numpy as np
 from vla_evaluation.graph import EpisodeRecord, GraphError
-from vla_evaluation.holds import run_holds
+from vla_evaluation.holds import hold_summary, run_holds
 from vla_evaluation.metrics import EpisodeResult
 
 from vla_interfaces.msg import SafetyStatus
@@ -27,7 +27,7 @@ class FakeGraph:
             FakeGraph.closed += 1
         self.open = False
 
-    def run_episode(self, task, seed, label):
+    def run_episode(self, task, seed, label, n_objects=1):
         assert self.open, "a hold on a closed graph"
         if seed == 301 and (task, seed) not in FakeGraph.timed_out:
             FakeGraph.timed_out.add((task, seed))
@@ -60,6 +60,6 @@ def test_a_hold_the_watchdog_stopped_is_counted_and_said():
                           (3, {int(SafetyStatus.AWAITING_ZERO): 1}), (4, {int(SafetyStatus.CONTACT): 3})):
         r = EpisodeResult(task="bread/push_east", layout_seed=seed, mode="graph", success=True)
         r.extra = {"interventions_by_code": by_code}
-        tally.add(EpisodeRecord(r, np.zeros((0, 3)), np.zeros(0)))
+        tally.add(hold_summary(EpisodeRecord(r, np.zeros((0, 3)), np.zeros(0))))
     assert tally.stopped == 2  # the watchdog's stop and the wait for neutral; contact slowing is not one
     assert "stopped by a late command   2" in tally.line()

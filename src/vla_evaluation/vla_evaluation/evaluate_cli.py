@@ -2,7 +2,8 @@
 
 --mode kinematic: the paper's q <- q + phi(z*, s) dt on rendered, detected validation layouts.
 --mode physics:   the same computations with MuJoCo and the safety filter in one process (no ROS).
---mode graph:     the full node graph (bridge, detector, controller, teleoperator) with physics.
+--mode graph:     the full node graph (bridge, detector, controller, teleoperator) with physics; each
+                  episode a unit of a sweep on Ray (a graph per worker; --serial: one, here).
 Writes episodes.csv, summary.csv, results.json and plots to --out, and prints a table.
 """
 from __future__ import annotations
@@ -17,13 +18,16 @@ from vla_common.kinematics import PandaKinematics
 from vla_detector.inference import Detector
 from vla_latent_controller.model import LatentModel
 
-from vla_evaluation.graph import GraphConfig, evaluate_graph
+from vla_evaluation.graph import EpisodeRecord, GraphConfig
+from vla_evaluation.graph_sweep import EpisodeJob, EpisodeWorker, for_workers
 from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings, evaluate_kinematic, make_layouts
 from vla_evaluation.metrics import summarize
 from vla_evaluation.physics import evaluate_physics
 from vla_evaluation.plots import write_evaluation_report
 from vla_evaluation.resources import detector_model_path, latent_model_dir
 from vla_evaluation.sim_teleoperator import DEFAULT_HORIZON
+from vla_evaluation.sweep import Engine, engine_from, run_sweep
+from vla_evaluation.sweep import add_arguments as add_engine_arguments
 
 
 def task_list(spec: str, catalogue: Catalogue | None = None) -> list[str]:
@@ -103,8 +107,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     gg.add_argument("--free-running", action="store_true",
                     help="graph: no lockstep, the simulation paced by the wall clock at --real-time-factor "
                          "(how it ran before issue 33: outcomes then depend on the machine's load)")
-    gg.add_argument("--domain-id", type=int, default=None, help="ROS_DOMAIN_ID for the graph (default: own)")
+    gg.add_argument("--domain-id", type=int, default=None,
+                    help="ROS_DOMAIN_ID for the graph, with --serial (default and on Ray: a graph's own)")
     add_teleop_arguments(p, rate=20.0)
+    add_engine_arguments(p)
 
 
 def run(args) -> int:
@@ -134,14 +140,37 @@ def run(args) -> int:
                           settings=settings,
                           stop_on_success=args.stop_on_success, domain_id=args.domain_id,
                           log_dir=args.out / "logs", catalogue=args.catalogue)
-        results = [rec.result for rec in evaluate_graph(cfg, tasks, seeds, label=Path(model_dir).name,
-                                                        n_objects=args.objects)]
+        results = _graph(cfg, tasks, seeds, Path(model_dir).name, args.objects, engine_from(args))
     meta = {"mode": args.mode, "model": str(model_dir), "detector_model": str(det_path), "tasks": tasks,
             "seeds": seeds, "settings": vars(settings), "wall_s": round(time.monotonic() - t0, 1)}
     write_evaluation_report(results, args.out, meta)
     print_table(summarize(results, ("task",)))
     print(f"wrote {args.out}/ (episodes.csv, summary.csv, results.json, plots) in {meta['wall_s']} s")
     return 0
+
+
+def _result(rec: EpisodeRecord):
+    return rec.result
+
+
+def _graph(cfg: GraphConfig, tasks, seeds, label: str, n_objects: int, engine: Engine) -> list:
+    """Every (task, seed) episode as a unit of a sweep; the results in the plan's order."""
+    units = [(f"{t}/{s}", (t, s)) for t in tasks for s in seeds]
+    job = EpisodeJob(cfg if engine.serial else for_workers(cfg), label, n_objects, summarise=_result,
+                     own_logs=not engine.serial)
+    got: dict = {}
+
+    def on_result(key: str, r) -> None:
+        got[key] = r
+        tts = r.time_to_success if r.time_to_success is not None else float("nan")
+        print(f"[graph] {r.task:28s} seed {r.layout_seed:>8d}  success {r.success!s:5s}  final state error "
+              f"{r.final_state_error:.3f} rad  time {tts:5.1f} s  interventions {r.safety_interventions}  "
+              f"violations {r.limit_violations}  ({r.extra['wall_s']:.1f} s wall)", flush=True)
+
+    failed = run_sweep(units, EpisodeWorker, engine=engine, on_result=on_result, shared=job, name="evaluate")
+    if failed:
+        raise SystemExit(f"evaluate: {len(failed)} episodes failed ({', '.join(failed)}); see above")
+    return [got[k] for k, _ in units]
 
 
 def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects, catalogue):

@@ -223,19 +223,19 @@ def run_job(job: Job, state: dict) -> list[dict]:
     demos = [state["demos"][t][i] for t, idx in job.train.items() for i in idx]
     plan: Plan = state["plan"]
     cfg = plan.train_config(job.encoder, seed=job.run)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     tmp = Path(tempfile.mkdtemp(prefix="vla_exp_"))
     res = None
     try:
         res = train_model(demos, cfg, progress=False, threads=1, log=lambda s: None,
                           device="cuda" if torch.cuda.is_available() else None)
-        train_s = time.perf_counter() - t0
+        train_s, train_cpu_s = time.perf_counter() - t0, time.process_time() - c0
         model = LatentModel.load(res.save(tmp / "model"))
         layouts = [lay for lay in state["layouts"] if lay.task in job.eval_tasks]
         kin = PandaKinematics() if job.keep_paths else None
-        t1 = time.perf_counter()
+        t1, c1 = time.perf_counter(), time.process_time()
         results = evaluate_kinematic(model, layouts, state["settings"], kin=kin, label=job.encoder)
-        eval_s = time.perf_counter() - t1
+        eval_s, eval_cpu_s = time.perf_counter() - t1, time.process_time() - c1
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
         if res is not None and res.cnn_onnx:
@@ -259,6 +259,9 @@ def run_job(job: Job, state: dict) -> list[dict]:
             "train_demos": len(demos),
             "train_s": round(train_s, 2),
             "eval_s": round(eval_s, 2),
+            # CPU seconds of the worker's process: the unit's cost whatever else loads the machine
+            "train_cpu_s": round(train_cpu_s, 2),
+            "eval_cpu_s": round(eval_cpu_s, 2),
             "val_loss": res.config["training"].get("val_loss"),
         }
         if job.keep_paths and r.ee_path is not None:
@@ -273,7 +276,7 @@ def _subset(indices_available: int, n: int, seed: Sequence[int]) -> list[int]:
     return sorted(rng.choice(indices_available, size=min(n, indices_available), replace=False).tolist())
 
 
-def make_jobs(plan: Plan, base_tasks: Sequence[str]) -> list[Job]:
+def make_jobs(plan: Plan, base_tasks: Sequence[str], shortest_first: bool = False) -> list[Job]:
     jobs: list[Job] = []
     if plan.fig2a:
         for enc in plan.encoders:
@@ -293,8 +296,14 @@ def make_jobs(plan: Plan, base_tasks: Sequence[str]) -> list[Job]:
                     jobs.append(Job("2c", "detector", r, k, {**base, task: new}, [task], setting, "transfer"))
                     jobs.append(Job("2c", "detector", r, k, {task: new}, [task], setting, "no_transfer"))
     # run by run, so that a sweep stopped early has every point of the figures with the same number of
-    # runs; within a run longest first, which keeps the workers busy to the end
-    jobs.sort(key=lambda j: (j.run, -sum(map(len, j.train.values())) * (3 if j.encoder != "detector" else 1)))
+    # runs; within a run longest first, which keeps the workers busy to the end (shortest first: the
+    # most models in a bounded time)
+    sign = 1 if shortest_first else -1
+
+    def cost(j: Job) -> int:  # the image encoders' models take about three times as long
+        return sum(map(len, j.train.values())) * (1 if j.encoder == "detector" else 3)
+
+    jobs.sort(key=lambda j: (j.run, sign * cost(j)))
     return jobs
 
 
@@ -335,6 +344,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--work", type=Path, default=Path("out/experiments"),
                    help="where finished models are kept, per plan, so that a stopped run resumes")
     p.add_argument("--limit", type=int, default=None, help="run at most this many models now (resumable)")
+    p.add_argument("--shortest-first", action="store_true",
+                   help="within each run the cheapest models first (the most models in a bounded time); "
+                        "default longest first")
     p.add_argument("--gpu-share", type=float, default=1.0,
                    help="the share of a GPU each training asks for where the cluster has GPUs")
     add_engine_arguments(p)
@@ -373,8 +385,9 @@ def run(args) -> int:
     plan_meta = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(plan).items()}
     store = UnitStore(Path(args.work) / digest([plan_meta, source, _file_digest(det_path)]) / "models.jsonl",
                       digest([plan_meta, source, _file_digest(det_path)]))
-    jobs = make_jobs(plan, BASE_TASKS)
-    todo = [j for j in jobs if j.key not in store.done][: args.limit]
+    jobs = make_jobs(plan, BASE_TASKS)  # the report's order
+    order = make_jobs(plan, BASE_TASKS, args.shortest_first)
+    todo = [j for j in order if j.key not in store.done][: args.limit]
     log(f"[experiments] {len(jobs)} models ({plan.epochs} epochs each), {len(jobs) - len(todo)} already in "
         f"{store.path}, {len(todo)} to train and evaluate on {engine.describe()}")
     demos, seeds, settings = None, [], TeleopSettings(rate=plan.rate)

@@ -3,15 +3,19 @@ with the object latched, for a few seconds, on fresh layouts, through the whole 
 
 A hold must finish the task or stop short of the object gently: no reflex. The episodes run on the
 one graph runner (`vla_evaluation.graph`) with the simulated teleoperator told to hold (its `hold`
-parameter) instead of steering to waypoints. `bench/bench_holds.py` prints the figures.
+parameter) instead of steering to waypoints. Each hold is a unit of a sweep (`vla_evaluation.sweep`):
+a worker keeps one graph, on a ROS domain of its own, for the holds it gets. `bench/bench_holds.py`
+prints the figures.
 """
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from vla_evaluation.graph import EpisodeRecord, GraphConfig, GraphError, GraphEvaluator
+from vla_evaluation.graph import EpisodeRecord, GraphConfig, GraphEvaluator
+from vla_evaluation.graph_sweep import EpisodeJob, EpisodeWorker, for_workers
 from vla_evaluation.kinematic import TeleopSettings
+from vla_evaluation.sweep import SERIAL, Engine, run_sweep
 from vla_interfaces.msg import SafetyStatus
 
 FRESH_SEED = 300_000  # layouts from here on were never used for demonstrations or other evaluations
@@ -36,20 +40,18 @@ class HoldTally:
     # failed holds, with what happened; their reflexes are unknown
     graph_errors: list[tuple[int, str]] = field(default_factory=list)
 
-    def add(self, rec: EpisodeRecord) -> None:
-        r = rec.result
+    def add(self, h: dict) -> None:
+        """One hold's summary (`hold_summary`)."""
         self.holds += 1
-        by_code = r.extra.get("interventions_by_code", {})
-        if by_code.get(int(SafetyStatus.REFLEX), 0) > 0:
+        if h["reflex"]:
             self.reflexes += 1
-            self.reflex_seeds.append(int(r.layout_seed))
-        self.stopped += any(by_code.get(c, 0) > 0 for c in MACHINE_STOPS)
-        self.successes += bool(r.success)
-        self.max_speed_ratio = max(self.max_speed_ratio, float(r.extra.get("max_speed_ratio", 0.0)))
-        if rec.trace is not None and len(rec.trace):
-            stick = rec.trace[:, 8]
-            self.stick_range = (min(self.stick_range[0], float(stick.min())),
-                                max(self.stick_range[1], float(stick.max())))
+            self.reflex_seeds.append(int(h["seed"]))
+        self.stopped += h["stopped"]
+        self.successes += h["success"]
+        self.max_speed_ratio = max(self.max_speed_ratio, h["max_speed_ratio"])
+        if h["stick"] is not None:
+            lo, hi = h["stick"]
+            self.stick_range = (min(self.stick_range[0], lo), max(self.stick_range[1], hi))
 
     def add_graph_error(self, seed: int, reason: str) -> None:
         self.holds += 1
@@ -74,35 +76,51 @@ def hold_config(model_path: str, detector_model: str, seconds: float = 6.0, stic
                        **kw)
 
 
+def hold_summary(rec: EpisodeRecord) -> dict:
+    """What a hold's tally needs, small enough to send back from a worker."""
+    r = rec.result
+    by_code = r.extra.get("interventions_by_code", {})
+    stick = rec.trace[:, 8] if rec.trace is not None and len(rec.trace) else None
+    return {"seed": int(r.layout_seed), "success": bool(r.success),
+            "reflex": by_code.get(int(SafetyStatus.REFLEX), 0) > 0,
+            "stopped": any(by_code.get(c, 0) > 0 for c in MACHINE_STOPS),
+            "max_speed_ratio": float(r.extra.get("max_speed_ratio", 0.0)),
+            "stick": None if stick is None else (float(stick.min()), float(stick.max()))}
+
+
 def run_holds(config: GraphConfig, tasks: Sequence[str], n: int, first_seed: int = FRESH_SEED,
               log: Callable[[str], None] = print,
-              evaluator: Callable[..., GraphEvaluator] = GraphEvaluator) -> dict[str, HoldTally]:
+              evaluator: Callable[..., GraphEvaluator] = GraphEvaluator,
+              engine: Engine = SERIAL) -> dict[str, HoldTally]:
     """`n` holds per task on fresh layouts (seeds first_seed, first_seed + 1, ...); tallies by task.
 
     A hold the graph does not finish (GraphError: a timeout under load, a process that ended) is
-    counted as a failed hold and said so; the graph is restarted for the next one, so one slow
-    moment does not end the whole run. A graph that does not start ends it."""
+    counted as a failed hold and said so; that worker's graph is restarted for its next hold, so one
+    slow moment does not end the whole run. On Ray (`engine`) each worker has its graph on a ROS
+    domain of its own."""
+    if not engine.serial and config is not None:
+        config = for_workers(config)  # each worker's graph on a domain of its own
+    seeds = range(first_seed, first_seed + int(n))
+    units = [(f"{task}/{seed}", (task, seed)) for task in tasks for seed in seeds]
+    got: dict[str, dict] = {}
+
+    def on_result(key: str, h: dict) -> None:
+        got[key] = h
+        if "graph_error" in h:
+            log(f"[holds] {key}: graph error ({h['graph_error']}): counted as a failed hold, restarting "
+                "the graph")
+        else:
+            log(f"[holds] {key}: task done {h['success']}")
+
+    job = EpisodeJob(config, "holds", summarise=hold_summary, graph_errors_are_results=True,
+                     own_logs=not engine.serial, evaluator=evaluator)
+    failed = run_sweep(units, EpisodeWorker, engine=engine, on_result=on_result, shared=job,
+                       name="holds", log=log)
     tallies = {t: HoldTally(t) for t in tasks}
-    ev: GraphEvaluator | None = None
-    try:
-        for task in tasks:
-            for seed in range(first_seed, first_seed + int(n)):
-                tally = tallies[task]
-                if ev is None:  # a graph that does not start ends the run
-                    ev = evaluator(config, log)
-                    ev.start()
-                try:
-                    rec = ev.run_episode(task, seed, "holds")
-                except GraphError as e:
-                    tally.add_graph_error(seed, str(e))
-                    log(f"[holds] {task} seed {seed}: graph error ({e}): counted as a failed hold, "
-                        "restarting the graph")
-                    ev.close()
-                    ev = None
-                    continue
-                tally.add(rec)
-                log(f"[holds] seed {seed}: task done {bool(rec.result.success)}; {tally.line()}")
-    finally:
-        if ev is not None:
-            ev.close()
+    for key, (task, seed) in units:  # in the plan's order, whatever finished first
+        h = got.get(key, {"graph_error": "the unit failed"} if key in failed else None)
+        if "graph_error" in h:
+            tallies[task].add_graph_error(seed, h["graph_error"])
+        else:
+            tallies[task].add(h)
     return tallies

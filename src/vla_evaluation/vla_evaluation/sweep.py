@@ -62,6 +62,9 @@ class Engine:
         return f"a local Ray ({self.cpus or os.cpu_count()} CPUs)"
 
 
+SERIAL = Engine(serial=True)
+
+
 @dataclass(frozen=True)
 class Needs:
     """What one unit's worker holds: CPUs, and a GPU where the cluster has one (`gpu`: the share of
@@ -199,6 +202,9 @@ class _Host:
     def __init__(self, name: str, make: Callable[[Any], Worker], shared: list) -> None:
         import ray  # in the worker
 
+        # A graph this worker starts takes a ROS domain of its own (vla_common.ros.domain, through
+        # GraphRunner), never the one the driver's environment had.
+        os.environ.pop("ROS_DOMAIN_ID", None)
         # `shared` holds the reference (not the value), which Ray keeps while the driver holds it
         self.name, self.worker = name, make(ray.get(shared[0]) if shared else None)
 
@@ -235,8 +241,11 @@ def _on_ray(ray, units, make, shared, on_result, needs: Needs, progress: Progres
         for w in workers[: len(queue)]:
             submit(w)
         while pending:
-            [done], _ = ray.wait(list(pending), num_returns=1)
-            worker, key = pending.pop(done)
+            ready, _ = ray.wait(list(pending), num_returns=1, timeout=1.0)  # Ctrl-C gets through
+            if not ready:
+                continue
+            worker, key = pending.pop(ready[0])
+            done = ready[0]
             try:
                 result = ray.get(done)
             except RayError as e:

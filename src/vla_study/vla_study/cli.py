@@ -18,6 +18,8 @@ from pathlib import Path
 from vla_common.catalogue import load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_evaluation.resources import latent_model_dir
+from vla_evaluation.sweep import add_arguments as add_engine_arguments
+from vla_evaluation.sweep import engine_from
 
 from vla_study.person import start_point
 from vla_study.protocol import (
@@ -53,6 +55,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="with --robot real: the attached graph is a simulated one (a rehearsal on the MuJoCo "
                         "bridge) whose nodes follow /clock")
     p.add_argument("--analyse-only", action="store_true", help="only the figures and tables")
+    add_engine_arguments(p)  # simulated participants' trials as units on Ray (real ones: --serial always)
     p.add_argument("--check", action="store_true",
                    help="validate the protocol and print each participant's session; run and write nothing")
     p.add_argument("--figures", type=Path, default=None, help="where figures and tables go (default: --out)")
@@ -88,7 +91,7 @@ def run(args) -> int:
         regenerate_paths(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit)
     elif not args.analyse_only:
         run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
-                  use_sim_time=args.use_sim_time)
+                  use_sim_time=args.use_sim_time, engine=engine_from(args))
     from vla_study.analysis import analyse  # matplotlib: only for the figures, not for --help or --check
 
     for line in analyse(args.out, args.figures or args.out, proto.time_limit):

@@ -23,6 +23,7 @@ from functools import partial
 from pathlib import Path
 
 import numpy as np
+from vla_evaluation.sweep import Engine
 
 from vla_study.backends import BACKENDS, Where, backend_name, make_backend
 from vla_study.participant import HumanParams, Lesson, population
@@ -186,12 +187,14 @@ def save_arrays(out: Path, stem: str, arrays: dict[str, np.ndarray]) -> Path:
 
 def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None,
               log: Callable[[str], None] = print, ask: Callable[[str], str] = input, limit: int | None = None,
-              experimenter: Experimenter | None = None, use_sim_time: bool = False) -> StudyStore:
+              experimenter: Experimenter | None = None, use_sim_time: bool = False,
+              engine: Engine | None = None) -> StudyStore:
     """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials.
     `backend`: one already made (a test's), else the table's for the protocol (backends.py). Real
     participants (ids without `sim:`) drive themselves, with the experimenter at this terminal
     (`experimenter`: another front end, or a test's). `use_sim_time`: with `robot: real`, the attached
-    graph is a simulated one (a rehearsal or a test)."""
+    graph is a simulated one (a rehearsal or a test). `engine`: simulated participants' trials as units
+    of a sweep on Ray (vla_study.on_ray; None or serial: here, one after another)."""
     if why := robot_refusal(protocol):  # before anything is made or run
         raise SystemExit(f"protocol refused: {why}")
     if why := reused_seeds(protocol):
@@ -208,6 +211,9 @@ def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None
         f"{len(todo)} to run")
     if not todo:
         _ask_left_over(store, todo, backend, log, ask, out)   # on the terminal: nothing is launched
+        return store
+    if engine is not None and not engine.serial and not real and backend is None:
+        _run_on_ray(protocol, store, todo[:limit], engine, out, log, use_sim_time)
         return store
     own = backend is None
     if own:
@@ -235,16 +241,8 @@ def _run_trials(protocol: Protocol, store: StudyStore, todo: list[Trial], backen
         wall0 = time.monotonic()
         seed = operator_seed(protocol, trial)
         row, arrays = backend.run(trial, params.get(who), operator_seed=seed)
-        row.update({"key": trial.key, "file": trial.file_stem, "participant": who,
-                    "strategy": trial.strategy, "setting": trial.setting, "task": trial.task,
-                    "trial": trial.trial, "phase": trial.phase, "layout_seed": trial.layout_seed,
-                    "operator_seed": seed, "model": _model(protocol, trial),
-                    "order": trial.order, "simulated": who.startswith("sim:"), "backend": protocol.backend,
-                    "wall_s": round(time.monotonic() - wall0, 2)})
-        store.record(row, arrays)
-        log(f"[study] {trial.key}: success {row['success']}, time {row['time_s']:.1f} s, "
-            f"path {row['path_length_m']:.2f} m, switches {row['mode_switches']}, SPARC {row['sparc']} "
-            f"({row['wall_s']:.1f} s wall)")
+        row["wall_s"] = round(time.monotonic() - wall0, 2)
+        _record(protocol, store, trial, row, arrays, seed, log)
         last_of_strategy = not any(t.participant == who and t.strategy == trial.strategy
                                    for t in todo[n + 1:])
         if last_of_strategy and not who.startswith("sim:") and (who, trial.strategy) not in asked:
@@ -256,15 +254,48 @@ def _model(protocol: Protocol, trial: Trial) -> str | None:
     return model_for(protocol, trial) if STRATEGIES[trial.strategy] == "latent" else None
 
 
+def recorded_lessons(rows) -> dict:
+    """What the recorded practice trials taught, by (participant, strategy, setting), in session order."""
+    return {(r["participant"], r["strategy"], r["setting"]): Lesson.from_dict(r["lesson"])
+            for r in sorted((r for r in rows if r.get("phase") == "practice" and r.get("lesson")),
+                            key=lambda r: (r["participant"], r.get("order", 0)))}
+
+
 def restore_lessons(backend, rows) -> None:
     """What the recorded practice trials taught, back into the backend (a resumed study's test trials
     get their participant's practice as if the study had not stopped), in session order."""
     lessons = getattr(backend, "lessons", None)
-    if lessons is None:
-        return
-    for r in sorted((r for r in rows if r.get("phase") == "practice" and r.get("lesson")),
-                    key=lambda r: (r["participant"], r.get("order", 0))):
-        lessons[(r["participant"], r["strategy"], r["setting"])] = Lesson.from_dict(r["lesson"])
+    if lessons is not None:
+        lessons.update(recorded_lessons(rows))
+
+
+def _record(protocol: Protocol, store: StudyStore, trial: Trial, row: dict, arrays: dict, seed: int,
+            log) -> None:
+    """The trial's row, completed with what the plan says about it, recorded and logged."""
+    who = trial.participant
+    row.update({"key": trial.key, "file": trial.file_stem, "participant": who,
+                "strategy": trial.strategy, "setting": trial.setting, "task": trial.task,
+                "trial": trial.trial, "phase": trial.phase, "layout_seed": trial.layout_seed,
+                "operator_seed": seed, "model": _model(protocol, trial),
+                "order": trial.order, "simulated": who.startswith("sim:"), "backend": protocol.backend})
+    store.record(row, arrays)
+    log(f"[study] {trial.key}: success {row['success']}, time {row['time_s']:.1f} s, "
+        f"path {row['path_length_m']:.2f} m, switches {row['mode_switches']}, SPARC {row['sparc']} "
+        f"({row['wall_s']:.1f} s wall)")
+
+
+def _run_on_ray(protocol: Protocol, store: StudyStore, todo: list[Trial], engine: Engine, out: Path, log,
+                use_sim_time: bool) -> None:
+    from vla_study.on_ray import run_trials_on_ray  # Ray: only for a sweep
+
+    seeds = {t.key: operator_seed(protocol, t) for t in todo}
+    failed = run_trials_on_ray(
+        protocol, todo, participant_params(protocol), seeds, recorded_lessons(store.done.values()),
+        lambda trial, row, arrays: _record(protocol, store, trial, row, arrays, seeds[trial.key], log),
+        engine, Path(out), log, use_sim_time)
+    if failed:
+        log(f"[study] {len(failed)} trials failed and are not recorded (run the study again to retry "
+            f"them): {', '.join(failed)}")
 
 
 def _likert(store: StudyStore, who: str, strategy: str, backend, log, ask) -> None:

@@ -1,0 +1,64 @@
+"""Graph episodes as units of a sweep (vla_evaluation.sweep): the held-stick bench's holds and
+`evaluate --mode graph`'s episodes.
+
+A worker keeps one graph (GraphEvaluator) for the episodes it gets, started at the first, on a ROS
+domain of its own (the sweep's worker drops the driver's ROS_DOMAIN_ID; GraphRunner then takes one
+from vla_common.ros.domain) and, beside other workers, a log folder of its own.
+"""
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+from vla_evaluation.graph import EpisodeRecord, GraphConfig, GraphError, GraphEvaluator
+
+
+@dataclass(frozen=True)
+class EpisodeJob:
+    """What every episode of a sweep shares: the graph's configuration and what to send back."""
+
+    config: GraphConfig
+    label: str = ""
+    n_objects: int = 1
+    summarise: Callable[[EpisodeRecord], Any] | None = None  # None: the whole record
+    graph_errors_are_results: bool = False  # a hold's timeout is a failed hold; an evaluation's fails
+    own_logs: bool = False  # several workers: a log folder each
+    evaluator: Callable[..., GraphEvaluator] = GraphEvaluator
+
+
+def for_workers(config: GraphConfig) -> GraphConfig:
+    """A configuration for graphs on several workers: each picks its own ROS domain."""
+    return replace(config, domain_id=None)
+
+
+class EpisodeWorker:
+    """Runs (task, seed) episodes on one graph; a GraphError closes it and the next episode starts a new
+    one. With `graph_errors_are_results` the error comes back as {"seed", "graph_error"}."""
+
+    def __init__(self, job: EpisodeJob) -> None:
+        self.job, self.config = job, job.config
+        if job.own_logs and self.config is not None and self.config.log_dir:
+            self.config = replace(self.config, log_dir=Path(self.config.log_dir) / f"worker-{os.getpid()}")
+        self.ev: GraphEvaluator | None = None
+
+    def run(self, unit: tuple[str, int]) -> Any:
+        task, seed = unit
+        if self.ev is None:  # a graph that does not start fails the unit (reported by the sweep)
+            self.ev = self.job.evaluator(self.config, print)
+            self.ev.start()
+        try:
+            rec = self.ev.run_episode(task, seed, self.job.label, self.job.n_objects)
+        except GraphError as e:
+            self.close()
+            if self.job.graph_errors_are_results:
+                return {"seed": seed, "graph_error": str(e)}
+            raise
+        return self.job.summarise(rec) if self.job.summarise else rec
+
+    def close(self) -> None:
+        if self.ev is not None:
+            ev, self.ev = self.ev, None
+            ev.close()

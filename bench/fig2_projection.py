@@ -72,6 +72,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{enc:13s} {n:5d} {len(ms):6d} {tr:11.1f} {ev:10.1f} {tr + ev:11.1f} {wall:12.1f}")
     total, longest, evals = 0.0, 0.0, 0.0
     print("\nfitted per encoder (CPU s per model = a + b * demos per object), for the models not measured:")
+    lines: dict = {}
+    for enc in ENCODERS:
+        pts = [(n, np.mean([m["train"] + m["eval"] for m in ms]))
+               for (e, n), ms in groups.items() if e == enc]
+        if len({n for n, _ in pts}) >= 2:
+            lines[enc] = fit(pts)
     for enc in ENCODERS:
         pts = [(n, np.mean([m["train"] + m["eval"] for m in ms]))
                for (e, n), ms in groups.items() if e == enc]
@@ -79,8 +85,16 @@ def main(argv: list[str] | None = None) -> int:
         if not pts:
             print(f"  {enc:13s} no model measured: left out of the total below")
             continue
-        ca, cb = fit(pts)
-        print(f"  {enc:13s} a = {ca:8.1f}  b = {cb:8.1f}  (from {len(pts)} demo counts)")
+        how = f"from {len(pts)} demo counts"
+        if enc in lines:
+            ca, cb = lines[enc]
+        else:  # one count: grown with the demos as the best-measured encoder's line grows
+            ref = next(iter(lines), None)
+            n0, y0 = pts[0]
+            ra, rb = lines[ref] if ref else (1.0, 0.0)
+            ca, cb = y0 * ra / (ra + rb * n0), y0 * rb / (ra + rb * n0)
+            how = f"from 1 demo count, grown as {ref}'s line" if ref else "from 1 demo count"
+        print(f"  {enc:13s} a = {ca:8.1f}  b = {cb:8.1f}  ({how})")
         per = [max(ca + cb * n, 0.0) for n in range(lo, hi + 1)]
         total += a.runs * sum(per)
         longest = max(longest, max(per))

@@ -62,7 +62,7 @@ class RayCluster:
             return cmd + ["--head", f"--port={self.port}", "--include-dashboard=false"]
         return cmd + [f"--address={self.address}"]
 
-    def _start_node(self, i: int, tries: int = 3) -> None:
+    def _start_node(self, i: int, tries: int = 5) -> None:
         """Ray gives its raylet 30 s to register (hard-coded); a node that misses it on a loaded
         machine is started again, up to `tries` times."""
         for attempt in range(tries):

@@ -169,7 +169,7 @@ def ray_session(engine: Engine, log: Callable[[str], None] = print) -> Iterator[
         ray.shutdown()
 
 
-def _start_local(ray, engine: Engine, tries: int = 3) -> None:
+def _start_local(ray, engine: Engine, tries: int = 5) -> None:
     """A new local Ray of our own (`address="local"`: never one that another `ray start` left on this
     machine). Ray gives its raylet 30 s to register, hard-coded; on a loaded machine a start that
     misses it is tried again."""

@@ -22,6 +22,7 @@ from the ground-truth `scene/objects`, time to success, the bridge's safety inte
 """
 from __future__ import annotations
 
+import bisect
 import math
 import threading
 import time
@@ -224,7 +225,7 @@ class GraphObserver:
             self.q, self.dq, self.q_stamp = q, dq, _stamp(msg)
             self.cond.notify_all()
         if (m := self.monitor) is not None:
-            m.on_joint_state(self.q_stamp, q, dq, self.teleop_before(self.q_stamp))
+            m.on_joint_state(self.q_stamp, q, dq)
         self.on_state(msg)
 
     def on_state(self, msg: JointState) -> None:
@@ -254,13 +255,18 @@ class GraphObserver:
         with self.cond:
             self.teleop, self.teleop_recv = msg, self.now()
             self._teleop_seen.append((_stamp(msg), msg))
+            if (m := self.monitor) is not None:
+                m.on_teleop(_stamp(msg), msg)
             self.cond.notify_all()
 
-    def teleop_before(self, stamp: float):
-        """The teleoperator's latest status stamped before `stamp` (what it said when that joint state
-        was published: a status of the state's own step may have come first or not)."""
+    def watch(self, monitor: EpisodeMonitor | None) -> None:
+        """Measure an episode with `monitor` (None: stop); it starts with the statuses already seen, as
+        the first states of the episode pair with a status from before it."""
         with self.cond:
-            return next((m for t, m in reversed(self._teleop_seen) if t < stamp), None)
+            if monitor is not None:
+                for stamp, msg in self._teleop_seen:
+                    monitor.on_teleop(stamp, msg)
+            self.monitor = monitor
 
     def _safety(self, msg) -> None:
         with self.cond:
@@ -340,13 +346,14 @@ class EpisodeMonitor:
         self.tally = SafetyTally()
         self.path: list[np.ndarray] = []
         self.path_t: list[float] = []
-        self.trace: list[list[float]] = []  # t, q1..q7, stick, waypoint index, projected distance
+        self._states: list[tuple[float, float, np.ndarray]] = []  # (t, stamp, q) sampled for the trace
+        self._teleop: list[tuple[float, float, int, float]] = []     # (stamp, stick, waypoint, distance)
         self.frames: list[tuple[float, np.ndarray]] = []
         self.t_start = math.inf
         self.every = max(1, int(path_every))
         self._count = 0
 
-    def on_joint_state(self, stamp: float, q: np.ndarray, dq: np.ndarray | None, teleop) -> None:
+    def on_joint_state(self, stamp: float, q: np.ndarray, dq: np.ndarray | None) -> None:
         if stamp < self.t_start:
             return
         self.limits.update(q, dq)
@@ -355,8 +362,26 @@ class EpisodeMonitor:
             t = stamp - self.t_start
             self.path.append(self.kin.fk(q)[0])
             self.path_t.append(t)
-            if teleop is not None:
-                self.trace.append([t, *q, teleop.axis, teleop.waypoint_index, teleop.distance])
+            self._states.append((t, stamp, np.asarray(q, dtype=float)))
+
+    def on_teleop(self, stamp: float, msg) -> None:
+        """A teleoperator status (any time: the trace pairs by stamp once the episode is over)."""
+        self._teleop.append((stamp, float(msg.axis), int(msg.waypoint_index), float(msg.distance)))
+
+    @property
+    def trace(self) -> list[list[float]]:
+        """t, q1..q7, stick, waypoint index, projected distance: each sampled state with the
+        teleoperator's latest status stamped before it (what it said when that state was published).
+        Paired by stamp after the fact, not on arrival: the status and the state come from two writers,
+        and which arrives first depends on the load."""
+        said = sorted(self._teleop)
+        stamps = [s[0] for s in said]
+        rows = []
+        for t, stamp, q in self._states:
+            i = bisect.bisect_left(stamps, stamp) - 1
+            if i >= 0:
+                rows.append([t, *q, said[i][1], said[i][2], said[i][3]])
+        return rows
 
     def on_objects(self, stamp: float, objs: dict[str, ObjectPose]) -> None:
         if stamp >= self.t_start and self.spec.object_class in objs:
@@ -497,11 +522,11 @@ class GraphEvaluator:
         result.detected_class = self.obs.ctrl.latched_class
         monitor = EpisodeMonitor(spec, start_pose, self.kin, round(self.config.state_rate / 20.0),
                                  self.config.keep_frames)
-        self.obs.monitor = monitor
+        self.obs.watch(monitor)
         try:
             final_wp, q_final, end_pose, duration = self._drive(task, monitor)
         finally:
-            self.obs.monitor = None
+            self.obs.watch(None)
         self._score(result, spec, monitor, start_pose, final_wp, q_final, end_pose, duration)
         result.extra["wall_s"] = round(time.monotonic() - wall0, 2)
         tcp = result.ee_path if result.ee_path is not None else np.zeros((0, 3))

@@ -341,7 +341,7 @@ class GraphBackend(TrialBackend):
         is measured."""
         ev, obs, p = self.ev, self.ev.obs, self.protocol
         monitor = self._monitor(scene)
-        obs.monitor = monitor
+        obs.watch(monitor)
         monitor.t_start = obs.now() if obs.steps is None else obs.steps.stamp   # lockstep: the held step
         if isinstance(op, InputTally):
             driver = PersonDriver(op, monitor.t_start, float(p.time_limit))
@@ -358,7 +358,7 @@ class GraphBackend(TrialBackend):
         if obs.steps is None:
             obs.wait_for(lambda: obs.objects_stamp >= t_end + SETTLE_S and obs.q_stamp >= t_end + SETTLE_S,
                          60.0, "the arm to rest after the trial", ev.alive)
-        obs.monitor = None
+        obs.watch(None)
         with obs.cond:
             q_final, end = obs.q.copy(), obs.objects.get(scene.spec.object_class)
         scene.clock.mark("settle")

@@ -38,13 +38,15 @@ class StudyWorker:
     def __init__(self, shared: tuple[Protocol, Path, bool]) -> None:
         self.protocol, self.out, self.use_sim_time = shared
         self.backend: TrialBackend | None = None
+        self.own = Path()  # the worker's own folder in the study's
 
     def run(self, unit: tuple) -> list[tuple[str, dict, dict]]:
         trials, params, seeds, lessons = unit
         if self.backend is None:
             graph = backend_name(self.protocol) == "graph"
-            out = self.out / "workers" / str(os.getpid()) if graph else self.out
-            self.backend = make_backend(Where(self.protocol, out, print, None, self.use_sim_time))
+            self.own = Path("workers", str(os.getpid())) if graph else Path()
+            self.backend = make_backend(Where(self.protocol, self.out / self.own, print, None,
+                                              self.use_sim_time))
         if getattr(self.backend, "lessons", None) is not None:
             self.backend.lessons.update(lessons)
         done = []
@@ -52,6 +54,8 @@ class StudyWorker:
             wall0 = time.monotonic()
             row, arrays = self.backend.run(trial, params, operator_seed=seeds[trial.key])
             row["wall_s"] = round(time.monotonic() - wall0, 2)
+            if row.get("bag"):  # the row names files from the study's folder, as the serial run's do
+                row["bag"] = str(self.own / row["bag"])
             done.append((trial.key, row, arrays))
         return done
 

@@ -306,12 +306,12 @@ class RobotBackend(GraphBackend):
         monitor.limits = LimitMonitor(spec=ROBOTS[obs.robot_model])   # the arm's own limit table
         driver = PersonDriver(op, obs.now(), float(p.time_limit))
         self._estop(False)  # the arm moves once the stick has been at neutral, as the participant drives
-        obs.monitor = monitor
+        obs.watch(monitor)
         monitor.t_start = driver.t_start = obs.now()
         try:
             self._until_the_end(trial, driver, p.time_limit * 4 + 60)
         finally:
-            obs.monitor = None  # the e-stop's braking is the study's, not a safety intervention of the trial
+            obs.watch(None)  # the e-stop's braking is the study's, not a safety intervention of the trial
             self._estop(True)
         scene.clock.mark("trial")
         t_end = driver.t_start + driver.t_end

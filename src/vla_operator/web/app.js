@@ -15,7 +15,7 @@ const PAD_GRASP = 0, PAD_STOP = 1;   // the standard gamepad's A (south) and B (
 const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {}, settingsJson: '',
                 held: 0, toggled: 0, stepTimer: 0, padAxis: 0, padNeutral: true, sent: {}, replies: {}, frames: 0,
                 fpsT: performance.now(), fps: 0, age: null, refused: null, refusedHeld: false, claimed: false,
-                connected: false, ctrl: null, safety: null, stale: '', word: 'Starting' };
+                connected: false, ctrl: null, safety: null, stale: '', motionHeld: '', word: 'Starting' };
 window.station = state;  // read by the browser tests and the benchmark
 
 function say(text) { $('message').textContent = text; }
@@ -104,6 +104,7 @@ function showState(s) {
   if (s.settings_problem !== undefined) setText($('set-problem'), s.settings_problem);
   if (s.questionnaire !== undefined) quest.show(s.questionnaire);
   state.stale = view.stale(s);
+  if (s.motion_held !== undefined) state.motionHeld = s.motion_held || '';
   render();
 }
 
@@ -120,12 +121,12 @@ function showRecorder(s) {
 // the look of the whole page (a latched e-stop turns it red and says so).
 function render() {
   const now = () => armState({ connected: state.connected, ctrl: state.ctrl, safety: state.safety,
-                               driver: state.driver, refused: state.refusedHeld });
+                               driver: state.driver, refused: state.refusedHeld, held: !!state.motionHeld });
   let [look, word, detail] = now();
   if (letGoWhenTold(look)) [look, word, detail] = now();
   state.word = word;
   setText($('state-word'), word);
-  setText($('state-detail'), state.stale ? `${detail} ${state.stale}` : detail);
+  setText($('state-detail'), state.stale && word !== 'Held' ? `${detail} ${state.stale}` : detail);
   if (document.body.dataset.state !== look) document.body.dataset.state = look;
   const latched = look === 'estop';
   show($('release'), latched);
@@ -144,6 +145,7 @@ function showSettings(st) {
   $('set-deadband').value = st.deadband ?? '';
   $('set-mode').value = st.action_mode; $('set-device').value = st.input_device;
   $('set-step').value = st.step_seconds ?? STEP_S; $('set-scan').value = st.scan_period ?? SCAN_S;
+  $('set-stale-stop').checked = !!st.stop_on_stale_view;
   for (const a of ['forward', 'back', 'stop']) $(`key-${a}`).value = st.keys[a].join(' ');
   $('estop').setAttribute('aria-keyshortcuts', st.keys.stop.join(' '));
   $('forward').setAttribute('aria-keyshortcuts', st.keys.forward.join(' '));
@@ -193,6 +195,11 @@ function pressedLook(dir) {
 function holding() { return state.held !== 0 || state.toggled !== 0 || state.padAxis !== 0 || link.axis !== 0; }
 function refusedInput(reason) {
   if (/another station|watch/.test(reason)) { letGo(false); say(`Not moving: ${reason}.`); render(); return; }
+  if (/^stopped: /.test(reason)) {   // the station holds all motion (a stopped live view): let go now
+    if (holding()) letGo(true);
+    say('Not moving: the live view has stopped, so the arm is held until it is back. Then let go and press again.');
+    render(); return;
+  }
   const needsNeutral = /neutral/.test(reason);
   if (!holding() || (!needsNeutral && state.word === 'Moving')) return;
   letGo(true);
@@ -326,6 +333,7 @@ $('set-save').onclick = () => {
   link.send({ type: 'settings', values: {
     speed_scale: num('set-speed'), deadband: num('set-deadband'), action_mode: $('set-mode').value,
     input_device: $('set-device').value, step_seconds: num('set-step'), scan_period: num('set-scan'),
+    stop_on_stale_view: $('set-stale-stop').checked,
     keys: { forward: keyList('key-forward'), back: keyList('key-back'), stop: keyList('key-stop') } } });
 };
 render();

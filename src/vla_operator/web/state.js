@@ -7,14 +7,16 @@ const C = { ACTIVE: 0, NEUTRAL: 1, WAITING_FOR_JOY: 2, NO_JOINT_STATES: 4, NO_OB
 const S = { REFLEX: 10, TEACHING: 11, AWAITING_ZERO: 12 };
 const STOPPED_BY_SAFETY = new Set([1, 2, 6, 8, 9]);   // bad command, command timeout, state invalid, implausible
 
-// {connected, ctrl, safety, driver, refused}: the link is up, the controller's and the bridge's status
-// (null until they answer), this page drives, this page's held input was refused.
+// {connected, ctrl, safety, driver, refused, held}: the link is up, the controller's and the bridge's
+// status (null until they answer), this page drives, this page's held input was refused, the station
+// holds all motion (the caregiver's stop_on_stale_view while the live view has stopped: motion_held).
 // Returns [look, word, sentence].
-export function armState({ connected, ctrl, safety, driver, refused }) {
+export function armState({ connected, ctrl, safety, driver, refused, held }) {
   if (!connected) return ['offline', 'Offline', 'Not connected to the robot: the arm is stopped. Connecting again…'];
   if (safety && safety.estop) {
     return ['estop', 'E-stop', 'Emergency stop latched: the arm will not move. Choose “Release stop…” when it is safe.'];
   }
+  if (held) return ['waiting', 'Held', HELD];
   if (!ctrl || !safety) return ['starting', 'Starting', 'Waiting for the robot’s nodes: this can take a minute.'];
   if (safety.code === S.REFLEX) return ['stopped', 'Stopped', 'The robot stopped itself (a reflex): it needs recovery.'];
   if (safety.code === S.TEACHING) return ['teaching', 'Teaching', 'Teaching mode: move the arm by hand; the input does nothing.'];
@@ -33,6 +35,9 @@ export function armState({ connected, ctrl, safety, driver, refused }) {
   }
   return ['stopped', 'Stopped', `${ctrl.words}.`];
 }
+
+export const HELD = 'The live view has stopped (no new picture), so the arm is held until the view is back; '
+  + 'then let go and press again.';
 
 // The controller's row of the status list: its words, unless the e-stop holds the arm (then the
 // controller's "Ready" or "Moving with your input" would be false).

@@ -3,7 +3,8 @@
 1. decoder call latency: the NumPy decoder the node runs vs a torch nn.Sequential of the same shape,
    one sample per call, in the same run (targets: p99 <= 15 us, >= 3x faster than torch);
    the controller core's tick (`TeleopCore.step`: joint mapping, stick, decoder, limits) and its
-   joint_states input (`on_joint_states`, called at the robot's state rate);
+   joint_states input (`on_joint_states`, called at the robot's state rate); the tick with the
+   assistance on (goal inference, pull, clearance) over held-stick episodes, beside it off;
 2. end-to-end latency across processes: a Joy publish -> the matching joint_velocity_cmd from
    controller_node (includes the wait for the node's fixed-rate timer);
 3. training time for 40 demos (10 per base task, planner trajectories) with the paper's settings
@@ -146,6 +147,43 @@ def bench_core(model_dir: Path, n: int) -> None:
     print("controller core (one tick, 8 joints in joint_states, active latent mode):")
     print(f"  TeleopCore.step           : {stats(t_step[n // 10:] / 1e3)}")
     print(f"  on_joint_states           : {stats(t_js[n // 10:] / 1e3)}")
+
+
+def bench_core_assisted(holds: int, level: str = "high") -> None:
+    """The core's tick with the assistance on (issue 34): the shipped `default` model, the Panda's
+    kinematics and the simulated webcam, a loaf on the table; held full-stick episodes from the ready
+    pose integrated kinematically (6 s at 100 Hz each), every tick timed: the inference, the goal
+    poses, the pull and the links' clearance as an episode meets them. Beside it the same ticks with
+    the assistance off."""
+    from vla_common.camera_model import SIM_WEBCAM
+    from vla_common.kinematics import PandaKinematics
+    from vla_evaluation.resources import latent_model_dir
+
+    kin, camera = PandaKinematics(), SIM_WEBCAM.pinhole(640, 480)
+    model = LatentModel.load(latent_model_dir("default"))
+    rng = np.random.default_rng(0)
+    clock = time.perf_counter_ns
+    for lv in (level, "off"):
+        ticks = []
+        for _ in range(holds):
+            core = TeleopCore(TeleopParams(dq_max=joint_speed_limits(), assistance=lv), model=model,
+                              kinematics=kin, camera=lambda: camera)
+            core.arming.offer(True)
+            xy = (rng.uniform(0.35, 0.6), rng.uniform(-0.2, 0.2))
+            u, v = camera.project([*xy, 0.04])
+            q = np.array(READY_POSE, float)
+            for i in range(600):
+                now = i * 0.01
+                core.on_joint_states(JOINT_NAMES, q, now)
+                core.on_joy([1.0], [], now)
+                if i % 20 == 0:   # the camera's 5 Hz
+                    core.on_detections([Detection("bread", 0.9, u, v, 60.0, 40.0)], (640, 480), now)
+                t0 = clock()
+                cmd, st = core.step(now)
+                ticks.append(clock() - t0)
+                q = q + cmd * 0.01
+        us = np.array(ticks[len(ticks) // 20:]) / 1e3
+        print(f"  TeleopCore.step, assistance {lv:4s}: {stats(us)}")
 
 
 def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
@@ -304,6 +342,8 @@ def main() -> int:
         model = a.model or random_model(Path(tmp) / "model")
         bench_decoder(model, 20000 if a.quick else 100000)
         bench_core(model, 20000 if a.quick else 100000)
+        print("controller core with the assistance (held full stick, default model, a loaf):")
+        bench_core_assisted(2 if a.quick else 10)
         if not a.skip_e2e:
             bench_e2e(model, 100 if a.quick else 500, a.rate)
     if not a.skip_training:

@@ -70,6 +70,18 @@ def test_tcp_state_is_fk_and_jacobian_in_one_pass(kin):
         np.testing.assert_allclose(J, kin.jacobian(q), atol=1e-12)
 
 
+def test_arm_points_lie_on_the_links_and_move_with_their_jacobians(kin):
+    rng = np.random.default_rng(4)
+    q = rng.uniform(Q_MIN + 0.3, Q_MAX - 0.3)
+    points, jacobians = kin.arm_points(q)
+    mesh = kin.link_points(q)
+    assert len(points) == 16 * 5
+    assert np.min(np.linalg.norm(mesh[None] - points[:, None], axis=2), axis=1).max() < 1e-9
+    dq = rng.normal(size=7) * 1e-6
+    moved, _ = kin.arm_points(q + dq)
+    np.testing.assert_allclose(moved - points, jacobians(range(len(points))) @ dq, atol=1e-10)
+
+
 def test_ik_round_trip(kin):
     rng = np.random.default_rng(3)
     for _ in range(10):

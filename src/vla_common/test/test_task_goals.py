@@ -40,7 +40,7 @@ def test_a_circle_goes_round_the_object_from_where_the_hand_is():
 def test_a_pick_and_place_closes_the_hand_at_the_object_and_opens_it_at_the_target():
     ps = poses("glass_bottle/pick_place_west", (0.5, -0.1))
     assert [p.name for p in ps] == ["hover", "grasp", "carry", "place", "retreat"]
-    assert [p.hand for p in ps] == ["", GRASP, "", OPEN, ""]
+    assert [p.hand for p in ps] == [OPEN, GRASP, "", OPEN, ""]     # open above it, close on it, ...
     assert ps[1].position[:2] == pytest.approx((0.5, -0.1))
     assert ps[3].position[:2] == pytest.approx((0.5, 0.05))        # 15 cm west
     assert all(np.array_equal(p.rotation, DOWN) for p in ps)

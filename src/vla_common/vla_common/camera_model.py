@@ -53,6 +53,22 @@ def unproject(pixel, pos, rot: np.ndarray, intrinsics, z: float) -> np.ndarray |
 
 
 @dataclass(frozen=True)
+class PinholeCamera:
+    """A calibrated camera: its optical centre and rotation in the world and its intrinsics, with
+    `project` and its inverse onto a plane, `unproject`."""
+
+    position: np.ndarray
+    rotation: np.ndarray
+    intrinsics: tuple[float, float, float, float]
+
+    def project(self, point) -> tuple[float, float] | None:
+        return project(point, self.position, self.rotation, self.intrinsics)
+
+    def unproject(self, pixel, z: float) -> np.ndarray | None:
+        return unproject(pixel, self.position, self.rotation, self.intrinsics, z)
+
+
+@dataclass(frozen=True)
 class CameraModel:
     """A fixed camera: `position` and `look_at` in the robot base frame (m), vertical field of view."""
 
@@ -73,8 +89,12 @@ class CameraModel:
 
     def unprojector(self, width: int, height: int):
         """(pixel (u, v), z) -> the world point at height z seen there, or None (see `unproject`)."""
-        rot, k = self.rotation(), self.intrinsics(width, height)
-        return lambda px, z: unproject(px, self.position, rot, k, z)
+        return self.pinhole(width, height).unproject
+
+    def pinhole(self, width: int, height: int) -> PinholeCamera:
+        """This camera for images of `width` x `height` pixels."""
+        k = self.intrinsics(width, height)
+        return PinholeCamera(np.asarray(self.position, float), self.rotation(), k)
 
 
 # The simulated webcam, like the paper's: in front of the table, above it, facing the robot.

@@ -55,6 +55,19 @@ def _mesh_vertices(mesh: str) -> np.ndarray:
     return np.unique(verts.astype(float).round(6), axis=0)
 
 
+@functools.cache
+def _sampled_vertices(mesh: str, n: int) -> np.ndarray:
+    """`n` vertices of a link's collision mesh spread over it (farthest-point sampling from the one
+    farthest from its centre; deterministic): a cheap stand-in for the link's surface."""
+    verts = _mesh_vertices(mesh)
+    chosen = [int(np.argmax(np.linalg.norm(verts - verts.mean(0), axis=1)))]
+    dist = np.linalg.norm(verts - verts[chosen[0]], axis=1)
+    while len(chosen) < min(n, len(verts)):
+        chosen.append(int(np.argmax(dist)))
+        dist = np.minimum(dist, np.linalg.norm(verts - verts[chosen[-1]], axis=1))
+    return verts[chosen].copy()
+
+
 class PandaKinematics:
     """Forward kinematics, TCP Jacobian and damped-least-squares IK for the 7-joint Panda."""
 
@@ -69,6 +82,7 @@ class PandaKinematics:
         self.flange_id = self.model.getFrameId(FLANGE_FRAME)
         self.q_min = np.asarray(Q_MIN, dtype=float)
         self.q_max = np.asarray(Q_MAX, dtype=float)
+        self._arm_samples: dict = {}
 
     def _check_q(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float).reshape(-1)
@@ -120,6 +134,40 @@ class PandaKinematics:
         J = pin.getFrameJacobian(self.model, self.data, self.tcp_id, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
         placement = self.data.oMf[self.tcp_id]
         return placement.translation.copy(), placement.rotation.copy(), J.copy()
+
+    def arm_points(self, q, links: tuple[str, ...] = ARM_LINKS, per_link: int = 16):
+        """(N, 3) world positions of `per_link` points on each of `links`' collision meshes, and a
+        function giving the (k, 3, 7) linear Jacobians of the points at given indices: what keeps the
+        arm's links off an object (the hand and fingers, meant to touch it, are not among them).
+        Jacobians cost a frame Jacobian each, so they are computed only for the points asked."""
+        key = (tuple(links), per_link)
+        if key not in self._arm_samples:
+            ids = [self.model.getFrameId(n) for n in links]
+            verts = [_sampled_vertices(n.removeprefix("panda_"), per_link) for n in links]
+            owner = np.repeat(np.arange(len(ids)), [len(v) for v in verts])
+            self._arm_samples[key] = (ids, [v.T.copy() for v in verts], owner)
+        ids, verts, owner = self._arm_samples[key]
+        pin.forwardKinematics(self.model, self.data, self._check_q(q))
+        frames = [pin.updateFramePlacement(self.model, self.data, f) for f in ids]
+        origins = [m.translation for m in frames]
+        points = np.vstack([(m.rotation @ v).T + o for v, m, o in zip(verts, frames, origins)])
+
+        def jacobians(index) -> np.ndarray:
+            index = np.asarray(index, int).reshape(-1)
+            pin.computeJointJacobians(self.model, self.data, self._check_q(q))
+            out = np.empty((len(index), 3, 7))
+            for link in np.unique(owner[index]):
+                J = pin.getFrameJacobian(self.model, self.data, ids[link],
+                                         pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+                mine = np.flatnonzero(owner[index] == link)
+                r = points[index[mine]] - origins[link]     # v = v_origin + w x r = v_origin - [r]x w
+                skew = np.zeros((len(r), 3, 3))
+                skew[:, 0, 1], skew[:, 0, 2], skew[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+                skew[:, 1, 0], skew[:, 2, 0], skew[:, 2, 1] = r[:, 2], -r[:, 1], r[:, 0]
+                out[mine] = J[:3][None] - skew @ J[3:]
+            return out
+
+        return points, jacobians
 
     def ik(self, pos, rot=None, q0=None, *, max_iter: int = 300, tol_pos: float = 1e-4,
            tol_rot: float = 1e-3, damping: float = 1e-4, null_gain: float = 0.05,

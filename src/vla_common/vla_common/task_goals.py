@@ -13,9 +13,9 @@ assistance aims where the demonstrations went.
   slack and a margin;
 - circle: a ring round the object above its top, entered where the hand is and gone round the way
   the demonstrations go (counter-clockwise seen from above), a little more than once;
-- lift / pick_place (the hand pointing down): hover behind the object (robot side), down onto it
-  along the fingers' gap (the hand closes here: the operator's grasp button), then up away from the
-  robot (lift) or up and over to the target, down, open, and back.
+- lift / pick_place (the hand pointing down): hover behind the object (robot side) with the hand
+  open, down onto it along the fingers' gap (the hand closes here: the operator's grasp button), then
+  up away from the robot (lift) or up and over to the target, down, open, and back.
 """
 from __future__ import annotations
 
@@ -70,14 +70,17 @@ def mid(bounds: tuple[float, float]) -> float:
 @dataclass(frozen=True)
 class GoalPose:
     """One pose a task passes through: TCP position (m) and rotation in the robot base frame, the
-    speed (m/s) a demonstration moves toward it at, and what the hand does on arriving ("" nothing,
-    GRASP: it closes on the object, OPEN: it lets go)."""
+    speed (m/s) a demonstration moves toward it at, what the hand does on arriving ("" nothing,
+    GRASP: it closes on the object, OPEN: it lets go), and whether the hand's axis must point as the
+    rotation's z there (`aligns`: the hand down over a grasp or a circle; a push's tilt is left to the
+    demonstrations, whose extra tilt keeps the forearm off a tall object)."""
 
     name: str
     position: np.ndarray
     rotation: np.ndarray
     speed: float
     hand: str = ""
+    aligns: bool = False
 
 
 def push_rotation(direction_xy, tilt: float, flip: bool = False) -> np.ndarray:
@@ -154,9 +157,9 @@ def _circle(shape: ObjectSpec, c: np.ndarray, tcp) -> list[GoalPose]:
     angles = a0 + np.linspace(0.0, RING_SWEEP, RING_POINTS + 1)
     speed = mid(CIRCLE_SPEED)
     out = [GoalPose("ring_entry", np.array([c[0] + r * math.cos(a0), c[1] + r * math.sin(a0), z]), DOWN,
-                    mid(TRANSIT_SPEED))]
-    out += [GoalPose(f"ring_{i}", np.array([c[0] + r * math.cos(a), c[1] + r * math.sin(a), z]), DOWN, speed)
-            for i, a in enumerate(angles[1:], 1)]
+                    mid(TRANSIT_SPEED), aligns=True)]
+    out += [GoalPose(f"ring_{i}", np.array([c[0] + r * math.cos(a), c[1] + r * math.sin(a), z]), DOWN, speed,
+                     aligns=True) for i, a in enumerate(angles[1:], 1)]
     return out
 
 
@@ -164,14 +167,15 @@ def _grasp(spec: TaskSpec, shape: ObjectSpec, c: np.ndarray) -> list[GoalPose]:
     zg = grasp_height(shape)
     run, lift = mid(APPROACH_RUN), (spec.distance if spec.kind == "lift" else mid(CARRY_LIFT))
     approach = mid(APPROACH_SPEED)
-    out = [GoalPose("hover", np.array([c[0] - run, c[1], zg + mid(GRASP_HOVER)]), DOWN,
-                    mid(GRASP_TRANSIT_SPEED)),
-           GoalPose("grasp", np.array([c[0], c[1], zg]), DOWN, approach, GRASP)]
+    out = [GoalPose("hover", np.array([c[0] - run, c[1], zg + mid(GRASP_HOVER)]), DOWN,   # the hand open
+                    mid(GRASP_TRANSIT_SPEED), OPEN, aligns=True),
+           GoalPose("grasp", np.array([c[0], c[1], zg]), DOWN, approach, GRASP, aligns=True)]
     if spec.kind == "lift":
-        return out + [GoalPose("lift", np.array([c[0] + run, c[1], zg + lift]), DOWN, approach)]
+        return out + [GoalPose("lift", np.array([c[0] + run, c[1], zg + lift]), DOWN, approach, aligns=True)]
     goal = c + spec.direction_vector * spec.distance
     top = (c + goal) / 2
     carry = mid(CARRY_SPEED)
-    return out + [GoalPose("carry", np.array([*top, zg + lift]), DOWN, carry),
-                  GoalPose("place", np.array([*goal, zg + PLACE_CLEARANCE]), DOWN, carry, OPEN),
-                  GoalPose("retreat", np.array([goal[0] - RETREAT_RUN, goal[1], zg + lift]), DOWN, approach)]
+    return out + [GoalPose("carry", np.array([*top, zg + lift]), DOWN, carry, aligns=True),
+                  GoalPose("place", np.array([*goal, zg + PLACE_CLEARANCE]), DOWN, carry, OPEN, aligns=True),
+                  GoalPose("retreat", np.array([goal[0] - RETREAT_RUN, goal[1], zg + lift]), DOWN, approach,
+                           aligns=True)]

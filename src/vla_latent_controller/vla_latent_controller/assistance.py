@@ -26,8 +26,9 @@ acts and onto the last one) and turns the hand toward its orientation. The perso
 - confidence falls as fast as it rises: motion away, another object picked (all evidence dropped),
   a goal whose object is no longer in the detections pulls no more from the next step;
 - a goal whose last pose is reached holds the hand there (zero) until the stick returns to neutral.
-The hand is the operator's: a grasp pose is left only once the fingers have closed (the grasp
-button), a place only once they have opened.
+The hand is the operator's: the assistance waits above the object until the hand is open, at the
+grasp pose until the fingers have closed on the object (the grasp button), and at the place until
+they have opened.
 """
 from __future__ import annotations
 
@@ -50,18 +51,29 @@ EVIDENCE_M = 0.02         # m of progress toward a goal's next pose worth one na
 MEMORY_M = 0.15           # m of motion over which old evidence fades to 1/e
 EVIDENCE_MAX = 6.0        # nats, either way
 AWAY_WEIGHT = 3.0         # motion away from a goal counts this many times its progress (falls faster)
-REACH_M = 0.015           # a pose passed through counts as reached this close
+REACH_M = 0.02            # a pose passed through counts as reached this close
 STOP_REACH_M = 0.005      # a pose where the hand acts, or the last one
+PACE_CAP = 2.0            # the person's pace counts up to this many times the demonstrations' speed
 POSITION_GAIN = 2.0       # 1/s onto a pose the hand stops at
 ROTATION_GAIN = 2.0       # 1/s
 MAX_ROTATION = 0.8        # rad/s at full stick
 DAMPING = 0.02            # of the Jacobian's pseudo-inverse
 MATCH_M = 0.08            # a detection this close to a goal's object is that object (it may be pushed)
 LOST_KEEP_S = 5.0         # s a goal whose object left the detections is remembered (pulling nothing)
+# An object missing from the detections while the hand is in front of it (the hand's or the flange's
+# image within HIDDEN_MARGIN_PX of its last box) is hidden, not gone: a push from the camera's side
+# covers it. Its goal keeps pulling for HIDDEN_KEEP_S after it was last seen.
+HIDDEN_MARGIN_PX = 40.0
+HIDDEN_KEEP_S = 3.0
+FLANGE_M = 0.1034         # the flange behind the TCP along the hand's axis
 DETECTIONS_MAX_AGE = 2.0  # s: older detections show nothing (no goal pulls)
 HAND_STEADY_M = 0.0005    # m the finger gap may change over HAND_STEADY_S and count as at rest
 HAND_STEADY_S = 0.3
-HAND_CLOSED_BELOW = HAND.max_width - 0.008  # m: a gap at rest below this holds something
+HAND_OPEN_ABOVE = HAND.max_width - 0.008   # m: a gap at rest above this is an open hand ...
+HAND_EMPTY_BELOW = 0.005                   # ... below this a shut, empty one; between, it holds something
+CLEARANCE_M = 0.02        # the arm's links keep this far above (and outside) a detected object
+CLEARANCE_LINKS = ("panda_link3", "panda_link4", "panda_link5", "panda_link6")  # not the wrist on the hand
+CLEARANCE_GAIN = 4.0      # 1/s: how fast a link below that rises
 MAX_STEP_S = 0.1          # s: a longer gap between steps counts as this much motion
 
 
@@ -77,10 +89,11 @@ class Seen:
     anchor: np.ndarray            # (x, y) where it was first seen: its goal poses' centre
     xy: np.ndarray                # where it was last seen
     pixel: tuple[float, float]    # its box centre in the detector's image (px)
+    box: tuple[float, float]      # its box's width and height (px)
     image_size: tuple[int, int]
     start: np.ndarray             # the TCP when it was first seen: where a reversed stick leads back to
-    visible: bool = True
-    seen_t: float = 0.0
+    visible: bool = True          # in the latest detections, or hidden behind the hand since
+    seen_t: float = 0.0           # when it was last in the detections
 
 
 @dataclass
@@ -133,27 +146,27 @@ class _Hand:
         self.samples = [s for s in self.samples if now - s[0] <= HAND_STEADY_S] + [(now, width)]
 
     def state(self) -> str:
-        """"closed", "open" or "" (moving, or no finger joints seen)."""
+        """"holding", "open", "shut" (closed on nothing) or "" (moving, or no finger joints seen)."""
         if not self.known or not self.samples:
             return ""
         widths = [w for _, w in self.samples]
         if self.samples[-1][0] - self.samples[0][0] < HAND_STEADY_S * 0.5 or \
                 max(widths) - min(widths) > HAND_STEADY_M:
             return ""
-        return "closed" if widths[-1] < HAND_CLOSED_BELOW else "open"
+        w = widths[-1]
+        return "open" if w > HAND_OPEN_ABOVE else "shut" if w < HAND_EMPTY_BELOW else "holding"
 
 
 class Assistance:
     """Goal inference and blending for the controller core (see the module docstring).
 
     ``kinematics`` has ``tcp_state(q)`` -> (position, rotation, 6x7 Jacobian) over the model's joints
-    (the Panda's); ``unproject((u, v), z)`` gives the world point at height z seen at detector pixel
-    (u, v), or None (no camera calibration yet: no goals)."""
+    (the Panda's); ``camera()`` gives the detector's camera (`vla_common.camera_model.PinholeCamera`:
+    ``project``, ``unproject``), or None while it is not calibrated (no goals then)."""
 
-    def __init__(self, kinematics=None, unproject: Callable | None = None,
-                 catalogue: Catalogue | None = None):
+    def __init__(self, kinematics=None, camera: Callable | None = None, catalogue: Catalogue | None = None):
         self.kinematics = kinematics
-        self.unproject = unproject
+        self.camera = camera
         self.catalogue = catalogue or default_catalogue()
         self.level = "off"
         self.tasks: dict[str, list[TaskSpec]] = {}
@@ -201,32 +214,36 @@ class Assistance:
             self._latched, self._held = latched, None
             for g in self.goals:    # the operator chose another object: only the prior counts now
                 g.evidence = 0.0
-        if dets_t != self._dets_t and self.kinematics is not None:
+        camera = self.camera() if self.camera is not None else None
+        if dets_t != self._dets_t and self.kinematics is not None and camera is not None:
             self._dets_t = dets_t
-            self._track(self._located(dets, image_size), self.kinematics.tcp_state(q)[0], image_size, now)
+            p, R, _J = self.kinematics.tcp_state(q)
+            hand = [camera.project(p), camera.project(p - FLANGE_M * R[:, 2])]
+            self._track(self._located(dets, image_size, camera), p, hand, image_size, now)
         self._expire(now)
 
-    def _located(self, dets, image_size) -> list[tuple[Detection, np.ndarray]]:
+    def _located(self, dets, image_size, camera) -> list[tuple[Detection, np.ndarray]]:
         """The detections of classes with a task, with where each object stands on the table."""
         out = []
-        if self.unproject is None or not image_size:
+        if not image_size:
             return out
         for d in dets:
             if d.class_id not in self.tasks or not d.is_finite():
                 continue
             try:
-                point = self.unproject((d.cx, d.cy), 0.5 * self.catalogue.spec(d.class_id).height)
+                point = camera.unproject((d.cx, d.cy), 0.5 * self.catalogue.spec(d.class_id).height)
             except (ValueError, ArithmeticError):
                 point = None
             if point is not None and np.all(np.isfinite(point)):
                 out.append((d, np.asarray(point, float)[:2]))
         return out
 
-    def _track(self, located, tcp, image_size, now: float) -> None:
+    def _track(self, located, tcp, hand, image_size, now: float) -> None:
         """Match each located detection to the nearest remembered object of its class within MATCH_M
-        (nearest pairs first); the others are new objects; objects matched by none are not visible."""
+        (nearest pairs first); the others are new objects; objects matched by none are not visible,
+        unless the hand hides them (`hand`: its pixels)."""
         for o in self.objects:
-            o.visible = False
+            o.visible = o.visible and now - o.seen_t <= HIDDEN_KEEP_S and _behind(o, hand)
         pairs = sorted((float(np.linalg.norm(o.xy - xy)), i, j) for i, (d, xy) in enumerate(located)
                        for j, o in enumerate(self.objects) if o.class_id == d.class_id)
         used_d, used_o = set(), set()
@@ -236,12 +253,13 @@ class Assistance:
                 used_o.add(j)
                 d, xy = located[i]
                 o = self.objects[j]
-                o.xy, o.pixel, o.image_size = xy, (d.cx, d.cy), tuple(image_size)
+                o.xy, o.pixel, o.box, o.image_size = xy, (d.cx, d.cy), (d.width, d.height), tuple(image_size)
                 o.visible, o.seen_t = True, now
         start = np.asarray(tcp, float) if tcp is not None else np.full(3, math.nan)
         for i, (d, xy) in enumerate(located):
             if i not in used_d:
-                o = Seen(d.class_id, xy.copy(), xy.copy(), (d.cx, d.cy), tuple(image_size), start, seen_t=now)
+                o = Seen(d.class_id, xy.copy(), xy.copy(), (d.cx, d.cy), (d.width, d.height),
+                         tuple(image_size), start, seen_t=now)
                 self.objects.append(o)
                 shape = self.catalogue.spec(d.class_id)
                 self.goals += [Goal(o, spec, task_goal_poses(spec, shape, xy, tcp))
@@ -288,7 +306,8 @@ class Assistance:
         p, R, J = self.kinematics.tcp_state(q)
         visible = [g for g in self.goals if g.obj.visible]
         self._stages(visible, p, u)
-        self._infer(visible, p, J[:3] @ person, dt)
+        if not self._waiting(visible, p):
+            self._infer(visible, p, J[:3] @ person, dt)
         best, confidence = self._best(visible)
         share = LEVEL_SHARE[self.level] * _ramp(confidence) if best is not None else 0.0
         self.state = self._state(best, confidence, share)
@@ -297,12 +316,56 @@ class Assistance:
         if u > 0 and best.done:
             self._held = (best, share)
             return (1.0 - share) * person
-        toward = self._toward(best, p, R, J, u) if u > 0 else self._back(best, p, J, u)
-        out = (1.0 - share) * person + share * toward
+        pace = float(np.linalg.norm(J[:3] @ person))
+        rows, twist = self._toward(best, p, R, J, u, pace) if u > 0 else self._back(best, p, J, u, pace)
+        out = person + share * _solve(rows, twist - rows @ person)
+        out = self._clear(q, out, J[:3], best)
         return out if u > 0 else _not_toward(out, best.target().position - p, J)
 
+    def _clear(self, q: np.ndarray, dq: np.ndarray, J_tcp: np.ndarray, best: Goal) -> np.ndarray:
+        """Keep the arm's links (not the wrist and hand: they are meant to come close) CLEARANCE_M
+        above the detected objects' tops where they pass over them, moving them up in the null space
+        of the TCP's motion (a steeper forearm, more tilt: what the planner's extra tilt does for the
+        demonstrations). The object a goal grasps is not an obstacle to it."""
+        grasps = any(pose.hand for pose in best.poses)   # the hand closes round its object: no obstacle
+        obstacles = [o for o in self.objects if o.visible and not (grasps and o is best.obj)]
+        if not obstacles or not hasattr(self.kinematics, "arm_points"):
+            return dq
+        points, jacobians = self.kinematics.arm_points(q, CLEARANCE_LINKS)
+        need = np.zeros(len(points))
+        for o in obstacles:
+            shape = self.catalogue.spec(o.class_id)
+            over = np.linalg.norm(points[:, :2] - o.xy, axis=1) < shape.footprint_radius + CLEARANCE_M
+            need = np.maximum(need, np.where(over, shape.height + CLEARANCE_M - points[:, 2], 0.0))
+        index = np.flatnonzero(need > 0.0)
+        if not len(index):
+            return dq
+        Jz = jacobians(index)[:, 2, :]
+        short = CLEARANCE_GAIN * need[index] - Jz @ dq      # how much faster each point must rise
+        if np.all(short <= 0.0):
+            return dq
+        null = np.eye(len(dq)) - _solve(J_tcp, J_tcp)
+        return dq + null @ _solve(Jz @ null, np.maximum(short, 0.0))
+
+    def _hand_state(self) -> str:
+        """"holding", "open", "shut" or "" (moving): from the fingers; where none are seen, from the
+        grasp button's presses (a toggle first opens a closed hand, then closes it on the object)."""
+        if self._hand.known:
+            return self._hand.state()
+        return "shut" if not self._presses else "open" if self._presses % 2 else "holding"
+
+    def _waiting(self, goals: Sequence[Goal], p: np.ndarray) -> bool:
+        """The inferred goal holds the hand at a pose where the hand acts, waiting for the operator's
+        button: the person's motion then says nothing about the goal (the decoder heads on toward the
+        carry), so the inference waits too."""
+        best, _ = self._best(goals)
+        if best is None or best.done:
+            return False
+        pose = best.target()
+        return bool(pose.hand) and np.linalg.norm(pose.position - p) < STOP_REACH_M
+
     def _stages(self, goals: Sequence[Goal], p: np.ndarray, u: float) -> None:
-        hand = self._hand.state() if self._hand.known else ("closed" if self._presses % 2 else "open")
+        hand = self._hand_state()
         for g in goals:
             if u > 0:
                 while not g.done and self._reached(g, p, hand):
@@ -317,7 +380,7 @@ class Assistance:
         if np.linalg.norm(pose.position - p) >= (STOP_REACH_M if stops else REACH_M):
             return False
         if pose.hand == GRASP:
-            return hand == "closed"
+            return hand == "holding"
         if pose.hand == OPEN:
             return hand == "open"
         return True
@@ -364,37 +427,58 @@ class Assistance:
                            "done" if best.done else best.target().name,
                            (float(o.anchor[0]), float(o.anchor[1])), (o.pixel[0] / w, o.pixel[1] / h))
 
-    def _toward(self, g: Goal, p, R, J, u: float) -> np.ndarray:
-        """Joint velocities that take the TCP toward the goal's next pose at |u| x its speed."""
-        if g.done:
-            return np.zeros(J.shape[1])
+    def _toward(self, g: Goal, p, R, J, u: float, pace: float) -> tuple[np.ndarray, np.ndarray]:
+        """(Jacobian rows, the twist they should give): the TCP straight toward the goal's next pose at
+        the stick's speed (`_speed`), and where the pose says so the hand's axis turned to its axis.
+        The rest of the motion (the hand's turn about its axis, the elbow, a push's tilt) stays the
+        person's: the decoder's, which keeps the demonstrations' arm configuration (a forced tilt put
+        the forearm on a tall box's top)."""
         pose = g.target()
         to = pose.position - p
         dist = float(np.linalg.norm(to))
-        speed = abs(u) * pose.speed
+        speed = _speed(u, pose.speed, pace)
         if pose.hand or g.stage == len(g.poses) - 1:
             speed = min(speed, POSITION_GAIN * dist)
         v = to / dist * speed if dist > 1e-9 else np.zeros(3)
-        w = ROTATION_GAIN * _rotation_error(pose.rotation, R)
+        if not pose.aligns:
+            return J[:3], v
+        z, target = R[:, 2], pose.rotation[:, 2]
+        w = ROTATION_GAIN * np.cross(z, target)       # turns z toward the target axis, never about z
         wn = float(np.linalg.norm(w))
         if wn > abs(u) * MAX_ROTATION:
             w *= abs(u) * MAX_ROTATION / wn
-        return _solve(J, np.concatenate([v, w]))
+        if pose.hand:   # where the hand closes or opens it does not turn about its axis either
+            return J, np.concatenate([v, w])
+        across = np.eye(3) - np.outer(z, z)
+        return np.vstack([J[:3], across @ J[3:]]), np.concatenate([v, w])
 
-    def _back(self, g: Goal, p, J, u: float) -> np.ndarray:
-        """Joint velocities that retrace the goal's poses: toward the one before its next."""
+    def _back(self, g: Goal, p, J, u: float, pace: float) -> tuple[np.ndarray, np.ndarray]:
+        """(Jacobian rows, twist): the TCP retracing the goal's poses, toward the one before its next."""
         back = g.previous() - p
         dist = float(np.linalg.norm(back))
         if not np.all(np.isfinite(back)) or dist < 1e-9:
-            return np.zeros(J.shape[1])
-        speed = abs(u) * g.target().speed
-        return _solve(J[:3], back / dist * speed)
+            return J[:3], np.zeros(3)
+        return J[:3], back / dist * _speed(u, g.target().speed, pace)
+
+
+def _behind(o: Seen, hand) -> bool:
+    """The hand's image (any of its pixels) lies on or near the object's last box."""
+    w, h = o.box[0] / 2 + HIDDEN_MARGIN_PX, o.box[1] / 2 + HIDDEN_MARGIN_PX
+    return any(px is not None and abs(px[0] - o.pixel[0]) <= w and abs(px[1] - o.pixel[1]) <= h
+               for px in hand)
 
 
 def _progress(v: np.ndarray, to: np.ndarray) -> float:
     """The speed (m/s) at which velocity v closes the distance along ``to``."""
     n = float(np.linalg.norm(to))
     return float(v @ to) / n if n > 1e-9 else 0.0
+
+
+def _speed(u: float, demonstrated: float, pace: float) -> float:
+    """The TCP speed the stick asks for: |u| x the demonstrations' speed toward the pose, or the
+    person's own pace (the decoder's speed at that stick) where it is faster, up to PACE_CAP times."""
+    base = abs(u) * demonstrated
+    return min(max(base, pace), PACE_CAP * base)
 
 
 def _ramp(confidence: float) -> float:
@@ -418,19 +502,3 @@ def _not_toward(dq: np.ndarray, to: np.ndarray, J: np.ndarray) -> np.ndarray:
     if toward <= 0.0:
         return dq
     return dq - _solve(J[:3], toward * g)
-
-
-def _rotation_error(target: np.ndarray, R: np.ndarray) -> np.ndarray:
-    """The rotation vector (world frame) that turns R into target: log(target R^T)."""
-    E = target @ R.T
-    c = float(np.clip((np.trace(E) - 1.0) / 2.0, -1.0, 1.0))
-    angle = math.acos(c)
-    axis = np.array([E[2, 1] - E[1, 2], E[0, 2] - E[2, 0], E[1, 0] - E[0, 1]])
-    s = math.sin(angle)
-    if angle < 1e-9:
-        return 0.5 * axis
-    if s < 1e-6:   # a half turn: the axis from the symmetric part
-        k = int(np.argmax(np.diag(E)))
-        a = (E[:, k] + np.eye(3)[:, k]) / math.sqrt(max(2.0 * (1.0 + E[k, k]), 1e-12))
-        return angle * a / np.linalg.norm(a)
-    return angle / (2.0 * s) * axis

@@ -23,7 +23,7 @@ from rclpy.qos import QoSProfile, qos_profile_sensor_data
 from sensor_msgs.msg import CameraInfo, Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
-from vla_common.camera_model import SIM_WEBCAM, look_at_rotation, project, unproject
+from vla_common.camera_model import SIM_WEBCAM, PinholeCamera, look_at_rotation, project
 from vla_common.image_convert import to_rgb
 from vla_common.kinematics import PandaKinematics
 from vla_common.robot import JOINT_NAMES, ROBOTS
@@ -196,7 +196,7 @@ class ControllerNode(Node):
         self._kin = _panda_kinematics(self.get_logger())
         self.core = TeleopCore(
             self.params, kinematics=self._kin, joint_names=JOINT_NAMES, ee_pixel=self._ee_pixel,
-            joint_map=parse_joint_map(values["joint_map"]), unproject=self._unproject,
+            joint_map=parse_joint_map(values["joint_map"]), camera=self._camera,
         )
         self._image_sub = None  # camera/image_raw, for a CNN-encoder model only
         self._start_model(values["model_path"], values["mode"])
@@ -458,14 +458,14 @@ class ControllerNode(Node):
         rot = look_at_rotation(np.asarray(pos), np.asarray(target))
         return project(self._kin.fk(q)[0], pos, rot, self._intrinsics)
 
-    def _unproject(self, pixel: tuple[float, float], z: float) -> np.ndarray | None:
-        """The world point at height z seen at detector pixel (u, v) (None before camera_info)."""
+    def _camera(self) -> PinholeCamera | None:
+        """The detector's camera, once camera_info has given its intrinsics (for the assistance)."""
         pos = self.get_parameter("camera_position").value
         target = self.get_parameter("camera_look_at").value
         if self._intrinsics is None or np.allclose(pos, target):
             return None
-        rot = look_at_rotation(np.asarray(pos), np.asarray(target))
-        return unproject(pixel, pos, rot, self._intrinsics, z)
+        return PinholeCamera(np.asarray(pos, float), look_at_rotation(np.asarray(pos), np.asarray(target)),
+                             self._intrinsics)
 
     def _on_set_mode(self, req: SetMode.Request, resp: SetMode.Response) -> SetMode.Response:
         """Through the `mode` parameter, so that it always reads the mode in use."""

@@ -179,8 +179,8 @@ class TeleopCore:
     ``joint_names`` (default: the Panda's); ``ee_pixel`` maps q to the end effector's pixel in the
     detector's image (or None when the camera is not calibrated). ``joint_map`` renames the
     controller's joints to the robot's ({model joint: robot joint}, see :mod:`.joints`).
-    ``unproject((u, v), z)`` is the world point at height z seen at detector pixel (u, v) (or None):
-    where the assistance finds the detected objects (see :mod:`.assistance`).
+    ``camera()`` is the detector's calibrated camera (a `vla_common.camera_model.PinholeCamera`, or
+    None while not calibrated): where the assistance finds the detected objects (see :mod:`.assistance`).
     """
 
     def __init__(
@@ -192,10 +192,10 @@ class TeleopCore:
         model_error: str | None = None,
         ee_pixel: Callable[[np.ndarray], tuple[float, float] | None] | None = None,
         joint_map: Mapping[str, str] | None = None,
-        unproject: Callable[[tuple[float, float], float], np.ndarray | None] | None = None,
+        camera: Callable[[], object | None] | None = None,
     ):
         self.params = params
-        self.assist = Assistance(kinematics, unproject)
+        self.assist = Assistance(kinematics, camera)
         self.kinematics = kinematics
         self.ee_pixel = ee_pixel
         self.ee = EndEffectorBaseline(

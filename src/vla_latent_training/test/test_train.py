@@ -229,3 +229,43 @@ def test_training_windows_do_not_span_a_grasp():
     assert whole.n_forward == sum(40 - w for w in range(1, 11))
     assert ((np.abs(whole.a[:, 0]) > 1e-9) & (np.abs(whole.a[:, 1]) > 1e-9)).any()  # as before
     assert hand_cuts(SimpleNamespace(t=t, q=q, grasp_events=[])) == ()
+
+
+def test_rest_samples_lead_windows_past_the_end_to_it_and_corrective_pairs_lead_back():
+    """Issue 34: windows that reach past a demonstration's end lead to its last state (a held stick
+    stops there); a corrective copy starts beside the pair's state and ends where the pair ends."""
+    from vla_latent_training.inputs import DemoInput
+    from vla_latent_training.pairs import make_pairs as paper_pairs
+    from vla_latent_training.train import build_pairs
+
+    q = np.zeros((30, 7))
+    q[:, 0] = np.linspace(0.0, 0.6, 30)
+    item = DemoInput("bread/push_east", "bread", q, "bag")
+    cfg = TrainConfig(sigma=0.0, reverse_pairs=False)
+    plain = build_pairs([item], cfg, paper_pairs, np.random.default_rng(0))
+    rested = build_pairs([item], replace(cfg, rest_samples=10), paper_pairs, np.random.default_rng(0))
+    assert rested.n_forward == plain.n_forward + sum(min(w, 10) + 10 - w for w in range(1, 11))
+    ends = rested.q + rested.a
+    near_end = rested.q[:, 0] > 0.6 - 0.21 - 1e-9           # the last 10 samples and the rest
+    assert np.all(ends[near_end, 0] <= 0.6 + 1e-9)           # none leads beyond the end
+    at_end = np.abs(rested.q[:, 0] - 0.6) < 1e-9
+    assert at_end.sum() >= 10 and np.allclose(rested.a[at_end], 0.0)   # at the end: stay
+    both = replace(cfg, reverse_pairs=True, corrective_copies=2, corrective_sigma=0.05)
+    corrected = build_pairs([item], both, paper_pairs, np.random.default_rng(0))
+    n = 2 * plain.n_forward                                   # forward and reversed
+    assert len(corrected.q) == 3 * n and corrected.n_forward == plain.n_forward
+    base_end = corrected.q[:n] + corrected.a[:n]
+    for k in (1, 2):
+        copy = slice(k * n, (k + 1) * n)
+        np.testing.assert_allclose(corrected.q[copy] + corrected.a[copy], base_end, atol=1e-12)
+        assert np.std(corrected.q[copy] - corrected.q[:n]) == pytest.approx(0.05, rel=0.1)
+        assert np.array_equal(corrected.sign[copy], corrected.sign[:n])
+
+
+def test_the_recipe_names_the_new_options_and_refuses_bad_values():
+    cfg = TrainConfig(rest_samples=10, corrective_copies=3, corrective_sigma=0.03)
+    assert "rest 10" in cfg.mode() and "corrective 3 x 0.03 rad" in cfg.mode()
+    assert "rest" not in TrainConfig().mode()
+    for bad in (dict(rest_samples=-1), dict(corrective_copies=-2), dict(corrective_sigma=0.0)):
+        with pytest.raises(ValueError):
+            TrainConfig(**bad).validate()

@@ -48,6 +48,15 @@ class TrainConfig:
     # What the detector context's (x, y) are divided by (after subtracting their mean over the demos):
     # None (default) for their spread over the demos, or a fixed scale. See position_affine.
     position_scale: float | None = None
+    # Where a task ends and how to get back to it (issue 34; off by default, the recipe the shipped
+    # models were trained with): each stretch of a demonstration is held at its last state for
+    # `rest_samples` more samples (windows that reach past the end then lead to it and stop there, not
+    # on in the direction the motion had), and every pair gets `corrective_copies` copies from a state
+    # perturbed by N(0, corrective_sigma^2) rad per joint whose action still leads to the same point
+    # (DART's corrections: from beside the path, back to it).
+    rest_samples: int = 0
+    corrective_copies: int = 0
+    corrective_sigma: float = 0.03
 
     @classmethod
     def paper(cls, **overrides) -> TrainConfig:
@@ -66,6 +75,10 @@ class TrainConfig:
             raise ValueError("epochs, batch_size and windows must be >= 1")
         if self.min_steps < 0:
             raise ValueError("min_steps must be >= 0")
+        if self.rest_samples < 0 or self.corrective_copies < 0:
+            raise ValueError("rest_samples and corrective_copies must be >= 0")
+        if not (math.isfinite(self.corrective_sigma) and self.corrective_sigma > 0):
+            raise ValueError("corrective_sigma must be a positive number of radians")
         check_position_scale(self.position_scale)
         if not 0.0 <= self.val_fraction < 1.0:
             raise ValueError("val_fraction must be in [0, 1)")
@@ -80,6 +93,9 @@ class TrainConfig:
             ("normalised", self.normalise),
             ("reversed pairs", self.reverse_pairs),
             ("hand-split windows", self.hand_segments),
+            (f"rest {self.rest_samples}", self.rest_samples > 0),
+            (f"corrective {self.corrective_copies} x {self.corrective_sigma:g} rad",
+             self.corrective_copies > 0),
         )
         return "improved: " + ", ".join(name for name, enabled in on if enabled)
 

@@ -97,9 +97,13 @@ class _PairDemo:
 
 def segments(item: DemoInput, cfg: TrainConfig) -> list[np.ndarray]:
     """The stretches of a demo's trajectory that windows may span: split at its hand motions
-    (``cfg.hand_segments``; each cut sample ends one stretch and starts the next), else whole."""
+    (``cfg.hand_segments``; each cut sample ends one stretch and starts the next), else whole; each
+    held at its last state for ``cfg.rest_samples`` more samples."""
     bounds = [0, *(item.cuts if cfg.hand_segments else ()), len(item.q) - 1]
-    return [item.q[a:b + 1] for a, b in zip(bounds, bounds[1:]) if b > a]
+    out = [item.q[a:b + 1] for a, b in zip(bounds, bounds[1:]) if b > a]
+    if cfg.rest_samples:
+        out = [np.vstack([q, np.repeat(q[-1:], cfg.rest_samples, axis=0)]) for q in out]
+    return out
 
 
 def build_pairs(items: Sequence[DemoInput], cfg: TrainConfig, pairs_fn: Callable,
@@ -121,6 +125,12 @@ def build_pairs(items: Sequence[DemoInput], cfg: TrainConfig, pairs_fn: Callable
     if cfg.reverse_pairs:  # from where the motion ended, the way back; noise on the state as for forward
         q = np.concatenate([q, q + a + rng.normal(0.0, cfg.sigma, q.shape)])
         a, d, s = np.concatenate([a, -a]), np.concatenate([d, d]), np.concatenate([s, -s])
+    if cfg.corrective_copies:  # from beside the path to the same point: a - delta from q + delta
+        k = cfg.corrective_copies
+        delta = rng.normal(0.0, cfg.corrective_sigma, (k * len(q), q.shape[1]))
+        q = np.concatenate([q, np.tile(q, (k, 1)) + delta])
+        a = np.concatenate([a, np.tile(a, (k, 1)) - delta])
+        d, s = np.tile(d, k + 1), np.tile(s, k + 1)
     if len(q) < 2:
         raise ValueError(f"only {len(q)} state-action pairs: demos too short")
     return PairSet(q, a, d, s, n_forward, [len(x) for x in qs])

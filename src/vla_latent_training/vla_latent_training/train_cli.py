@@ -63,6 +63,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "'demos' (their "
                         "spread over the demos) or a number (0.2887 = sqrt(1/12), a coordinate's spread "
                         "over the image; quieter position, for 1-2 demos per object)")
+    p.add_argument("--rest-samples", type=int, default=_DEFAULT.rest_samples,
+                   help="hold each demonstration at its last state for N more samples (10 Hz), so that a "
+                        "held stick stops where the task ends (default: %(default)s)")
+    p.add_argument("--corrective-copies", type=int, default=_DEFAULT.corrective_copies,
+                   help="K copies of every pair from a perturbed state, leading back to the same point "
+                        "(DART-like corrections; default: %(default)s)")
+    p.add_argument("--corrective-sigma", type=float, default=_DEFAULT.corrective_sigma,
+                   help="their perturbation per joint (rad; default: %(default)s)")
     p.add_argument(
         "--paper-exact",
         action="store_true",
@@ -137,7 +145,8 @@ def resolve_tasks(args: argparse.Namespace, catalogue: Catalogue) -> tuple[list[
 
 def train_config(args: argparse.Namespace) -> TrainConfig:
     overrides = dict(encoder=args.encoder, seed=args.seed, epochs=args.epochs, batch_size=args.batch_size,
-                     lr=args.lr, position_scale=args.position_scale)
+                     lr=args.lr, position_scale=args.position_scale, rest_samples=args.rest_samples,
+                     corrective_copies=args.corrective_copies, corrective_sigma=args.corrective_sigma)
     if args.hidden is not None:
         overrides["hidden"] = args.hidden
     return TrainConfig.paper(**overrides) if args.paper_exact else TrainConfig(**overrides)

@@ -3,16 +3,20 @@ the ready pose on fresh layouts for each base task, through the graph on MuJoCo 
 Prints per task: holds, reflexes, task done, worst measured |dq|/dq_max; then the totals. A hold the
 graph does not finish (a timeout on a loaded machine) counts as a failed hold, is listed, and the run
 goes on with a restarted graph. The holds run as units on Ray (a local Ray, `--ray-address` a cluster,
-`--serial` one graph in this process), each worker with its own graph on its own ROS domain.
+`--serial` one graph in this process), each worker with its own graph on its own ROS domain. The graph
+runs in lockstep (a hold is a function of its seed at any load; `--free-running` the old graph);
+`--assistance` sets the controller's level (issue 34), `--json` writes each hold's row.
 
     python bench/bench_holds.py [--n 50] [--seconds 6] [--stick 1] [--path-fraction 0.65] [--tasks base]
-                                [--log-dir DIR]
+                                [--model default] [--assistance high] [--json rows.json] [--log-dir DIR]
 """
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
+from pathlib import Path
 
 from brief import parse
 from vla_evaluation.evaluate_cli import task_list
@@ -38,16 +42,29 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--real-time-factor", type=float, default=GraphConfig.real_time_factor,
                    help="simulated seconds per wall second; lower it on a loaded machine, where joy "
                         "gaps of 0.25 simulated s stop the arm until neutral (default: %(default)s)")
+    p.add_argument("--assistance", default="off", choices=("off", "low", "high"),
+                   help="the controller's assistance level (issue 34; default: %(default)s, the paper's)")
+    p.add_argument("--free-running", action="store_true",
+                   help="the old free-running graph; by default the simulation runs in lockstep with the "
+                        "controller and the holds are a function of their seeds at any load")
+    p.add_argument("--json", default=None, help="also write every hold's row (task, seed, success, ...) here")
     add_engine_arguments(p)
     a = parse(p, argv, n=1, tasks="bread/push_east")
     cfg = hold_config(str(latent_model_dir(a.model)), str(detector_model_path()), a.seconds, a.stick,
-                      a.path_fraction, log_dir=a.log_dir, real_time_factor=a.real_time_factor)
+                      a.path_fraction, log_dir=a.log_dir, real_time_factor=a.real_time_factor,
+                      lockstep=not a.free_running,
+                      extra_params={"controller_node": {"assistance": a.assistance}})
     t0 = time.monotonic()
     tallies = run_holds(cfg, task_list(a.tasks), a.n, a.first_seed, engine=engine_from(a))
     wall = time.monotonic() - t0
-    print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task, path_fraction "
-          f"{a.path_fraction:g}, real-time factor "
+    print(f"\n{a.n} holds of {a.seconds:g} s at stick {a.stick:+g} per task, model {a.model}, assistance "
+          f"{a.assistance}, path_fraction {a.path_fraction:g}, "
+          f"{'free-running' if a.free_running else 'lockstep'}, real-time factor "
           f"{a.real_time_factor:g} ({wall:.0f} s wall)")
+    if a.json:
+        rows = [dict(r, model=a.model, assistance=a.assistance, seconds=a.seconds)
+                for t in tallies.values() for r in t.rows]
+        Path(a.json).write_text(json.dumps(rows, indent=1) + "\n")
     for t in tallies.values():
         print(t.line())
     holds = sum(t.holds for t in tallies.values())

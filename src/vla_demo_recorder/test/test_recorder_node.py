@@ -175,6 +175,29 @@ def test_image_every_n_and_joystick_buttons(ros, tmp_path):
     assert ep.task == "cereal_box/circle" and ep.outcome == "kept"
 
 
+def test_the_controllers_status_with_the_assistance_state_is_recorded_by_default(ros, tmp_path):
+    """Issue 34: an episode's bag says what the assistance did (level, inferred goal, confidence, pull)."""
+    from vla_interfaces.msg import ControllerStatus
+
+    rec = make_recorder(ros, tmp_path)
+    c = Client(ros)
+    pub = c.node.create_publisher(ControllerStatus, "controller_node/status", 10)
+    c.wait_subscribed(pub)
+    assert c.start("bread/push_east").success
+    said = ControllerStatus(assistance="high", goal_task="bread/push_east", goal_confidence=0.8,
+                            goal_share=0.75, goal_stage="pre_push", goal_x=0.5, goal_y=0.05)
+    pub.publish(said)
+    assert settle(ros, lambda: rec.recorder.state().messages_written, 1)
+    path = rec.recorder.state().bag_path
+    assert c.stop().success
+    with AnyReader([Path(path)]) as reader:
+        got = [reader.deserialize(raw, conn.msgtype) for conn, _t, raw in reader.messages()
+               if conn.topic == "/controller_node/status"]
+    assert [(m.assistance, m.goal_task, m.goal_stage) for m in got] == \
+        [("high", "bread/push_east", "pre_push")]
+    assert (got[0].goal_confidence, got[0].goal_share, got[0].goal_x) == pytest.approx((0.8, 0.75, 0.5))
+
+
 def test_unwritable_output_dir_is_reported(ros, tmp_path):
     blocker = tmp_path / "a_file"
     blocker.write_text("x")

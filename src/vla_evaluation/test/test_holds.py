@@ -48,6 +48,10 @@ def test_a_graph_timeout_is_a_failed_hold_and_the_run_goes_on_with_a_new_graph()
         assert t.reflexes == 1 and t.reflex_seeds == [302]
         assert [s for s, _ in t.graph_errors] == [301]
         assert "graph errors" in t.line() and "[301]" in t.line()
+        # each hold's row for --json, in seed order, the graph error a failed row
+        assert [(r["task"], r["seed"], r["success"]) for r in t.rows] == \
+            [(task, 300, True), (task, 301, False), (task, 302, False), (task, 303, True)]
+        assert "graph_error" in t.rows[1] and t.rows[2]["reflex"]
     assert FakeGraph.started == 3 and FakeGraph.closed == 3  # the first graph and one per timeout
     assert sum("counted as a failed hold" in line for line in lines) == 2
 

@@ -39,10 +39,12 @@ class HoldTally:
     # holds the graph did not finish (a timeout on a loaded machine, a process that ended): counted as
     # failed holds, with what happened; their reflexes are unknown
     graph_errors: list[tuple[int, str]] = field(default_factory=list)
+    rows: list[dict] = field(default_factory=list)  # each hold's summary, in seed order
 
     def add(self, h: dict) -> None:
         """One hold's summary (`hold_summary`)."""
         self.holds += 1
+        self.rows.append(dict(h, task=self.task))
         if h["reflex"]:
             self.reflexes += 1
             self.reflex_seeds.append(int(h["seed"]))
@@ -56,6 +58,7 @@ class HoldTally:
     def add_graph_error(self, seed: int, reason: str) -> None:
         self.holds += 1
         self.graph_errors.append((int(seed), reason))
+        self.rows.append({"task": self.task, "seed": int(seed), "success": False, "graph_error": reason})
 
     def line(self) -> str:
         seeds = f"  reflex seeds {self.reflex_seeds}" if self.reflex_seeds else ""
@@ -81,11 +84,16 @@ def hold_summary(rec: EpisodeRecord) -> dict:
     r = rec.result
     by_code = r.extra.get("interventions_by_code", {})
     stick = rec.trace[:, 8] if rec.trace is not None and len(rec.trace) else None
-    return {"seed": int(r.layout_seed), "success": bool(r.success),
+    return {"seed": int(r.layout_seed), "success": bool(r.success), "time_to_success": r.time_to_success,
+            "displacement_m": _number(r.displacement_m), "angle_err_deg": _number(r.angle_err_deg),
             "reflex": by_code.get(int(SafetyStatus.REFLEX), 0) > 0,
             "stopped": any(by_code.get(c, 0) > 0 for c in MACHINE_STOPS),
             "max_speed_ratio": float(r.extra.get("max_speed_ratio", 0.0)),
             "stick": None if stick is None else (float(stick.min()), float(stick.max()))}
+
+
+def _number(x) -> float | None:
+    return None if x is None else float(x)
 
 
 def run_holds(config: GraphConfig, tasks: Sequence[str], n: int, first_seed: int = FRESH_SEED,

@@ -491,14 +491,15 @@ class ControllerNode(Node):
     def _tick(self) -> list[float]:
         """One command (published on joint_velocity_cmd, or returned for the lockstep answer) and the
         status: at status_rate, and at once when what it says changes (code, mode, end-effector axis,
-        latched object)."""
+        latched object, the assistance's level, inferred goal and the pose it steers toward)."""
         now = self._now()
         cmd, st = self.core.step(now)
         values = cmd.tolist()
         if self._lockstep is None:
             self._msg.data = values
             self.cmd_pub.publish(self._msg)
-        said = (st.code, st.mode, st.ee_axis, st.latched_class, st.latched_by)
+        said = (st.code, st.mode, st.ee_axis, st.latched_class, st.latched_by, st.assist.level,
+                st.assist.goal_task, st.assist.stage)
         changed = said != self._last_status
         if changed or now - self._last_status_t >= self._status_period or now < self._last_status_t:
             code_changed = self._last_status is None or st.code != self._last_status[0]

@@ -27,6 +27,7 @@ class EpisodeJob:
     graph_errors_are_results: bool = False  # a hold's timeout is a failed hold; an evaluation's fails
     own_logs: bool = False  # several workers: a log folder each
     evaluator: Callable[..., GraphEvaluator] = GraphEvaluator
+    attempts: int = 2  # runs of an episode that ends in a GraphError, each on a new graph
 
 
 def for_workers(config: GraphConfig) -> GraphConfig:
@@ -35,8 +36,11 @@ def for_workers(config: GraphConfig) -> GraphConfig:
 
 
 class EpisodeWorker:
-    """Runs (task, seed) episodes on one graph; a GraphError closes it and the next episode starts a new
-    one. With `graph_errors_are_results` the error comes back as {"seed", "graph_error"}."""
+    """Runs (task, seed) episodes on one graph. A GraphError (the graph did not answer in time: a
+    starved machine, a process that ended) is not an outcome: the graph is closed and the episode runs
+    again on a new one, up to `job.attempts` times (in lockstep the same episode, step for step). Past
+    that, with `graph_errors_are_results` the error comes back as {"seed", "graph_error"}; otherwise
+    the unit fails (reported by the sweep)."""
 
     def __init__(self, job: EpisodeJob) -> None:
         self.job, self.config = job, job.config
@@ -46,17 +50,26 @@ class EpisodeWorker:
 
     def run(self, unit: tuple[str, int]) -> Any:
         task, seed = unit
-        if self.ev is None:  # a graph that does not start fails the unit (reported by the sweep)
+        for attempt in range(1, self.job.attempts + 1):
+            try:
+                rec = self._episode(task, seed)
+            except GraphError as e:
+                self.close()
+                print(f"[graph] {task} seed {seed}: attempt {attempt} of {self.job.attempts} ended with a "
+                      f"graph error ({e}); the graph is closed", flush=True)
+                if attempt < self.job.attempts:
+                    continue
+                if self.job.graph_errors_are_results:
+                    return {"seed": seed, "graph_error": str(e)}
+                raise
+            return self.job.summarise(rec) if self.job.summarise else rec
+        raise AssertionError("unreachable")
+
+    def _episode(self, task: str, seed: int) -> EpisodeRecord:
+        if self.ev is None:
             self.ev = self.job.evaluator(self.config, print)
             self.ev.start()
-        try:
-            rec = self.ev.run_episode(task, seed, self.job.label, self.job.n_objects)
-        except GraphError as e:
-            self.close()
-            if self.job.graph_errors_are_results:
-                return {"seed": seed, "graph_error": str(e)}
-            raise
-        return self.job.summarise(rec) if self.job.summarise else rec
+        return self.ev.run_episode(task, seed, self.job.label, self.job.n_objects)
 
     def close(self) -> None:
         if self.ev is not None:

@@ -102,10 +102,10 @@ def run_holds(config: GraphConfig, tasks: Sequence[str], n: int, first_seed: int
               engine: Engine = SERIAL) -> dict[str, HoldTally]:
     """`n` holds per task on fresh layouts (seeds first_seed, first_seed + 1, ...); tallies by task.
 
-    A hold the graph does not finish (GraphError: a timeout under load, a process that ended) is
-    counted as a failed hold and said so; that worker's graph is restarted for its next hold, so one
-    slow moment does not end the whole run. On Ray (`engine`) each worker has its graph on a ROS
-    domain of its own."""
+    A hold the graph does not finish (GraphError: a timeout under load, a process that ended) runs
+    again on a new graph (graph_sweep.EpisodeWorker); if that fails too it is counted as a failed hold
+    and said so, and the run goes on, so one slow moment does not end the whole run. On Ray
+    (`engine`) each worker has its graph on a ROS domain of its own."""
     if not engine.serial and config is not None:
         config = for_workers(config)  # each worker's graph on a domain of its own
     seeds = range(first_seed, first_seed + int(n))

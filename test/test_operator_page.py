@@ -11,6 +11,8 @@ through Selenium) on the shipped teleop.launch.yaml, as test_operator_station.py
 - the live regions announce changes only; the settings view hides the driving view; the objects are
   targets that do not overlap on a phone, in words without parameter names; Episodes only with a recorder;
 - axe-core 4.12 (AA and AAA) finds nothing and every target is 44 px, in every state of the page;
+- the controller's assistance (issue 34): the inferred goal and its confidence drawn on the view and in
+  words, a new goal announced once in the state bar (not a change of confidence);
 - a stopped camera: the page shows and says that the view is stale; the caregiver's checkbox on the
   settings view (stop_on_stale_view) makes it hold the arm, and the state bar says "Held".
 """
@@ -433,10 +435,15 @@ def lone_station(tmp_path):
             self.recorder = self.create_publisher(RecorderStatus, "recorder/status", 10)
             self.ctrl_pub = self.create_publisher(ControllerStatus, "controller_node/status", 10)
             self.safety = self.create_publisher(SafetyStatus, "panda_bridge/status", 10)
+            self.wobble = 0.0   # the goal's confidence changes by this from one status to the next
+            self.n = 0
             self.create_timer(1 / 15, self._tick)
 
         def _tick(self):
             self.recorder.publish(RecorderStatus(recording=False))
+            self.n += 1
+            if self.wobble:
+                self.ctrl.goal_confidence = 0.8 + self.wobble * (self.n % 3)
             self.ctrl_pub.publish(self.ctrl)
             self.safety.publish(SafetyStatus(code=SafetyStatus.OK))
             if self.on:
@@ -534,3 +541,46 @@ def test_the_caregivers_stale_view_stop_is_set_on_the_settings_view_and_the_bar_
     assert wait_page(h, b, f"{detail}.includes('The live view has stopped')", 20.0)
     assert js(b, WORD) == "Stopped"
     feed.on = True
+
+
+# ---------------------------------------------------------------------- the assistance's goal (issue 34)
+# the canvas's pixel at the goal's (normalised) image position, [r, g, b]
+PIXEL = """const c = document.getElementById('frame'), [x, y] = arguments;
+return [...c.getContext('2d').getImageData(Math.round(x * c.width), Math.round(y * c.height), 1, 1).data]
+  .slice(0, 3);"""
+
+
+def test_the_inferred_goal_is_drawn_said_and_announced_once_per_change(lone_station):
+    """A controller status with the assistance on (the fixture's feed, as the controller publishes it): the
+    live view marks the goal's object and says the goal and its confidence in words; the state bar (the
+    polite live region) says the goal once, and again only when the goal changes, not with its confidence.
+    Axe clean with the assistance shown."""
+    h, feed, b = lone_station
+    detail = "document.getElementById('state-detail').textContent"
+    assist = "document.getElementById('assist').textContent"
+    assert wait_page(h, b, "window.station && window.station.fps > 0", 60.0)
+    assert word_is(h, b, "Stopped", 30.0), js(b, "document.body.innerText")
+    grey = b.driver.execute_script(PIXEL, 0.25, 0.5)
+    assert js(b, "document.getElementById('assist').hidden")            # off: nothing said
+    feed.ctrl.assistance, feed.ctrl.goal_task, feed.ctrl.goal_confidence = "high", "bread/push_east", 0.82
+    feed.ctrl.goal_image_x, feed.ctrl.goal_image_y = 0.25, 0.5
+    assert wait_page(h, b, f"{assist} === 'Assistance high: goal the bread (push east), 82 % sure'", 20.0), \
+        js(b, assist)
+    assert wait_page(h, b, f"{detail}.includes('Goal inferred: the bread (push east).')", 20.0), js(b, detail)
+    marked = b.driver.execute_script(PIXEL, 0.25, 0.5)
+    assert marked != grey and marked[0] > 200 and marked[1] < 100, (grey, marked)   # the marker's dot
+    assert axe_violations(b) == [] and small_targets(b) == []
+    b.driver.execute_script(LIVE_LOG)
+    feed.wobble = 0.05                               # the confidence changes with every status
+    assert wait_page(h, b, f"{assist}.includes('90 % sure')", 20.0)
+    feed.wobble, feed.ctrl.goal_confidence = 0.0, 0.8
+    feed.ctrl.goal_task, feed.ctrl.goal_image_x = "soda_can/pick_place", 0.75
+    assert wait_page(h, b, f"{detail}.includes('Goal inferred: the soda can (pick and place).')", 20.0)
+    h.spin_for(1.0)                                  # a window after the change
+    state = [x for x in js(b, "window.liveLog") if x[0] == "state"]
+    assert [x for x in state if x[1] == x[2]] == [], state
+    goal = lambda text: re.findall(r"Goal inferred: [^.]*\.", text)  # noqa: E731
+    changes = [(goal(old), goal(new)) for _, old, new in state if goal(old) != goal(new)]
+    assert changes == [(["Goal inferred: the bread (push east)."],
+                        ["Goal inferred: the soda can (pick and place)."])], state
+    assert js(b, assist) == "Assistance high: goal the soda can (pick and place), 80 % sure"

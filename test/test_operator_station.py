@@ -270,7 +270,7 @@ def apply_settings(h, b, **values) -> None:
     """Through the page's link, as its Save button does; waits until the station says they apply."""
     b.driver.execute_script("window.stationRequest({type: 'settings', values: arguments[0]}, 'settings')",
                             values)
-    assert h.spin_until(lambda: all(js(b, "window.station.settings")[k] == v for k, v in values.items()),
+    assert h.spin_until(lambda: all(js(b, "window.station.settings").get(k) == v for k, v in values.items()),
                         20.0), (values, js(b, "document.getElementById('set-message').textContent"))
 
 
@@ -280,7 +280,8 @@ def settings_restored(graph, page):
     h, obs, url, _ = graph
     if not page.driver.current_url.startswith(url):
         page.driver.get(url)
-        assert wait_page(h, page, "window.station && window.station.settings.keys")
+    # a page just loaded (here or by the test) has its settings once the station's first state came
+    assert wait_page(h, page, "window.station && window.station.settings.keys")
     apply_settings(h, page, **DEFAULTS)
 
 
@@ -408,11 +409,16 @@ def test_single_switch_scanning_drives_while_held_on_forward(graph, page, settin
 
 
 # ---------------------------------------------------------------------- caregiver settings
-def controller_deadband(h, obs) -> float:
+def controller_param(h, obs, name: str):
     assert obs.ctrl_params.wait_for_service(10.0)
-    f = obs.ctrl_params.call_async(GetParameters.Request(names=["deadband"]))
+    f = obs.ctrl_params.call_async(GetParameters.Request(names=[name]))
     assert h.spin_until(f.done, 10.0)
-    return f.result().values[0].double_value
+    v = f.result().values[0]
+    return v.string_value if v.type == 4 else v.double_value   # ParameterType STRING, else DOUBLE
+
+
+def controller_deadband(h, obs) -> float:
+    return controller_param(h, obs, "deadband")
 
 
 def open_settings(h, b) -> None:
@@ -469,6 +475,36 @@ def test_saved_settings_survive_a_reload_and_reach_the_controller(graph, page, s
         assert save(h, page).startswith("Settings saved"), js(page, "document.body.innerText")
         assert controller_deadband(h, obs) == pytest.approx(before)
         d.find_element(By.ID, "view-back").click()
+
+
+def test_the_assistance_level_reaches_the_controller_and_the_live_view_says_it(graph, page, station_files,
+                                                                              settings_restored):
+    """Issue 34: the caregiver's assistance level (off, low, high) is the controller's run-time parameter
+    `assistance`, set through its parameter service; its status then carries the level, and the live view
+    says it in words."""
+    h, obs, url, _ = graph
+    ready(h, obs, page, url)
+    d = page.driver
+    before = controller_param(h, obs, "assistance")
+    assert before == "off"                                # the controller's default: the paper's
+    assert wait_page(h, page, "window.station.settings.assistance === 'off'", 20.0)   # read from it
+    open_settings(h, page)
+    Select(d.find_element(By.ID, "set-assist")).select_by_value("high")
+    try:
+        assert save(h, page).startswith("Settings saved on the robot PC")
+        assert controller_param(h, obs, "assistance") == "high"
+        assert json.loads(station_files[1].read_text())["assistance"] == "high"
+        d.find_element(By.ID, "view-back").click()
+        shown = "document.getElementById('assist').textContent.startsWith('Assistance high')"
+        assert wait_page(h, page, shown, 20.0), js(page, "document.getElementById('assist').textContent")
+        assert h.spin_until(lambda: obs.ctrl is not None and obs.ctrl.assistance == "high", 20.0)
+    finally:
+        open_settings(h, page)
+        Select(d.find_element(By.ID, "set-assist")).select_by_value(before)
+        assert save(h, page).startswith("Settings saved"), js(page, "document.body.innerText")
+        d.find_element(By.ID, "view-back").click()
+    assert controller_param(h, obs, "assistance") == before
+    assert wait_page(h, page, "document.getElementById('assist').hidden", 20.0)
 
 
 def test_an_invalid_setting_is_refused_with_the_reason_shown(graph, page, station_files, settings_restored):

@@ -28,6 +28,8 @@ def test_defaults_are_valid_and_a_copy():
     ({"deadband": 1.0}, "deadband must be from 0.0 to 1.0 (excluded)"),
     ({"deadband": -0.1}, "deadband must be from"),
     ({"action_mode": "run"}, "action_mode must be one of: hold, step, toggle"),
+    ({"assistance": "medium"}, "assistance must be one of: off, low, high"),
+    ({"assistance": 1}, "assistance must be one of: off, low, high"),
     ({"step_seconds": 0.05}, "step_seconds must be from 0.1 to 2.0"),
     ({"step_seconds": None}, "step_seconds must be a number"),
     ({"scan_period": 10}, "scan_period must be from 0.5 to 5.0"),
@@ -68,6 +70,9 @@ def test_valid_values_are_cleaned():
     assert v["speed_scale"] == 1.0 and isinstance(v["speed_scale"], float)
     assert v["keys"] == {"forward": ["w", "ArrowUp"], "back": ["s"], "stop": ["Escape", "0"]}
     assert validate({"deadband": None}) == {"deadband": None}   # the controller's own
+    assert validate({"assistance": None, "stop_on_stale_view": True}) == {"assistance": None,
+                                                                          "stop_on_stale_view": True}
+    assert validate({"assistance": "high"}) == {"assistance": "high"}
 
 
 def test_save_then_load_round_trip(tmp_path):

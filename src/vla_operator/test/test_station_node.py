@@ -61,7 +61,7 @@ def test_refusals_change_nothing(station):
     for values, words in (({"speed_scale": 2}, "speed_scale must be from 0.05 to 1.0"),
                           ({"speedscale": 1}, "did you mean 'speed_scale'?"),
                           ({"deadband": 0.2, "action_mode": "step"}, "no_such_controller_for_this_test/"
-                           "set_parameters is not available")):
+                           "set_parameters_atomically is not available")):
         reply = save(node, values)
         assert not reply["ok"] and words in reply["message"], reply
     assert not path.exists() and node.settings == defaults()

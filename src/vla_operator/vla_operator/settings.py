@@ -5,8 +5,8 @@ and read with a size bound.
 Every value is checked here before anything applies it: the page is a network peer and the file may
 be damaged. An error names the setting and what is allowed, and never quotes a value or a file's
 content (a page's unknown setting name is quoted back to that page, with the closest known one). The
-deadband is the controller's own parameter: its range is the controller's to enforce (its refusal is
-shown with its reason).
+deadband and the assistance level are the controller's own parameters: the controller decides (its
+refusal is shown with its reason).
 """
 from __future__ import annotations
 
@@ -79,13 +79,15 @@ class Keys(BaseModel):
 
 class Values(BaseModel):
     """The settings a page or the file may give, any of them (absent ones are left as they are). The
-    deadband is the controller's own parameter: its range here is the widest it can be, the
-    controller's own range decides (its refusal is shown with its reason)."""
+    deadband and the assistance level are the controller's own parameters (None: the controller's as
+    it is): the deadband's range here is the widest it can be, the controller's own range decides (its
+    refusal is shown with its reason)."""
 
     model_config = ConfigDict(strict=True, extra="forbid")
     NOUN: ClassVar[str] = "setting"
     speed_scale: number(0.05, 1.0) = None
     deadband: number(0.0, 1.0, hi_open=True) | None = None
+    assistance: Literal["off", "low", "high"] | None = None
     action_mode: Literal["hold", "step", "toggle"] = None
     input_device: Literal["buttons", "switch1", "switch2", "gamepad"] = None
     step_seconds: number(0.1, 2.0) = None
@@ -106,6 +108,9 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
             "the page's axis times this (0.05 to 1); the station's speed_scale parameter"),
     Setting("deadband", None,
             "the controller's deadband parameter (its range applies); none: the controller's own"),
+    Setting("assistance", None,
+            "the controller's assistance parameter: off, low (at most half the command) or high; goal "
+            "inference and a pull toward the inferred goal; none: the controller's own"),
     Setting("action_mode", "hold",
             "hold: moves while held; step: a short move per press; toggle: press to start, press to stop"),
     Setting("input_device", "buttons",
@@ -123,6 +128,8 @@ SETTINGS: dict[str, Setting] = {s.name: s for s in (
             "input once the view is live again); off: the page only says that the view is stale"),
 )}
 assert set(SETTINGS) == set(Values.model_fields), "one table of settings: the model and its defaults"
+# The settings that are the controller's own parameters (set through its parameter service), in words
+CONTROLLER_SETTINGS = {"deadband": "the deadband", "assistance": "the assistance level"}
 
 
 def defaults() -> dict[str, Any]:

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ament_index_python.packages import get_package_share_directory
 from diagnostic_msgs.msg import DiagnosticStatus, KeyValue
-from rcl_interfaces.srv import GetParameters, SetParameters
+from rcl_interfaces.srv import GetParameters, SetParametersAtomically
 from rclpy.action import ActionServer, CancelResponse, GoalResponse
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -102,7 +102,7 @@ class StationNode(Node):
                             "settings_problem": self.settings_problem, "questionnaire": None,
                             "motion_held": ""}
         self._connect_nodes(p["bridge"], p["controller"], p["recorder"])
-        self._deadband_timer = self.create_timer(1.0, self._sync_deadband)
+        self._controller_timer = self.create_timer(1.0, self._sync_controller)
         self._ee_button = -1          # the controller's ee_mode_button, read once it is up
         self._mode_until = -1.0       # monotonic s: the mode button is held in the Joy until then
         self._dets: dict = {"boxes": [], "size": [0, 0]}
@@ -146,7 +146,7 @@ class StationNode(Node):
             "stop": self.create_client(Trigger, f"{r}/stop_episode"),
             "discard": self.create_client(Trigger, f"{r}/discard_episode"),
         }
-        self.ctrl_set = self.create_client(SetParameters, f"{c}/set_parameters")
+        self.ctrl_set = self.create_client(SetParametersAtomically, f"{c}/set_parameters_atomically")
         self.ctrl_get = self.create_client(GetParameters, f"{c}/get_parameters")
 
     def _token(self) -> str:
@@ -238,54 +238,67 @@ class StationNode(Node):
             if f.exception() is None else {"what": what, "ok": False, "message": str(f.exception())}))
 
     # ------------------------------------------------------------------ caregiver settings
-    def _sync_deadband(self) -> None:
-        """Once the controller is up: give it the saved deadband, or show the one it has; and learn
-        which button is its end-effector mode button (the page's "next axis" presses it)."""
+    def _sync_controller(self) -> None:
+        """Once the controller is up: give it the saved deadband and assistance level, or show the ones
+        it has; and learn which button is its end-effector mode button (the page's "next axis")."""
         if not (self.ctrl_set.service_is_ready() and self.ctrl_get.service_is_ready()):
             return
-        self._deadband_timer.cancel()
+        self._controller_timer.cancel()
 
         def button(f) -> None:
             values = f.result().values if f.exception() is None else []
             if values and values[0].type == Parameter.Type.INTEGER.value:
                 self._ee_button = int(values[0].integer_value)
         self.ctrl_get.call_async(GetParameters.Request(names=["ee_mode_button"])).add_done_callback(button)
-        if self.settings["deadband"] is not None:
-            self._set_deadband(self.settings["deadband"], lambda ok, why: None if ok else self._problem(
-                f"the saved deadband was refused by {self.p['controller']}: {why}"))
+        saved = {n: self.settings[n] for n in cfg.CONTROLLER_SETTINGS if self.settings[n] is not None}
+        if saved:
+            self._set_controller(saved, lambda ok, why: None if ok else self._problem(
+                f"{self.p['controller']} refused {_named(saved)} saved here: {why}"))
+        unknown = [n for n in cfg.CONTROLLER_SETTINGS if n not in saved]
+        if not unknown:
             return
-        future = self.ctrl_get.call_async(GetParameters.Request(names=["deadband"]))
 
         def got(f) -> None:
             values = f.result().values if f.exception() is None else []
-            if values and values[0].type == Parameter.Type.DOUBLE.value:
+            have = {}
+            for name, v in zip(unknown, values, strict=False):
+                try:   # the controller's value, as any other, is shown only when it is a valid setting
+                    have.update(cfg.validate({name: _value(v)}))
+                except cfg.SettingError:
+                    pass
+            have = {n: v for n, v in have.items() if v is not None}
+            if have:
                 with self._settings_lock:
-                    self.settings = {**self.settings, "deadband": values[0].double_value}
+                    self.settings = {**self.settings, **have}
                 self._state(settings=self.settings)
-        future.add_done_callback(got)
+        self.ctrl_get.call_async(GetParameters.Request(names=unknown)).add_done_callback(got)
 
     def _problem(self, text: str) -> None:
         self.get_logger().error(text)
         self._state(settings_problem=text)
 
-    def _set_deadband(self, value: float, done) -> None:
-        """The controller's own parameter, through its parameter service: done(ok, its reason)."""
+    def _set_controller(self, values: dict, done) -> None:
+        """The controller's own parameters, all or none (its set_parameters_atomically service):
+        done(ok, its reason)."""
         if not self.ctrl_set.service_is_ready():
             done(False, f"{self.ctrl_set.srv_name} is not available (is {self.p['controller']} running?)")
             return
-        req = SetParameters.Request(parameters=[Parameter("deadband", value=float(value)).to_parameter_msg()])
+        req = SetParametersAtomically.Request(parameters=[
+            Parameter(n, value=float(v) if n == "deadband" else v).to_parameter_msg()
+            for n, v in values.items()])
 
         def answered(f) -> None:
             if f.exception() is not None:
                 done(False, str(f.exception()))
             else:
-                r = f.result().results[0]
+                r = f.result().result
                 done(bool(r.successful), r.reason)
         self.ctrl_set.call_async(req).add_done_callback(answered)
 
     def _apply_settings(self, values: dict, reply) -> None:
-        """Validate everything first (the page is untrusted), then the controller's deadband (refused
-        with its reason: nothing else changes), then this node's values, then the file."""
+        """Validate everything first (the page is untrusted), then the controller's deadband and
+        assistance level (refused with its reason: nothing else changes), then this node's values, then
+        the file."""
         def refuse(why: str) -> None:
             reply({"what": "settings", "ok": False, "message": why})
         try:
@@ -293,17 +306,21 @@ class StationNode(Node):
         except cfg.SettingError as e:
             refuse(str(e))
             return
-        if clean.get("deadband") is None:
-            clean.pop("deadband", None)   # none: leave the controller's as it is
-        if "deadband" in clean and clean["deadband"] != self.settings["deadband"]:
-            def answered(ok: bool, why: str) -> None:
-                if ok:
-                    self._commit(clean, reply)
-                else:
-                    refuse(f"{self.p['controller']} refused the deadband: {why}")
-            self._set_deadband(clean["deadband"], answered)
-        else:
+        for name in cfg.CONTROLLER_SETTINGS:
+            if clean.get(name, 0) is None:
+                clean.pop(name)   # none: leave the controller's as it is
+        changed = {n: clean[n] for n in cfg.CONTROLLER_SETTINGS
+                   if n in clean and clean[n] != self.settings[n]}
+        if not changed:
             self._commit(clean, reply)
+            return
+
+        def answered(ok: bool, why: str) -> None:
+            if ok:
+                self._commit(clean, reply)
+            else:
+                refuse(f"{self.p['controller']} refused {_named(changed)}: {why}")
+        self._set_controller(changed, answered)
 
     def _commit(self, clean: dict, reply) -> None:
         with self._settings_lock:
@@ -387,7 +404,12 @@ class StationNode(Node):
         self._state(controller={"code": code, "words": controller_words(code), "reason": _cut(m.reason),
                                 "mode": _cut(m.mode), "ee_axis": _cut(m.ee_axis),
                                 "latched_class": _cut(m.latched_class), "latched_by": _cut(m.latched_by),
-                                "latched_x": m.latched_x, "latched_y": m.latched_y})
+                                "latched_x": m.latched_x, "latched_y": m.latched_y,
+                                # the assistance: its level and the goal it infers (NaN: none; sent as null)
+                                "assistance": _cut(m.assistance), "goal_task": _cut(m.goal_task),
+                                "goal_confidence": m.goal_confidence, "goal_share": m.goal_share,
+                                "goal_stage": _cut(m.goal_stage), "goal_image_x": m.goal_image_x,
+                                "goal_image_y": m.goal_image_y})
 
     def _on_safety(self, m: SafetyStatus) -> None:
         self._state(safety={"code": int(m.code), "words": safety_words(int(m.code)), "text": _cut(m.text),
@@ -546,6 +568,20 @@ class StationNode(Node):
     def destroy_node(self):
         self.on_shutdown()
         return super().destroy_node()
+
+
+def _named(values: dict) -> str:
+    """The controller's settings in ``values`` in words: "the deadband", "the deadband and the ..."."""
+    return " and ".join(cfg.CONTROLLER_SETTINGS[n] for n in values)
+
+
+def _value(v):
+    """A controller parameter's value from its message (a double or a string), None when it has none."""
+    if v.type == Parameter.Type.DOUBLE.value:
+        return v.double_value
+    if v.type == Parameter.Type.STRING.value:
+        return v.string_value
+    return None
 
 
 def _cut(text: str) -> str:

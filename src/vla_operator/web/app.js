@@ -2,6 +2,7 @@
 // drive controls at the bottom; the objects, the status, episodes and the study's questionnaire beside
 // the view; the caregiver's settings on their own view. Driving by on-screen buttons, keys, a dual or
 // single (scanning) switch, or a gamepad. Status in words: the state bar says what the arm does.
+import { GoalAnnouncer } from './assist.js';
 import { $, setAttr, setText, show } from './dom.js';
 import { Link } from './link.js';
 import { Questionnaire } from './quest.js';
@@ -15,7 +16,7 @@ const PAD_GRASP = 0, PAD_STOP = 1;   // the standard gamepad's A (south) and B (
 const state = { driver: false, boxes: [], size: [640, 480], latched: null, speed: 0.6, settings: {}, settingsJson: '',
                 held: 0, toggled: 0, stepTimer: 0, padAxis: 0, padNeutral: true, sent: {}, replies: {}, frames: 0,
                 fpsT: performance.now(), fps: 0, age: null, refused: null, refusedHeld: false, claimed: false,
-                connected: false, ctrl: null, safety: null, stale: '', motionHeld: '', word: 'Starting' };
+                connected: false, ctrl: null, safety: null, stale: '', motionHeld: '', goal: '', word: 'Starting' };
 window.station = state;  // read by the browser tests and the benchmark
 
 function say(text) { $('message').textContent = text; }
@@ -29,6 +30,7 @@ const link = new Link(onMessage, (blob, meta) => view.frame(blob, meta), (up) =>
 const view = new LiveView(state, (b) => { if (b) link.send({ type: 'select', by: 'pixel', x: b.cx, y: b.cy }); });
 const scanner = new Scanner({ items: scanItems, period: () => state.settings.scan_period ?? SCAN_S,
                               paused: () => state.held !== 0, roundEnd: () => quest.roundEnd() });
+const goals = new GoalAnnouncer();
 const quest = new Questionnaire({ state, link, scanner, scanning });
 state.quest = quest;   // read by the browser tests
 state.scanner = scanner;
@@ -92,7 +94,9 @@ function showState(s) {
     show($('ee-next'), ee);   // the end-effector baseline's mode button
     state.latched = c.latched_class ? c : null;
     view.target(c);
+    view.assist(c);
   }
+  state.goal = goals.update(state.ctrl, performance.now());
   if (f) {
     setText($('s-safety'), f.words + (f.text ? ` (${f.text})` : ''));
     setText($('s-teaching'), f.teaching ? 'On' : 'Off');
@@ -126,7 +130,9 @@ function render() {
   if (letGoWhenTold(look)) [look, word, detail] = now();
   state.word = word;
   setText($('state-word'), word);
-  setText($('state-detail'), state.stale && word !== 'Held' ? `${detail} ${state.stale}` : detail);
+  const goal = ['E-stop', 'Offline', 'Starting'].includes(word) ? '' : state.goal;
+  const stale = word === 'Held' ? '' : state.stale;
+  setText($('state-detail'), [detail, stale, goal].filter(Boolean).join(' '));
   if (document.body.dataset.state !== look) document.body.dataset.state = look;
   const latched = look === 'estop';
   show($('release'), latched);
@@ -143,6 +149,7 @@ function showSettings(st) {
   if (old.action_mode !== st.action_mode || old.input_device !== st.input_device) stopDriving();
   $('set-speed').value = st.speed_scale;
   $('set-deadband').value = st.deadband ?? '';
+  $('set-assist').value = st.assistance ?? '';   // none yet: the controller has not answered
   $('set-mode').value = st.action_mode; $('set-device').value = st.input_device;
   $('set-step').value = st.step_seconds ?? STEP_S; $('set-scan').value = st.scan_period ?? SCAN_S;
   $('set-stale-stop').checked = !!st.stop_on_stale_view;
@@ -331,7 +338,8 @@ const keyList = (id) => $(id).value.split(/[\s,]+/).filter(Boolean);
 $('set-save').onclick = () => {
   $('set-message').textContent = 'Saving…';
   link.send({ type: 'settings', values: {
-    speed_scale: num('set-speed'), deadband: num('set-deadband'), action_mode: $('set-mode').value,
+    speed_scale: num('set-speed'), deadband: num('set-deadband'), assistance: $('set-assist').value || null,
+    action_mode: $('set-mode').value,
     input_device: $('set-device').value, step_seconds: num('set-step'), scan_period: num('set-scan'),
     stop_on_stale_view: $('set-stale-stop').checked,
     keys: { forward: keyList('key-forward'), back: keyList('key-back'), stop: keyList('key-stop') } } });

@@ -1,6 +1,7 @@
 // The live view: the newest camera frame with the detector's boxes drawn on it, the detected objects as
 // buttons beside it (a row of 44 px targets that never overlap, whatever the boxes do on a small screen;
 // a tap on a box in the picture chooses it too), and a stale view said in words.
+import { assistText, drawGoal } from './assist.js';
 import { $, setText, show } from './dom.js';
 import { chosenBy, objectName } from './state.js';
 
@@ -66,6 +67,7 @@ export class LiveView {
       ctx.fillStyle = '#000';
       ctx.fillText(label, x + pad, top + pad);
     }
+    drawGoal(ctx, this.state.ctrl);   // the assistance's goal, over the boxes
   }
 
   isLatched(b) { const L = this.state.latched; return !!L && L.latched_class === b.class_id; }
@@ -93,6 +95,13 @@ export class LiveView {
     const x = (e.clientX - r.left) * w / r.width, y = (e.clientY - r.top) * h / r.height;
     const hits = this.state.boxes.filter((b) => Math.abs(b.cx - x) <= b.w / 2 && Math.abs(b.cy - y) <= b.h / 2);
     if (hits.length) this.onSelect(hits.reduce((a, b) => (a.w * a.h <= b.w * b.h ? a : b)));
+  }
+
+  // the controller's assistance: its level, goal and confidence in words over the view ('' and hidden: off)
+  assist(c) {
+    const text = assistText(c);
+    setText($('assist'), text);
+    show($('assist'), !!text);
   }
 
   target(c) {

@@ -99,7 +99,8 @@ def test_the_demo_fails_when_an_episode_fails(tmp_path, monkeypatch, capsys, out
     monkeypatch.setattr(demo, "GraphEvaluator", FakeGraph)
     monkeypatch.setattr(demo, "ensure_detector", lambda path, data, log: tmp_path / "det.onnx")
     args = build_parser().parse_args(["demo", "--tasks", ",".join(tasks), "--no-video", "--out",
-                                      str(tmp_path / "out"), "--models", str(tmp_path / "models")])
+                                      str(tmp_path / "out"), "--models", str(tmp_path / "models"),
+                                      "--assisted", ""])
     assert demo.run(args) == rc
     err = capsys.readouterr().err
     assert ("1 of 2 episodes failed: cereal_box/push_south" in err) == (rc != 0)
@@ -212,3 +213,51 @@ def test_evaluate_latent_only_reaches_the_teleoperators_parameters():
         assert s.fine_align is want
         params = GraphConfig("model", "detector.onnx", settings=s).node_parameters()
         assert params[TELEOP]["fine_align"] is want
+
+
+@pytest.mark.parametrize("assisted_ok, rc", [(True, 0), (False, 3)])
+def test_the_assisted_row_holds_the_stick_with_the_assistance_on(tmp_path, monkeypatch, capsys, assisted_ok,
+                                                                 rc):
+    """Issue 34: the demo's last row is a held full stick with the controller's assistance at high,
+    after the other tasks (which run without it), shown as its own row; its failure fails the demo."""
+    from vla_evaluation.graph import CONTROLLER
+
+    for name in ("default", "cereal_box_circle"):
+        (tmp_path / "models" / name).mkdir(parents=True)
+        (tmp_path / "models" / name / "config.json").write_text('{"encoder": "detector"}')
+    runs = []
+
+    class FakeGraph:
+        def __init__(self, cfg, log):
+            self.config = cfg
+            self.configured = []
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return False
+
+        def set_model(self, path):
+            self.config.model_path = path
+
+        def configure(self):
+            self.configured.append(self.config.node_parameters())
+
+        def run_episode(self, task, seed, label):
+            params = self.configured[-1] if self.configured else {}
+            runs.append((task, self.config.settings.hold, params.get(CONTROLLER, {}).get("assistance", "off"),
+                         self.config.model_path.split("/")[-1]))
+            return _record(task, assisted_ok if self.configured else True)
+
+    monkeypatch.setattr(demo, "GraphEvaluator", FakeGraph)
+    monkeypatch.setattr(demo, "ensure_detector", lambda path, data, log: tmp_path / "det.onnx")
+    args = build_parser().parse_args(["demo", "--tasks", "bread/push_east", "--no-video", "--out",
+                                      str(tmp_path / "out"), "--models", str(tmp_path / "models")])
+    assert args.assisted == demo.ASSISTED_TASK == "cereal_box/circle"
+    assert demo.run(args) == rc
+    assert runs == [("bread/push_east", 0.0, "off", "default"),
+                    ("cereal_box/circle", 1.0, demo.ASSISTED_LEVEL, "cereal_box_circle")]
+    out = capsys.readouterr()
+    assert any(line.startswith("cereal_box/circle assisted") for line in out.out.splitlines())
+    assert ("1 of 2 episodes failed: cereal_box/circle" in out.err) == (rc != 0)

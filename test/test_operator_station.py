@@ -480,8 +480,8 @@ def test_saved_settings_survive_a_reload_and_reach_the_controller(graph, page, s
 def test_the_assistance_level_reaches_the_controller_and_the_live_view_says_it(graph, page, station_files,
                                                                               settings_restored):
     """Issue 34: the caregiver's assistance level (off, low, high) is the controller's run-time parameter
-    `assistance`, set through its parameter service; its status then carries the level, and the live view
-    says it in words."""
+    `assistance`, set through its parameter service; its status then carries the level, the live view
+    says it in words, and driving toward the task the controller's inferred goal is shown and said."""
     h, obs, url, _ = graph
     ready(h, obs, page, url)
     d = page.driver
@@ -498,6 +498,18 @@ def test_the_assistance_level_reaches_the_controller_and_the_live_view_says_it(g
         shown = "document.getElementById('assist').textContent.startsWith('Assistance high')"
         assert wait_page(h, page, shown, 20.0), js(page, "document.getElementById('assist').textContent")
         assert h.spin_until(lambda: obs.ctrl is not None and obs.ctrl.assistance == "high", 20.0)
+        # driving toward the task, the controller infers a goal: the page says it, with its confidence
+        moves_while(h, obs, lambda: key(d, Keys.ARROW_UP, True), lambda: key(d, Keys.ARROW_UP, False),
+                    stop_after=False)
+        try:
+            said = "document.getElementById('assist').textContent"
+            assert wait_page(h, page, f"/^Assistance high: goal the .+, \\d+ % sure$/.test({said})", 20.0), \
+                js(page, said)
+            assert wait_page(h, page, "document.getElementById('state-detail').textContent"
+                                      ".includes('Goal inferred: the ')", 20.0)
+        finally:
+            key(d, Keys.ARROW_UP, False)
+        assert h.spin_until(lambda: not obs.moving(), 5.0)
     finally:
         open_settings(h, page)
         Select(d.find_element(By.ID, "set-assist")).select_by_value(before)
@@ -932,7 +944,7 @@ def test_the_questionnaire_is_answered_by_keyboard_and_the_study_gets_the_row(gr
     d.refresh()                                                            # a reload shows it again
     assert wait_page(h, page, "window.station && window.station.driver && " + Q_SHOWN)
     assert not js(page, "document.querySelector('#q-items input:checked')")   # empty, nothing sent
-    assert asked.thread.is_alive() and asked.row is None
+    assert asked.thread.is_alive() and asked.row is None, asked.logs
     # Esc from inside the questionnaire is STOP, and the questionnaire stays
     ActionChains(d).send_keys(Keys.TAB).perform()                          # heading -> statement 1
     assert d.switch_to.active_element.get_attribute("name") == "q-0"

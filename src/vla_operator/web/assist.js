@@ -53,7 +53,9 @@ export function drawGoal(ctx, c) {
   ctx.beginPath(); ctx.arc(x, y, r / 3, 0, 2 * Math.PI); ctx.fill();
   const label = `goal, ${sure(c)}`;
   ctx.font = `bold ${size}px system-ui, sans-serif`; ctx.textBaseline = 'top';
-  const tw = ctx.measureText(label).width + 6, lx = Math.min(x + r + 4, w - tw), ly = Math.max(0, y - size / 2 - 3);
+  // below the ring (the boxes' names are above their boxes), inside the picture
+  const tw = ctx.measureText(label).width + 6, lx = Math.max(0, Math.min(x - tw / 2, w - tw));
+  const ly = Math.min(y + r + line + 2, ctx.canvas.height - size - 6);
   ctx.fillRect(lx, ly, tw, size + 6);
   ctx.fillStyle = '#000';
   ctx.fillText(label, lx + 3, ly + 3);

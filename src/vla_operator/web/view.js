@@ -50,7 +50,7 @@ export class LiveView {
     this.objects();
   }
 
-  drawBoxes() {   // the boxes, then their labels (the chosen one's last: on top of any other)
+  drawBoxes() {   // the boxes, the goal's marker, then the names (the chosen one's last: on top of any other)
     const [w, h] = this.state.size, kx = canvas.width / w, ky = canvas.height / h;
     const size = Math.round(canvas.width / 32), pad = 3;
     const boxes = [...this.state.boxes].sort((a, b) => this.isLatched(a) - this.isLatched(b));
@@ -59,6 +59,9 @@ export class LiveView {
     ctx.textBaseline = 'top';
     const rect = (b) => [(b.cx - b.w / 2) * kx, (b.cy - b.h / 2) * ky, b.w * kx, b.h * ky];
     for (const b of boxes) { ctx.strokeStyle = this.isLatched(b) ? LATCHED : BOX; ctx.strokeRect(...rect(b)); }
+    drawGoal(ctx, this.state.ctrl);   // the assistance's goal over the boxes, under their names
+    ctx.font = `bold ${size}px system-ui, sans-serif`;
+    ctx.textBaseline = 'top';
     for (const b of boxes) {
       const [x, y] = rect(b), label = objectName(b.class_id), tw = ctx.measureText(label).width + 2 * pad;
       const top = Math.max(0, y - size - 2 * pad);
@@ -67,7 +70,6 @@ export class LiveView {
       ctx.fillStyle = '#000';
       ctx.fillText(label, x + pad, top + pad);
     }
-    drawGoal(ctx, this.state.ctrl);   // the assistance's goal, over the boxes
   }
 
   isLatched(b) { const L = this.state.latched; return !!L && L.latched_class === b.class_id; }

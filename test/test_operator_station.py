@@ -45,6 +45,7 @@ REST_BOUND = 0.3      # s: the issue's bound from a cut link to zero command
 # slowest harmless round trip through the same path; bench/bench_operator.py prints the figures.
 ESTOP_BOUND = 0.1
 SCREENSHOT = Path(__file__).resolve().parents[1] / "src/vla_operator/docs/operator_station.png"
+A_SCREENSHOT = SCREENSHOT.with_name("assistance.png")   # the live view with the assistance's goal
 
 try:
     from selenium import webdriver
@@ -507,6 +508,8 @@ def test_the_assistance_level_reaches_the_controller_and_the_live_view_says_it(g
                 js(page, said)
             assert wait_page(h, page, "document.getElementById('state-detail').textContent"
                                       ".includes('Goal inferred: the ')", 20.0)
+            if os.environ.get("VLA_UPDATE_SCREENSHOT") == "1" or not A_SCREENSHOT.exists():
+                d.save_screenshot(str(A_SCREENSHOT))
         finally:
             key(d, Keys.ARROW_UP, False)
         assert h.spin_until(lambda: not obs.moving(), 5.0)

@@ -23,7 +23,9 @@ from vla_study.trial import task_goal
 
 from vla_study import participant as part
 
-ALLOWED_OBS = {"t", "hand", "obj", "controller_code", "ee_axis"}
+# what a person sees: the hand, the object, the controller's status; with the hand also the object's
+# height, what the fingers show and the controller's mode (hand_participant)
+ALLOWED_OBS = {"t", "hand", "obj", "controller_code", "ee_axis", "obj_z", "hand_state", "mode"}
 
 
 def test_operator_model_imports_nothing_that_knows_the_decoder_or_the_plan():

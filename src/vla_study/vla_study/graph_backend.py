@@ -58,15 +58,18 @@ from vla_evaluation.kinematic import TeleopSettings, plan_waypoints
 from vla_evaluation.metrics import LimitMonitor, final_state_error, judge_task
 from vla_evaluation.resources import detector_model_path, latent_model_dir
 
-from vla_interfaces.msg import ControllerStatus, RecorderStatus, SafetyStatus
+from vla_interfaces.msg import ControllerStatus, GripperStatus, RecorderStatus, SafetyStatus
 from vla_interfaces.srv import StartEpisode
+from vla_study.hand_participant import BUSY, EMPTY, HOLDING, OPEN
 from vla_study.participant import HumanOperator, HumanParams, Observation
 from vla_study.person import Experimenter, InputTally, PersonDriver, run_person_trial
 from vla_study.protocol import Protocol, model_for
 from vla_study.trial import Measured, Participant, Scene, Trial, TrialBackend, strategy_mode
 
 RECORDER = "recorder"
-AXIS, EE_MODE_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 4  # the stick as the controller is set up for it
+# the stick and buttons as the controller is set up for them (grasp: the shipped controller.yaml's)
+AXIS, EE_MODE_BUTTON, GRASP_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 2, 4
+OPEN_WIDTH = 0.07   # m between the fingers that a person sees as open (sim_grasp.hand_seen's)
 SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to settle (as the physics backend)
 # The camera (sim Hz): a trial needs a frame only to latch the context after the reset (the participant
 # sees the scene's ground truth). A 640x480 frame costs ~17 ms of CPU to render and ~8 ms to detect
@@ -75,14 +78,28 @@ SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to se
 CAMERA_RATE = 2.0
 
 
+def hand_view(msg: GripperStatus | None) -> str:
+    """The hand as a person sees it (hand_participant): open, holding, empty (closed on nothing) or busy
+    (the fingers moving); "" when no status came."""
+    if msg is None:
+        return ""
+    if msg.state in (GripperStatus.MOVING, GripperStatus.GRASPING):
+        return BUSY
+    if msg.state == GripperStatus.HOLDING or (msg.holding and msg.state != GripperStatus.GRASP_FAILED):
+        return HOLDING
+    return OPEN if msg.state != GripperStatus.GRASP_FAILED and msg.width >= OPEN_WIDTH else EMPTY
+
+
 class TrialDriver:
     """One trial's participant on the observer's timer (or, in lockstep, on every joint state, deciding
-    every `every` states and holding the stick between): observation in, Joy out."""
+    every `every` states and holding the stick between): observation in, Joy out. `mode`: the
+    controller's mode; a participant's switch of it (hybrid control) holds the simulation at that step
+    (`switch_to`) for the backend to set it while held, so that it takes effect at a fixed step."""
 
     def __init__(self, op: HumanOperator, object_class: str, t_start: float, time_limit: float, kin,
-                 end_effector: bool, every: int = 0) -> None:
+                 mode: str, every: int = 0) -> None:
         self.op, self.cls, self.t_start, self.time_limit = op, object_class, t_start, time_limit
-        self.kin, self.end_effector = kin, end_effector
+        self.kin, self.mode, self.switch_to = kin, mode, ""
         self.sticks: list[float] = []
         self.t_done: float | None = None
         self.t_end: float | None = None
@@ -106,7 +123,7 @@ class TrialDriver:
             return
         t = (obs.now() if stamp is None else stamp.sec + stamp.nanosec * 1e-9) - self.t_start
         with obs.cond:
-            q, objs, ctrl, safety = obs.q, obs.objects, obs.ctrl, obs.safety
+            q, objs, ctrl, safety, hand = obs.q, obs.objects, obs.ctrl, obs.safety, obs.hand
         obj = objs.get(self.cls)
         if t >= self.time_limit or q is None or obj is None:
             if t >= self.time_limit:
@@ -119,14 +136,19 @@ class TrialDriver:
             # the bridge stopped the arm and moves it again after a zero: what the controller's
             # AWAITING_NEUTRAL says, the station shows both as "return the stick to neutral"
             code = ControllerStatus.AWAITING_NEUTRAL
+        ee = self.mode == "end_effector"
         seen = Observation(t, self.kin.fk(q)[0], np.array([obj.x, obj.y]), code,
-                           (ctrl.ee_axis if ctrl is not None and self.end_effector else "x"))
+                           (ctrl.ee_axis if ctrl is not None and ee else "x"), obj_z=float(obj.z),
+                           hand_state=hand_view(hand), mode=self.mode)
         act = self.op.act(seen)
         if act.done:
             self.t_done = t
             self._end(obs, t, stamp)
             return
-        obs.publish_stick(act.axis, press=act.press, stamp=stamp)
+        if act.switch_mode and stamp is not None:   # lockstep: hold here; the backend switches it
+            self.switch_to = act.switch_mode
+            obs.steps.hold_after(ns_from_stamp(stamp), 0)
+        obs.publish_stick(act.axis, press=act.press, grasp=act.grasp, stamp=stamp)
         self._axis = act.axis
         self.sticks.append(act.axis)
 
@@ -153,6 +175,8 @@ class StudyObserver(GraphObserver):
             n.create_subscription(Joy, "joy", self._joy, 50)
         self.rec_start_cli = n.create_client(StartEpisode, f"{RECORDER}/start_episode")
         self.rec_stop_cli = n.create_client(Trigger, f"{RECORDER}/stop_episode")
+        self.hand: GripperStatus | None = None   # what the fingers show (tasks with the hand)
+        n.create_subscription(GripperStatus, "gripper/status", self._hand, 100 if lockstep else 10)
         self.recorder: RecorderStatus | None = None
         self.recorder_stamp = -np.inf
         n.create_subscription(RecorderStatus, f"{RECORDER}/status", self._recorder, 10)
@@ -165,6 +189,10 @@ class StudyObserver(GraphObserver):
             self.recorder = msg
             self.recorder_stamp = msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
             self.cond.notify_all()
+
+    def _hand(self, msg: GripperStatus) -> None:
+        with self.cond:
+            self.hand = msg
 
     def _tick(self) -> None:
         d = self.driver
@@ -186,8 +214,9 @@ class StudyObserver(GraphObserver):
         if isinstance(d, PersonDriver):
             d.op.on_joy(msg.axes, msg.buttons)
 
-    def publish_stick(self, axis: float, press: bool = False, stamp=None) -> None:
-        """The stick (and the mode button), stamped `stamp` (lockstep: the joint state it answers)."""
+    def publish_stick(self, axis: float, press: bool = False, stamp=None, grasp: bool = False) -> None:
+        """The stick (and the mode and grasp buttons), stamped `stamp` (lockstep: the joint state it
+        answers)."""
         msg = Joy()
         msg.header.stamp = stamp if stamp is not None else self.node.get_clock().now().to_msg()
         msg.header.frame_id = ""  # a Joy has no geometry
@@ -195,6 +224,7 @@ class StudyObserver(GraphObserver):
         axes[AXIS] = float(axis)
         buttons = [0] * NUM_BUTTONS
         buttons[EE_MODE_BUTTON] = 1 if press else 0
+        buttons[GRASP_BUTTON] = 1 if grasp else 0
         msg.axes, msg.buttons = axes, buttons
         self.joy_pub.publish(msg)
 
@@ -214,6 +244,7 @@ def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0,
         # evaluation's 0.25 s: the participant runs in the study's process on a busy machine)
         joy_timeout=0.5,
         extra_params={CONTROLLER: {"axis": AXIS, "ee_mode_button": EE_MODE_BUTTON, "enable_button": -1,
+                                   "grasp_button": GRASP_BUTTON,
                                    "ee_axes": list(p.end_effector_axes),
                                    "ee_debounce": float(p.end_effector_debounce)}})
 
@@ -348,7 +379,7 @@ class GraphBackend(TrialBackend):
         else:
             every = ev.config.steps(1.0 / p.rate) if obs.steps is not None else 0
             driver = TrialDriver(op, scene.spec.object_class, monitor.t_start, float(p.time_limit), self.kin,
-                                 scene.mode == "end_effector", every=every)
+                                 scene.mode, every=every)
         if obs.steps is not None:
             self._lockstep_trial(trial, driver)       # it holds SETTLE_S after the end
         else:
@@ -368,11 +399,13 @@ class GraphBackend(TrialBackend):
         if end is None:
             raise GraphError(f"{scene.spec.object_class} missing from scene/objects after trial {trial.key}")
         path, times = monitor_path(monitor, driver.t_end)
-        ok, disp, _ang = judge_task(scene.spec, scene.start, end, path[:, :2])
+        ok, disp, ang = judge_task(scene.spec, scene.start, end, path[:, :2])
         final_wp = plan_waypoints(self.kin, scene.spec, scene.start, scene.q_start,
                                   catalogue=self.catalogue)[-1]
         extra = bag_closed()
         extra.update(limit_fields(monitor.limits))  # measured on joint_states, as the evaluation's
+        if scene.spec.kind == "pick_place":   # judge_task: the distance to the place, the height above rest
+            extra.update(placement_error_m=round(disp, 4), above_rest_m=round(ang, 4))
         scene.clock.mark("score")  # with the bag's closing
         # where the trial's wall time went, and the simulation's pace while the participant drove
         rtf = driver.t_end / max(scene.clock.phases["trial"], 1e-3)
@@ -394,13 +427,23 @@ class GraphBackend(TrialBackend):
         state and, at its end, holds the simulation SETTLE_S later (so a trial that ends early does not
         run on to the limit)."""
         obs, cfg = self.ev.obs, self.ev.config
+        end = obs.steps.step + cfg.steps(self.protocol.time_limit) + obs.settle_steps + 2
         obs.driver = driver
         try:
-            obs.steps.run(cfg.steps(self.protocol.time_limit) + obs.settle_steps + 2, f"trial {trial.key}")
+            while True:
+                obs.steps.run(max(0, end - obs.steps.step), f"trial {trial.key}")
+                if driver.finished.is_set() or not driver.switch_to:
+                    break
+                self._switch_mode(driver)   # held at the step the participant asked it in
         finally:
             obs.driver = None
         if not driver.finished.is_set():
             raise GraphError(f"trial {trial.key}: the participant did not end by the time limit")
+
+    def _switch_mode(self, driver: TrialDriver) -> None:
+        """Hybrid control's switch (the station's), made while the simulation holds."""
+        self.ev.obs.set_parameters(CONTROLLER, {"mode": driver.switch_to})
+        driver.mode, self.mode, driver.switch_to = driver.switch_to, driver.switch_to, ""
 
     def _until_the_end(self, trial: Trial, driver, wall_limit: float) -> None:
         """Let the driver run on the observer's timer until the trial ends (a person's: at the

@@ -109,9 +109,9 @@ def population(n: int = 9, seed: int = 2026) -> list[HumanParams]:
 class TaskGoal:
     """The task as a person is told it and sees it: the object, its size, what to do."""
 
-    kind: str  # "push" or "circle"
-    direction: tuple[float, float] | None  # unit (x, y) for a push
-    distance: float  # m to push
+    kind: str  # "push", "circle" or "pick_place" (hand_participant)
+    direction: tuple[float, float] | None  # unit (x, y) for a push or where to put the object
+    distance: float  # m to push, or to carry
     object_height: float
     object_radius: float  # footprint radius
 
@@ -125,6 +125,11 @@ class Observation:
     obj: np.ndarray  # object (x, y)
     controller_code: int = 0
     ee_axis: str = "x"
+    # tasks with the hand (hand_participant): the object's height, the hand as the fingers show it
+    # ("open", "holding", "empty": closed on nothing, "busy": moving) and the controller's mode
+    obj_z: float = math.nan
+    hand_state: str = ""
+    mode: str = ""
 
 
 @dataclass
@@ -132,6 +137,8 @@ class Action:
     axis: float  # stick deflection in [-1, 1]
     press: bool = False  # mode button (end-effector baseline)
     done: bool = False  # the person thinks the task is done
+    grasp: bool = False  # the grasp button (tasks with the hand: one press toggles the hand)
+    switch_mode: str = ""  # hybrid control: switch the controller to this mode (the station's switch)
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,11 @@ from pathlib import Path
 from pydantic import ValidationError
 from vla_common.catalogue import Catalogue, CatalogueError, load_catalogue
 from vla_common.safe_yaml import Lines, UnreadableError, YamlFileError, key_name, load_yaml_lines
+from vla_common.tasks import parse_task
 
 from vla_study.protocol_schema import (
     EE_AXES,
+    HYBRID,
     LAYOUT_SEEDS,
     STRATEGIES,
     ProtocolFile,
@@ -192,7 +194,23 @@ def _across_keys(f: ProtocolFile, path: Path, lines: Lines, cat: Catalogue, mode
         parse_participants(f.participants)
     except ValueError as e:
         errors.append(f"{where}:{line_of(lines, ('participants',))}: participants: {e}")
-    return errors + _model_errors(f, where, lines, model_exists) + _development_errors(f, path, lines, cat)
+    return (errors + _model_errors(f, where, lines, model_exists) + _hand_errors(f, where, lines, cat)
+            + _development_errors(f, path, lines, cat))
+
+
+def _hand_errors(f: ProtocolFile, where: str, lines: Lines, cat: Catalogue) -> list[str]:
+    """Tasks with the hand run through the graph (the bridge's gripper; the physics backend has no
+    hand), and hybrid control is for them only (its end-effector part finishes a grasp or a place)."""
+    errors: list[str] = []
+    for setting, tasks in f.settings.items():
+        hand = [parse_task(t, cat).kind == "pick_place" for t in tasks]
+        if any(hand) and f.backend != "graph":
+            errors.append(f"{where}:{line_of(lines, ('settings', setting))}: setting {key_name(setting)}: "
+                          f"a pick_place task needs backend: graph (the {f.backend} backend has no hand)")
+        if HYBRID in f.strategies and not all(hand):
+            errors.append(f"{where}:{line_of(lines, ('strategies',))}: strategy {HYBRID!r} is for "
+                          f"pick_place tasks only; setting {key_name(setting)} has others")
+    return errors
 
 
 def _model_errors(f: ProtocolFile, where: str, lines: Lines, model_exists) -> list[str]:

@@ -23,8 +23,12 @@ from vla_common.catalogue import Catalogue
 from vla_common.safe_yaml import Lines, key_name
 from vla_common.tasks import parse_task
 
-STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-effector": "end_effector"}
-Strategy = Literal["latent-YOLO", "latent-localization", "end-effector"]
+# hybrid: hybrid control on tasks with the hand (the latent, then end-effector mode to finish each
+# phase; hand_participant): the controller starts a trial in latent mode with the strategy's model
+HYBRID = "hybrid"
+STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-effector": "end_effector",
+              HYBRID: "latent"}
+Strategy = Literal["latent-YOLO", "latent-localization", "end-effector", "hybrid"]
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 EeAxis = Literal["x", "y", "z", "roll", "pitch", "yaw"]
 # graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
@@ -41,7 +45,8 @@ NAME = r"^[A-Za-z0-9_.\-]+$"
 
 
 def _study_task(task: str, info: ValidationInfo) -> str:
-    """A push or circle task of the catalogue in the validation's context (none: not checked here)."""
+    """A push, circle or pick-and-place task of the catalogue in the validation's context (none: not
+    checked here)."""
     cat: Catalogue | None = (info.context or {}).get("catalogue")
     if cat is None:
         return task
@@ -49,8 +54,9 @@ def _study_task(task: str, info: ValidationInfo) -> str:
         spec = parse_task(task, cat)
     except (ValueError, KeyError) as e:
         raise ValueError(str(e)) from None
-    if spec.kind not in ("push", "circle"):
-        raise ValueError(f"task {key_name(task)} is a {spec.kind} task; the study has push and circle tasks")
+    if spec.kind not in ("push", "circle", "pick_place"):
+        raise ValueError(f"task {key_name(task)} is a {spec.kind} task; the study has push, circle and "
+                         "pick_place tasks")
     return task
 
 

@@ -17,10 +17,12 @@ from vla_common.catalogue import Catalogue, TaskSpec
 from vla_common.objects import ObjectPose
 from vla_common.tasks import parse_task
 
+from vla_study.hand_participant import PickPlaceOperator
 from vla_study.outcome import thrown, trial_time
 from vla_study.participant import HumanOperator, HumanParams, Lesson, TaskGoal
 from vla_study.person import InputTally
 from vla_study.protocol import STRATEGIES, Protocol
+from vla_study.protocol_schema import HYBRID
 from vla_study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
 
 PATH_DT = 0.05  # s between the path samples that smoothness is measured on
@@ -60,7 +62,7 @@ def task_goal(task: str, catalogue: Catalogue) -> TaskGoal:
     """The goal as the person is told it, and the object's size as the person sees it."""
     spec = parse_task(task, catalogue)
     shape = catalogue.spec(spec.object_class)
-    d = tuple(float(v) for v in spec.direction_vector) if spec.kind == "push" else None
+    d = tuple(float(v) for v in spec.direction_vector) if spec.kind in ("push", "pick_place") else None
     return TaskGoal(spec.kind, d, float(spec.distance), float(shape.height), float(shape.footprint_radius))
 
 
@@ -97,6 +99,18 @@ class Measured:
 Participant = HumanOperator | InputTally
 
 
+def simulated_participant(params: HumanParams, goal: TaskGoal, strategy: str, seed: int,
+                          cycle: tuple[str, ...], lesson: Lesson | None) -> HumanOperator:
+    """The simulated operator for a trial: the pick-and-place one (hand_participant) for a task with
+    the hand, in the strategy's way of driving (hybrid control: the latent, then end-effector mode)."""
+    if goal.kind == "pick_place":
+        mode = "hybrid" if strategy == HYBRID else STRATEGIES[strategy]
+        return PickPlaceOperator(params, goal, mode, seed=seed, cycle=cycle, lesson=lesson)
+    if strategy == HYBRID:
+        raise ValueError(f"{HYBRID} control is for tasks with the hand, not a {goal.kind} task")
+    return HumanOperator(params, goal, STRATEGIES[strategy], seed=seed, cycle=cycle, lesson=lesson)
+
+
 def lesson_key(trial: Trial) -> tuple[str, str, str]:
     """Whose practice a lesson is, and where it applies: the participant, the strategy, the setting."""
     return trial.participant, trial.strategy, trial.setting
@@ -124,6 +138,8 @@ class TrialBackend:
                                 t_done=m.t_done, t_end=m.t_end, fse=m.fse, interventions=m.interventions,
                                 start=scene.start, note=scene.note, time_limit=self.protocol.time_limit)
         row.update(m.extra)
+        if isinstance(op, PickPlaceOperator):
+            row.update(op.hand_row())
         if isinstance(op, HumanOperator):
             row["taught"] = op.taught.to_dict()   # what the participant knew going in
             if trial.phase == "practice":
@@ -143,8 +159,8 @@ class TrialBackend:
         if params is None:
             raise ValueError(f"{trial.participant}: this backend has no input for a person")
         taught = self.lessons.get(lesson_key(trial))
-        return HumanOperator(params, task_goal(trial.task, self.catalogue), scene.mode, seed=seed,
-                             cycle=self.protocol.end_effector_axes, lesson=taught)
+        return simulated_participant(params, task_goal(trial.task, self.catalogue), trial.strategy, seed,
+                                     self.protocol.end_effector_axes, taught)
 
     def close(self) -> None:
         """Let go of what the backend started."""

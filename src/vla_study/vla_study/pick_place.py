@@ -1,0 +1,72 @@
+"""The pick-and-place table: one row per condition (latent alone, end-effector alone, hybrid control),
+on the same test layouts, from a study folder's rows (protocols/pick_place.yaml's study).
+
+    python -m vla_study.pick_place --out out/pick_place     # writes out/pick_place/pick_place.md
+
+Success, the placement error (the object's distance from its place at the end, every trial), the time
+(a failure counts the time limit, outcome.py) and the hand's effort. Every row is the simulated
+participants' (hand_participant.py), labelled so; a table of rows whose layouts differ is refused.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import sys
+from pathlib import Path
+
+ORDER = ("latent alone", "end-effector alone", "hybrid control")
+
+
+def test_rows(path: Path) -> list[dict]:
+    """The test trials of a pick-and-place study's trials.jsonl (rows with a `condition`)."""
+    rows = [json.loads(x) for x in path.read_text().splitlines() if x.strip()]
+    return [r for r in rows if r.get("phase") == "test" and r.get("condition")]
+
+
+def _median(values: list[float]) -> float:
+    return statistics.median(values) if values else float("nan")
+
+
+def table(rows: list[dict]) -> str:
+    """Markdown: per condition, success, placement error, time and the hand's presses."""
+    layouts = {c: sorted((r["participant"], r["layout_seed"]) for r in rows if r["condition"] == c)
+               for c in ORDER if any(r["condition"] == c for r in rows)}
+    if len({tuple(v) for v in layouts.values()}) > 1:
+        raise ValueError("the conditions ran on different layouts: "
+                         + ", ".join(f"{c}: {len(v)}" for c, v in layouts.items()))
+    n = len(next(iter(layouts.values()), []))
+    limit = rows[0]["time_limit_s"] if rows else float("nan")
+    lines = [f"Simulated participants (vla_study.hand_participant), {n} test layouts per condition, the same "
+             f"layouts in each; through the graph in lockstep. A failure's time is the limit ({limit:g} s).",
+             "", "| condition | success | placement error, median (cm) | time, median (s) | "
+             "time of successes, median (s) | grasp presses, median | failed grasps | mode switches "
+             "(latent/end effector), median | thrown |", "|---|---|---|---|---|---|---|---|---|"]
+    for c in layouts:
+        mine = [r for r in rows if r["condition"] == c]
+        ok = [r for r in mine if r["success"]]
+        err = _median([100 * r["placement_error_m"] for r in mine])
+        lines.append(
+            f"| {c} | {len(ok)}/{len(mine)} ({len(ok) / len(mine):.2f}) | {err:.1f} | "
+            f"{_median([r['time_s'] for r in mine]):.1f} | {_median([r['time_s'] for r in ok]):.1f} | "
+            f"{_median([r['grasp_presses'] for r in mine]):g} | {sum(r['failed_grasps'] for r in mine)} | "
+            f"{_median([r['control_switches'] for r in mine]):g} | {sum(bool(r['thrown']) for r in mine)} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, required=True, help="the study folder (its trials.jsonl)")
+    args = ap.parse_args(argv)
+    rows_path = args.out / "trials.jsonl"
+    if not rows_path.is_file():
+        print(f"{rows_path}: no rows", file=sys.stderr)
+        return 2
+    text = table(test_rows(rows_path))
+    (args.out / "pick_place.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -238,3 +238,28 @@ def test_the_table_has_a_row_per_condition_on_the_same_layouts():
     assert text.startswith("Simulated participants") and "2 test layouts per condition" in text
     with pytest.raises(ValueError, match="different layouts"):
         table(rows + [row("latent alone", 3, False, 0.1, 60.0)])
+
+
+def test_a_study_unit_that_fails_leaves_no_graph_for_the_next():
+    """On Ray a worker keeps its backend between units: one whose trial failed (the recorder did not
+    answer in time on a starved machine) is closed, so the next unit starts a new graph (the old one's
+    recorder, still holding the failed trial's bag, refused every later trial of the worker)."""
+    from vla_study.on_ray import StudyWorker
+    from vla_study.trial import Trial
+
+    class Failing:
+        lessons: dict = {}
+        closed = False
+
+        def run(self, trial, params, operator_seed):
+            raise RuntimeError("timed out waiting for the recorder")
+
+        def close(self):
+            Failing.closed = True
+
+    worker = StudyWorker((load_protocol(PROTOCOLS / "pick_place.yaml"), Path("."), False))
+    worker.backend = Failing()
+    trial = Trial("sim:1", "hybrid", "hand", TASK, 0, "test", 600000, 0)
+    with pytest.raises(RuntimeError, match="recorder"):
+        worker.run(([trial], HumanParams(), {trial.key: 1}, {}))
+    assert Failing.closed and worker.backend is None

@@ -76,6 +76,9 @@ SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to se
 # (measured in-process), so 5 Hz (the evaluation's) spent ~0.12 CPU s per simulated s of the graph's
 # ~0.65 on frames nobody reads; 2 Hz spends ~0.05, and a frame comes within 0.5 sim s of a request.
 CAMERA_RATE = 2.0
+# Wall s the recorder may take to catch up with the simulation (its clock), or to answer: a bound only
+# against a hung recorder (30 s was passed at load 80-120 on 2 cores, failing the trial)
+RECORDER_WAIT_S = 120.0
 
 
 def hand_view(msg: GripperStatus | None) -> str:
@@ -464,10 +467,10 @@ class GraphBackend(TrialBackend):
         # the recorder's clock can lag the bridge's: start after the reset (in lockstep the scene settled
         # since, so the recorder's clock is past the reset itself)
         t_reset = obs.q_stamp if obs.steps is None else self.ev.reset_stamp
-        obs.wait_for(lambda: obs.recorder_stamp >= t_reset, 30.0, "the recorder's clock to pass the reset",
-                     self.ev.alive)
+        obs.wait_for(lambda: obs.recorder_stamp >= t_reset, RECORDER_WAIT_S,
+                     "the recorder's clock to pass the reset", self.ev.alive)
         return obs.request(obs.rec_start_cli, StartEpisode.Request(task=trial.task, note=json.dumps(
-            {"study_trial": trial.key})), 30.0, "start the trial's bag")
+            {"study_trial": trial.key})), RECORDER_WAIT_S, "start the trial's bag")
 
     def _bag_opened(self, started: Callable[[], StartEpisode.Response], trial) -> str:
         res = started()
@@ -479,7 +482,8 @@ class GraphBackend(TrialBackend):
         """Close the bag once the recorder's clock has passed the trial's end (else its tail is lost);
         returns the wait for it, which gives the row's `bag`."""
         obs = self.ev.obs
-        obs.wait_for(lambda: obs.recorder_stamp >= t_end, 30.0, "the recorder to catch up", self.ev.alive)
+        obs.wait_for(lambda: obs.recorder_stamp >= t_end, RECORDER_WAIT_S, "the recorder to catch up",
+                     self.ev.alive)
         stopped = obs.request(obs.rec_stop_cli, Trigger.Request(), 60.0, "close the trial's bag")
 
         def closed() -> dict:

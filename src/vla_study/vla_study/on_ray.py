@@ -52,7 +52,14 @@ class StudyWorker:
         done = []
         for trial in trials:
             wall0 = time.monotonic()
-            row, arrays = self.backend.run(trial, params, operator_seed=seeds[trial.key])
+            try:
+                row, arrays = self.backend.run(trial, params, operator_seed=seeds[trial.key])
+            except BaseException:
+                # a unit that fails (a graph that did not answer in time on a starved machine) leaves
+                # nothing half done for the next: its graph goes (a recorder still holding the failed
+                # trial's bag refused every later trial of the worker), the next unit starts a new one
+                self.close()
+                raise
             row["wall_s"] = round(time.monotonic() - wall0, 2)
             if row.get("bag"):  # the row names files from the study's folder, as the serial run's do
                 row["bag"] = str(self.own / row["bag"])

@@ -227,3 +227,40 @@ def test_status_names_the_goal_where_the_object_stands(kin):
     u, v = arm.dets[0].cx / SIZE[0], arm.dets[0].cy / SIZE[1]
     assert a.goal_image_xy == pytest.approx((u, v))
     assert a.stage == "hover" and 0.5 < a.confidence <= 1.0
+
+
+def test_another_class_inside_an_objects_footprint_is_that_object_not_a_goal(kin):
+    """The detector called a loaf with the hand on it a milk carton (0.39): that is no object of its own."""
+    arm = Arm(kin, objects=(("bread", (0.5, 0.05)),))
+    u, v = SIM_WEBCAM.projector(*SIZE)([0.5, 0.07, 0.5 * CAT.spec("milk_carton").height])
+    arm.dets.append(Detection("milk_carton", 0.39, u, v, 40.0, 40.0))
+    st = drive(arm, 0.5)
+    assert {g.task.name for g in arm.core.assist.goals} == {"bread/push_east"}
+    assert st.assist.goal_task == "bread/push_east"
+
+
+def test_no_new_object_appears_under_the_hand(kin):
+    """A detection where the hand's image is, matching no object seen before, is the hand misdetected."""
+    arm = Arm(kin, objects=(("bread", (0.5, 0.05)),))
+    drive(arm, 1.0)
+    u, v = SIM_WEBCAM.projector(*SIZE)(arm.tcp())
+    phantom = Detection("milk_carton", 0.5, u, v, 80.0, 80.0)
+    _, st = arm.step(1.0, dets=[*arm.dets, phantom])
+    drive(arm, 0.3)
+    assert {g.task.name for g in arm.core.assist.goals} == {"bread/push_east"}
+    assert st.assist.goal_task == "bread/push_east"
+
+
+def test_an_object_pushed_while_hidden_is_the_same_object_where_it_reappears(kin):
+    """Behind the hand a pushed loaf moves farther than MATCH_M between two sightings: it keeps its goal
+    (and the goal its stage) instead of becoming a new object whose goal starts the push again."""
+    arm = Arm(kin, objects=(("bread", (0.5, 0.05)),))
+    drive(arm, 3.0)
+    goal = next(g for g in arm.core.assist.goals)
+    stage = goal.stage
+    assert stage > 0
+    moved = detection("bread", (0.5, -0.1))          # 15 cm on, east: where the push took it
+    arm.step(1.0, dets=[moved])
+    assert [g.task.name for g in arm.core.assist.goals] == ["bread/push_east"]
+    assert arm.core.assist.goals[0] is goal and goal.stage >= stage
+    assert goal.obj.xy == pytest.approx((0.5, -0.1), abs=0.01)

@@ -59,10 +59,16 @@ ROTATION_GAIN = 2.0       # 1/s
 MAX_ROTATION = 0.8        # rad/s at full stick
 DAMPING = 0.02            # of the Jacobian's pseudo-inverse
 MATCH_M = 0.08            # a detection this close to a goal's object is that object (it may be pushed)
+# An object the hand hid while pushing it reappears where the push left it, farther than MATCH_M from
+# where it was last seen: the unmatched detection of its class nearest to it, within RELOCATE_M (more
+# than a push's length), is that object. As a new object it got a new goal, whose first pose (the
+# hover before a push) led the hand back up and pushed it a second time under a stick held on.
+RELOCATE_M = 0.3
 LOST_KEEP_S = 5.0         # s a goal whose object left the detections is remembered (pulling nothing)
 # An object missing from the detections while the hand is in front of it (the hand's or the flange's
 # image within HIDDEN_MARGIN_PX of its last box) is hidden, not gone: a push from the camera's side
-# covers it. Its goal keeps pulling for HIDDEN_KEEP_S after it was last seen.
+# covers it. Its goal keeps pulling for HIDDEN_KEEP_S after it was last seen; a goal reached, which holds
+# the hand still at its last pose (in front of the object it pushed), as long as the stick is held.
 HIDDEN_MARGIN_PX = 40.0
 HIDDEN_KEEP_S = 3.0
 FLANGE_M = 0.1034         # the flange behind the TCP along the hand's axis
@@ -223,41 +229,52 @@ class Assistance:
         self._expire(now)
 
     def _located(self, dets, image_size, camera) -> list[tuple[Detection, np.ndarray]]:
-        """The detections of classes with a task, with where each object stands on the table."""
+        """The detections of classes with a task, with where each object stands on the table; most
+        confident first, and one whose centre stands inside a more confident one's footprint left out:
+        two objects cannot stand there, it is that object seen as another class (the detector called
+        a loaf with the hand on it a milk carton at 0.39, and that goal took the hand off the push)."""
         out = []
         if not image_size:
             return out
-        for d in dets:
+        for d in sorted(dets, key=lambda d: -d.score):
             if d.class_id not in self.tasks or not d.is_finite():
                 continue
             try:
                 point = camera.unproject((d.cx, d.cy), 0.5 * self.catalogue.spec(d.class_id).height)
             except (ValueError, ArithmeticError):
                 point = None
-            if point is not None and np.all(np.isfinite(point)):
-                out.append((d, np.asarray(point, float)[:2]))
+            if point is None or not np.all(np.isfinite(point)):
+                continue
+            xy = np.asarray(point, float)[:2]
+            if not any(np.linalg.norm(xy - k) < self.catalogue.spec(o.class_id).footprint_radius
+                       for o, k in out):
+                out.append((d, xy))
         return out
 
     def _track(self, located, tcp, hand, image_size, now: float) -> None:
         """Match each located detection to the nearest remembered object of its class within MATCH_M
-        (nearest pairs first); the others are new objects; objects matched by none are not visible,
-        unless the hand hides them (`hand`: its pixels)."""
-        for o in self.objects:
-            o.visible = o.visible and now - o.seen_t <= HIDDEN_KEEP_S and _behind(o, hand)
+        (nearest pairs first), then the rest within RELOCATE_M (moved while hidden); the others are new
+        objects; objects matched by none are not visible, unless the hand hides them (`hand`: its
+        pixels)."""
+        held = self._held[0].obj if self._held is not None else None
+        for o in self.objects:   # the goal reached holds the hand on its object as long as it hides it
+            o.visible = o.visible and (now - o.seen_t <= HIDDEN_KEEP_S or o is held) and _behind(o, hand)
         pairs = sorted((float(np.linalg.norm(o.xy - xy)), i, j) for i, (d, xy) in enumerate(located)
                        for j, o in enumerate(self.objects) if o.class_id == d.class_id)
         used_d, used_o = set(), set()
-        for dist, i, j in pairs:
-            if dist <= MATCH_M and i not in used_d and j not in used_o:
-                used_d.add(i)
-                used_o.add(j)
-                d, xy = located[i]
-                o = self.objects[j]
-                o.xy, o.pixel, o.box, o.image_size = xy, (d.cx, d.cy), (d.width, d.height), tuple(image_size)
-                o.visible, o.seen_t = True, now
+        for within in (MATCH_M, RELOCATE_M):   # the nearest pairs first; then the moved while hidden
+            for dist, i, j in pairs:
+                if dist <= within and i not in used_d and j not in used_o:
+                    used_d.add(i)
+                    used_o.add(j)
+                    d, xy = located[i]
+                    o = self.objects[j]
+                    o.xy, o.pixel, o.box = xy, (d.cx, d.cy), (d.width, d.height)
+                    o.image_size, o.visible, o.seen_t = tuple(image_size), True, now
         start = np.asarray(tcp, float) if tcp is not None else np.full(3, math.nan)
         for i, (d, xy) in enumerate(located):
-            if i not in used_d:
+            # no new object under the hand: objects do not appear there, the hand is misdetected there
+            if i not in used_d and not _under(d, hand):
                 o = Seen(d.class_id, xy.copy(), xy.copy(), (d.cx, d.cy), (d.width, d.height),
                          tuple(image_size), start, seen_t=now)
                 self.objects.append(o)
@@ -465,6 +482,12 @@ def _behind(o: Seen, hand) -> bool:
     """The hand's image (any of its pixels) lies on or near the object's last box."""
     w, h = o.box[0] / 2 + HIDDEN_MARGIN_PX, o.box[1] / 2 + HIDDEN_MARGIN_PX
     return any(px is not None and abs(px[0] - o.pixel[0]) <= w and abs(px[1] - o.pixel[1]) <= h
+               for px in hand)
+
+
+def _under(d: Detection, hand) -> bool:
+    """The hand's image (any of its pixels) lies inside the detection's box."""
+    return any(px is not None and abs(px[0] - d.cx) <= d.width / 2 and abs(px[1] - d.cy) <= d.height / 2
                for px in hand)
 
 

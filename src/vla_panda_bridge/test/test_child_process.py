@@ -2,7 +2,7 @@
 one IPC (hand_slots.py, shm.py), without a robot: a clock of the test's, shells as children."""
 import math
 
-from vla_panda_bridge.child_process import RESTART_MAX, RESTART_MIN, ChildProcess
+from vla_panda_bridge.child_process import RESTART_MAX, RESTART_MIN, START_TIMEOUT, ChildProcess
 from vla_panda_bridge.gripper import GRASP, HandOp, HandReading
 from vla_panda_bridge.hand_slots import HandSlots
 
@@ -52,6 +52,31 @@ def test_a_child_that_makes_no_progress_is_killed_and_one_that_does_is_left():
     clock.t += 3.5                            # the same progress for longer than stuck_timeout
     assert "wrote nothing for 3 s and was killed" in c.poll(9.0)
     assert c._proc.poll() is not None
+    assert c.close(1.0)
+
+
+def test_a_child_slow_to_start_is_given_start_timeout_and_a_restarted_one_again():
+    """At load 30 the loop process wrote nothing for over 3 s after its start (Python importing) or
+    inside libfranka's connect: a 3 s bound killed every start. After its first progress, and while
+    not `patient`, stuck_timeout is the bound."""
+    clock = Clock()
+    c = shell("sleep 600", clock, stuck=3.0)
+    c.start()
+    assert c.poll(5.0) == ""                  # the slots' counter as the previous process left it
+    clock.t += START_TIMEOUT - 1.0            # still starting, longer than stuck_timeout: left
+    assert c.poll(5.0) == "" and c._proc.poll() is None
+    clock.t += 2.0                            # but not for ever
+    note = c.poll(5.0)
+    assert f"wrote nothing for {START_TIMEOUT:g} s while starting or connecting and was killed" in note
+    clock.t += RESTART_MIN
+    assert "restarted" in c.poll(5.0)
+    clock.t += START_TIMEOUT - 1.0            # the restarted one starts slowly too: left
+    assert c.poll(5.0) == "" and c._proc.poll() is None
+    clock.t += 0.5
+    assert c.poll(6.0) == ""                  # its first write: working now
+    clock.t += 3.5                            # blocked connecting (the caller says so): left
+    assert c.poll(6.0, patient=True) == "" and c._proc.poll() is None
+    assert "wrote nothing for 3 s and was killed" in c.poll(6.0)
     assert c.close(1.0)
 
 

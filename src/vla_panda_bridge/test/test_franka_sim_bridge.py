@@ -131,6 +131,10 @@ class Bridge(RosHarness):
     def at_rest(self, tol: float = 0.01) -> bool:
         return bool(self.states) and max(abs(v) for v in self.states[-1].velocity) < tol
 
+    def interventions(self) -> int:
+        """Both filters' interventions (a watchdog stop counts in one of them)."""
+        return self.node.filter.interventions + self.backend.process.status().interventions
+
     def recover(self) -> Trigger.Response:
         return self.call(self.io.create_client(Trigger, "panda_bridge/recover"), Trigger.Request())
 
@@ -139,6 +143,9 @@ class Bridge(RosHarness):
         return self.call(client, SetBool.Request(data=on))
 
     def recover_if_needed(self) -> None:
+        """Each test starts from a connected, armed arm at rest, whatever an earlier one left."""
+        if self.backend.process.status().teaching:        # a teaching test that failed half-way
+            assert self.set_teaching(False).success
         held = bool(self.status) and self.status[-1].code == SafetyStatus.REFLEX
         if self.backend.status.code != LoopStatus.OK or held:
             assert self.recover().success
@@ -202,23 +209,43 @@ def test_it_connects_and_streams_the_servers_state(sim):
 
 
 def test_a_constant_velocity_moves_the_joint_as_integrated(bridge):
-    bridge.recover_if_needed()
-    v = 0.2
-    assert bridge.command_until(velocity(3, v), lambda: bridge.robot().velocity[3] > 0.98 * v)
-    bridge.command(velocity(3, v), 0.2)                   # settled
-    a, n = bridge.robot(), len(bridge.states)
-    bridge.command(velocity(3, v), 0.8)
-    b, steady = bridge.robot(), bridge.states[n:]
+    cuts = []
+    for attempt in range(8):
+        v = 0.2 if attempt % 2 == 0 else -0.2             # back and forth: every try stays in the limits
+        bridge.recover_if_needed()
+        assert bridge.command_until(velocity(3, v), lambda: abs(bridge.robot().velocity[3]) > 0.196, 10.0)
+        bridge.command(velocity(3, v), 0.2)               # settled
+        before = bridge.interventions()
+        a = bridge.robot()
+        bridge.command(velocity(3, v), 0.8)
+        b = bridge.robot()
+        if bridge.interventions() == before:
+            break
+        # A filter intervened: this test's own command stream (or the node in this process) stalled
+        # past the watchdog's 0.1 s at load 30, and the arm was stopped, as it must be. Such a window
+        # measures the stop, not the integration (test_the_watchdog_... is about the stop): again.
+        cuts.append((bridge.node.filter.arming.reason, bridge.backend.process.status().filter_text))
+        bridge.command([0.0] * 7, 0.3)
+    else:
+        pytest.fail(f"8 windows of 0.8 s in a row had a stop: {cuts}")
     bridge.command([0.0] * 7, 0.3)
+    # joint_states between a and b by their stamps (the robot's): a starved node publishes late batches,
+    # so the states that arrive in a wall-clock window are not the window's (at load 30 they began with
+    # states from before the motion)
+    t_a, t_b = a.stamp_ns * 1e-9, b.stamp_ns * 1e-9
+    assert bridge.spin_until(lambda: _stamp(bridge.states[-1]) >= t_b, 30.0)
+    steady = [m for m in bridge.states if t_a <= _stamp(m) <= t_b]
     # The joint runs at the commanded velocity (franka-sim's servo tracks it within about 0.5 %) ...
-    assert np.median([m.velocity[3] for m in steady]) == pytest.approx(v, rel=0.02), (
-        bridge.backend.status.filter_text)
+    speeds = np.array([m.velocity[3] for m in steady])
+    assert np.median(speeds) == pytest.approx(v, rel=0.02), (
+        np.percentile(speeds, [0, 10, 50, 90, 100]).round(3).tolist(), len(speeds), cuts,
+        bridge.backend.process.status())
     # ... and its position is that velocity integrated over the time it ran: never more than v times
     # the wall time (+3 %, 1 mrad). franka-sim paces its physics to the wall clock but drops time when
     # it falls behind (0.64x real time seen with a load average of 4.8 on these 2 cores), so the lower
     # bound is half of it: a motion that did not happen, or at half speed, still fails.
-    moved = b.position[3] - a.position[3]
-    wall = v * (b.stamp_ns - a.stamp_ns) * 1e-9
+    moved = (b.position[3] - a.position[3]) * np.sign(v)
+    wall = abs(v) * (b.stamp_ns - a.stamp_ns) * 1e-9
     assert 0.5 * wall <= moved <= 1.03 * wall + 1e-3, (moved, wall)
     others = np.delete(b.position - a.position, 3)
     assert np.all(np.abs(others) < 2e-3)
@@ -226,14 +253,18 @@ def test_a_constant_velocity_moves_the_joint_as_integrated(bridge):
 
 def test_the_watchdog_brings_the_arm_to_rest_within_0_3_s(bridge):
     bridge.recover_if_needed()
-    assert bridge.command_until(velocity(0, 0.2), lambda: bridge.robot().velocity[0] > 0.15)
-    bridge.spin_for(1.0)
+    assert bridge.command_until(velocity(0, 0.2), lambda: bridge.robot().velocity[0] > 0.15, 10.0)
+    bridge.spin_for(0.1)
     stopped_at = bridge.arrivals[-1]                      # the last command at the bridge (wall time,
     #                                                       as the joint_states stamps)
+    # the states of the second after it (waited for by their stamps: a starved node publishes late)
+    assert bridge.spin_until(lambda: _stamp(bridge.states[-1]) > stopped_at + 1.0, 30.0)
     after = [m for m in bridge.states if _stamp(m) > stopped_at]
     moving = [m for m in after if max(abs(x) for x in m.velocity) > 0.01]
     last_moving = _stamp(moving[-1]) if moving else stopped_at
-    assert last_moving - stopped_at <= 0.3, f"still moving {last_moving - stopped_at:.3f} s after"
+    trace = [(round(_stamp(m) - stopped_at, 3), round(max(m.velocity, key=abs), 3)) for m in after[:150:5]]
+    assert last_moving - stopped_at <= 0.3, (f"still moving {last_moving - stopped_at:.3f} s after", trace,
+                                             bridge.arrivals[-5:], bridge.backend.process.status())
     assert any(s.code == SafetyStatus.COMMAND_TIMEOUT for s in bridge.status)
 
 
@@ -256,11 +287,12 @@ def test_malformed_commands_are_rejected_as_on_mujoco(bridge):
 def test_teaching_on_and_off_moves_the_hand_by_at_most_1_mm(bridge):
     bridge.recover_if_needed()
     fk = PandaKinematics().fk
-    n = len(bridge.states)
+    n, m = len(bridge.states), len(bridge.status)
     res = bridge.set_teaching(True)
     assert res.success and "teaching" in res.message, res.message
     assert bridge.backend.process.status().teaching
-    assert bridge.status[-1].code == SafetyStatus.TEACHING
+    # The status comes on its own topic: the service's answer can overtake it (load 15)
+    assert bridge.spin_until(lambda: any(s.code == SafetyStatus.TEACHING for s in bridge.status[m:]), 10.0)
     k = len(bridge.states)                                # joint_states keep flowing while teaching
     assert bridge.spin_until(lambda: len(bridge.states) - k > 50, 10.0)   # (0.5 s at rest; load slows it)
     bridge.command(velocity(0, 0.3), 0.2)                 # ignored: the hand moves the arm, not commands
@@ -291,7 +323,8 @@ def test_a_stalled_loop_gives_a_reflex_and_recover_resumes(bridge):
     n = len(bridge.states)
     q = bridge.robot().position
     bridge.command(velocity(1, 0.1), 0.3)                 # no motion until recovered ...
-    assert len(bridge.states) > n + 25                    # ... but the state keeps flowing
+    # ... but the state keeps flowing (waited for: at load 30 this process took fewer in 0.3 s)
+    assert bridge.command_until(velocity(1, 0.1), lambda: len(bridge.states) > n + 25, 10.0)
     np.testing.assert_allclose(bridge.robot().position, q, atol=2e-3)
     res = bridge.recover()
     assert res.success and "recovery done" in res.message, res.message
@@ -315,9 +348,10 @@ def test_a_killed_server_is_reported_and_the_bridge_reconnects_when_it_returns(b
     assert status.code == SafetyStatus.REFLEX and "UDP receive: Timeout" in status.text, status
     assert not bridge.recover().success                   # nothing to reconnect to yet
     sim.start()
-    assert bridge.spin_until(lambda: bridge.backend.status.code == LoopStatus.OK, 10.0), bridge.backend.status
+    # the loop retries with back-off (up to reconnect_max) while franka-sim restarts: slow under load
+    assert bridge.spin_until(lambda: bridge.backend.status.code == LoopStatus.OK, 30.0), bridge.backend.status
     assert bridge.backend.status.connects == connects + 1
-    assert bridge.spin_until(lambda: _stamp(bridge.states[-1]) > killed_at + 0.5, 5.0)
+    assert bridge.spin_until(lambda: _stamp(bridge.states[-1]) > killed_at + 0.5, 30.0)
     np.testing.assert_allclose(bridge.states[-1].position, SIM_Q0, atol=2e-3)   # a fresh server
     q = bridge.robot().position
     bridge.command(velocity(2, 0.2), 0.3)
@@ -346,7 +380,7 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
     exe = find_executable("vla_panda_bridge", "panda_bridge")
     params = {"backend": "libfranka", "robot_ip": "127.0.0.1", "driver": "pylibfranka",
               "realtime_config": "ignore", "loop_prefix": " ".join(sim.netns.prefix()),
-              "robot_model": "fr3", "loop_priority": RT_PRIORITY, **FR3_SCALES}
+              "robot_model": "fr3", "loop_priority": RT_PRIORITY, "gripper": False, **FR3_SCALES}
     args = [a for k, v in params.items() for a in ("-p", f"{k}:={v}")]
     log = tmp_path / "bridge.log"
     with open(log, "w") as err:
@@ -362,7 +396,7 @@ def test_sigint_stops_the_bridge_process_within_2_s_ending_the_motion(sim, tmp_p
             return "libfranka OK" in log.read_text() and bool(states) and pub.get_subscription_count() > 0
         assert h.spin_until(ready, 30.0), log.read_text()
         loop_pid = int(re.search(r"1 kHz loop in process (\d+)", log.read_text()).group(1))
-        end = time.monotonic() + 5.0
+        end = time.monotonic() + 20.0                    # only against a hang: the effect is waited for
         while time.monotonic() < end and abs(states[-1].velocity[5]) < 0.2:
             pub.publish(Float64MultiArray(data=velocity(5, 0.3)))
             h.spin_for(0.01)

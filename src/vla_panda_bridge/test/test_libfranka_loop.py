@@ -304,6 +304,21 @@ def test_the_loop_watchdog_brakes_when_commands_stop(rig):
     assert_continuous(rig.loop, [v for v, _ in rig.driver.velocities])
 
 
+def test_at_rest_the_state_slot_reports_the_filters_hold_not_the_last_motions_code(rig):
+    """A motion that ended on the watchdog left AWAITING_ZERO in the state slot after the zero command
+    that re-armed the filter at rest: the franka-sim test waiting for it to arm waited for ever (load
+    30). Between motions the slot says what the filter holds now."""
+    rig.run(2, command=ZERO)
+    rig.run(300, command=velocity(0, 0.2))
+    rig.run_until(lambda: rig.state().mode == lf.Mode.IDLE)   # the watchdog braked it; motion over
+    assert rig.state().filter_code == SafetyCode.AWAITING_ZERO
+    rig.run(3, command=velocity(0, 0.2))                     # the stick still held: nothing moves
+    assert rig.state().filter_code == SafetyCode.AWAITING_ZERO and rig.state().mode == lf.Mode.IDLE
+    rig.run(1, command=ZERO)                                 # neutral: armed, and the slot says so
+    assert rig.loop.filter.arming.armed and rig.state().filter_code == SafetyCode.OK
+    assert rig.state().mode == lf.Mode.IDLE
+
+
 @pytest.mark.parametrize("bad, code", [([math.nan, 0, 0, 0, 0, 0, 0], SafetyCode.NON_FINITE_COMMAND),
                                        ([0.1] * 6, SafetyCode.WRONG_LENGTH)])
 def test_malformed_commands_are_treated_as_zero(rig, bad, code):

@@ -15,6 +15,7 @@ from franka_sim_server import Netns
 from require import missing
 from vla_panda_bridge.libfranka_loop import LoopSettings, LoopStatus
 from vla_panda_bridge.libfranka_process import LoopProcess
+from vla_panda_bridge.libfranka_slots import Slots
 
 pytestmark = pytest.mark.slow
 
@@ -59,13 +60,16 @@ def test_a_refused_connection_is_reported_and_a_dead_loop_restarted(netns):
         assert p.pid != first and p.restarts == 1
         assert _wait(lambda: "Connection to FCI refused" in p.status().text and p.poll() == "")
     finally:
-        assert p.close()
+        # It leaves by itself when asked; the bound only against a hang: a loop without real-time
+        # priority (none here) took over the bridge's 1.5 s to exit at load 45 (the bridge then kills it)
+        assert p.close(timeout=20.0)
 
 
 _BRIDGE = """
 import sys, time
 from vla_panda_bridge.libfranka_loop import LoopSettings
 from vla_panda_bridge.libfranka_process import LoopProcess
+from vla_panda_bridge.libfranka_slots import Slots
 p = LoopProcess(LoopSettings(robot={"robot_ip": "127.0.0.1", "realtime": "ignore"}), loop_prefix=sys.argv[1:])
 p.start()
 print(p.pid, p.slots.path, flush=True)
@@ -80,7 +84,12 @@ def test_a_loop_whose_bridge_died_exits_and_removes_the_slots(netns):
         pid, path = bridge.stdout.readline().split()
         pid = int(pid)
         assert os.path.exists(path)
-        time.sleep(1.0)                                    # the loop is up, retrying its connection
+        view = Slots.attach(path)
+        try:                                               # the loop is up, retrying its connection
+            assert _wait(lambda: (s := view.read_state()) is not None and int(s.pid) == pid
+                         and int(s.status) == LoopStatus.CONNECTING)
+        finally:
+            view.close()
         bridge.kill()
         bridge.wait()
 

@@ -33,7 +33,7 @@ from enum import Enum, IntEnum
 
 import numpy as np
 from vla_common.robot import robot_spec
-from vla_common.safety_status import SafetyCode
+from vla_common.safety_status import SafetyCode, code_name
 
 from vla_panda_bridge.libfranka_driver import (
     FATAL,
@@ -478,6 +478,7 @@ class ControlLoop:
             self._publish(state, math.nan)
             return
         self._take_command(apply=True)
+        self._idle_filter_status()
         if self._wants_motion():
             self.driver.start_velocity()
             self._go("motion wanted")
@@ -486,6 +487,16 @@ class ControlLoop:
             self._last_read = None
             self._motion_cycles = 0
         self._publish(state, math.nan)
+
+    def _idle_filter_status(self) -> None:
+        """Between motions the filter does not run, but a zero command re-arms it (and a connection
+        disarms it): report its hold, not the last motion's code. A motion that ended on the watchdog
+        otherwise kept AWAITING_ZERO in the state slot after the zero that re-armed it (load 30)."""
+        code = self.filter.hold_code()
+        if code != self._code:
+            text = {SafetyCode.OK: "", SafetyCode.AWAITING_ZERO: f"stopped ({self.filter.arming.reason}): "
+                    "send a zero command before moving"}.get(code, code_name(code))
+            self._filter_status(code, text)
 
     def _velocity_step(self, shutdown: bool) -> None:
         state, dt = self.driver.read_cycle()

@@ -11,7 +11,8 @@ requests (each answered through the state slot).
 (lost network, a server restart, a loop stuck in libfranka's 1 s UDP timeout) produces no samples,
 so joint_states are never republished as fresh. `poll()` supervises the loop process as the bridge
 supervises each of its helpers (`child_process.ChildProcess`): one that exits is restarted with
-back-off, one whose slots stay unchanged for `stuck_timeout` is killed and restarted.
+back-off, one whose slots stay unchanged for `stuck_timeout` (`start_timeout` while it starts or
+connects) is killed and restarted.
 """
 
 from __future__ import annotations
@@ -123,8 +124,11 @@ class LoopProcess:
         return self.child.note
 
     def poll(self) -> str:
-        """Supervise the loop process; returns a note when something happened to it, else ""."""
-        return self.child.poll(self.slots.state_seq)
+        """Supervise the loop process; returns a note when something happened to it, else "". While it
+        connects, libfranka's connect blocks it (bounded by libfranka): the supervisor is patient."""
+        s = self._read()
+        connecting = s is None or int(s.status) in (LoopStatus.CONNECTING, LoopStatus.DISCONNECTED)
+        return self.child.poll(self.slots.state_seq, patient=connecting)
 
     # ------------------------------------------------------------------------------- commands
     def submit(self, values: Sequence[float], arrived: float | None = None) -> int:

@@ -463,10 +463,14 @@ def test_where_the_latent_stops_short_the_node_aligns_in_end_effector_mode_then_
     """A pick-and-place whose arm stops 3 cm beside the grasp point: after a second without progress
     the user asks the controller for end-effector mode (~/set_mode), presses the axis button until
     the controller's status shows the axis it wants (up first: the hand is beside the bottle), pushes
-    the stick that way, and at the end of the episode puts the controller back in latent mode."""
+    the stick that way, and at the end of the episode puts the controller back in latent mode.
+
+    In simulated time (trigger joint_states): each step the fake controller's status is in before the
+    joint state, and the node's Joy for it is in before the next step. With the status on a 50 Hz wall
+    timer, at load 35 the node saw stale axes and pressed 8 times (x -> ... -> y, twice round)."""
+    from builtin_interfaces.msg import Time
     from rclpy.node import Node
     from rclpy.parameter import Parameter
-    from rclpy.qos import qos_profile_sensor_data
     from sensor_msgs.msg import JointState, Joy
     from vla_common.catalogue import default_catalogue
     from vla_common.kinematics import PandaKinematics
@@ -498,7 +502,7 @@ def test_where_the_latent_stops_short_the_node_aligns_in_end_effector_mode_then_
     P = Parameter
     tele = SimTeleoperatorNode(context=ctx, parameter_overrides=[
         P("model_path", value=str(tmp_path / "m")), P("rate", value=50.0), P("time_limit", value=6.0),
-        P("start_timeout", value=2.0)])
+        P("start_timeout", value=2.0), P("trigger", value="joint_states")])
     peer = Node("peer", context=ctx)
     nodes += [tele, peer]
     ex.add_node(tele)
@@ -522,28 +526,40 @@ def test_where_the_latent_stops_short_the_node_aligns_in_end_effector_mode_then_
 
     peer.create_service(SetMode, "controller_node/set_mode", set_mode)
     peer.create_subscription(Joy, "joy", on_joy, 50)
-    statuses = []
-    peer.create_subscription(TeleopStatus, "sim_teleoperator/status", statuses.append, 10)
-    js_pub = peer.create_publisher(JointState, "joint_states", qos_profile_sensor_data)
+    js_pub = peer.create_publisher(JointState, "joint_states", 10)
     obj_pub = peer.create_publisher(SceneObjectArray, "scene/objects", 10)
     ctrl_pub = peer.create_publisher(ControllerStatus, "controller_node/status", 10)
     hand_pub = peer.create_publisher(GripperStatus, "gripper/status", 10)
+    start = peer.create_client(StartEpisode, "sim_teleoperator/start_episode")
+    assert start.wait_for_service(timeout_sec=10.0)
+    fut = start.call_async(StartEpisode.Request(task=task))
+    assert _spin_until(ex, fut.done, 10.0) and fut.result().success
 
-    def feed():
-        js_pub.publish(JointState(name=[f"panda_joint{i}" for i in range(1, 8)], position=q_near.tolist()))
+    def step(k: int) -> None:
+        """Simulated time 1000 + 0.02 k s: the scene and the controller's status as the Joys left them,
+        then the joint state; returns once the node's Joy for it is in (wall bounds only against a hang)."""
+        stamp = Time(sec=1000 + k // 50, nanosec=20_000_000 * (k % 50))
         obj_pub.publish(SceneObjectArray(objects=[SceneObject(class_id="glass_bottle", x=goal.x, y=goal.y,
                                                               yaw=goal.yaw)]))
-        ctrl_pub.publish(ControllerStatus(latched_class="glass_bottle", latched_x=0.5, latched_y=0.6,
-                                          mode=ctrl["mode"], ee_axis=cycle[ctrl["axis"]]))
         hand_pub.publish(GripperStatus(state=GripperStatus.IDLE, width=0.08))   # open, as the phase wants
+        status = ControllerStatus(latched_class="glass_bottle", latched_x=0.5, latched_y=0.6,
+                                  mode=ctrl["mode"], ee_axis=cycle[ctrl["axis"]])
+        status.header.stamp = stamp
+        ctrl_pub.publish(status)
+        assert _spin_until(ex, lambda: tele.ctrl is not None and tele.ctrl.header.stamp == stamp
+                           and "glass_bottle" in tele.objects and tele.hand is not None, 30.0)
+        js = JointState(name=[f"panda_joint{i}" for i in range(1, 8)], position=q_near.tolist())
+        js.header.stamp = stamp
+        n = len(joys)
+        js_pub.publish(js)
+        assert _spin_until(ex, lambda: len(joys) > n, 30.0), k
 
-    peer.create_timer(0.02, feed)
-    start = peer.create_client(StartEpisode, "sim_teleoperator/start_episode")
-    assert start.wait_for_service(timeout_sec=5.0)
-    fut = start.call_async(StartEpisode.Request(task=task))
-    assert _spin_until(ex, fut.done, 5.0) and fut.result().success
-    assert _spin_until(ex, lambda: any(s.state == TeleopStatus.DONE for s in statuses), 20.0)
-    assert _spin_until(ex, lambda: ctrl["mode"] == "latent", 5.0)     # as the episode found it
+    for k in range(400):                                 # 6 s of episode and its start: 300 steps
+        step(k)
+        if tele.state == TeleopStatus.DONE:
+            break
+    assert tele.state == TeleopStatus.DONE, tele.reason
+    assert _spin_until(ex, lambda: ctrl["mode"] == "latent", 10.0)    # as the episode found it
 
     assert ctrl["requests"][0] == "end_effector" and ctrl["requests"][-1] == "latent"
     ee = [(axis, j) for mode, axis, j in joys if mode == "end_effector"]

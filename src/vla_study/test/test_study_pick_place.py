@@ -221,6 +221,7 @@ def test_a_pick_and_place_trial_runs_through_the_graph_and_its_row_names_the_con
 
 
 def test_the_table_has_a_row_per_condition_on_the_same_layouts():
+    """A layout that not every condition ran (a study stopped early) is left out, and the table says so."""
     from vla_study.pick_place import table
 
     def row(c, seed, ok, err, t):
@@ -236,8 +237,7 @@ def test_the_table_has_a_row_per_condition_on_the_same_layouts():
     assert [x.split(" | ")[0] for x in body] == ["| latent alone", "| end-effector alone", "| hybrid control"]
     assert "| 0/2 (0.00) | 15.0 | 60.0 |" in body[0] and "| 1/2 (0.50) | 6.5 | 40.0 | 20.0 |" in body[2]
     assert text.startswith("Simulated participants") and "2 test layouts per condition" in text
-    with pytest.raises(ValueError, match="different layouts"):
-        table(rows + [row("latent alone", 3, False, 0.1, 60.0)])
+    assert table(rows + [row("latent alone", 3, False, 0.1, 60.0)]) == text.replace("(0 rows", "(1 rows")
 
 
 def test_a_study_unit_that_fails_leaves_no_graph_for_the_next():

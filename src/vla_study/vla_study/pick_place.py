@@ -5,7 +5,8 @@ on the same test layouts, from a study folder's rows (protocols/pick_place.yaml'
 
 Success, the placement error (the object's distance from its place at the end, every trial), the time
 (a failure counts the time limit, outcome.py) and the hand's effort. Every row is the simulated
-participants' (hand_participant.py), labelled so; a table of rows whose layouts differ is refused.
+participants' (hand_participant.py), labelled so. Only layouts run in every condition count (a study
+stopped early leaves some layouts in one condition only: the table says how many rows it left out).
 """
 from __future__ import annotations
 
@@ -28,22 +29,29 @@ def _median(values: list[float]) -> float:
     return statistics.median(values) if values else float("nan")
 
 
+def shared_layouts(rows: list[dict]) -> tuple[list[dict], int]:
+    """The rows on layouts (participant, layout seed) that every condition present ran; how many left out."""
+    conditions = [c for c in ORDER if any(r["condition"] == c for r in rows)]
+    sets = [{(r["participant"], r["layout_seed"]) for r in rows if r["condition"] == c} for c in conditions]
+    shared = set.intersection(*sets) if sets else set()
+    kept = [r for r in rows if (r["participant"], r["layout_seed"]) in shared]
+    return kept, len(rows) - len(kept)
+
+
 def table(rows: list[dict]) -> str:
     """Markdown: per condition, success, placement error, time and the hand's presses."""
-    layouts = {c: sorted((r["participant"], r["layout_seed"]) for r in rows if r["condition"] == c)
-               for c in ORDER if any(r["condition"] == c for r in rows)}
-    if len({tuple(v) for v in layouts.values()}) > 1:
-        raise ValueError("the conditions ran on different layouts: "
-                         + ", ".join(f"{c}: {len(v)}" for c, v in layouts.items()))
+    rows, left_out = shared_layouts(rows)
+    layouts = {c: [r for r in rows if r["condition"] == c] for c in ORDER
+               if any(r["condition"] == c for r in rows)}
     n = len(next(iter(layouts.values()), []))
     limit = rows[0]["time_limit_s"] if rows else float("nan")
     lines = [f"Simulated participants (vla_study.hand_participant), {n} test layouts per condition, the same "
-             f"layouts in each; through the graph in lockstep. A failure's time is the limit ({limit:g} s).",
+             f"layouts in each ({left_out} rows on layouts not run in every condition left out); through the "
+             f"graph in lockstep. A failure's time is the limit ({limit:g} s).",
              "", "| condition | success | placement error, median (cm) | time, median (s) | "
              "time of successes, median (s) | grasp presses, median | failed grasps | mode switches "
              "(latent/end effector), median | thrown |", "|---|---|---|---|---|---|---|---|---|"]
-    for c in layouts:
-        mine = [r for r in rows if r["condition"] == c]
+    for c, mine in layouts.items():
         ok = [r for r in mine if r["success"]]
         err = _median([100 * r["placement_error_m"] for r in mine])
         lines.append(

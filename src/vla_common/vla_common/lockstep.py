@@ -65,11 +65,14 @@ class StepBarrier:
         self.hang_reported = False
 
     def answer(self, node: str, stamp_ns: int) -> str | None:
-        """Take `node`'s answer for the step stamped `stamp_ns`; None when it counts, "" for a node's
-        answer to this step again, else why not (a node that is no participant, an answer for another
-        step: both are bugs worth a warning)."""
+        """Take `node`'s answer for the step stamped `stamp_ns`; None when it counts, "" for an answer
+        given again (to this step or an earlier one: step 0 is repeated until all have answered it), else
+        why not (a node that is no participant, an answer for a step not yet published: bugs worth a
+        warning)."""
         if node not in self.participants:
             return f"an answer from {node!r}, who is not a lockstep participant {list(self.participants)}"
+        if self.stamp_ns is not None and int(stamp_ns) < self.stamp_ns:
+            return ""      # an earlier step's again (a repeated step 0's): it was counted then
         if self.stamp_ns is None or int(stamp_ns) != self.stamp_ns:
             return (f"{node} answered the step stamped {int(stamp_ns)} ns, the current one is "
                     f"{self.stamp_ns} ns (step {self.step}): ignored")

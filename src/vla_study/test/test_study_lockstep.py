@@ -1,0 +1,69 @@
+"""Issue 33: the study's simulated participants through the launched graph give the same rows at any load.
+
+A small slice (one simulated participant, latent-YOLO and the end-effector baseline, a base task and a
+few-shot one) runs twice through `vla_study` on the graph (lockstep, as fast as the CPU allows): once
+as the machine is, once beside two busy loops this test starts. Every row and every trial's path must
+be identical apart from the fields that name wall time (before lockstep the graph ran in real time
+and the same trials changed outcome and SPARC with the machine's load).
+"""
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = [pytest.mark.slow, pytest.mark.ros]
+# The fields that name wall time: how long it took, where the time went, the pace, the bag's folder
+# (named with the wall-clock date and time it was opened).
+WALL_FIELDS = {"wall_s", "wall_phases", "trial_rtf", "bag"}
+SLICE = """study: ci-lockstep
+participants: sim:1
+strategies: [latent-YOLO, end-effector]
+settings:
+  base: bread/push_east
+  Seen: cereal_box/push_south
+trials: 1
+practice: {trials: 0, reset_seed: 7}
+time_limit: 8
+rate: 20
+"""
+
+
+def _run(protocol: Path, out: Path) -> list[dict]:
+    cmd = [sys.executable, "-m", "vla_study.cli", "--protocol", str(protocol), "--out", str(out)]
+    res = subprocess.run(cmd, capture_output=True, text=True, timeout=1200)
+    assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
+    return [json.loads(x) for x in (out / "trials.jsonl").read_text().splitlines() if x.strip()]
+
+
+class BusyLoops:
+    """Two processes that spin a core each, for as long as the block runs."""
+
+    def __enter__(self):
+        self.procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(2)]
+        return self
+
+    def __exit__(self, *exc):
+        for p in self.procs:
+            p.kill()
+            p.wait()
+
+
+@pytest.mark.timeout(2700)
+def test_the_same_study_slice_gives_the_same_rows_quiet_and_beside_two_busy_loops(tmp_path):
+    protocol = tmp_path / "slice.yaml"
+    protocol.write_text(SLICE)
+    quiet = _run(protocol, tmp_path / "quiet")
+    with BusyLoops():
+        busy = _run(protocol, tmp_path / "busy")
+    assert len(quiet) == 4
+    assert [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in quiet] == \
+           [{k: v for k, v in r.items() if k not in WALL_FIELDS} for r in busy]
+    for r in quiet:
+        a = np.load(tmp_path / "quiet" / "trials" / f"{r['file']}.npz")
+        b = np.load(tmp_path / "busy" / "trials" / f"{r['file']}.npz")
+        assert a.files == b.files and all(np.array_equal(a[k], b[k]) for k in a.files), r["key"]
+    assert any(r["path_length_m"] > 0.1 for r in quiet)          # the participants drove
+    print("wall s per trial (quiet, busy):", [(a["wall_s"], b["wall_s"]) for a, b in zip(quiet, busy)])

@@ -288,3 +288,21 @@ def test_demo_consistency_finds_ik_branches_and_bad_starts():
     r = demo_consistency(demos)[0]
     assert r["demos"] == 4 and r["start_far_from_ready"] == 1
     assert r["end_state_groups"] == 2 and r["largest_group_share"] == 0.75
+
+
+def test_the_physics_mode_is_gone_and_says_why(capsys):
+    """Issue 33: the in-process physics mode (the graph's loop copied, with another safety configuration)
+    gave other numbers than the graph for the same trial; it is gone, and asking for it says why and
+    what to use instead: the graph in lockstep."""
+    import argparse
+    import importlib
+
+    from vla_evaluation import evaluate_cli
+
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("vla_evaluation.physics")
+    ap = argparse.ArgumentParser()
+    evaluate_cli.add_arguments(ap)
+    assert evaluate_cli.run(ap.parse_args(["--mode", "physics"])) == 2
+    said = capsys.readouterr().err
+    assert "physics mode is gone" in said and "lockstep" in said and "--mode graph" in said

@@ -1,9 +1,10 @@
 """`vla_evaluation evaluate`: closed-loop evaluation with the simulated teleoperator.
 
 --mode kinematic: the paper's q <- q + phi(z*, s) dt on rendered, detected validation layouts.
---mode physics:   the same computations with MuJoCo and the safety filter in one process (no ROS).
---mode graph:     the full node graph (bridge, detector, controller, teleoperator) with physics; each
-                  episode a unit of a sweep on Ray (a graph per worker; --serial: one, here).
+--mode graph:     the full node graph (bridge, detector, controller, teleoperator) with physics, in
+                  lockstep: the same results at any load (vla_common.lockstep); each episode a unit of
+                  a sweep on Ray (a graph per worker; --serial: one, here).
+(--mode physics, the graph's computations copied into one process, is gone: PHYSICS_GONE says why.)
 Writes episodes.csv, summary.csv, results.json and plots to --out, and prints a table.
 """
 from __future__ import annotations
@@ -22,12 +23,18 @@ from vla_evaluation.graph import EpisodeRecord, GraphConfig
 from vla_evaluation.graph_sweep import EpisodeJob, EpisodeWorker, for_workers
 from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET, TeleopSettings, evaluate_kinematic, make_layouts
 from vla_evaluation.metrics import summarize
-from vla_evaluation.physics import evaluate_physics
 from vla_evaluation.plots import write_evaluation_report
 from vla_evaluation.resources import detector_model_path, latent_model_dir
 from vla_evaluation.sim_teleoperator import DEFAULT_HORIZON
 from vla_evaluation.sweep import Engine, engine_from, run_sweep
 from vla_evaluation.sweep import add_arguments as add_engine_arguments
+
+# Why `--mode physics` (and the study's `backend: physics`) is refused: what it was, and what replaces it.
+PHYSICS_GONE = ("the in-process physics mode is gone (issue 33): its loop was a copy of the graph's with "
+                "another safety-layer configuration (no workspace floor, no contact slowing), the "
+                "controller's stick mapping mirrored rather than run and no detector in the loop, so it "
+                "gave other numbers for the same trial; the graph runs in lockstep now, deterministic at "
+                "any load and as fast as the CPU allows: use --mode graph")
 
 
 def task_list(spec: str, catalogue: Catalogue | None = None) -> list[str]:
@@ -59,7 +66,7 @@ def add_teleop_arguments(p: argparse.ArgumentParser, rate: float, horizon: float
     d = TeleopSettings()  # the defaults, declared there once
     g = p.add_argument_group("simulated teleoperator and controller")
     g.add_argument("--rate", type=float, default=rate,
-                   help="control rate in Hz of simulated time (physics and graph: 100 unless set)")
+                   help="control rate in Hz of simulated time (graph: 100 unless set)")
     g.add_argument("--time-limit", type=float, default=d.time_limit,
                    help="episode length (s), the paper's 30")
     g.add_argument("--switch-time", type=float, default=d.switch_time,
@@ -87,7 +94,9 @@ def settings_from(args) -> TeleopSettings:
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--mode", choices=("kinematic", "physics", "graph"), default="kinematic")
+    p.add_argument("--mode", choices=("kinematic", "graph", "physics"), default="kinematic",
+                   help="kinematic: the paper's loop; graph: the node graph in lockstep (physics: gone, "
+                        "refused with why)")
     p.add_argument("--model", type=Path, default=None,
                    help="latent model directory (default: the shipped one)")
     p.add_argument("--detector-model", type=Path, default=None,
@@ -99,7 +108,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=VALIDATION_SEED_OFFSET, help="first layout seed")
     p.add_argument("--objects", type=int, default=1, help="objects per layout (the task's + distractors)")
     p.add_argument("--out", type=Path, default=Path("out/evaluate"), help="output folder")
-    gg = p.add_argument_group("physics and graph modes")
+    gg = p.add_argument_group("graph mode")
     gg.add_argument("--stop-on-success", action="store_true", help="end an episode 1 s after success")
     gg.add_argument("--real-time-factor", type=float, default=0.0,
                     help="graph: simulated seconds per wall second at most (default 0: as fast as the CPU "
@@ -114,6 +123,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args) -> int:
+    if args.mode == "physics":
+        print(f"evaluate: {PHYSICS_GONE}", file=sys.stderr)
+        return 2
     catalogue = load_catalogue(args.catalogue)
     tasks = task_list(args.tasks, catalogue)
     seeds = [args.seed + i for i in range(args.layouts)]
@@ -130,9 +142,6 @@ def run(args) -> int:
         settings.rate = 100.0  # the controller node's default rate
     if args.mode == "kinematic":
         results = _kinematic(model_dir, det_path, tasks, seeds, settings, args.objects, catalogue)
-    elif args.mode == "physics":
-        results = _physics(model_dir, det_path, tasks, seeds, settings, args.objects, args.stop_on_success,
-                           catalogue)
     else:
         rtf = args.real_time_factor or (2.0 if args.free_running else 0.0)
         cfg = GraphConfig(model_path=str(model_dir), detector_model=str(det_path),
@@ -179,17 +188,6 @@ def _kinematic(model_dir, det_path, tasks, seeds, settings, n_objects, catalogue
     layouts = make_layouts(tasks, seeds, detector=Detector(det_path), kin=kin, n_objects=n_objects,
                            catalogue=catalogue)
     return evaluate_kinematic(model, layouts, settings, kin=kin, label=Path(model_dir).name)
-
-
-def _physics(model_dir, det_path, tasks, seeds, settings, n_objects, stop_on_success, catalogue):
-    from vla_sim.sim import PandaSim  # MuJoCo, an optional heavy dependency: only for this mode
-
-    model = LatentModel.load(model_dir)
-    sim = PandaSim(render=True, catalogue=catalogue)
-    layouts = make_layouts(tasks, seeds, sim=sim, detector=Detector(det_path), n_objects=n_objects,
-                           catalogue=catalogue)
-    return evaluate_physics(model, layouts, settings, sim=sim, label=Path(model_dir).name,
-                            stop_on_success=stop_on_success, log=print)
 
 
 def print_table(summary: list[dict], file=None) -> None:

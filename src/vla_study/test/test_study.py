@@ -215,12 +215,12 @@ def test_protocol_errors_are_refused_with_file_and_line(tmp_path, capsys):
                                   "--check"])) == 0
     printed = capsys.readouterr().out
     assert "2 participants, 4 trials" in printed and "P02:" in printed and not out.exists()
-    # real participants on the physics backend are refused before anything is made (a person drives
-    # the launched graph: test_study_person.py)
+    # the physics backend (gone, issue 33) is refused with why before anything is made, whoever drives
     from vla_study.runner import run_study
 
-    with pytest.raises(SystemExit, match="P01.*--backend graph"):
-        run_study(dataclasses.replace(load_protocol(f), participants=["P01"], backend="physics"), out)
+    for who in (["P01"], ["sim:1"]):
+        with pytest.raises(SystemExit, match="physics backend is gone.*lockstep.*backend: graph"):
+            run_study(dataclasses.replace(load_protocol(f), participants=who, backend="physics"), out)
     assert not out.exists()
     f.write_text("participants: sim:3\nstrategies: [latent-YOLO\nsettings: {}\n")  # not YAML
     with pytest.raises(ProtocolError) as e:

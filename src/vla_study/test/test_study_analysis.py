@@ -103,7 +103,7 @@ def test_the_paths_are_regenerated_from_the_rows_and_their_seeds(tmp_path):
 
     f = tmp_path / "p.yaml"
     f.write_text("participants: sim:2\nstrategies: [latent-YOLO]\nsettings: {base: bread/push_east}\n"
-                 "trials: 1\npractice: {trials: 0, reset_seed: 7}\nbackend: physics\n")
+                 "trials: 1\npractice: {trials: 0, reset_seed: 7}\n")
     p = load_protocol(f)
     plan = trial_plan(p)
     rows = [{"key": t.key, "file": t.file_stem, "participant": t.participant, "layout_seed": t.layout_seed,

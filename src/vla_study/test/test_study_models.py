@@ -5,6 +5,7 @@ only; the oracle runs every model on every study layout."""
 from __future__ import annotations
 
 from collections import Counter
+from pathlib import Path
 
 import pytest
 from vla_study.layouts import development_layouts, trial_layouts
@@ -153,7 +154,7 @@ def test_the_oracle_runs_every_model_on_every_test_layout_or_each_participants_o
 
 def _row(model, seed_index, task, seed, success, strategy="latent-YOLO", setting="base"):
     return {"strategy": strategy, "setting": setting, "model": model, "seed_index": seed_index, "task": task,
-            "layout_seed": seed, "loop": "physics", "layouts": "test", "success": success,
+            "layout_seed": seed, "loop": "graph", "layouts": "test", "success": success,
             "final_state_error": 0.1, "waypoint_error": 0.1, "note": "", "time_to_success_s": None}
 
 
@@ -176,21 +177,26 @@ def test_the_participants_are_shown_beside_the_oracle_on_their_own_layouts_and_m
     assert "| latent-YOLO | base | y1 | 0/4 | 4/4 |" in text
 
 
-def test_the_physics_backend_drives_each_participants_model_and_the_row_names_it(tmp_path):
-    """Two participants, two models listed: sim:1 drives the first, sim:2 the second (a short trial each)."""
-    from vla_study.physics_backend import PhysicsBackend
-    from vla_study.runner import run_study
+def test_the_graph_backend_drives_each_participants_model(tmp_path):
+    """Two participants, two models listed: sim:1's trials set the controller to the first model, sim:2's
+    to the second (the graph backend asks the controller for protocol.model_for's model)."""
+    from vla_study.graph_backend import GraphBackend
+    from vla_study.runner import trial_plan
 
     f = _write(tmp_path, "participants: sim:2\nstrategies: [latent-YOLO]\nsettings: {base: bread/push_east}\n"
-                         "trials: 1\npractice: {trials: 0, reset_seed: 7}\nbackend: physics\ntime_limit: 1\n"
+                         "trials: 1\npractice: {trials: 0, reset_seed: 7}\ntime_limit: 1\n"
                          "models:\n  latent-YOLO: {base: [default, cereal_box_push_south]}\n")
     p = load_protocol(f)
-    backend = PhysicsBackend(p)
-    loaded = []
-    real = backend.model
-    backend.model = lambda name: loaded.append(name) or real(name)
-    store = run_study(p, tmp_path / "study", backend=backend, log=lambda s: None)
-    rows = sorted(store.done.values(), key=lambda r: r["participant"])
-    assert [(r["participant"], r["model"]) for r in rows] == [("sim:1", "default"),
-                                                             ("sim:2", "cereal_box_push_south")]
-    assert loaded == ["default", "cereal_box_push_south"]
+    asked = []
+
+    class Graph:   # the evaluator's side the backend talks to: the controller's mode and model
+        obs = type("Obs", (), {"set_parameters": lambda self, node, values: None})()
+
+        def set_model(self, path):
+            asked.append(Path(path).name)
+
+    backend = object.__new__(GraphBackend)     # its parts, not a launched graph
+    backend.protocol, backend.ev, backend.mode = p, Graph(), None
+    for t in sorted(trial_plan(p), key=lambda t: t.participant):
+        backend._set_strategy(t)
+    assert asked == ["default", "cereal_box_push_south"]

@@ -179,7 +179,7 @@ def test_a_page_that_goes_away_gives_the_questionnaire_back_to_the_terminal(tmp_
 @pytest.mark.ros
 def test_a_graph_backend_gets_the_stations_client_on_its_observers_node_once():
     """The launched graph's backend (GraphBackend: ev.obs.node) and the robot's (RobotBackend, the same);
-    a backend without a ROS node (physics) gets none: the terminal."""
+    a backend without a ROS node gets none: the terminal."""
     from types import SimpleNamespace
 
     from vla_common.ros.testing import RosHarness

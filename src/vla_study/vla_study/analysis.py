@@ -158,7 +158,8 @@ def _header(st: Study) -> list[str]:
                   "of vla_study.participant), not from people: they say what this operator model does with "
                   "each strategy, not what a person would.", ""]
     ways = {"graph": "through the launched graph (the stick published as Joy, a bag per trial)",
-            "physics": "on the physics backend (the graph's computations in one process)"}
+            "physics": "on the physics backend (the graph's computations copied into one process; gone "
+                       "since issue 33: its numbers were not the graph's)"}
     backends = sorted({r.get("backend", "physics") for r in rows})
     lines += ["Trials ran " + " and ".join(ways.get(b, b) for b in backends) + ".", ""]
     rtf = [r["trial_rtf"] for r in rows if r.get("trial_rtf") is not None]

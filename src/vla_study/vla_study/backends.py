@@ -1,8 +1,8 @@
 """The backend table: where a study's trials run, who may drive there, and how to make it.
 
 A backend's module is imported only when it is chosen (the pattern of vla_panda_bridge.backends): the
-graph's needs rclpy and launches processes, the physics one MuJoCo; `--check` and the analysis need
-neither. Each backend follows trial.TrialBackend.
+graph's needs rclpy and launches processes; `--check` and the analysis need none. Each backend follows
+trial.TrialBackend. A backend that is gone (GONE) is refused with why, before anything is made.
 """
 from __future__ import annotations
 
@@ -24,12 +24,6 @@ class Where:
     log: Callable[[str], None]
     experimenter: Experimenter | None = None  # for real participants
     use_sim_time: bool = False  # robot: the attached graph is a simulated one (a rehearsal, a test)
-
-
-def _physics(w: Where) -> TrialBackend:
-    from vla_study.physics_backend import PhysicsBackend  # MuJoCo: only when chosen
-
-    return PhysicsBackend(w.protocol)
 
 
 def _graph(w: Where) -> TrialBackend:
@@ -56,11 +50,25 @@ class BackendRow:
 BACKENDS: dict[str, BackendRow] = {row.name: row for row in (
     BackendRow("graph", "the launched demo graph on the simulated Panda: the participant's stick as Joy, "
                "the scene reset by ~/reset, a bag per trial", True, True, _graph),
-    BackendRow("physics", "the graph's computations in one process (MuJoCo, the bridge's safety filter, the "
-               "controller's stick mapping): fast sweeps, no bags", True, False, _physics),
     BackendRow("robot", "attached to the lab's running robot graph: the experimenter places the object and "
                "scores the trial", False, True, _robot),
 )}
+
+
+# Backends that were and are no more, and why (old protocols and rows name them: they load, they do not run).
+GONE = {"physics": "the in-process physics backend is gone (issue 33): its loop was a copy of the graph's "
+                   "with another safety-layer configuration, the controller's stick mapping mirrored rather "
+                   "than run and no detector in the loop, so it gave other numbers for the same trial; the "
+                   "graph runs in lockstep now, deterministic at any load: use backend: graph "
+                   "(--backend graph)"}
+
+
+def backend_refusal(protocol: Protocol) -> str | None:
+    """Why the protocol's backend cannot run (it is gone), or None."""
+    name = backend_name(protocol)
+    if name not in GONE:
+        return None
+    return f"{protocol.origin.get('backend', protocol.source or 'the protocol')}: {GONE[name]}"
 
 
 def backend_name(protocol: Protocol) -> str:
@@ -69,4 +77,6 @@ def backend_name(protocol: Protocol) -> str:
 
 
 def make_backend(where: Where) -> TrialBackend:
+    if why := backend_refusal(where.protocol):
+        raise SystemExit(f"protocol refused: {why}")
     return BACKENDS[backend_name(where.protocol)].make(where)

@@ -45,8 +45,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--trials", type=int, default=None, help="test trials per task (overrides the file)")
     p.add_argument("--time-limit", type=float, default=None, help="s per trial (overrides the file)")
     p.add_argument("--backend", choices=("graph", "physics"), default=None,
-                   help="graph: the launched graph, the stick as Joy, a bag per trial (the file's default); "
-                        "physics: the same participant in one process (faster, no bags)")
+                   help="graph: the launched graph, the stick as Joy, a bag per trial, simulated "
+                        "participants in lockstep (the file's default; the only one left: physics, the "
+                        "graph's loop copied into one process, is gone and refused with why)")
     p.add_argument("--robot", choices=("sim", "real"), default=None,
                    help="sim: launch the simulated Panda, reset by ~/reset (the file's default); real: "
                         "attach to the robot's graph already running on this ROS_DOMAIN_ID, the experimenter "

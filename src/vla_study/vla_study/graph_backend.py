@@ -19,7 +19,7 @@ as `vla_evaluation evaluate --mode graph` and `demo` do) plus the recorder, and 
   fast as the CPU allows);
 - ends at the participant's "done" or the time limit, releases the stick, lets the arm come to rest
   (0.5 s), closes the bag and, while the recorder closes it, scores the trial with `trial.trial_row`,
-  the physics backend's scorer. Each row carries `wall_phases` (wall s of each step above) and
+  every backend's scorer. Each row carries `wall_phases` (wall s of each step above) and
   `trial_rtf` (simulated over wall s while the participant drove).
 The launch leaves out the shipped sim_teleoperator (the oracle; `GraphConfig.teleoperator`): the
 participant is the only publisher on `joy`, and no idle node follows joint_states or loads each model.
@@ -70,7 +70,7 @@ RECORDER = "recorder"
 # the stick and buttons as the controller is set up for them (grasp: the shipped controller.yaml's)
 AXIS, EE_MODE_BUTTON, GRASP_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 2, 4
 OPEN_WIDTH = 0.07   # m between the fingers that a person sees as open (sim_grasp.hand_seen's)
-SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to settle (as the physics backend)
+SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to settle
 # The camera (sim Hz): a trial needs a frame only to latch the context after the reset (the participant
 # sees the scene's ground truth). A 640x480 frame costs ~17 ms of CPU to render and ~8 ms to detect
 # (measured in-process), so 5 Hz (the evaluation's) spent ~0.12 CPU s per simulated s of the graph's
@@ -355,7 +355,7 @@ class GraphBackend(TrialBackend):
         clock.mark("bag_start")
         scene = GraphScene(mode, spec, start, clock=clock, q_start=q_now)
         if mode == "latent" and (why := ev.latch()):
-            scene.note = f"no context: {why}"  # the controller waits, nothing moves (as the physics backend)
+            scene.note = f"no context: {why}"  # the controller waits, nothing moves
         clock.mark("latch")
         scene.bag_path = self._bag_opened(bag, trial)
         clock.mark("bag_opened")

@@ -9,11 +9,14 @@ The paper's oracle (vla_evaluation.sim_teleoperator: a decoder search towards th
 drives every model the protocol names for a latent strategy and setting (one per training seed where
 it names a list; `--models assigned`: only the model each layout's participant drives) on every layout
 of that setting: the test trials' layouts (`--layouts test`, the participants' own) or the development
-files' (`--layouts development`, for checks before a long run). `--loop physics` (default) judges
-success as the study does; `--loop kinematic` is the paper's loop (fast, deterministic, no object:
-final state error only). Each episode is a unit of a sweep (vla_evaluation.sweep: --serial, a local
-Ray or a cluster); rows go to <out>/oracle.jsonl (resumable; a row is keyed by the model's sealed
-config, so a retrained model is run again). The tables (per strategy, setting and model seed, then
+files' (`--layouts development`, for checks before a long run). `--loop graph` (default) runs the
+oracle in the study's own system, the launched graph in lockstep (deterministic at any load), on the
+very layouts the participants get (the same ~/reset), and judges success as the study does; `--loop
+kinematic` is the paper's loop (fast, deterministic, no object: final state error only). Each
+episode is a unit of a sweep (vla_evaluation.sweep: --serial, a local Ray or a cluster; a graph per
+worker, each on a ROS domain of its own: lockstep keeps their results apart from their load); rows
+go to <out>/oracle.jsonl (resumable; a row is keyed by the model's sealed config, so a retrained
+model is run again). The tables (per strategy, setting and model seed, then
 per task) are printed and written to <out>/oracle.md; with `--study DIR`, the participants' success
 in that study folder beside the oracle's on the same layouts with the same model.
 """
@@ -43,7 +46,7 @@ from vla_study.protocol import (
 )
 from vla_study.runner import trial_plan
 
-LOOPS = ("physics", "kinematic")
+LOOPS = ("graph", "kinematic")
 LABEL = "oracle teleoperator (simulated)"
 
 
@@ -66,7 +69,7 @@ class OracleUnit:
                                          f"{self.model}@{model_seal[:12]}", self.task, self.layout_seed))
 
 
-def oracle_units(p: Protocol, layouts: str = "test", loop: str = "physics", models: str = "all",
+def oracle_units(p: Protocol, layouts: str = "test", loop: str = "graph", models: str = "all",
                  per_task: int | None = None) -> list[OracleUnit]:
     """Every episode of the oracle's table, strategy by strategy and setting by setting."""
     assigned = _assigned(p) if models == "assigned" else {}
@@ -104,41 +107,60 @@ def _first_per_task(layouts: list[tuple[str, int]], n: int | None) -> list[tuple
 
 
 class OracleWorker:
-    """A sweep worker: a simulator, the detector, and the models and layouts it has used (cached)."""
+    """A sweep worker. The graph loop: the launched graph in lockstep, started at its first episode, the
+    model set per episode. The kinematic loop: a simulator and the detector for the layouts, the models
+    and layouts it has used (cached)."""
 
     def __init__(self, state: dict) -> None:
-        from vla_detector.inference import Detector  # MuJoCo, onnxruntime: only in a worker
-        from vla_evaluation.kinematic import TeleopSettings
-        from vla_evaluation.resources import detector_model_path
-        from vla_sim.sim import PandaSim
-
-        self.sim = PandaSim(render=True)
-        self.detector = Detector(detector_model_path())
-        self.settings = TeleopSettings(rate=state["rate"], time_limit=state["time_limit"])
+        self.state = state
+        self.ev = None                                   # the graph, once a graph episode runs
+        self.sim = self.detector = None
         self._models: dict[str, object] = {}
         self._layouts: dict[tuple[str, int], object] = {}
 
     def run(self, unit: OracleUnit) -> dict:
-        from vla_evaluation.resources import latent_model_dir
+        if unit.loop == "graph":
+            return oracle_row(unit, self._graph_episode(unit))
+        return oracle_row(unit, self._kinematic_episode(unit))
+
+    def _graph_episode(self, unit: OracleUnit):
+        from vla_evaluation.graph import GraphConfig, GraphEvaluator  # rclpy, the graph: only in a worker
+        from vla_evaluation.kinematic import TeleopSettings
+        from vla_evaluation.resources import detector_model_path, latent_model_dir
+
+        if self.ev is None:
+            settings = TeleopSettings(rate=100.0, time_limit=self.state["time_limit"])
+            cfg = GraphConfig(model_path=str(latent_model_dir(unit.model)),
+                              detector_model=str(detector_model_path()), lockstep=True,
+                              real_time_factor=0.0, settings=settings)
+            self.ev = GraphEvaluator(cfg, log=lambda s: None)
+            self.ev.start()
+        self.ev.set_model(str(latent_model_dir(unit.model)))
+        return self.ev.run_episode(unit.task, unit.layout_seed, label=unit.model).result
+
+    def _kinematic_episode(self, unit: OracleUnit):
+        from vla_detector.inference import Detector  # MuJoCo, onnxruntime: only in a worker
+        from vla_evaluation.kinematic import TeleopSettings
+        from vla_evaluation.resources import detector_model_path, latent_model_dir
         from vla_latent_controller.model import LatentModel
+        from vla_sim.sim import PandaSim
 
-        from vla_evaluation import kinematic, physics
+        from vla_evaluation import kinematic
 
+        if self.sim is None:
+            self.sim, self.detector = PandaSim(render=True), Detector(detector_model_path())
         if unit.model not in self._models:
             self._models[unit.model] = LatentModel.load(latent_model_dir(unit.model))
         where = (unit.task, unit.layout_seed)
         if where not in self._layouts:
             self._layouts[where] = kinematic.make_layouts([unit.task], [unit.layout_seed], sim=self.sim,
                                                           detector=self.detector)[0]
-        model, layout = self._models[unit.model], self._layouts[where]
-        if unit.loop == "physics":
-            r = physics.run_episode(model, layout, self.settings, self.sim)
-        else:
-            r = kinematic.run_episode(model, layout, self.settings)
-        return oracle_row(unit, r)
+        settings = TeleopSettings(rate=self.state["rate"], time_limit=self.state["time_limit"])
+        return kinematic.run_episode(self._models[unit.model], self._layouts[where], settings)
 
     def close(self) -> None:
-        pass
+        if self.ev is not None:
+            self.ev.close()
 
 
 def oracle_row(unit: OracleUnit, r) -> dict:
@@ -146,7 +168,7 @@ def oracle_row(unit: OracleUnit, r) -> dict:
     return {"strategy": unit.strategy, "setting": unit.setting, "model": unit.model,
             "seed_index": unit.seed_index, "task": unit.task, "layout_seed": unit.layout_seed,
             "loop": unit.loop, "layouts": unit.layouts,
-            "success": bool(r.success) if unit.loop == "physics" else None,
+            "success": bool(r.success) if unit.loop == "graph" else None,
             "time_to_success_s": r.time_to_success, "final_state_error": round(float(r.final_state_error), 4),
             "waypoint_error": r.extra.get("waypoint_error"), "note": r.note, "simulated": True}
 
@@ -164,7 +186,7 @@ def _cell(rows: list[dict]) -> str:
 def oracle_tables(rows: list[dict]) -> str:
     """Markdown: per strategy and setting, each model seed and the seeds together; then per task."""
     loop, layouts = rows[0]["loop"], rows[0]["layouts"]
-    what = ("successes of n (median final state error)" if loop == "physics"
+    what = ("successes of n (median final state error)" if loop == "graph"
             else "median final state error, the paper's metric (no object in this loop)")
     seeds = max(r["seed_index"] for r in rows) + 1
     cols = " | ".join(f"model seed {i}" for i in range(seeds))
@@ -185,9 +207,9 @@ def oracle_tables(rows: list[dict]) -> str:
 
 def beside_participants(rows: list[dict], study_rows: list[dict], p: Protocol) -> str:
     """Markdown: the participants' test trials per strategy, setting and model, and the oracle with the
-    same model on the same layouts (physics rows of the test layouts)."""
+    same model on the same layouts (graph rows of the test layouts)."""
     oracle = {(r["model"], r["task"], r["layout_seed"]): r for r in rows
-              if r["loop"] == "physics" and r["layouts"] == "test"}
+              if r["loop"] == "graph" and r["layouts"] == "test"}
     lines = [f"### Participants (simulated) beside the {LABEL}: the same layouts, the same model", "",
              "| strategy | setting | model | participants' successes | oracle's successes |",
              "|---|---|---|---|---|"]
@@ -228,7 +250,7 @@ def main(argv=None) -> int:
     ap.add_argument("--participants", default=None, help="sim:N (overrides the file)")
     ap.add_argument("--out", type=Path, default=Path("out/study_oracle"))
     ap.add_argument("--layouts", choices=("test", "development"), default="test")
-    ap.add_argument("--loop", choices=LOOPS, default="physics")
+    ap.add_argument("--loop", choices=LOOPS, default="graph")
     ap.add_argument("--models", choices=("all", "assigned"), default="all",
                     help="every model named for a setting on every layout, or each layout's participant's")
     ap.add_argument("--per-task", type=int, default=None, help="at most this many layouts per task")

@@ -6,8 +6,9 @@ population seed), the strategy, task and layout seed, and the operator seed (fro
 made before it was kept). `vla_study --paths --protocol P --out DIR` reruns every trial of DIR's
 trials.jsonl whose .npz is missing, with those seeds, on the protocol's backend (`--backend` to choose
 another), and writes only the .npz: the rows stay as they are. `paths.jsonl` says for each rerun the
-backend and whether its outcome was the row's. The physics backend reproduces a trial exactly; the
-graph, run in real time, reproduces its seeds and not its exact path until it runs in lockstep.
+backend and whether its outcome was the row's. The graph in lockstep (simulated participants, since
+issue 33) reproduces a trial of the same code exactly; a row of the real-time graph, or of the physics
+backend (gone), only by its seeds: its outcome may differ.
 Real participants' trials cannot be rerun: they are skipped.
 """
 from __future__ import annotations

@@ -32,7 +32,8 @@ Strategy = Literal["latent-YOLO", "latent-localization", "end-effector", "hybrid
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 EeAxis = Literal["x", "y", "z", "roll", "pitch", "yaw"]
 # graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
-# physics: the same participant and scoring with the graph's computations in one process (fast sweeps)
+# physics: the graph's loop copied into one process; gone (issue 33). Old protocols that name it still
+# load (their rows are records); the runner refuses to run it (vla_study.backends.GONE says why)
 Backend = Literal["graph", "physics"]
 # sim: the runner launches the simulated Panda and resets its scene by ~/reset; real: it attaches to the
 # graph the lab started (the robot's launch) and the experimenter places the object and scores the trial

@@ -137,7 +137,7 @@ _askers: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 def station_for(backend, log: Callable[[str], None] = print) -> StationAsker | None:
     """The station's asker for this backend: its own `questionnaire` when it has one (a test's, another
     front end's), else the action's client on its observer's node (the launched graph, or a robot's
-    graph the study attaches to); None without a ROS node (the physics backend: the terminal)."""
+    graph the study attaches to); None without a ROS node (a backend without one: the terminal)."""
     own = getattr(backend, "questionnaire", None)
     if own is not None:
         return own

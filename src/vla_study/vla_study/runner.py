@@ -9,8 +9,8 @@ write) is set aside in `trials.jsonl.partial`, never deleted. An output director
 protocol is refused.
 
 Where trials run is the backend table's (backends.py): the launched graph (the default, and what CI's
-reduced study runs; real participants drive it too, the experimenter at the terminal), the physics
-backend (the same participant in one process: sweeps, not the study's record), or the lab's robot.
+reduced study runs; simulated participants in lockstep, deterministic at any load; real participants
+drive it too, in real time, the experimenter at the terminal), or the lab's robot.
 Every backend runs the same trial skeleton and scorer (trial.py).
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 from vla_evaluation.sweep import Engine
 
-from vla_study.backends import BACKENDS, Where, backend_name, make_backend
+from vla_study.backends import BACKENDS, Where, backend_name, backend_refusal, make_backend
 from vla_study.participant import HumanParams, Lesson, population
 from vla_study.person import Experimenter, TerminalExperimenter
 from vla_study.protocol import STRATEGIES, Protocol, latin_square, load_protocol, model_for, robot_refusal
@@ -195,7 +195,7 @@ def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None
     (`experimenter`: another front end, or a test's). `use_sim_time`: with `robot: real`, the attached
     graph is a simulated one (a rehearsal or a test). `engine`: simulated participants' trials as units
     of a sweep on Ray (vla_study.on_ray; None or serial: here, one after another)."""
-    if why := robot_refusal(protocol):  # before anything is made or run
+    if why := backend_refusal(protocol) or robot_refusal(protocol):  # before anything is made or run
         raise SystemExit(f"protocol refused: {why}")
     if why := reused_seeds(protocol):
         raise SystemExit("protocol refused: " + "\n".join(why))

@@ -3,7 +3,7 @@
     python -m vla_study.sensitivity --out out/study_sensitivity [--delays 0.1,0.3,0.5] [--noise 0.05,0.3]
         [--policy "commit_s=0.3,1.0;gain=0.6,1.4;reverse_margin=1,4;stall_turn=2,8;reach_tol=0.02,0.08"]
 One participant, the population's mean parameters (HumanParams()), on the same seeded layouts in every
-cell (physics backend):
+cell (the graph, in lockstep):
 - the person's limits: reaction delay × stick noise, as a grid;
 - the person's decision policy, one parameter at a time (the rest at the mean): how long a direction is
   held before it is judged (`commit_s`), how boldly the stick is pushed (`gain`), how much worse the task
@@ -20,7 +20,6 @@ import json
 from pathlib import Path
 
 from vla_study.participant import HumanParams
-from vla_study.physics_backend import PhysicsBackend
 from vla_study.protocol import Protocol
 from vla_study.trial import Trial, hash_seed
 
@@ -54,7 +53,7 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     a.out.mkdir(parents=True, exist_ok=True)
     rows_path = a.out / "sensitivity.jsonl"
-    run_cells(rows_path, cells(a.delays, a.noise, a.policy), a.tasks.split(","), a.layouts)
+    run_cells(rows_path, cells(a.delays, a.noise, a.policy), a.tasks.split(","), a.layouts, a.out)
     if rows_path.exists():
         rows = [json.loads(x) for x in rows_path.read_text().splitlines() if x.strip()]
         text = "\n".join(["# Sensitivity — **simulated participant** (HumanParams() with one thing varied; "
@@ -65,28 +64,43 @@ def main(argv=None) -> int:
     return 0
 
 
-def run_cells(rows_path: Path, todo: list[tuple[str, str, dict]], tasks: list[str], layouts: int) -> None:
-    """Each cell's trials not yet in `rows_path`, appended as they end (a simulator only if one runs)."""
+def run_cells(rows_path: Path, todo: list[tuple[str, str, dict]], tasks: list[str], layouts: int,
+              out: Path | None = None) -> None:
+    """Each cell's trials not yet in `rows_path`, appended as they end (the graph is launched only if a
+    trial runs, its logs and bags under `out`, else beside `rows_path`)."""
     proto = Protocol("sensitivity", ["sim:1"], 0, ["latent-YOLO", "end-effector"], {}, 1, 0, 7, "none", 30.0,
                      20.0, models={"latent-YOLO": {"base": "default", "Seen": "cereal_box_push_south"}})
     done = {json.loads(x)["key"] for x in rows_path.read_text().splitlines() if x.strip()} \
         if rows_path.exists() else set()
-    backend = None
-    for part, varied, overrides in todo:
-        params = dataclasses.replace(HumanParams(), **overrides)
-        for strategy, task, j in ((s, t, j) for s in proto.strategies for t in tasks for j in range(layouts)):
-            key = f"{strategy}|{task}|{part}|{j}"
-            if key in done:
-                continue
-            trial = Trial("sim:1", strategy, SETTING.get(task, "base"), task, j, "test", LAYOUT_SEEDS + j, 0)
-            backend = backend or PhysicsBackend(proto)
-            row, _ = backend.run(trial, params, hash_seed(key))
-            row.update({"key": key, "strategy": strategy, "task": task, "layout": j, "varied": varied,
-                        "reaction_s": params.reaction_s, "motor_k": params.motor_k,
-                        "value": overrides.get(varied)})
-            with open(rows_path, "a") as f:
-                f.write(json.dumps(row, sort_keys=True) + "\n")
-            print(f"[sensitivity] {key}: success {row['success']}", flush=True)
+    made: list = []   # the graph, once a trial needs it
+
+    def backend():
+        if not made:
+            from vla_study.graph_backend import GraphBackend  # rclpy and the graph: only when a trial runs
+
+            made.append(GraphBackend(proto, out or rows_path.parent, log=lambda s: print(s, flush=True)))
+        return made[0]
+
+    try:
+        for part, varied, overrides in todo:
+            params = dataclasses.replace(HumanParams(), **overrides)
+            for strategy, task, j in ((s, t, j) for s in proto.strategies for t in tasks
+                                      for j in range(layouts)):
+                key = f"{strategy}|{task}|{part}|{j}"
+                if key in done:
+                    continue
+                trial = Trial("sim:1", strategy, SETTING.get(task, "base"), task, j, "test",
+                              LAYOUT_SEEDS + j, 0)
+                row, _ = backend().run(trial, params, hash_seed(key))
+                row.update({"key": key, "strategy": strategy, "task": task, "layout": j, "varied": varied,
+                            "reaction_s": params.reaction_s, "motor_k": params.motor_k,
+                            "value": overrides.get(varied)})
+                with open(rows_path, "a") as f:
+                    f.write(json.dumps(row, sort_keys=True) + "\n")
+                print(f"[sensitivity] {key}: success {row['success']}", flush=True)
+    finally:
+        if made:
+            made[0].close()
 
 
 def _tally(rows, strategies, pick) -> list[str]:

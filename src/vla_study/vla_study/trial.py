@@ -4,7 +4,7 @@ A trial is: the strategy set and the object at its start (`prepare`), a particip
 (`participant`: the simulated operator from its parameters, or the tally of a person's inputs), the
 participant driving until it is done or the time limit, then the arm at rest (`drive`), and one row
 scored from what was measured (`trial_row`). `TrialBackend.run` is that sequence; a backend
-(physics_backend, graph_backend, robot_backend; chosen by the table in backends.py) supplies the steps.
+(graph_backend, robot_backend; chosen by the table in backends.py) supplies the steps.
 Nothing here imports a backend: the backends import this module.
 """
 from __future__ import annotations

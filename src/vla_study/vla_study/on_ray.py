@@ -4,7 +4,7 @@ cluster.
 A unit is one participant's trials of one strategy in one setting, in session order: the practice
 trial teaches the participant (a Lesson) what their test trials of that setting use, so those trials
 run one after another on one worker; different units share nothing. A worker makes its backend once
-(the launched graph on a ROS domain of its own, or the physics backend) and runs the units it gets;
+(the launched graph on a ROS domain of its own, in lockstep) and runs the units it gets;
 the lessons already recorded (a resumed study) go with the unit. The trials' rows and arrays come back
 to the driver, which alone writes them (`StudyStore.record`), as the serial runner does. Real
 participants never run here: they drive at the experimenter's terminal (runner.run_study).

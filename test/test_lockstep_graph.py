@@ -6,13 +6,11 @@ this test starts. Every row, the TCP path and the teleoperator's trace of every 
 identical, apart from the fields that name wall time. (Before lockstep the graph ran in real time at
 whatever pace the CPU gave it, and 13 of 56 outcomes flipped between two runs of one condition.)
 """
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from busy_loops import BusyLoops
 
 pytestmark = [pytest.mark.slow, pytest.mark.ros]
 WALL_FIELDS = {"wall_s"}     # EpisodeResult.extra: how long the episode took on the wall clock
@@ -37,20 +35,6 @@ def _rows(records) -> list[dict]:
         row = rec.result.row()
         rows.append({k: v for k, v in row.items() if k.removeprefix("x_") not in WALL_FIELDS})
     return rows
-
-
-class BusyLoops:
-    """Two processes that spin a core each, for as long as the block runs."""
-
-    def __enter__(self):
-        env = dict(os.environ, PYTHONDONTWRITEBYTECODE="1")
-        self.procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"], env=env) for _ in range(2)]
-        return self
-
-    def __exit__(self, *exc):
-        for p in self.procs:
-            p.kill()
-            p.wait()
 
 
 @pytest.mark.timeout(1200)

@@ -290,6 +290,18 @@ def test_end_effector_mode_cycles_only_the_given_axes():
         core.ee.set_axes(["x", "x"])
 
 
+def test_a_mode_set_starts_the_end_effector_baseline_at_its_first_axis():
+    """Issue 33/35: a study trial sets the mode; the axis the last trial left must not carry over (a
+    sweep's worker runs whichever trials it gets, so the trial's row would depend on them)."""
+    core = make_core(None, mode="end_effector", ee_mode_button=0, max_joint_speed=100.0)
+    core.on_joy([0.55, 0.0], [1, 0, 0], 0.01)  # press: y
+    core.on_joy([0.55, 0.0], [0, 0, 0], 0.05)
+    assert core.ee.axis == "y"
+    assert core.set_mode("end_effector")[0] and core.ee.axis == "x"
+    core.on_joy([0.55, 0.0], [1, 0, 0], 0.06)  # at once: no debounce left from the last trial
+    assert core.ee.axis == "y"
+
+
 def test_status_codes_match_message_constants():
     for c in Code:
         assert getattr(ControllerStatus, c.name) == c.value

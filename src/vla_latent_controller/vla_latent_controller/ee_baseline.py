@@ -71,6 +71,10 @@ class EndEffectorBaseline:
     def select(self, axis: str) -> None:
         self.index = self.axes.index(axis)
 
+    def restart(self) -> None:
+        """The first axis, no switch pending: what a newly chosen mode starts with (a trial's start)."""
+        self.index, self._last_switch = 0, -np.inf
+
     def set_axes(self, axes: Sequence[str]) -> None:
         """Cycle these axes from now on; the selected one stays if it is among them, else the first."""
         axis, self.axes = self.axis, check_axes(axes)

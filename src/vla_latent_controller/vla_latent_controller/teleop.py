@@ -271,6 +271,7 @@ class TeleopCore:
         if mode not in MODES:
             return False, f"unknown mode {mode!r}; expected one of {MODES}"
         self.mode = mode
+        self.ee.restart()   # a mode set (again) starts at the first axis, whatever the last trial left
         return True, f"mode {mode}"
 
     def request_redetect(self, now: float) -> None:

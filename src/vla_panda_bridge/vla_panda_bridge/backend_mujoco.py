@@ -337,7 +337,7 @@ class MujocoBackend(BackendBase):
             self.publish_scene()
         if every["frame"] and n % every["frame"] == 0:
             self._request_frame()
-        if every["status"] and self._lockstep.barrier.step % every["status"] == 0:
+        if every["status"] and n % every["status"] == 0:
             self._host.publish_periodic()
 
     def _reflex(self, text: str) -> None:

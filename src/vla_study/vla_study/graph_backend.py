@@ -71,6 +71,9 @@ RECORDER = "recorder"
 AXIS, EE_MODE_BUTTON, GRASP_BUTTON, NUM_AXES, NUM_BUTTONS = 0, 0, 2, 2, 4
 OPEN_WIDTH = 0.07   # m between the fingers that a person sees as open (sim_grasp.hand_seen's)
 SETTLE_S = 0.5  # sim s after the trial for the arm to rest and the object to settle
+# Wall s the recorder's clock may take to pass a trial's reset or end: only against a hang (the recorder
+# is no lockstep participant; at load 100 it fell 30 s behind a held simulation)
+RECORDER_WAIT_S = 120.0
 # The camera (sim Hz): a trial needs a frame only to latch the context after the reset (the participant
 # sees the scene's ground truth). A 640x480 frame costs ~17 ms of CPU to render and ~8 ms to detect
 # (measured in-process), so 5 Hz (the evaluation's) spent ~0.12 CPU s per simulated s of the graph's
@@ -334,9 +337,10 @@ class GraphBackend(TrialBackend):
 
     def _set_strategy(self, trial: Trial) -> str:
         mode = strategy_mode(trial.strategy)
-        if mode != self.mode:
-            self.ev.obs.set_parameters(CONTROLLER, {"mode": mode})
-            self.mode = mode
+        # every trial, the same mode too: the end-effector baseline starts at its first axis, so a
+        # trial does not depend on the trials its graph ran before (a sweep's worker runs any of them)
+        self.ev.obs.set_parameters(CONTROLLER, {"mode": mode})
+        self.mode = mode
         if mode == "latent":
             self.ev.set_model(str(latent_model_dir(model_for(self.protocol, trial))))
         return mode

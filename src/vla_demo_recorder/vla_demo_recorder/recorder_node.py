@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Callable
 
+from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import (
     DurabilityPolicy,
@@ -35,8 +36,9 @@ from vla_common.ros.node_main import ConfigError, run_node
 from vla_common.ros.parameters import Param, ParameterTable
 
 from vla_demo_recorder.bag_writer import make_qos, normalize_type
+from vla_demo_recorder.lockstep import StampWindow, has_header, header_stamp_ns
 from vla_demo_recorder.recorder import Recorder, RecorderError, validate_task
-from vla_interfaces.msg import RecorderStatus
+from vla_interfaces.msg import RecorderStatus, StepAnswer
 from vla_interfaces.srv import StartEpisode
 
 # controller_node/status: what the controller did with the stick, the assistance's goal and pull among it
@@ -82,7 +84,11 @@ PARAMETERS = ParameterTable([
           range=(-1, 127), dynamic=True),
     Param("button_debounce_s", 0.5, "ignore repeated presses within this time", range=(0.0, 5.0),
           dynamic=True),
+    Param("lockstep", False, "a participant of the simulated Panda's lockstep (vla_evaluation generate): "
+          "answer every joint state once handled (lockstep/answer), and leave out a message stamped at or "
+          "before the episode's start: an episode then holds the same steps at any load"),
 ])
+LOCKSTEP_QOS = QoSProfile(depth=100)  # reliable: in lockstep a lost answer is a hang
 # They shape an episode's bag: a change while recording is refused.
 BETWEEN_EPISODES = ("output_dir", "flush_period_s", "fsync")
 
@@ -114,6 +120,12 @@ class RecorderNode(Node):
         except RecorderError as err:
             raise ConfigError(f"parameter 'joy_task': {err}") from err
         self.topics = list(p["topics"])
+        self.lockstep, self.window = p["lockstep"], StampWindow()
+        if self.lockstep and self._resolved("joint_states") not in {self._resolved(t) for t in self.topics}:
+            raise ConfigError("parameter 'lockstep': the recorder answers the joint states it records; "
+                              "'topics' must hold joint_states")
+        self.answer_pub = (self.create_publisher(StepAnswer, "lockstep/answer", LOCKSTEP_QOS)
+                           if self.lockstep else None)
         self.image_every_n = p["image_every_n"]
         self.qos_depth = p["qos_depth"]
         self.joy_topic = p["joy_topic"]
@@ -139,7 +151,10 @@ class RecorderNode(Node):
         self.status_pub = self.create_publisher(RecorderStatus, "~/status", 10)
         self.diagnostics = Diagnostics(self)
         self.create_subscription(Joy, self.joy_topic, self._on_joy, qos_profile_sensor_data)
-        self._poll_timer = self.create_timer(poll, self._poll_topics)
+        # discovery is a wall-clock matter: on /clock a held simulation (lockstep) would never let the
+        # recorder find joint_states, whose first state it must answer
+        steady = Clock(clock_type=ClockType.STEADY_TIME)
+        self._poll_timer = self.create_timer(poll, self._poll_topics, clock=steady)
         self._status_timer = self.create_timer(status_period, self._publish_status)
         self._apply = self._appliers()
         self._poll_topics()
@@ -243,17 +258,21 @@ class RecorderNode(Node):
                     self._warned.add(topic)
                     self.get_logger().warning(f"cannot record {topic}: type {msgtype} not importable ({err})")
                 continue
-            sub = self.create_subscription(cls, topic, self._make_callback(topic, msgtype), qos, raw=True)
+            callback = self._make_callback(topic, msgtype, stamped=self.lockstep and has_header(cls),
+                                           answers=self.lockstep and topic == self._resolved("joint_states"))
+            sub = self.create_subscription(cls, topic, callback, qos, raw=True)
             self._subs[topic] = (msgtype, offered, sub)
             self.get_logger().info(f"subscribed to {topic} [{msgtype}], "
                                    f"{qos.reliability.name.lower()}, depth {qos.depth}")
 
-    def _make_callback(self, topic: str, msgtype: str):
+    def _make_callback(self, topic: str, msgtype: str, stamped: bool = False, answers: bool = False):
+        """The topic's raw callback. Lockstep: a `stamped` message is kept only when stamped after the
+        episode's start; the joint states (`answers`) are answered once recorded."""
         is_image = msgtype in IMAGE_TYPES
         clock = self.get_clock()
 
-        def callback(data: bytes) -> None:
-            if not self.recorder.recording:
+        def record(data: bytes) -> None:
+            if not self.recorder.recording or (stamped and not self.window.keeps(data)):
                 return
             if is_image:
                 n = self._image_counts.get(topic, 0)
@@ -261,14 +280,28 @@ class RecorderNode(Node):
                 if n % self.image_every_n:
                     return
             self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data)
+
+        def callback(data: bytes) -> None:
+            record(data)
+            if answers:
+                self._answer(header_stamp_ns(data))
         return callback
+
+    def _answer(self, stamp_ns: int) -> None:
+        """Lockstep: the joint state stamped `stamp_ns` is handled (recorded while an episode is open)."""
+        msg = StepAnswer(node=self.get_name())
+        msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp_ns, 1_000_000_000)
+        self.answer_pub.publish(msg)
 
     # -- episodes ------------------------------------------------------------------------------
     def start_episode(self, task: str, note: str = "") -> tuple[bool, str, str]:
         topics = {t: (mt, offered) for t, (mt, offered, _s) in self._subs.items()}
         self._image_counts.clear()
         try:
-            path = self.recorder.start(task, note, topics, start_time_ns=self.get_clock().now().nanoseconds)
+            start_ns = self.get_clock().now().nanoseconds
+            if self.lockstep:
+                self.window.open(start_ns)
+            path = self.recorder.start(task, note, topics, start_time_ns=start_ns)
         except RecorderError as err:
             self.get_logger().error(f"start_episode: {err}")
             return False, str(err), ""

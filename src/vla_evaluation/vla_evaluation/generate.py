@@ -12,7 +12,11 @@ frame and detection before the arm moves. Success is judged on the ground-truth 
 (`vla_common.tasks.task_success`); failed episodes are marked `discarded`.
 
 Only the demonstrator runs in this process (all nodes on simulated time); everything between it and
-the graph goes through ROS topics and services.
+the graph goes through ROS topics and services. In lockstep (the default; `--free-running` for the
+real-time graph) the bridge waits every joint state for the demonstrator's answer (its command, in a
+vla_interfaces/StepAnswer), the demonstrator holds the simulation at its plan's end, and the steps
+between the reset, the recording's start, its first frame, the plan and the recorded tail are fixed
+counts (vla_evaluation.lockstep_client): the same seeds give the same demonstrations at any load.
 """
 
 from __future__ import annotations
@@ -20,12 +24,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import shutil
 import signal
 import threading
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -34,21 +39,24 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.qos import qos_profile_sensor_data as sensor
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import CameraInfo, JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 from vla_common.catalogue import Catalogue, TaskSpec, load_catalogue
 from vla_common.kinematics import PandaKinematics
 from vla_common.objects import ObjectPose
 from vla_common.robot import JOINT_NAMES
-from vla_common.ros.convert import reset_request
+from vla_common.ros.convert import ns_from_stamp, reset_request
 from vla_common.ros.domain import graph_on_domain
 from vla_common.tasks import SPREAD_MARGIN, check_spread_margin, task_layout, task_success
 from vla_demo_recorder.dataset import DemoError, load_demo
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
 from vla_evaluation.graph_runner import GraphRunner
-from vla_interfaces.msg import DetectionArray, RecorderStatus, SafetyStatus, SceneObjectArray
+from vla_evaluation.lockstep_client import LockstepClient
+from vla_evaluation.sweep import SERIAL, Engine, engine_from, run_sweep
+from vla_evaluation.sweep import add_arguments as add_engine_arguments
+from vla_interfaces.msg import DetectionArray, RecorderStatus, SafetyStatus, SceneObjectArray, StepAnswer
 from vla_interfaces.srv import GripperCommand, ResetScene, StartEpisode
 
 BRIDGE = "panda_bridge"
@@ -56,6 +64,8 @@ RECORDER = "recorder"
 LAUNCH_FILE = ("vla_bringup", "record.launch.yaml")
 RECORD_TAIL_S = 0.2  # s of simulated time recorded past the end of the plan and its settling
 RECORDER_STATUS_PERIOD_S = 0.05  # the recorder's ~/status (its clock) while generating
+STARTUP_S = 0.6  # lockstep: sim s run once at startup (every node's status, the recorder's at 0.5 s)
+RESET_SETTLE_S = 0.2  # sim s after a reset before the scene is read (the arm and objects at rest)
 # The plan's own clock runs at simulated time while the arm follows it (largest joint error under
 # the first value, rad), slows down beyond and stops at the second, so that a demonstrator that falls
 # behind (a loaded machine: late commands, the bridge's watchdog stopping the arm) neither closes the
@@ -79,6 +89,9 @@ def plan_pace(lag: float) -> float:
     return min(1.0, max(0.0, (hi - lag) / (hi - lo)))
 
 
+WORKER_FAILED = "the episode's worker failed (a graph that did not start?); see the log above"
+
+
 class GenerateError(RuntimeError):
     """The graph could not be started or an episode could not run; the message says why."""
 
@@ -89,7 +102,8 @@ class GenerateConfig:
     episodes: int = 10  # per task
     out: Path = Path("demos")
     seed: int = 0
-    real_time_factor: float = 1.0  # simulation speed; 0 = as fast as possible
+    real_time_factor: float = 0.0  # simulation speed at most; 0 = as fast as possible
+    lockstep: bool = True  # the bridge waits for the demonstrator every joint state (the same at any load)
     # joint_states (Hz of sim time): 5x the demonstrations' 10 Hz.
     state_rate: float = 50.0
     camera_rate: float = 5.0
@@ -111,6 +125,7 @@ class GenerateConfig:
         """record.launch.yaml's arguments."""
         return {"catalogue": str(Path(self.catalogue).absolute()) if self.catalogue else "",
                 "use_sim_time": True, "real_time_factor": float(self.real_time_factor),
+                "lockstep": bool(self.lockstep),
                 "state_rate": float(self.state_rate), "camera_rate": float(self.camera_rate),
                 "image_every_n": int(self.image_every_n), "output_dir": str(Path(self.out).absolute()),
                 "detector_model": str(self.detector_model or "")}
@@ -154,7 +169,9 @@ class Demonstrator:
     """The demonstrator's ROS side: joint state in, velocity command out; the scene's ground truth,
     the detections and the recorder's status as they arrive; clients of the bridge and the recorder."""
 
-    def __init__(self, context) -> None:
+    def __init__(self, context, lockstep: bool = False) -> None:
+        """`lockstep`: answer every joint state (the bridge's lockstep) with the command in a StepAnswer,
+        keep every message (reliable), and hold the simulation at a plan's end."""
         self.node = Node("demonstrator", context=context,
                          parameter_overrides=[Parameter("use_sim_time", Parameter.Type.BOOL, True)])
         n = self.node
@@ -164,11 +181,16 @@ class Demonstrator:
         self.objects: dict[str, ObjectPose] = {}
         self.objects_stamp = -math.inf
         self.detections_stamp = -math.inf
+        # Lockstep, while recording: a state is answered only once the frames before it are detected, so
+        # the detector never skips one (its queue keeps the newest) and the bag holds every frame's.
+        self.frame_stamp = -math.inf       # the last camera frame's (its camera_info's) stamp
+        self.await_frames = False
+        self.pending: StepAnswer | None = None   # an answer held until the frames' detections are in
         self.recorder: RecorderStatus | None = None
         self.recorder_stamp = -math.inf  # the recorder's clock, from its ~/status
         self.plan = None
         self.plan_t0: float | None = None
-        self.plan_wall = 0.0               # stamp of the last joint state the plan's clock advanced on
+        self.plan_wall = 0                 # stamp (ns) of the last joint state the plan's clock advanced on
         self.plan_clock = 0.0              # the plan's own time (s), see _advance_plan_clock
         self.pace = 1.0
         self.plan_failure = ""             # why the running plan was abandoned (a reflex)
@@ -184,10 +206,16 @@ class Demonstrator:
         self.send_zero = True
         self.cmd_pub = n.create_publisher(Float64MultiArray, "joint_velocity_cmd",
                                           QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
-        n.create_subscription(JointState, "joint_states", self._on_joints, sensor)
-        n.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, sensor)
-        n.create_subscription(DetectionArray, "detections", self._on_detections, sensor)
-        n.create_subscription(RecorderStatus, f"{RECORDER}/status", self._on_recorder, sensor)
+        qos = 1000 if lockstep else sensor       # lockstep: every message (reliable), a lost one a hang
+        self.answer_pub = n.create_publisher(StepAnswer, "lockstep/answer", 100) if lockstep else None
+        self.steps = LockstepClient(n, self.cond, lambda: self.q_stamp, GenerateError) if lockstep else None
+        self.reset_stamp = math.nan       # lockstep: the simulated time (s) of the last reset
+        n.create_subscription(JointState, "joint_states", self._on_joints, qos)
+        n.create_subscription(SceneObjectArray, "scene/objects", self._on_objects, qos)
+        n.create_subscription(DetectionArray, "detections", self._on_detections, qos)
+        if lockstep:
+            n.create_subscription(CameraInfo, "camera/camera_info", self._on_frame, qos)
+        n.create_subscription(RecorderStatus, f"{RECORDER}/status", self._on_recorder, qos)
         n.create_subscription(SafetyStatus, f"{BRIDGE}/status", self._on_safety, 10)
         self.reset_cli = n.create_client(ResetScene, f"{BRIDGE}/reset")
         self.start_cli = n.create_client(StartEpisode, f"{RECORDER}/start_episode")
@@ -202,36 +230,77 @@ class Demonstrator:
             q = np.array([msg.position[names.index(j)] for j in JOINT_NAMES])
         except (ValueError, IndexError):
             return
-        t = _stamp(msg)
+        t, t_ns = _stamp(msg), ns_from_stamp(msg.header.stamp)
         with self.cond:
             self.q, self.q_stamp = q, t
             self.cond.notify_all()
         plan = self.plan
         if plan is None:
+            self._answer(msg, [])        # lockstep: no plan, no command (the bridge's watchdog holds)
             return
         if self.plan_t0 is None:
-            self.plan_t0 = self.plan_wall = t
-        elapsed = self.plan_clock = self._advance_plan_clock(plan, t, q)
+            self.plan_t0, self.plan_wall = t, t_ns
+        elapsed = self.plan_clock = self._advance_plan_clock(plan, t_ns, q)
         dq = plan.command(elapsed, q, self.pace) if elapsed <= plan.duration else np.zeros(7)
         if self.send_zero:
             self.send_zero, dq = False, np.zeros(7)
-        self.cmd_pub.publish(Float64MultiArray(data=[float(v) for v in dq]))
+        self._hand_events(plan, elapsed)
+        self.commands += 1
+        if elapsed >= self.plan_end:
+            self.plan = None
+            if self.steps is not None:   # the simulation holds right here, the plan done
+                self.steps.hold_after(ns_from_stamp(msg.header.stamp), 0)
+            self.plan_done.set()
+        if self.answer_pub is None:
+            self.cmd_pub.publish(Float64MultiArray(data=[float(v) for v in dq]))
+        else:
+            self._answer(msg, [float(v) for v in dq])
+
+    def _answer(self, msg, command: list[float]) -> None:
+        """Lockstep: this joint state's answer (after everything the step sent), held while recording
+        until the detections of the frames published before it are in."""
+        if self.answer_pub is None:
+            return
+        answer = StepAnswer(header=msg.header, node="demonstrator", command=command)
+        with self.cond:
+            if self.await_frames and self.frame_stamp > self.detections_stamp:
+                self.pending, answer = answer, None
+        if answer is not None:
+            self.answer_pub.publish(answer)
+
+    def await_detections(self, on: bool) -> None:
+        """Lockstep: hold answers for the frames' detections (while recording) or not (a held answer
+        goes out)."""
+        with self.cond:
+            self.await_frames = on
+        if not on:
+            self._release()
+
+    def _release(self) -> None:
+        with self.cond:
+            answer, self.pending = self.pending, None
+        if answer is not None:
+            self.answer_pub.publish(answer)
+
+    def _on_frame(self, msg) -> None:
+        with self.cond:
+            self.frame_stamp = max(self.frame_stamp, _stamp(msg))
+
+    def _hand_events(self, plan, elapsed: float) -> None:
+        """The plan's hand events due at its time `elapsed` (the bridge's gripper service)."""
         events = plan.hand_events
         while self.hand_sent < len(events) and events[self.hand_sent][0] <= elapsed:
             future = self.gripper_cli.call_async(HAND_REQUESTS[events[self.hand_sent][1]])
             future.add_done_callback(self._on_hand_reply)
             self.hand_sent += 1
-        self.commands += 1
-        if elapsed >= self.plan_end:
-            self.plan = None
-            self.plan_done.set()
 
-    def _advance_plan_clock(self, plan, t: float, q: np.ndarray) -> float:
-        """The plan's time at this joint state (stamp t): advanced by the simulated time since the last
+    def _advance_plan_clock(self, plan, t_ns: int, q: np.ndarray) -> float:
+        """The plan's time at this joint state (stamp t_ns): advanced by the simulated time since the last
         state at `pace` (1 while the arm follows the reference, down to 0 as it lags, PLAN_LAG; 0
-        while the bridge waits for a zero command); at the simulated time's rate past the plan's end."""
-        dt = max(0.0, t - self.plan_wall)
-        self.plan_wall = t
+        while the bridge waits for a zero command); at the simulated time's rate past the plan's end.
+        The step from integer stamps: the same plan whatever simulated time the episode starts at."""
+        dt = max(0, t_ns - self.plan_wall) * 1e-9
+        self.plan_wall = t_ns
         if self.plan_clock >= plan.duration:
             self.pace = 1.0
         else:
@@ -262,7 +331,10 @@ class Demonstrator:
     def _on_detections(self, msg) -> None:
         with self.cond:
             self.detections_stamp = max(self.detections_stamp, _stamp(msg))
+            ready = self.detections_stamp >= self.frame_stamp
             self.cond.notify_all()
+        if ready:
+            self._release()
 
     def _on_recorder(self, msg) -> None:
         with self.cond:
@@ -301,13 +373,28 @@ class Demonstrator:
         self.send_zero = True
         self.plan_failure = ""
         self.plan = plan
-        if not self.plan_done.wait(timeout):
+        if self.steps is not None:
+            self._run_plan_lockstep(plan, settle)
+        elif not self.plan_done.wait(timeout):
             self.plan = None
             self.zero()
             raise GenerateError(f"plan of {plan.duration:.1f} s did not finish within {timeout:.0f} s wall")
         if self.plan_failure:
             self.zero()
             raise GenerateError(self.plan_failure)
+
+    def _run_plan_lockstep(self, plan, settle: float) -> None:
+        """Lockstep: run until the plan is done (it holds the simulation at its end), in counts of its
+        duration: the plan's clock slows where the arm lags, so at most 3 times as long in all."""
+        per_s = round(1.0 / self.steps.unit)
+        chunk = round((plan.duration + settle) * per_s) + 1
+        for _ in range(3):
+            self.steps.run(chunk, f"the plan of {plan.duration:.1f} s")
+            if self.plan_done.is_set():
+                return
+        self.plan = None
+        raise GenerateError(f"plan of {plan.duration:.1f} s did not finish in {3 * chunk / per_s:.1f} s of "
+                            "simulated time")
 
     def zero(self) -> None:
         self.cmd_pub.publish(Float64MultiArray(data=[0.0] * 7))
@@ -331,12 +418,30 @@ class _Graph:
         self.demo: Demonstrator | None = None
         self.progress = progress
         self.timeout = cfg.startup_timeout
+        self.cfg = cfg
 
     def start(self) -> Demonstrator:
         self.progress(f"ROS domain {self.domain}; vla launch {' '.join(LAUNCH_FILE)}")
-        self.demo = self.runner.start(Demonstrator)
+        self.demo = self.runner.start(lambda ctx: Demonstrator(ctx, self.cfg.lockstep))
+        if self.demo.steps is not None:
+            st = self.demo.steps
+            st.alive, st.unit = self.alive, 1.0 / self.cfg.state_rate
+            st.real_time_factor = self.cfg.real_time_factor
+            self._start_lockstep()
         self._wait_ready()
         return self.demo
+
+    def _start_lockstep(self) -> None:
+        """Once the recorder subscribes (it has discovered the graph), a fixed STARTUP_S of steps: every
+        node's status is out, nothing has moved."""
+        deadline = time.monotonic() + self.timeout
+        while not {"/joint_states", "/camera/image_raw"} <= self._recorded_topics():
+            self.alive()
+            if time.monotonic() > deadline:
+                raise GenerateError(f"the recorder did not subscribe within {self.timeout:.0f} s; last "
+                                    f"output:\n{self.runner.tail()}")
+            time.sleep(0.1)   # polling the graph's discovery, bounded by the deadline
+        self.demo.steps.run(round(STARTUP_S * self.cfg.state_rate), "the graph's first steps")
 
     def alive(self) -> None:
         self.runner.alive()
@@ -367,39 +472,92 @@ class _Graph:
         self.runner.close(self.progress)
 
 
-def run_generation(cfg: GenerateConfig, progress=print) -> list[EpisodeRecord]:
-    """Generate cfg.episodes episodes of every task; returns one record per episode."""
+def plan_units(cfg: GenerateConfig) -> list[tuple[str, EpisodeRecord]]:
+    """Every episode as a unit of a sweep, keyed by its index: its task and seed (drawn in order from
+    cfg.seed, the same however the units are spread), its spread point."""
+    master = np.random.default_rng(cfg.seed)
+    units = []
+    for spec in cfg.tasks:
+        for k in range(cfg.episodes):
+            rec = EpisodeRecord(index=len(units) + 1, task=spec.name, seed=int(master.integers(2**31)),
+                                spread_point=k if cfg.spread and spec.uses_hand else None)
+            units.append((f"{rec.index:04d} {spec.name} seed {rec.seed}", rec))
+    return units
+
+
+class GenerateWorker:
+    """A sweep worker (vla_evaluation.sweep): one graph (record.launch.yaml and the demonstrator),
+    started at its first episode, for the episodes it gets. An episode's error is its record's; a graph
+    that died is closed and the next episode starts a new one."""
+
+    def __init__(self, shared: tuple[GenerateConfig, bool]) -> None:
+        cfg, own = shared   # own: beside other workers (Ray): a ROS domain and a log folder of its own
+        if own:
+            logs = None if cfg.log_dir is None else Path(cfg.log_dir) / f"worker-{os.getpid()}"
+            cfg = replace(cfg, domain_id=None, log_dir=logs)
+        self.cfg, self.graph = cfg, None
+        self.kin, self.catalogue = PandaKinematics(), load_catalogue(cfg.catalogue)
+
+    def run(self, rec: EpisodeRecord) -> EpisodeRecord:
+        rec = replace(rec)
+        if self.graph is None:  # a graph that does not start fails the unit (reported by the sweep)
+            graph = _Graph(self.cfg, print)
+            try:
+                graph.start()
+            except BaseException:
+                graph.close()
+                raise
+            self.graph = graph
+        demo, spec = self.graph.demo, next(t for t in self.cfg.tasks if t.name == rec.task)
+        wall0 = time.monotonic()
+        try:
+            _run_episode(self.cfg, demo, self.kin, spec, self.catalogue, np.random.default_rng(rec.seed), rec,
+                         self.graph.alive)
+        except GenerateError as err:
+            rec.error = str(err)
+            self._after_error(rec)
+        finally:
+            demo.await_detections(False)
+        rec.wall_s = time.monotonic() - wall0
+        return rec
+
+    def _after_error(self, rec: EpisodeRecord) -> None:
+        """A failed episode's bag is discarded; a graph that has died is closed."""
+        try:
+            self.graph.alive()
+            if rec.bag:   # recording (an idle recorder refuses the discard: nothing to do)
+                self.graph.demo.call(self.graph.demo.discard_cli, Trigger.Request(), 60, "discard")
+        except GenerateError as err:
+            rec.error += f"; the graph: {err}"
+            self.close()
+
+    def close(self) -> None:
+        if self.graph is not None:
+            graph, self.graph = self.graph, None
+            graph.close()
+
+
+def run_generation(cfg: GenerateConfig, progress=print, engine: Engine = SERIAL) -> list[EpisodeRecord]:
+    """Generate cfg.episodes episodes of every task, each a unit of a sweep on `engine` (serially in
+    this process by default); one record per episode, in the plan's order."""
     cfg.out.mkdir(parents=True, exist_ok=True)
-    graph = _Graph(cfg, progress)
-    records: list[EpisodeRecord] = []
+    units = plan_units(cfg)
+    done: dict[str, EpisodeRecord] = {}
+
+    def on_result(key: str, rec: EpisodeRecord) -> None:
+        done[key] = rec
+        progress(f"[{rec.index:3d}] {rec.task:<28} {'ok  ' if rec.success else 'FAIL'} "
+                 f"disp {rec.displacement * 100:5.1f} cm angle {rec.angle_err_deg:5.1f} deg "
+                 f"({rec.duration_s:.1f} s sim, {rec.wall_s:.1f} s wall) {rec.error}")
+
+    failed: list[str] = []
     try:
-        demo = graph.start()
-        kin = PandaKinematics()
-        master = np.random.default_rng(cfg.seed)
-        catalogue = load_catalogue(cfg.catalogue)
-        for spec in cfg.tasks:
-            for k in range(cfg.episodes):
-                rec = EpisodeRecord(index=len(records) + 1, task=spec.name, seed=int(master.integers(2**31)),
-                                    spread_point=k if cfg.spread and spec.uses_hand else None)
-                wall0 = time.monotonic()
-                try:
-                    _run_episode(cfg, demo, kin, spec, catalogue, np.random.default_rng(rec.seed), rec,
-                                 graph.alive)
-                except GenerateError as err:
-                    rec.error = str(err)
-                    graph.alive()  # a dead graph ends the generation
-                    if demo.recorder is not None and demo.recorder.recording:
-                        demo.call(demo.discard_cli, Trigger.Request(), 60, "discard")
-                rec.wall_s = time.monotonic() - wall0
-                records.append(rec)
-                progress(
-                    f"[{rec.index:3d}] {spec.name:<28} {'ok  ' if rec.success else 'FAIL'} "
-                    f"disp {rec.displacement * 100:5.1f} cm angle {rec.angle_err_deg:5.1f} deg "
-                    f"({rec.duration_s:.1f} s sim, {rec.wall_s:.1f} s wall) {rec.error}"
-                )
-    finally:
+        failed = run_sweep(units, GenerateWorker, engine=engine, on_result=on_result,
+                           shared=(cfg, not engine.serial), name="generate", log=progress)
+    finally:   # the episodes done so far (Ctrl-C), a failed unit's marked
+        records = [done[k] if k in done else replace(rec, error=WORKER_FAILED)
+                   for k, rec in units if k in done or k in failed]
         _write_report(cfg, records)
-        graph.close()
     return records
 
 
@@ -409,11 +567,15 @@ def _write_report(cfg: GenerateConfig, records: list[EpisodeRecord]) -> None:
 
 
 def _reset_scene(demo: Demonstrator, spec, layout, q0, alive) -> ObjectPose:
-    """Reset through the bridge's ~/reset and wait for the settled, detected scene; the object's pose."""
+    """Reset through the bridge's ~/reset and wait for the settled, detected scene; the object's pose.
+    Lockstep: the reset while the simulation holds, then a fixed RESET_SETTLE_S of steps."""
     res = demo.call(demo.reset_cli, reset_request(layout, q0), 30, "reset")
     if not res.success:
         raise GenerateError(f"reset refused: {res.message}")
     t_reset = demo.now()
+    if demo.steps is not None:
+        t_reset = demo.reset_stamp = demo.steps.stamp
+        demo.steps.run(round(RESET_SETTLE_S / demo.steps.unit) + 1, "the reset scene to settle")
     _wait(demo, lambda: (
         demo.q_stamp > t_reset + 0.2
         and demo.objects_stamp > t_reset + 0.2
@@ -463,18 +625,30 @@ def _record_plan(cfg, demo: Demonstrator, spec, plan, rec: EpisodeRecord, alive)
     # The recorder's start time must come after the reset: its clock (like its queues) can lag the
     # bridge when the simulation runs faster than real time. The loader drops joint states stamped
     # before the start, so stale pre-reset states never enter the episode.
-    t_reset = demo.q_stamp
-    _wait(demo, lambda: demo.recorder_stamp >= t_reset, 30, "the recorder's clock to pass the reset", alive)
+    # Lockstep: the recorder is a participant; it has handled every step up to the held one (its clock
+    # there), and leaves out what is stamped before it (a detection of an earlier frame).
+    if demo.steps is None:
+        t_reset = demo.q_stamp
+        _wait(demo, lambda: demo.recorder_stamp >= t_reset, 30, "the recorder's clock to pass the reset",
+              alive)
     res = demo.call(demo.start_cli, StartEpisode.Request(task=spec.name, note=note), 30, "start")
     if not res.success:
         raise GenerateError(f"start_episode refused: {res.message}")
     rec.bag = res.bag_path
-    # the first camera frame and its detection are in the bag before the arm moves
-    t_recording = demo.now()
-    _wait(demo, lambda: demo.detections_stamp >= t_recording, 30, "the first frame's detection", alive)
+    if demo.steps is not None:
+        demo.await_detections(True)
+    # the first camera frame and its detection are in the bag before the arm moves (lockstep: one camera
+    # period of steps, then the detector's answer while the simulation holds)
+    if demo.steps is None:
+        t_recording = demo.now()
+        _wait(demo, lambda: demo.detections_stamp >= t_recording, 30, "the first frame's detection", alive)
+    else:   # a frame stamped after the start (the recorder leaves out one stamped at it)
+        t_recording = demo.steps.stamp
+        demo.steps.run(round(1.0 / (cfg.camera_rate * demo.steps.unit)) + 1, "a camera frame to record")
+        _wait(demo, lambda: demo.detections_stamp > t_recording, 30, "the first frame's detection", alive)
     wall_limit = (plan.duration + cfg.settle) / max(cfg.real_time_factor, 0.05) * 4 + 60
     demo.run_plan(plan, cfg.settle, wall_limit)
-    return demo.now()
+    return demo.now() if demo.steps is None else demo.steps.stamp
 
 
 def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: EpisodeRecord, alive) -> None:
@@ -483,9 +657,12 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episod
     rec.plan_params = {k: round(float(v), 4) for k, v in plan.params.items()}
     t_end = _record_plan(cfg, demo, spec, plan, rec, alive)
     rec.duration_s = plan.duration
+    if demo.steps is not None:   # the recorded tail, a fixed count of steps the recorder has answered
+        demo.steps.run(round(RECORD_TAIL_S / demo.steps.unit) + 1, "the recorded tail")
     _wait(demo, lambda: demo.objects_stamp >= t_end, 30, "the final object poses", alive)
-    # stop only once the recorder's clock has passed the end of the plan (else the tail is lost)
-    _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, 30, "the recorder to catch up", alive)
+    if demo.steps is None:  # stop once the recorder's clock has passed the plan's end (else the tail is lost)
+        _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, 30, "the recorder to catch up",
+              alive)
     end = demo.objects.get(spec.object_class, start)
     lift = None
     if spec.kind == "lift" and demo.heights:
@@ -545,8 +722,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--image-every-n", type=int, default=1000,
                    help="record every n-th camera frame (the first one always)")
     p.add_argument("--camera-rate", type=float, default=5.0, help="camera frames per second (sim time)")
-    p.add_argument("--real-time-factor", type=float, default=1.0,
-                   help="simulation speed relative to wall time (0: as fast as possible)")
+    p.add_argument("--real-time-factor", type=float, default=None,
+                   help="simulation speed relative to wall time at most (default 0: as fast as possible; "
+                        "with --free-running 1)")
+    p.add_argument("--free-running", action="store_true",
+                   help="no lockstep: the simulation paced by the wall clock (as before issue 33; the "
+                        "demonstrations then depend on the machine's load)")
     p.add_argument("--detector-model", default=None,
                    help="ONNX model of the detector node (default: the shipped one)")
     p.add_argument("--delete-failed", action="store_true",
@@ -560,6 +741,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--spread-margin", type=float, default=SPREAD_MARGIN, metavar="M",
                    help="with --spread: the corners on the region grown by M metres on every side, so "
                         "that fresh layouts lie inside the demonstrated hull (default: %(default)s)")
+    add_engine_arguments(p)   # each episode a unit: a graph per worker, in lockstep the same bags either way
 
 
 def run(args: argparse.Namespace) -> int:
@@ -576,13 +758,15 @@ def run(args: argparse.Namespace) -> int:
     except (ValueError, OSError) as err:
         print(f"error: {err}")
         return 2
+    rtf = args.real_time_factor if args.real_time_factor is not None else (1.0 if args.free_running else 0.0)
     cfg = GenerateConfig(tasks=tasks, episodes=args.episodes, out=args.out, seed=args.seed,
-                         real_time_factor=args.real_time_factor, camera_rate=args.camera_rate,
+                         real_time_factor=rtf, lockstep=not args.free_running, camera_rate=args.camera_rate,
                          image_every_n=args.image_every_n, keep_failed=not args.delete_failed,
                          detector_model=args.detector_model, log_dir=args.log_dir, catalogue=args.catalogue,
                          spread=args.spread, spread_margin=args.spread_margin)
     try:
-        records = run_generation(cfg)
+        engine = engine_from(args)
+        records = run_generation(cfg, engine=engine)
     except GenerateError as err:
         print(f"error: {err}")
         return 1
@@ -597,4 +781,6 @@ def run(args: argparse.Namespace) -> int:
         by_task.setdefault(r.task, []).append(r.success)
     for task, res in by_task.items():
         print(f"  {task:<28} {sum(res)}/{len(res)}")
+    if any(r.error == WORKER_FAILED for r in records):
+        return 1
     return 0 if records and ok == len(records) else 3

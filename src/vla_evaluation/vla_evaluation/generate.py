@@ -66,6 +66,9 @@ RECORD_TAIL_S = 0.2  # s of simulated time recorded past the end of the plan and
 RECORDER_STATUS_PERIOD_S = 0.05  # the recorder's ~/status (its clock) while generating
 STARTUP_S = 0.6  # lockstep: sim s run once at startup (every node's status, the recorder's at 0.5 s)
 RESET_SETTLE_S = 0.2  # sim s after a reset before the scene is read (the arm and objects at rest)
+# Wall s a wait for another node (the detector's detections, the recorder's clock, the scene) may take:
+# only against a hang; at load ~150 on 2 cores the reset scene's detection took over 30 s
+WAIT_S = 120.0
 # The plan's own clock runs at simulated time while the arm follows it (largest joint error under
 # the first value, rad), slows down beyond and stops at the second, so that a demonstrator that falls
 # behind (a loaded machine: late commands, the bridge's watchdog stopping the arm) neither closes the
@@ -569,7 +572,7 @@ def _write_report(cfg: GenerateConfig, records: list[EpisodeRecord]) -> None:
 def _reset_scene(demo: Demonstrator, spec, layout, q0, alive) -> ObjectPose:
     """Reset through the bridge's ~/reset and wait for the settled, detected scene; the object's pose.
     Lockstep: the reset while the simulation holds, then a fixed RESET_SETTLE_S of steps."""
-    res = demo.call(demo.reset_cli, reset_request(layout, q0), 30, "reset")
+    res = demo.call(demo.reset_cli, reset_request(layout, q0), WAIT_S, "reset")
     if not res.success:
         raise GenerateError(f"reset refused: {res.message}")
     t_reset = demo.now()
@@ -582,7 +585,7 @@ def _reset_scene(demo: Demonstrator, spec, layout, q0, alive) -> ObjectPose:
         # a camera frame of the new scene too (detected): frames queued before the reset come first
         and demo.detections_stamp > t_reset
         and float(np.max(np.abs(demo.q - q0))) < 0.02
-    ), 30, "the reset scene", alive)
+    ), WAIT_S, "the reset scene", alive)
     start = demo.objects.get(spec.object_class)
     if start is None:
         raise GenerateError(f"{spec.object_class} missing from scene/objects after reset")
@@ -629,9 +632,9 @@ def _record_plan(cfg, demo: Demonstrator, spec, plan, rec: EpisodeRecord, alive)
     # there), and leaves out what is stamped before it (a detection of an earlier frame).
     if demo.steps is None:
         t_reset = demo.q_stamp
-        _wait(demo, lambda: demo.recorder_stamp >= t_reset, 30, "the recorder's clock to pass the reset",
+        _wait(demo, lambda: demo.recorder_stamp >= t_reset, WAIT_S, "the recorder's clock to pass the reset",
               alive)
-    res = demo.call(demo.start_cli, StartEpisode.Request(task=spec.name, note=note), 30, "start")
+    res = demo.call(demo.start_cli, StartEpisode.Request(task=spec.name, note=note), WAIT_S, "start")
     if not res.success:
         raise GenerateError(f"start_episode refused: {res.message}")
     rec.bag = res.bag_path
@@ -641,11 +644,12 @@ def _record_plan(cfg, demo: Demonstrator, spec, plan, rec: EpisodeRecord, alive)
     # period of steps, then the detector's answer while the simulation holds)
     if demo.steps is None:
         t_recording = demo.now()
-        _wait(demo, lambda: demo.detections_stamp >= t_recording, 30, "the first frame's detection", alive)
+        _wait(demo, lambda: demo.detections_stamp >= t_recording, WAIT_S, "the first frame's detection",
+              alive)
     else:   # a frame stamped after the start (the recorder leaves out one stamped at it)
         t_recording = demo.steps.stamp
         demo.steps.run(round(1.0 / (cfg.camera_rate * demo.steps.unit)) + 1, "a camera frame to record")
-        _wait(demo, lambda: demo.detections_stamp > t_recording, 30, "the first frame's detection", alive)
+        _wait(demo, lambda: demo.detections_stamp > t_recording, WAIT_S, "the first frame's detection", alive)
     wall_limit = (plan.duration + cfg.settle) / max(cfg.real_time_factor, 0.05) * 4 + 60
     demo.run_plan(plan, cfg.settle, wall_limit)
     return demo.now() if demo.steps is None else demo.steps.stamp
@@ -659,9 +663,9 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episod
     rec.duration_s = plan.duration
     if demo.steps is not None:   # the recorded tail, a fixed count of steps the recorder has answered
         demo.steps.run(round(RECORD_TAIL_S / demo.steps.unit) + 1, "the recorded tail")
-    _wait(demo, lambda: demo.objects_stamp >= t_end, 30, "the final object poses", alive)
+    _wait(demo, lambda: demo.objects_stamp >= t_end, WAIT_S, "the final object poses", alive)
     if demo.steps is None:  # stop once the recorder's clock has passed the plan's end (else the tail is lost)
-        _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, 30, "the recorder to catch up",
+        _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, WAIT_S, "the recorder to catch up",
               alive)
     end = demo.objects.get(spec.object_class, start)
     lift = None

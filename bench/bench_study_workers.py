@@ -34,11 +34,15 @@ WALL_FIELDS = ("wall_s", "wall_phases", "trial_rtf", "bag")  # a row's fields th
 
 
 def run(proto, out: Path, cpus: int) -> tuple[float, float, dict]:
-    """(whole wall time, wall time from the first trial's start to the end, rows by key)."""
+    """(whole wall time, wall time from the first trial's start to the end, rows by key); a unit that
+    failed is said (its trials are missing from the rows)."""
     lines: list[tuple[float, str]] = []
     t0 = time.perf_counter()
     run_study(proto, out, log=lambda s: lines.append((time.perf_counter(), s)), engine=Engine(cpus=cpus))
     wall = time.perf_counter() - t0
+    for _t, s in lines:
+        if "failed" in s:
+            print(f"  ({cpus} worker{'s' if cpus > 1 else ''}) {s}")
     first = next((t for t, s in lines if s.startswith("[study]") and "units on" in s), t0)
     rows = [json.loads(x) for x in (out / "trials.jsonl").read_text().splitlines() if x.strip()]
     return wall, time.perf_counter() - first, {r["key"]: {k: v for k, v in r.items() if k not in WALL_FIELDS}
@@ -54,14 +58,16 @@ def main(argv: list[str] | None = None) -> int:
     (tmp / "p.yaml").write_text(PROTOCOL.format(participants=a.participants, time_limit=a.time_limit))
     proto = load_protocol(tmp / "p.yaml")
     results = {n: run(proto, tmp / f"w{n}", n) for n in (1, 2)}
-    trials = len(results[1][2])
-    print(f"study slice: {trials} trials of {a.time_limit:g} s ({a.participants} simulated participants x 2 "
-          f"strategies x 2 tasks), the graph in lockstep, local Ray")
-    for n, (wall, sweep, _) in results.items():
-        print(f"  {n} worker{'s' if n > 1 else ' '}  {wall:7.1f} s in all, {sweep:7.1f} s from the first "
-              f"unit's dispatch ({sweep / trials:.2f} s per trial)")
-    print(f"  speed-up of the sweep with 2 workers: {results[1][1] / results[2][1]:.2f}x; rows identical: "
-          f"{results[1][2] == results[2][2]}")
+    print(f"study slice: trials of {a.time_limit:g} s ({a.participants} simulated participants x 2 "
+          "strategies x 2 tasks), the graph in lockstep, local Ray")
+    for n, (wall, sweep, rows) in results.items():
+        print(f"  {n} worker{'s' if n > 1 else ' '}  {len(rows)} trials, {wall:7.1f} s in all, {sweep:7.1f} "
+              f"s from the first unit's dispatch ({sweep / max(len(rows), 1):.2f} s per trial)")
+    one, two = results[1][2], results[2][2]
+    common = one.keys() & two.keys()
+    print(f"  speed-up of the sweep with 2 workers: {results[1][1] / results[2][1]:.2f}x (per trial: "
+          f"{results[1][1] / max(len(one), 1) / (results[2][1] / max(len(two), 1)):.2f}x); rows identical: "
+          f"{one == two} ({sum(one[k] == two[k] for k in common)} of {len(common)} trials both ran)")
     return 0
 
 

@@ -29,6 +29,11 @@ def _median(values: list[float]) -> float:
     return statistics.median(values) if values else float("nan")
 
 
+def _s(value: float) -> str:
+    """A median for the table: one decimal, a dash where there was nothing to take it of."""
+    return "–" if value != value else f"{value:.1f}"
+
+
 def shared_layouts(rows: list[dict]) -> tuple[list[dict], int]:
     """The rows on layouts (participant, layout seed) that every condition present ran; how many left out."""
     conditions = [c for c in ORDER if any(r["condition"] == c for r in rows)]
@@ -56,7 +61,7 @@ def table(rows: list[dict]) -> str:
         err = _median([100 * r["placement_error_m"] for r in mine])
         lines.append(
             f"| {c} | {len(ok)}/{len(mine)} ({len(ok) / len(mine):.2f}) | {err:.1f} | "
-            f"{_median([r['time_s'] for r in mine]):.1f} | {_median([r['time_s'] for r in ok]):.1f} | "
+            f"{_median([r['time_s'] for r in mine]):.1f} | {_s(_median([r['time_s'] for r in ok]))} | "
             f"{_median([r['grasp_presses'] for r in mine]):g} | {sum(r['failed_grasps'] for r in mine)} | "
             f"{_median([r['control_switches'] for r in mine]):g} | {sum(bool(r['thrown']) for r in mine)} |")
     return "\n".join(lines) + "\n"

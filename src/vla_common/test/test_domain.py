@@ -1,6 +1,6 @@
 """vla_common.ros.domain: the one place a run picks its ROS domain."""
 import pytest
-from vla_common.ros.domain import DOMAINS, DomainError, isolate, isolated_env, pick_domain
+from vla_common.ros.domain import DOMAINS, DomainError, isolate, isolated_env, pick_domain, release_domain
 
 
 def test_a_given_domain_is_kept_unless_busy():
@@ -43,3 +43,27 @@ def test_isolate_keeps_a_callers_domain_and_forces_localhost_discovery():
     assert isolate(env, 88) == 88 and env["ROS_DOMAIN_ID"] == "88"
     fresh = isolated_env(base={"PATH": "/bin"})
     assert int(fresh["ROS_DOMAIN_ID"]) in DOMAINS and fresh["PATH"] == "/bin"
+
+
+def test_random_picks_at_the_same_moment_never_share_a_domain():
+    """A probe cannot see a graph that has not started yet: two workers that pick at once drew the
+    same domain (a sweep's two graphs then talked to each other). A pick is reserved machine-wide
+    until released; another process cannot take it meanwhile."""
+    import subprocess
+    import sys
+
+    picked = []
+    while len(picked) <= len(DOMAINS):
+        try:
+            picked.append(pick_domain(tries=len(DOMAINS)))
+        except DomainError:
+            break
+    # every domain at most once (this process, or another run on the machine, may hold a few already)
+    assert len(set(picked)) == len(picked) >= len(DOMAINS) // 2
+    code = ("from vla_common.ros.domain import pick_domain, DomainError\n"
+            "try:\n    pick_domain(tries=8)\nexcept DomainError:\n    print('refused')")
+    other = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert other.stdout.strip() == "refused", other.stderr  # held here, so another process may not
+    for d in picked:
+        release_domain(d)
+    assert pick_domain() in DOMAINS

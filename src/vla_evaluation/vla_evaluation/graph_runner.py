@@ -20,7 +20,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
-from vla_common.ros.domain import DISCOVERY_VARIABLE, DomainError, isolated_env
+from vla_common.ros.domain import DISCOVERY_VARIABLE, DomainError, isolated_env, release_domain
 from vla_launch.session import LaunchError, LaunchSession
 
 # Read by rmw when our context starts: set for the runner's lifetime, then restored.
@@ -157,4 +157,5 @@ class GraphRunner(Generic[N]):
             else:
                 os.environ[key] = value
         self._saved_env.clear()
+        release_domain(self.domain)  # a domain picked at random for this graph is free again
         return rc

@@ -7,8 +7,10 @@ process inherits what `isolate` puts into the environment.
 """
 from __future__ import annotations
 
+import fcntl
 import os
 import random
+import tempfile
 import time
 from collections.abc import Callable, MutableMapping
 
@@ -42,9 +44,45 @@ def pick_domain(preferred: int | None = None, *, busy: Callable[[int], bool] | N
                                   "choose a free ROS_DOMAIN_ID")
         return preferred
     for domain in random.SystemRandom().sample(DOMAINS, tries):
+        if not _reserve(domain):
+            continue  # another process on this machine picked it and holds it
         if busy is None or not busy(domain):
             return domain
+        release_domain(domain)
     raise DomainError(f"no free ROS domain found in {tries} tries")
+
+
+# Random picks on one machine are reserved with a lock file each, held by the picking process until
+# `release_domain` or its exit (the kernel drops the lock), so that graphs started at the same moment
+# (a sweep's workers, parallel test runs) never draw the same domain: a probe cannot see a graph that
+# has not started yet.
+_RESERVED: dict[int, int] = {}
+
+
+def _lock_dir() -> str:
+    path = os.path.join(tempfile.gettempdir(), f"vla-ros-domains-{os.getuid()}")
+    os.makedirs(path, mode=0o700, exist_ok=True)
+    return path
+
+
+def _reserve(domain: int) -> bool:
+    if domain in _RESERVED:
+        return False  # this process holds it already (a graph of its own is on it)
+    fd = os.open(os.path.join(_lock_dir(), f"{domain}.lock"), os.O_RDWR | os.O_CREAT, 0o600)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        return False
+    _RESERVED[domain] = fd
+    return True
+
+
+def release_domain(domain: int) -> None:
+    """Give back a domain this process picked at random (no-op for one it did not reserve)."""
+    fd = _RESERVED.pop(domain, None)
+    if fd is not None:
+        os.close(fd)  # closing the descriptor drops the lock
 
 
 def isolate(env: MutableMapping[str, str] | None = None, domain: int | None = None, *,

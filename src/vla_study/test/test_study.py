@@ -336,7 +336,8 @@ def test_a_killed_study_resumes_without_losing_or_duplicating_a_trial(tmp_path):
     rows = _rows(out)
     keys = [r["key"] for r in rows]
     assert len(keys) == len(set(keys)) == 4
-    assert keys == [t.key for t in trial_plan(load_protocol(proto))]  # none lost, none twice, in order
+    # none lost, none twice (on Ray, the default, units finish in any order: rows are written as they end)
+    assert sorted(keys) == sorted(t.key for t in trial_plan(load_protocol(proto)))
     assert [r["key"] for r in rows[: len(first)]] == [r["key"] for r in first]  # earlier rows kept
     assert (out / "trials.jsonl.partial").read_text().startswith('{"key": "half')
     for r in rows:

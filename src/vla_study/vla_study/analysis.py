@@ -162,10 +162,14 @@ def _header(st: Study) -> list[str]:
                        "since issue 33: its numbers were not the graph's)"}
     backends = sorted({r.get("backend", "physics") for r in rows})
     lines += ["Trials ran " + " and ".join(ways.get(b, b) for b in backends) + ".", ""]
-    rtf = [r["trial_rtf"] for r in rows if r.get("trial_rtf") is not None]
+    rtf = [r["trial_rtf"] for r in rows if r.get("trial_rtf") is not None and not r.get("lockstep")]
     if rtf:
-        lines += [f"The graph ran in real time at {min(rtf):.2f}–{max(rtf):.2f} × real time (the machine's "
-                  "load): until the graph runs in lockstep, an outcome can change with the load.", ""]
+        lines += [f"{len(rtf)} trials ran the graph in real time, at {min(rtf):.2f}–{max(rtf):.2f} × real "
+                  "time (the machine's load): their outcomes can change with the load.", ""]
+    locked = sum(1 for r in rows if r.get("lockstep"))
+    if locked:
+        lines += [f"{locked} trials ran the graph in lockstep (the simulation waits for every node each "
+                  "step): their outcomes are a function of their seeds and the code, whatever the load.", ""]
     if any(r.get("robot") == "real" for r in rows):
         lines += ["On the real robot (`robot: real`): the experimenter placed each object at its start "
                   "point and scored success (and, where measured, the object's displacement); time, path, "

@@ -417,7 +417,7 @@ class GraphBackend(TrialBackend):
         # where the trial's wall time went, and the simulation's pace while the participant drove
         rtf = driver.t_end / max(scene.clock.phases["trial"], 1e-3)
         extra.update(wall_phases=scene.clock.phases, trial_rtf=round(rtf, 2),
-                     camera_rate=ev.config.camera_rate)
+                     camera_rate=ev.config.camera_rate, lockstep=bool(ev.config.lockstep))
         return Measured(path, times, np.asarray(driver.sticks), ok=ok, disp=disp,
                         t_success=monitor.tracker.time_to_success, t_done=driver.t_done, t_end=driver.t_end,
                         fse=final_state_error(q_final, final_wp), interventions=monitor.tally.interventions,

@@ -473,6 +473,10 @@ class SimTeleoperatorNode(Node):
                 self._publish_joy(0.0)                # a person waits with the stick at rest
             elif self.state == TeleopStatus.RUNNING:
                 self._publish_status()                # the start at once (its time is the episode's)
+                # the periodic status counts from the episode's start: in lockstep step 0 comes again
+                # until every node answered it (a count of wall time), so a count from the node's start
+                # put the statuses at other steps in a quiet and a busy run
+                self._ticks = 0
         if self.state == TeleopStatus.RUNNING:
             t = (self._now() - self.t0).nanoseconds * 1e-9
             q = self.q if self.q is not None else np.full(7, np.nan)

@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from study_files import bag_joy, study_rows
 from vla_study.protocol import ProtocolError, latin_square, load_protocol
 from vla_study.runner import trial_plan
 from vla_study.smoothness import sparc, speed_profile
@@ -267,18 +268,7 @@ rate: 20
 """
 
 
-def _rows(out: Path) -> list[dict]:
-    p = out / "trials.jsonl"
-    return [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
-
-
-def _bag_joy(bag: Path) -> list:
-    """The Joy messages of a trial's bag (rosbags: a reader we did not write)."""
-    from rosbags.highlevel import AnyReader
-
-    with AnyReader([bag]) as reader:
-        conns = [c for c in reader.connections if c.topic == "/joy"]
-        return [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages(connections=conns)]
+_rows, _bag_joy = study_rows, bag_joy  # test/study_files.py: one home for both study tests
 
 
 def test_the_study_graph_leaves_the_idle_oracle_out(tmp_path):

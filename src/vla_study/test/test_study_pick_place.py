@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from study_files import bag_joy, study_rows
 from vla_common.catalogue import load_catalogue
 from vla_study.hand_participant import BUSY, EMPTY, HOLDING, OPEN, PickPlaceOperator
 from vla_study.participant import HumanParams, Observation
@@ -162,18 +163,7 @@ def test_the_protocol_keeps_development_and_test_apart_and_refuses_what_cannot_r
     assert reused_seeds(load_protocol(reuse))
 
 
-def _rows(out: Path) -> list[dict]:
-    p = out / "trials.jsonl"
-    return [json.loads(x) for x in p.read_text().splitlines() if x.strip()] if p.exists() else []
-
-
-def _bag_joy(bag: Path) -> list:
-    """The Joy messages of a trial's bag (rosbags: a reader we did not write)."""
-    from rosbags.highlevel import AnyReader
-
-    with AnyReader([bag]) as reader:
-        conns = [c for c in reader.connections if c.topic == "/joy"]
-        return [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages(connections=conns)]
+_rows, _bag_joy = study_rows, bag_joy  # test/study_files.py: one home for both study tests
 
 
 GRAPH_PROTOCOL = """

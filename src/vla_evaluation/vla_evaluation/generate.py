@@ -53,7 +53,7 @@ from vla_demo_recorder.dataset import DemoError, load_demo
 from vla_sim.planner import PlanError, plan_task, random_start_pose
 
 from vla_evaluation.graph_runner import GraphRunner
-from vla_evaluation.lockstep_client import LockstepClient
+from vla_evaluation.lockstep_client import LockstepClient, await_detector
 from vla_evaluation.sweep import SERIAL, Engine, engine_from, run_sweep
 from vla_evaluation.sweep import add_arguments as add_engine_arguments
 from vla_interfaces.msg import DetectionArray, RecorderStatus, SafetyStatus, SceneObjectArray, StepAnswer
@@ -444,7 +444,23 @@ class _Graph:
                 raise GenerateError(f"the recorder did not subscribe within {self.timeout:.0f} s; last "
                                     f"output:\n{self.runner.tail()}")
             time.sleep(0.1)   # polling the graph's discovery, bounded by the deadline
-        self.demo.steps.run(round(STARTUP_S * self.cfg.state_rate), "the graph's first steps")
+        demo = self.demo
+        t_held = demo.steps.run(round(STARTUP_S * self.cfg.state_rate), "the graph's first steps")
+
+        def reset() -> None:
+            res = demo.call(demo.reset_cli, ResetScene.Request(use_seed=True, seed=0), WAIT_S, "reset")
+            if not res.success:
+                raise GenerateError(f"reset refused: {res.message}")
+
+        def detected(timeout: float) -> bool:
+            try:
+                demo.wait(lambda: demo.detections_stamp >= t_held, timeout, "the first frame's detections")
+                return True
+            except GenerateError:
+                self.alive()
+                return False
+
+        await_detector(reset, detected, self.progress, GenerateError)
 
     def alive(self) -> None:
         self.runner.alive()
@@ -585,15 +601,20 @@ def _reset_scene(demo: Demonstrator, spec, layout, q0, alive) -> ObjectPose:
         # a camera frame of the new scene too (detected): frames queued before the reset come first
         and demo.detections_stamp > t_reset
         and float(np.max(np.abs(demo.q - q0))) < 0.02
-    ), WAIT_S, "the reset scene", alive)
+    ), WAIT_S, "the reset scene", alive,
+        lambda: (f"reset at {t_reset:.3f} s; last joint state {demo.q_stamp:.3f} s, scene/objects "
+                 f"{demo.objects_stamp:.3f} s, detections {demo.detections_stamp:.3f} s, frame "
+                 f"{demo.frame_stamp:.3f} s; joints {float(np.max(np.abs(demo.q - q0))):.3f} rad from q0"))
     start = demo.objects.get(spec.object_class)
     if start is None:
         raise GenerateError(f"{spec.object_class} missing from scene/objects after reset")
     return start
 
 
-def _wait(demo: Demonstrator, predicate, timeout: float, what: str, alive) -> None:
-    """demo.wait in slices, checking between them that the graph still runs."""
+def _wait(demo: Demonstrator, predicate, timeout: float, what: str, alive,
+          state: Callable[[], str] | None = None) -> None:
+    """demo.wait in slices, checking between them that the graph still runs; a timeout's error says
+    `state()` (what was seen) when given."""
     deadline = time.monotonic() + timeout
     while True:
         try:
@@ -602,7 +623,8 @@ def _wait(demo: Demonstrator, predicate, timeout: float, what: str, alive) -> No
         except GenerateError:
             alive()
             if time.monotonic() >= deadline:
-                raise GenerateError(f"timed out after {timeout:.0f} s waiting for {what}") from None
+                seen = f" ({state()})" if state is not None else ""
+                raise GenerateError(f"timed out after {timeout:.0f} s waiting for {what}{seen}") from None
 
 
 def _plan_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: EpisodeRecord, alive):

@@ -47,7 +47,7 @@ from vla_common.tasks import parse_task
 
 from vla_evaluation.graph_runner import GraphRunner
 from vla_evaluation.kinematic import TeleopSettings, plan_waypoints, plannable_layout
-from vla_evaluation.lockstep_client import LockstepClient
+from vla_evaluation.lockstep_client import LockstepClient, await_detector
 from vla_evaluation.metrics import (
     EpisodeResult,
     LimitMonitor,
@@ -469,21 +469,24 @@ class GraphEvaluator:
 
     def _start_lockstep(self) -> None:
         """Lockstep: run STARTUP_S (every node answers and says its status), then make sure the detector
-        sees the camera: a reset at the held step renders a frame, whose detections must come (else a
-        latch would wait for a detector that never got its frame). Only counts of steps pass."""
+        sees the camera (lockstep_client.await_detector)."""
         obs, cfg = self.obs, self.config
         t_held = obs.steps.run(cfg.steps(STARTUP_S), "the graph's first steps")
-        for attempt in range(1, 6):
+
+        def reset() -> None:
             res = obs.call(obs.reset_cli, ResetScene.Request(use_seed=True, seed=0), 30.0, "reset")
             if not res.success:
                 raise GraphError(f"reset refused: {res.message}")
+
+        def detected(timeout: float) -> bool:
             try:
-                obs.wait_for(lambda: obs.detections_stamp >= t_held, 10.0 * attempt,
+                obs.wait_for(lambda: obs.detections_stamp >= t_held, timeout,
                              "the detector's answer to a frame", self.alive)
-                return
+                return True
             except GraphError:
-                self.log(f"[graph] lockstep: no detections of the first frame yet (attempt {attempt}/5)")
-        raise GraphError("the detector did not answer a camera frame in 5 tries: is it subscribed?")
+                return False
+
+        await_detector(reset, detected, lambda text: self.log(f"[graph] {text}"), GraphError)
 
     def configure(self) -> None:
         """Set the controller's and the teleoperator's run-time parameters from the config."""

@@ -15,6 +15,9 @@ from typing import Any
 
 from vla_evaluation.graph import EpisodeRecord, GraphConfig, GraphError, GraphEvaluator
 
+# Runs of a unit that ends in a GraphError, each on a new graph (a graph error is not an outcome)
+GRAPH_ATTEMPTS = 2
+
 
 @dataclass(frozen=True)
 class EpisodeJob:
@@ -27,7 +30,7 @@ class EpisodeJob:
     graph_errors_are_results: bool = False  # a hold's timeout is a failed hold; an evaluation's fails
     own_logs: bool = False  # several workers: a log folder each
     evaluator: Callable[..., GraphEvaluator] = GraphEvaluator
-    attempts: int = 2  # runs of an episode that ends in a GraphError, each on a new graph
+    attempts: int = GRAPH_ATTEMPTS
 
 
 def for_workers(config: GraphConfig) -> GraphConfig:

@@ -110,3 +110,22 @@ class LockstepClient:
                     self.alive()
                 finally:
                     self.cond.acquire()
+
+
+DETECTOR_TRIES = 5  # resets at the held step before a graph is called deaf (each waits 10 s longer)
+
+
+def await_detector(reset: Callable[[], None], detected: Callable[[float], bool], log: Callable[[str], None],
+                   error: type[Exception] = LockstepError) -> None:
+    """Lockstep, once after the first steps: make sure the detector sees the camera. Those steps pass in
+    well under a second of wall time, before the discovery of every pair of nodes is done, and a
+    frame published before the detector's subscription matched is never seen; with the simulation held
+    no other frame comes, and a wait for its detections would hang. `reset()` resets the scene at the
+    held step (which renders a frame and moves no time); `detected(timeout)` says whether its
+    detections came within `timeout` wall s. Only counts of steps pass, so no result depends on it."""
+    for attempt in range(1, DETECTOR_TRIES + 1):
+        reset()
+        if detected(10.0 * attempt):
+            return
+        log(f"lockstep: no detections of the first frame yet (attempt {attempt}/{DETECTOR_TRIES})")
+    raise error(f"the detector did not answer a camera frame in {DETECTOR_TRIES} tries: is it subscribed?")

@@ -90,13 +90,18 @@ def run(args) -> int:
         from vla_study.paths import regenerate_paths  # the tool's own module: only when asked
 
         regenerate_paths(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit)
-    elif not args.analyse_only:
-        run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
-                  use_sim_time=args.use_sim_time, engine=engine_from(args))
+    failed: list[str] = []
+    if not args.paths and not args.analyse_only:
+        failed = run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
+                           use_sim_time=args.use_sim_time, engine=engine_from(args)).failed
     from vla_study.analysis import analyse  # matplotlib: only for the figures, not for --help or --check
 
     for line in analyse(args.out, args.figures or args.out, proto.time_limit):
         print(line)
+    if failed:  # the analysis above is of what was recorded; the study is not complete
+        print(f"[study] incomplete: {len(failed)} units of trials failed (see above); run the same command "
+              "again to run them", file=sys.stderr)
+        return 1
     return 0
 
 

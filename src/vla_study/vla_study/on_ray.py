@@ -16,6 +16,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from vla_evaluation.graph import GraphError
+from vla_evaluation.graph_sweep import GRAPH_ATTEMPTS
 from vla_evaluation.sweep import Engine, run_sweep
 
 from vla_study.backends import Where, backend_name, make_backend
@@ -41,7 +43,20 @@ class StudyWorker:
         self.own = Path()  # the worker's own folder in the study's
 
     def run(self, unit: tuple) -> list[tuple[str, dict, dict]]:
-        trials, params, seeds, lessons = unit
+        """The unit's trials in order. A GraphError (the graph did not answer in time on a starved
+        machine, a process that ended) is not an outcome: the whole chain runs again on a new graph, up
+        to GRAPH_ATTEMPTS times (in lockstep the same trials, step for step); past that the unit fails."""
+        for attempt in range(1, GRAPH_ATTEMPTS + 1):
+            try:
+                return self._chain(*unit)
+            except GraphError as e:
+                print(f"[study] attempt {attempt} of {GRAPH_ATTEMPTS} ended with a graph error ({e}); "
+                      "the graph is closed", flush=True)
+                if attempt == GRAPH_ATTEMPTS:
+                    raise
+        raise AssertionError("unreachable")
+
+    def _chain(self, trials, params, seeds, lessons) -> list[tuple[str, dict, dict]]:
         if self.backend is None:
             graph = backend_name(self.protocol) == "graph"
             self.own = Path("workers", str(os.getpid())) if graph else Path()
@@ -55,9 +70,9 @@ class StudyWorker:
             try:
                 row, arrays = self.backend.run(trial, params, operator_seed=seeds[trial.key])
             except BaseException:
-                # a unit that fails (a graph that did not answer in time on a starved machine) leaves
-                # nothing half done for the next: its graph goes (a recorder still holding the failed
-                # trial's bag refused every later trial of the worker), the next unit starts a new one
+                # a unit that fails leaves nothing half done for the next: its graph goes (a recorder
+                # still holding the failed trial's bag refused every later trial of the worker), the
+                # next attempt or unit starts a new one
                 self.close()
                 raise
             row["wall_s"] = round(time.monotonic() - wall0, 2)

@@ -105,6 +105,7 @@ class StudyStore:
         except OSError as e:
             raise SystemExit(f"--out {self.out}: {e.strerror}: a study folder is a directory") from None
         self.rows_path = self.out / "trials.jsonl"
+        self.failed: list[str] = []  # this run's units that failed (on Ray): missing, retried on a resume
         meta = self.out / "study.json"
         digest = protocol.digest()
         if meta.exists():
@@ -213,7 +214,7 @@ def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None
         _ask_left_over(store, todo, backend, log, ask, out)   # on the terminal: nothing is launched
         return store
     if engine is not None and not engine.serial and not real and backend is None:
-        _run_on_ray(protocol, store, todo[:limit], engine, out, log, use_sim_time)
+        store.failed = _run_on_ray(protocol, store, todo[:limit], engine, out, log, use_sim_time)
         return store
     own = backend is None
     if own:
@@ -285,7 +286,7 @@ def _record(protocol: Protocol, store: StudyStore, trial: Trial, row: dict, arra
 
 
 def _run_on_ray(protocol: Protocol, store: StudyStore, todo: list[Trial], engine: Engine, out: Path, log,
-                use_sim_time: bool) -> None:
+                use_sim_time: bool) -> list[str]:
     from vla_study.on_ray import run_trials_on_ray  # Ray: only for a sweep
 
     seeds = {t.key: operator_seed(protocol, t) for t in todo}
@@ -296,6 +297,7 @@ def _run_on_ray(protocol: Protocol, store: StudyStore, todo: list[Trial], engine
     if failed:
         log(f"[study] {len(failed)} trials failed and are not recorded (run the study again to retry "
             f"them): {', '.join(failed)}")
+    return failed
 
 
 def _likert(store: StudyStore, who: str, strategy: str, backend, log, ask) -> None:

@@ -1,0 +1,33 @@
+"""lockstep_client.await_detector: a detector that missed the first frames (its subscription matched
+after the first steps, which take well under a second) gets a new frame from a reset at the held step,
+until it answers or the tries run out, loudly."""
+from __future__ import annotations
+
+import pytest
+from vla_evaluation.lockstep_client import DETECTOR_TRIES, LockstepError, await_detector
+
+
+def run(answers_after: int) -> tuple[list[str], list[float]]:
+    resets: list[str] = []
+    waits: list[float] = []
+
+    def detected(timeout: float) -> bool:
+        waits.append(timeout)
+        return len(resets) > answers_after
+
+    await_detector(lambda: resets.append("reset"), detected, lambda text: None)
+    return resets, waits
+
+
+def test_a_detector_that_sees_the_first_frame_costs_one_reset():
+    assert run(answers_after=0) == (["reset"], [10.0])
+
+
+def test_a_late_detector_gets_a_new_frame_each_try_and_longer_to_answer():
+    resets, waits = run(answers_after=2)
+    assert len(resets) == 3 and waits == [10.0, 20.0, 30.0]
+
+
+def test_a_deaf_detector_is_an_error_that_says_what_to_check():
+    with pytest.raises(LockstepError, match="is it subscribed"):
+        run(answers_after=DETECTOR_TRIES)

@@ -248,13 +248,15 @@ def main() -> int:
     ap.add_argument("--estops", type=int, default=10)
     ap.add_argument("--synthetic-camera", type=float, default=0.0, metavar="HZ",
                     help="only the station, fed 640x480 frames at HZ from here (the frame rate alone)")
+    ap.add_argument("launch_args", nargs="*", metavar="NAME:=VALUE",
+                    help="teleop.launch.yaml arguments (e.g. use_camera:=false: the graph without its camera)")
     args = parse(ap, presses=10, estops=3)
     print(f"load average at start: {os.getloadavg()}", flush=True)
     if args.synthetic_camera > 0:
         return synthetic(args.synthetic_camera, args.presses)
     h = RosHarness(other_processes=True)   # it talks to the processes it starts
     with LaunchProcess("vla_bringup", "teleop.launch.yaml", "use_operator_station:=true",
-                       "operator_port:=0",
+                       "operator_port:=0", *args.launch_args,
                        log_path=Path("/tmp") / f"bench_operator_{os.getpid()}.log") as run:
         obs = h.add(Probe(h.context))
         addr = lambda: re.search(r"operator station is at (http://\S+)", run.text())  # noqa: E731

@@ -6,6 +6,7 @@ from functools import partial
 from http.server import SimpleHTTPRequestHandler, ThreadingHTTPServer
 
 import cv2
+import numpy as np
 import pytest
 from require import missing
 from vla_evaluation.page_recording import PageRecorder, RecordingError, find_chromium
@@ -39,3 +40,14 @@ def test_a_changing_page_is_recorded_at_a_fixed_rate_and_the_browser_ends(tmp_pa
     assert ok and frame.shape[1] == 640 and fps == pytest.approx(rec.fps)
     assert n == rec.written and n >= 2          # repeated frames fill the time between the page's own
     assert rec._proc.poll() is not None         # the browser's process ended with the recording
+
+
+def test_a_frame_of_another_size_is_fitted_into_the_video_with_its_aspect_kept():
+    from vla_evaluation.page_recording import fit
+
+    frame = np.full((480, 548, 3), 200, np.uint8)   # a screencast frame seen for a 640x480 window
+    out = fit(frame, (640, 480))
+    assert out.shape == (480, 640, 3)
+    assert (out[:, 46:594] == 200).all() and not out[:, :46].any() and not out[:, 594:].any()
+    big = fit(np.full((960, 1280, 3), 9, np.uint8), (640, 480))
+    assert big.shape == (480, 640, 3) and (big == 9).all()

@@ -161,11 +161,9 @@ class PageRecorder:
         if img is None:
             return None
         if self._writer is None:
-            h, w = img.shape[:2]
-            self._writer = cv2.VideoWriter(str(self.path), cv2.VideoWriter_fourcc(*"mp4v"), self.fps, (w, h))
-            self._frame_size = (w, h)
-        if (img.shape[1], img.shape[0]) != self._frame_size:
-            img = cv2.resize(img, self._frame_size, interpolation=cv2.INTER_AREA)
+            fourcc = cv2.VideoWriter_fourcc(*"mp4v")
+            self._writer = cv2.VideoWriter(str(self.path), fourcc, self.fps, self.size)
+        img = fit(img, self.size)
         while self.written < int(t * self.fps) + 1:
             self._writer.write(img)
             self.written += 1
@@ -226,3 +224,18 @@ def recording(path: Path | None, port: int | None, log=print, timeout: float = 6
         written = rec.stop()
         log(f"[demo] page recording: {rec.frames} page frames, {rec.written / rec.fps:.0f} s"
             + (f" in {written}" if written else " (nothing recorded)"))
+
+
+def fit(img: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    """`img` scaled to fit `size` (w, h), its aspect kept, centred on black: the video is the size asked
+    for, whatever size the browser's screencast frames come in (the first ones may differ from the
+    window's: seen 548x480 for a 640x480 window, now and then)."""
+    w, h = size
+    if img.shape[1] == w and img.shape[0] == h:
+        return img
+    scale = min(w / img.shape[1], h / img.shape[0])
+    sw, sh = max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale))
+    out = np.zeros((h, w, 3), np.uint8)
+    x0, y0 = (w - sw) // 2, (h - sh) // 2
+    out[y0:y0 + sh, x0:x0 + sw] = cv2.resize(img, (sw, sh), interpolation=cv2.INTER_AREA)
+    return out

@@ -750,6 +750,26 @@ ROLE = "document.getElementById('s-role').textContent"
 MESSAGE = "document.getElementById('message').textContent"
 
 
+def claim_refused_while_moving(h, obs, page, b, tries: int = 3) -> bool:
+    """The driver (`page`) moves the arm and the watcher (`b`) claims at once, by keyboard: refused in
+    words. A loaded machine can starve the driver's input past its freshness at the station, which
+    is then at rest, and a claim at rest is accepted (the rule): control is handed back and it is tried
+    again."""
+    d = b.driver
+    for _ in range(tries):
+        hold_in(h, obs, page)
+        d.find_element(By.ID, "take-control").send_keys(Keys.ENTER)
+        assert wait_page(h, b, "document.getElementById('take-dialog').open")
+        d.switch_to.active_element.send_keys(Keys.ENTER)
+        assert wait_page(h, b, f"{MESSAGE}.includes('moving the arm') || window.station.driver")
+        if js(b, f"{MESSAGE}.includes('moving the arm')"):
+            return True
+        ActionChains(page.driver).key_up(Keys.ARROW_UP).perform()
+        page.driver.execute_script("window.stationRequest({type: 'claim', confirm: true}, 'claim')")
+        assert wait_page(h, page, "window.station.driver") and wait_page(h, b, "!window.station.driver")
+    return False
+
+
 def test_a_watcher_takes_control_by_keyboard_only_at_rest_and_starts_from_neutral(graph, page):
     """Take control (issue 22: one drives, the others watch): reached by Tab, confirmed in a dialog,
     refused in words while the driver moves the arm; then the old driver's keys move nothing, it is told
@@ -771,13 +791,7 @@ def test_a_watcher_takes_control_by_keyboard_only_at_rest_and_starts_from_neutra
         assert d.switch_to.active_element.get_attribute("id") == "take-confirm"
         d.find_element(By.ID, "take-cancel").send_keys(Keys.ENTER)
         assert wait_page(h, b, "!document.getElementById('take-dialog').open")
-        # the driver moves the arm; the claim follows at once (a driver's page lets go of an input the
-        # loaded machine's station refused, and a claim at rest would be accepted)
-        hold_in(h, obs, page)
-        d.find_element(By.ID, "take-control").send_keys(Keys.ENTER)
-        assert wait_page(h, b, "document.getElementById('take-dialog').open")
-        d.switch_to.active_element.send_keys(Keys.ENTER)
-        assert wait_page(h, b, f"{MESSAGE}.includes('moving the arm')"), js(b, MESSAGE)
+        assert claim_refused_while_moving(h, obs, page, b), js(b, MESSAGE)
         # refused: the link gives that reason only while the driver's input is not at rest. Whether
         # the arm still moves seconds later (after axe-core ran) is not asserted: a loaded machine can
         # starve the driver's Joy stream, and the controller then holds zero until a neutral (CI, once)

@@ -685,6 +685,11 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episod
     rec.duration_s = plan.duration
     if demo.steps is not None:   # the recorded tail, a fixed count of steps the recorder has answered
         demo.steps.run(round(RECORD_TAIL_S / demo.steps.unit) + 1, "the recorded tail")
+        # and the detections of every frame rendered by then, the last one's too (published at or just
+        # before the hold, it reached the bag before the stop at load and after it when quiet: one
+        # detection more or less, test_generate_lockstep); the recorder had it before the stop's request
+        _wait(demo, lambda: demo.detections_stamp >= demo.frame_stamp, WAIT_S, "the last frame's detection",
+              alive)
     _wait(demo, lambda: demo.objects_stamp >= t_end, WAIT_S, "the final object poses", alive)
     if demo.steps is None:  # stop once the recorder's clock has passed the plan's end (else the tail is lost)
         _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, WAIT_S, "the recorder to catch up",

@@ -264,3 +264,49 @@ def test_an_object_pushed_while_hidden_is_the_same_object_where_it_reappears(kin
     assert [g.task.name for g in arm.core.assist.goals] == ["bread/push_east"]
     assert arm.core.assist.goals[0] is goal and goal.stage >= stage
     assert goal.obj.xy == pytest.approx((0.5, -0.1), abs=0.01)
+
+
+def _to_push_end(arm: Arm, within: float = math.inf):
+    """Hold the stick until the push's last stage (its end next, or reached), the hand `within` of the end."""
+    goal = next(g for g in arm.core.assist.goals) if arm.core.assist.goals else None
+    for _ in range(2000):
+        arm.step(1.0)
+        goal = arm.core.assist.goals[0]
+        if goal.stage >= len(goal.poses) - 1 and np.linalg.norm(goal.poses[-1].position - arm.tcp()) < within:
+            return goal
+    raise AssertionError(f"the push never came to its end (stage {goal.stage if goal else None})")
+
+
+def test_a_push_follows_its_object_aside_onto_the_line_through_where_it_is_now(kin):
+    """A box that turns under the fingers slides aside of the push's line; the hand goes after it (the
+    cereal box pushed south ended 33-54 deg off its direction while the hand kept its first line)."""
+    arms = [Arm(kin, objects=(("bread", (0.5, 0.05)),)) for _ in range(2)]
+    goal = [_to_push_end(arm) for arm in arms][0]
+    d = goal.task.direction_vector
+    across = np.array([-d[1], d[0], 0.0])
+    aside = (0.5 + 0.03 * across[0], 0.05 + 0.03 * across[1])   # the loaf now seen 3 cm aside ...
+    for _ in range(50):
+        arms[0].step(1.0, dets=[detection("bread", aside)])
+        arms[1].step(1.0)                                        # ... or where it was
+    assert arms[0].core.assist.goals[0] is goal and goal.stage == len(goal.poses) - 1
+    assert float((arms[0].tcp() - arms[1].tcp()) @ across) > 0.004   # the hand went after it
+
+
+def test_a_hand_held_short_of_the_push_end_is_not_led_off_by_the_persons_command(kin):
+    """The hand stalls 1-2 cm short of a push's end while the person's command (the decoder) heads back
+    along the push: the goal is reached and holds, its pull toward the end stays (held 15 s, such a
+    stall and the decoder's motion took the pull to another object's goal, which pushed the box on)."""
+    arm = Arm(kin, objects=(("bread", (0.5, 0.05)),))
+    goal = _to_push_end(arm, within=0.017)
+    assist = arm.core.assist
+    end = goal.poses[-1].position
+    d = np.array([*goal.task.direction_vector, 0.0])
+    J = kin.jacobian(arm.q)[:3]
+    back = np.linalg.pinv(J) @ (-0.1 * d)              # the person's command: 10 cm/s back along the push
+    t = arm.t
+    for _ in range(100):                               # one second, the arm stalled where it is
+        t += DT
+        cmd = assist.command(arm.q, 1.0, back, t)
+    v = J @ cmd
+    assert assist.state.share > 0.9 and goal.done
+    assert float(v @ (end - arm.tcp())) >= 0.0          # not led back by the person's command

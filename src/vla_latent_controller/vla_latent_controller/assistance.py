@@ -18,14 +18,19 @@ goals and "none of them"; the confidence is the inferred goal's probability.
 Command: with the stick forward the command is (1 - a) x person's + a x assistance's, a = the level's
 share times how far the confidence is above one half; the assistance's moves the TCP straight toward
 the goal's next pose at the demonstrations' speed times |stick| (slowing onto a pose where the hand
-acts and onto the last one) and turns the hand toward its orientation. The person stays in charge:
+acts and onto the last one) and turns the hand toward its orientation. A push's end follows the object:
+the hand pushes along the line through where the object is now seen (up to PUSH_FOLLOW_M aside of the
+line through where it was first seen), so a box that turns and slides aside under the fingers is
+pushed back onto its direction. The person stays in charge:
 - the stick at rest gives zero (the controller never calls this then);
 - reversed, the assistance retraces the goal's poses and the command never moves the TCP toward the
   goal's next pose, from the first step;
 - only the stick's speed: |stick| sets it, the assistance never moves faster than the stick asks;
 - confidence falls as fast as it rises: motion away, another object picked (all evidence dropped),
   a goal whose object is no longer in the detections pulls no more from the next step;
-- a goal whose last pose is reached holds the hand there (zero) until the stick returns to neutral.
+- a goal whose last pose is reached (within REACH_M where the hand does nothing there) holds the hand
+  there until the stick returns to neutral: it settles onto the pose, then zero; what the person's
+  command does meanwhile no longer moves the goal.
 The hand is the operator's: the assistance waits above the object until the hand is open, at the
 grasp pose until the fingers have closed on the object (the grasp button), and at the place until
 they have opened.
@@ -52,7 +57,11 @@ MEMORY_M = 0.15           # m of motion over which old evidence fades to 1/e
 EVIDENCE_MAX = 6.0        # nats, either way
 AWAY_WEIGHT = 3.0         # motion away from a goal counts this many times its progress (falls faster)
 REACH_M = 0.02            # a pose passed through counts as reached this close
-STOP_REACH_M = 0.005      # a pose where the hand acts, or the last one
+STOP_REACH_M = 0.005      # a pose where the hand acts; the last one is held from REACH_M on, settled to this
+# A push's end is aimed along the line through the object's latest sighting, at most this far aside of the
+# line through its first: a tall box pushed low turns and slides off the fingers' line (the cereal box, 33-54
+# deg off); followed, the push brings it back. Farther aside is a misdetection, not the object.
+PUSH_FOLLOW_M = 0.05
 PACE_CAP = 2.0            # the person's pace counts up to this many times the demonstrations' speed
 POSITION_GAIN = 2.0       # 1/s onto a pose the hand stops at
 ROTATION_GAIN = 2.0       # 1/s
@@ -315,7 +324,7 @@ class Assistance:
         if self._held is not None:
             goal, share = self._held
             if u > 0 and goal.obj.visible:  # reached, the stick still forward: hold as when reached
-                return (1.0 - share) * person
+                return self._settle(goal, q, share, person, u)
             self._held = None
             if u > 0:   # its object left the view: a stop the person did not choose (they return to neutral)
                 self.lost = f"the {goal.obj.class_id} of the goal reached is no longer detected"
@@ -332,12 +341,23 @@ class Assistance:
             return person
         if u > 0 and best.done:
             self._held = (best, share)
-            return (1.0 - share) * person
+            return self._settle(best, q, share, person, u)
         pace = float(np.linalg.norm(J[:3] @ person))
         rows, twist = self._toward(best, p, R, J, u, pace) if u > 0 else self._back(best, p, J, u, pace)
         out = person + share * _solve(rows, twist - rows @ person)
         out = self._clear(q, out, J[:3], best)
         return out if u > 0 else _not_toward(out, best.target().position - p, J)
+
+    def _settle(self, goal: Goal, q: np.ndarray, share: float, person: np.ndarray, u: float) -> np.ndarray:
+        """A reached goal's hold: the hand settles onto its last pose (the approach that slows onto it,
+        the person's command kept out by the share it had when reached), then zero. Held 15 s, the hand
+        came within 5-10 mm of a push's end and no nearer; the person's decoder drove on meanwhile and,
+        counted as motion away, handed the pull to another object's goal, whose push moved the box on."""
+        p, R, J = self.kinematics.tcp_state(q)
+        if np.linalg.norm(self._aim(goal) - p) <= STOP_REACH_M:
+            return (1.0 - share) * person
+        rows, twist = self._toward(goal, p, R, J, u, 0.0)
+        return (1.0 - share) * person + share * _solve(rows, twist)
 
     def _clear(self, q: np.ndarray, dq: np.ndarray, J_tcp: np.ndarray, best: Goal) -> np.ndarray:
         """Keep the arm's links (not the wrist and hand: they are meant to come close) CLEARANCE_M
@@ -390,11 +410,12 @@ class Assistance:
             elif g.stage > 0 and np.linalg.norm(g.previous() - p) < REACH_M:
                 g.stage -= 1
 
-    @staticmethod
-    def _reached(g: Goal, p: np.ndarray, hand: str) -> bool:
+    @classmethod
+    def _reached(cls, g: Goal, p: np.ndarray, hand: str) -> bool:
+        """The hand is at the goal's next pose: within STOP_REACH_M where it acts, REACH_M elsewhere
+        (the last pose too: its hold settles the hand onto it)."""
         pose = g.target()
-        stops = bool(pose.hand) or g.stage == len(g.poses) - 1
-        if np.linalg.norm(pose.position - p) >= (STOP_REACH_M if stops else REACH_M):
+        if np.linalg.norm(cls._aim(g) - p) >= (STOP_REACH_M if pose.hand else REACH_M):
             return False
         if pose.hand == GRASP:
             return hand == "holding"
@@ -451,10 +472,10 @@ class Assistance:
         person's: the decoder's, which keeps the demonstrations' arm configuration (a forced tilt put
         the forearm on a tall box's top)."""
         pose = g.target()
-        to = pose.position - p
+        to = self._aim(g) - p
         dist = float(np.linalg.norm(to))
         speed = _speed(u, pose.speed, pace)
-        if pose.hand or g.stage == len(g.poses) - 1:
+        if pose.hand or g.stage >= len(g.poses) - 1:
             speed = min(speed, POSITION_GAIN * dist)
         v = to / dist * speed if dist > 1e-9 else np.zeros(3)
         if not pose.aligns:
@@ -468,6 +489,18 @@ class Assistance:
             return J, np.concatenate([v, w])
         across = np.eye(3) - np.outer(z, z)
         return np.vstack([J[:3], across @ J[3:]]), np.concatenate([v, w])
+
+    @staticmethod
+    def _aim(g: Goal) -> np.ndarray:
+        """Where the hand heads for the goal's next pose: the pose, or for a push's end the pose moved
+        aside onto the line through where the object is now seen (along the push, PUSH_FOLLOW_M at most)."""
+        pose = g.target()
+        if g.task.kind != "push" or g.stage < len(g.poses) - 1:
+            return pose.position
+        d = np.asarray(g.task.direction_vector, float)
+        across = np.array([-d[1], d[0]])
+        aside = float(np.clip((g.obj.xy - g.obj.anchor) @ across, -PUSH_FOLLOW_M, PUSH_FOLLOW_M))
+        return pose.position + np.array([*(aside * across), 0.0])
 
     def _back(self, g: Goal, p, J, u: float, pace: float) -> tuple[np.ndarray, np.ndarray]:
         """(Jacobian rows, twist): the TCP retracing the goal's poses, toward the one before its next."""

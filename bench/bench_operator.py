@@ -249,7 +249,7 @@ def main() -> int:
     ap.add_argument("--synthetic-camera", type=float, default=0.0, metavar="HZ",
                     help="only the station, fed 640x480 frames at HZ from here (the frame rate alone)")
     ap.add_argument("launch_args", nargs="*", metavar="NAME:=VALUE",
-                    help="teleop.launch.yaml arguments (e.g. use_camera:=false: the graph without its camera)")
+                    help="teleop.launch.yaml arguments (e.g. log_level:=debug)")
     args = parse(ap, presses=10, estops=3)
     print(f"load average at start: {os.getloadavg()}", flush=True)
     if args.synthetic_camera > 0:

@@ -8,6 +8,7 @@ from types import SimpleNamespace
 import pytest
 from vla_evaluation.graph import GraphError
 from vla_evaluation.graph_sweep import GRAPH_ATTEMPTS
+
 from vla_study import cli, on_ray
 
 
@@ -46,7 +47,8 @@ def test_a_unit_that_ends_in_a_graph_error_runs_again_whole_on_a_new_graph(monke
     w, made = worker(monkeypatch, tmp_path, failing=GRAPH_ATTEMPTS - 1)
     done = w.run(UNIT)
     assert [(k, row["seed"]) for k, row, _ in done] == [("practice", 1), ("test", 2)]
-    assert len(made) == GRAPH_ATTEMPTS and all(b.closed for b in made[:-1]) and made[-1].ran == ["practice", "test"]
+    assert len(made) == GRAPH_ATTEMPTS and all(b.closed for b in made[:-1])
+    assert made[-1].ran == ["practice", "test"]
 
 
 def test_a_unit_whose_every_attempt_fails_fails(monkeypatch, tmp_path):

@@ -553,3 +553,15 @@ def test_hostile_catalogues_set_by_a_peer_are_refused_and_the_open_episode_goes_
     stop = c.stop()
     assert stop.success and "kept episode 1" in stop.message, stop.message
     assert rosbags_counts(started.bag_path) == {"/joint_states": 100}
+
+
+def test_the_status_keeps_coming_while_a_simulation_holds(ros, tmp_path):
+    """On simulated time with no /clock (a lockstep simulation held at a step) the recorder still says
+    its status, stamped with its own clock: an orchestrator that waits for that clock gets an answer
+    (on /clock the status timer never fired, and such a wait hung)."""
+    make_recorder(ros, tmp_path, use_sim_time=True)
+    seen: list[RecorderStatus] = []
+    probe = ros.add(Node("status_probe", context=ros.context))
+    probe.create_subscription(RecorderStatus, "recorder/status", seen.append, 10)
+    assert ros.spin_until(lambda: len(seen) >= 3, 10.0), len(seen)
+    assert all(s.header.stamp.sec == 0 and s.header.stamp.nanosec == 0 for s in seen)  # no /clock yet

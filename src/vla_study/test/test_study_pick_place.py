@@ -227,7 +227,9 @@ def test_the_table_has_a_row_per_condition_on_the_same_layouts():
     assert [x.split(" | ")[0] for x in body] == ["| latent alone", "| end-effector alone", "| hybrid control"]
     assert "| 0/2 (0.00) | 15.0 | 60.0 |" in body[0] and "| 1/2 (0.50) | 6.5 | 40.0 | 20.0 |" in body[2]
     assert text.startswith("Simulated participants") and "2 test layouts per condition" in text
-    assert table(rows + [row("latent alone", 3, False, 0.1, 60.0)]) == text.replace("(0 rows", "(1 rows")
+    assert "left out" not in text and "the same layouts in each; through" in text
+    assert table(rows + [row("latent alone", 3, False, 0.1, 60.0)]) == text.replace(
+        "in each;", "in each (1 row on layouts not run in every condition left out);")
 
 
 def test_a_study_unit_that_fails_leaves_no_graph_for_the_next():

@@ -50,9 +50,11 @@ def table(rows: list[dict]) -> str:
                if any(r["condition"] == c for r in rows)}
     n = len(next(iter(layouts.values()), []))
     limit = rows[0]["time_limit_s"] if rows else float("nan")
+    plural = "s" if left_out > 1 else ""
+    dropped = f" ({left_out} row{plural} on layouts not run in every condition left out)" if left_out else ""
     lines = [f"Simulated participants (vla_study.hand_participant), {n} test layouts per condition, the same "
-             f"layouts in each ({left_out} rows on layouts not run in every condition left out); through the "
-             f"graph in lockstep. A failure's time is the limit ({limit:g} s).",
+             f"layouts in each{dropped}; through the graph in lockstep. A failure's time is the limit "
+             f"({limit:g} s).",
              "", "| condition | success | placement error, median (cm) | time, median (s) | "
              "time of successes, median (s) | grasp presses, median | failed grasps | mode switches "
              "(latent/end effector), median | thrown |", "|---|---|---|---|---|---|---|---|---|"]

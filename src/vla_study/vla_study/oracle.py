@@ -191,8 +191,9 @@ def oracle_tables(rows: list[dict]) -> str:
     seeds = max(r["seed_index"] for r in rows) + 1
     cols = " | ".join(f"model seed {i}" for i in range(seeds))
     head = f"| strategy | setting | {cols} | seeds together |"
-    lines = [f"### The {LABEL} on the {layouts} layouts ({loop} loop): {what}", "", head,
-             "|" + "---|" * (seeds + 3)]
+    lines = [f"### The {LABEL} on the {layouts} layouts ({loop} loop): {what}", "",
+             "Model seed i: the i-th model the protocol lists for the setting (the matched set's training "
+             "seed i; participant j drives the (j mod n)-th).", "", head, "|" + "---|" * (seeds + 3)]
     by = _group(rows, ("strategy", "setting"))
     for (strategy, setting), group in by.items():
         per = _group(group, ("seed_index",))

@@ -115,6 +115,16 @@ class Observer(Node):
 def thread_nices(executable: str, parent: int) -> dict[int, int]:
     """{thread id: nice value} of the node process whose executable is named so, started by the
     process `parent` (the launch: another graph on the machine runs its own nodes of that name)."""
+    return _thread_fields(executable, parent, 16)
+
+
+def thread_policies(executable: str, parent: int) -> dict[int, int]:
+    """{thread id: scheduling policy (os.SCHED_OTHER, os.SCHED_FIFO, ...)} of that node process."""
+    return _thread_fields(executable, parent, 38)
+
+
+def _thread_fields(executable: str, parent: int, index: int) -> dict[int, int]:
+    """One numeric field of /proc/<pid>/task/<tid>/stat (`index` counted after the command's name)."""
     pids = []
     for d in Path("/proc").iterdir():
         if d.name.isdigit():
@@ -126,13 +136,26 @@ def thread_nices(executable: str, parent: int) -> dict[int, int]:
             if ppid == parent and any(Path(a.decode(errors="replace")).name == executable for a in args[:2]):
                 pids.append(d)
     assert len(pids) == 1, f"{len(pids)} processes of {parent} run {executable}"
-    nices = {}
+    fields = {}
     for t in (pids[0] / "task").iterdir():
         try:
-            nices[int(t.name)] = int((t / "stat").read_text().rsplit(")", 1)[1].split()[16])
+            fields[int(t.name)] = int((t / "stat").read_text().rsplit(")", 1)[1].split()[index])
         except (OSError, IndexError):
             pass    # a thread that ended meanwhile
-    return nices
+    return fields
+
+
+def realtime_allowed() -> bool:
+    """Whether this machine lets a process of ours run SCHED_FIFO (root, CAP_SYS_NICE, an rtprio
+    limit), and this process is not niced (a niced node stays normal: vla_common.priority)."""
+    if os.getpriority(os.PRIO_PROCESS, 0) > 0:
+        return False
+    try:
+        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
+    except OSError:
+        return False
+    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
+    return True
 
 
 def cosine(a: np.ndarray, b: np.ndarray) -> float:

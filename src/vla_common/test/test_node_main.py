@@ -159,3 +159,36 @@ def test_a_command_line_rcl_cannot_read_exits_2_with_one_line_and_a_hint():
                     "be of same type. Value type 'bool' do not belong at line_num 1 (rcl reads a bare y, n, "
                     "yes, no, on, off, true or false as a boolean: quote such strings in a list, ['x', 'y'])"]
     assert "Traceback" not in p.stderr
+
+
+class _Params:
+    """A node's has_parameter/get_parameter over a dict, and a logger that keeps its warnings."""
+
+    def __init__(self, **values):
+        self.values, self.warnings = values, []
+
+    def has_parameter(self, name):
+        return name in self.values
+
+    def get_parameter(self, name):
+        return type("P", (), {"value": self.values[name]})()
+
+    def get_logger(self):
+        return type("L", (), {"warning": lambda _, text: self.warnings.append(text)})()
+
+
+@pytest.mark.parametrize(("values", "asked"), [
+    ({"thread_priority": 10}, [10]),
+    ({"thread_priority": 10, "lockstep": False}, [10]),
+    ({"thread_priority": 10, "lockstep": True}, []),   # the simulation owns time: no person waits
+    ({"rate": 5.0}, []),                               # a node off the operator's path
+])
+def test_the_thread_priority_is_applied_once_the_node_is_built_and_never_in_lockstep(monkeypatch, values,
+                                                                                      asked):
+    from vla_common.ros import node_main
+    calls = []
+    monkeypatch.setattr(node_main, "run_realtime", lambda p: calls.append(p) or "refused here")
+    node = _Params(**values)
+    node_main._run_realtime(node)
+    assert calls == asked
+    assert node.warnings == ["refused here"] * len(asked)    # why not, said once

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 from rclpy.node import Node
 from sensor_msgs.msg import Joy
 from vla_common.ros.node_main import run_node
-from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.parameters import THREAD_PRIORITY, Param, ParameterTable
 
 from vla_joystick.joystick import DEFAULT_AUTOREPEAT_RATE, JoystickLoop, default_opener
 
@@ -22,6 +22,7 @@ NODE_NAME = "joy_node"
 
 # All read-only: they configure the device and the reader thread, which start with the node.
 PARAMETERS = ParameterTable([
+    THREAD_PRIORITY,   # on the operator's path: SCHED_FIFO where allowed (vla_common.priority)
     Param("device_path", "", "event device, e.g. /dev/input/by-id/usb-...-event-joystick; empty: search "
           "by device_name"),
     Param("device_name", "", "open the first device whose name contains this (case-insensitive); both "

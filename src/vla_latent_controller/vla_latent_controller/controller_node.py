@@ -31,7 +31,7 @@ from vla_common.ros import vision
 from vla_common.ros.convert import detections_from_array, ns_from_stamp, stamp_from_ns
 from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, StartupError, run_node
-from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.parameters import THREAD_PRIORITY, Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
 
 from vla_interfaces.msg import ControllerStatus, DetectionArray, StepAnswer
@@ -81,6 +81,7 @@ def _core(name: str, description: str, **options: Any) -> Param:
 
 
 PARAMETERS = ParameterTable([
+    THREAD_PRIORITY,   # on the operator's path: SCHED_FIFO where allowed (vla_common.priority)
     Param("model_path", "", "trained model directory (config.json + model.safetensors); empty: the "
           "shipped default; setting it reloads the model", dynamic=True),
     _core("mode", "latent or end_effector (also ~/set_mode)", choices=MODES, dynamic=True),

@@ -20,7 +20,7 @@ from rclpy.parameter import Parameter
 from sensor_msgs.msg import Image, Joy
 from std_srvs.srv import SetBool, Trigger
 from vla_common.ros.node_main import ConfigError, run_node
-from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.parameters import THREAD_PRIORITY, Param, ParameterTable
 from vla_common.ros.qos import SENSOR_QOS, image_qos
 
 from vla_interfaces.action import Questionnaire as QuestionnaireAction
@@ -47,6 +47,7 @@ LATEST_IMAGE_QOS = image_qos(depth=1)
 MODE_PRESS_S = 0.1
 
 PARAMETERS = ParameterTable([
+    THREAD_PRIORITY,   # on the operator's path: SCHED_FIFO where allowed (vla_common.priority)
     Param("bind", "127.0.0.1", "address the page is served on (0.0.0.0: every interface)"),
     Param("port", 8080, "TCP port; 0: any free port (the address is logged)", range=(0, 65535)),
     Param("token_file", "", "file holding the token every page's address carries (on loopback too), "

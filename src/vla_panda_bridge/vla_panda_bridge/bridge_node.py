@@ -38,7 +38,7 @@ from vla_common.ros.convert import quat_wxyz_from_matrix, stamp_from_ns
 from vla_common.ros.description import publish_robot_description
 from vla_common.ros.diagnostics import Diagnostics
 from vla_common.ros.node_main import ConfigError, run_node
-from vla_common.ros.parameters import Param, ParameterTable
+from vla_common.ros.parameters import THREAD_PRIORITY, Param, ParameterTable
 from vla_common.ros.qos import IMAGE_QOS
 from vla_common.safety_status import SafetyCode, code_name
 
@@ -76,6 +76,7 @@ def _seven_positive(value) -> str | None:
 
 
 PARAMETERS = ParameterTable([
+    THREAD_PRIORITY,   # on the operator's path: SCHED_FIFO where allowed (vla_common.priority)
     Param("autostart", True, "Configure and activate at start; false: wait in 'unconfigured' for a "
           "lifecycle manager's transitions (configure connects, activate moves)"),
     Param("backend", "mujoco", "Robot behind the safety layer: " + "; ".join(

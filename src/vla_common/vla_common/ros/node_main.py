@@ -31,6 +31,8 @@
   against x0.37-0.45, the camera gave the station 20-23 frames/s against 10-13, key press ->
   joint_velocity_cmd median 4.8-6.3 ms against 13-34 ms; the controller used 10.5 % of a core against
   19-21 %. Its timers follow /clock with use_sim_time.
+- Once the node is built, its `thread_priority` parameter, where it declares one, puts its threads
+  at that SCHED_FIFO priority (`vla_common.priority.run_realtime`: the nodes on the operator's path).
 - The command line is remembered for the parameter table, which tells a file section meant for this
   node from a shared one (`parameter_sources`).
 - Exit codes: 0 after a signal or when the node sets `finished`; 2 for a refused parameter
@@ -60,6 +62,7 @@ from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
+from vla_common.priority import run_realtime
 from vla_common.ros.parameter_sources import remember
 from vla_common.ros.qos import use_large_image_transport
 
@@ -125,6 +128,7 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     code = 0
     try:
         node = make_node()
+        _run_realtime(node)
         executor = EventsExecutor()
         executor.add_node(node)
         spin_until_stopped(node, executor, lambda: signals.received is not None)
@@ -158,6 +162,19 @@ def rcl_argument_error(text: str) -> str:
         text += (" (rcl reads a bare y, n, yes, no, on, off, true or false as a boolean: quote such "
                  "strings in a list, ['x', 'y'])")
     return text
+
+
+def _run_realtime(node: Node) -> None:
+    """The node's `thread_priority` (a parameter of the nodes on the operator's path) for its threads,
+    now that they are all started: its background threads (nice > 0) are left as they are. Not in a
+    lockstep simulation: it owns time and runs as fast as the CPU allows, with no person waiting on
+    it; real time there would only take the cores from everything else."""
+    if node.has_parameter("lockstep") and node.get_parameter("lockstep").value:
+        return
+    if node.has_parameter("thread_priority"):
+        why = run_realtime(int(node.get_parameter("thread_priority").value))
+        if why:
+            node.get_logger().warning(why)
 
 
 def _watchdog(seconds: float) -> None:

@@ -41,6 +41,7 @@ from rcl_interfaces.msg import (
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 
+from vla_common.priority import INPUT_PRIORITY, MAX_PRIORITY
 from vla_common.ros.node_main import ConfigError
 from vla_common.ros.parameter_sources import Sources, arguments_of, closest_key, sources_for
 
@@ -217,3 +218,12 @@ class ParameterTable:
 def _did_you_mean(name: str, declared: list[str]) -> str:
     close = difflib.get_close_matches(name, declared, n=1, cutoff=0.6)
     return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+# The nodes on the operator's path (station, joystick, controller, bridge) declare this; `run_node`
+# applies it once the node is built (vla_common.priority.run_realtime says why it is real time).
+THREAD_PRIORITY = Param(
+    "thread_priority", INPUT_PRIORITY,
+    "SCHED_FIFO priority of this node's threads, the operator's input and the arm's commands first "
+    "(0: normal scheduling). Needs root, CAP_SYS_NICE or an rtprio limit; without, normal priority "
+    "and one warning", range=(0, MAX_PRIORITY))

@@ -22,7 +22,11 @@ and the page's frame rate, the station's counters and its CPU share are printed:
 page's share of the frame rate without the simulated camera, which falls behind real time on a loaded
 machine (the bridge's exit line in the launch log says by how much, and how many frames it dropped).
 
-Usage: python bench/bench_operator.py [--presses 100] [--synthetic-camera 30]
+With --browser-priority N Chromium runs at SCHED_FIFO N, as the nodes on the operator's path do
+(`thread_priority`): the page as on a device of its own. On the 2-core machine the browser otherwise
+waits behind the simulated robot's renderer like any other normal process.
+
+Usage: python bench/bench_operator.py [--presses 100] [--synthetic-camera 30] [--browser-priority 10]
        (after `source scripts/env.sh`)
 """
 from __future__ import annotations
@@ -111,6 +115,21 @@ def held_joy(joys: list[tuple[float, float, float]], t0: float) -> tuple[float, 
     """A press's Joy: the first held one stamped after the press. A late sample of the previous press's
     hold may still arrive (the stamp tells them apart), and this one may reach us after the command."""
     return next((j for j in joys if j[0] != 0.0 and j[1] >= t0 - SKEW), None)
+
+
+def realtime(pids: list[int], priority: int) -> str:
+    """Every thread of these processes at SCHED_FIFO `priority`; how many, or why not."""
+    n = 0
+    for pid in pids:
+        for t in Path(f"/proc/{pid}/task").glob("*"):
+            try:
+                os.sched_setscheduler(int(t.name), os.SCHED_FIFO, os.sched_param(priority))
+                n += 1
+            except ProcessLookupError:
+                pass
+            except OSError as e:
+                return f"refused ({e.strerror})"
+    return f"{n} threads of {len(pids)} processes"
 
 
 def cpu_seconds(pid: int) -> float:
@@ -248,6 +267,9 @@ def main() -> int:
     ap.add_argument("--estops", type=int, default=10)
     ap.add_argument("--synthetic-camera", type=float, default=0.0, metavar="HZ",
                     help="only the station, fed 640x480 frames at HZ from here (the frame rate alone)")
+    ap.add_argument("--browser-priority", type=int, default=0, metavar="N",
+                    help="run Chromium's threads at SCHED_FIFO N (needs root or an rtprio limit): the "
+                         "page as on a device of its own, not waiting behind the simulated robot")
     ap.add_argument("launch_args", nargs="*", metavar="NAME:=VALUE",
                     help="teleop.launch.yaml arguments (e.g. log_level:=debug)")
     args = parse(ap, presses=10, estops=3)
@@ -270,6 +292,9 @@ def main() -> int:
             up = "window.station && window.station.driver && window.station.boxes.length > 0"
             h.spin_until(lambda: js(up), 60.0)
             h.spin_until(lambda: "received" in obs.station, 5.0)
+            if args.browser_priority:
+                how = realtime(b.pids(), args.browser_priority)
+                print(f"Chromium at SCHED_FIFO {args.browser_priority}: {how}")
             counters0 = dict(obs.station)
             off0, unc0 = browser_offset(b.driver)
             pid = station_pid()

@@ -128,9 +128,9 @@ def run_node(make_node: Callable[[], Node], name: str, args: list[str] | None = 
     code = 0
     try:
         node = make_node()
-        _run_realtime(node)
         executor = EventsExecutor()
         executor.add_node(node)
+        _run_realtime(node)   # with the executor's own threads
         spin_until_stopped(node, executor, lambda: signals.received is not None)
         code = int(getattr(node, "exit_code", 0))
     except ConfigError as exc:

@@ -11,7 +11,14 @@ from vla_common.detection import Detection
 from vla_common.kinematics import PandaKinematics
 from vla_common.robot import READY_POSE
 from vla_common.task_goals import task_goal_poses
-from vla_latent_controller.assistance import HIDDEN_KEEP_S, HIDDEN_MARGIN_PX, LEVELS, STOP_REACH_M
+from vla_latent_controller.assistance import (
+    APPROACH_BACK_M,
+    HIDDEN_KEEP_S,
+    HIDDEN_MARGIN_PX,
+    LEVELS,
+    STOP_REACH_M,
+    TALL_M,
+)
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
 
@@ -310,3 +317,21 @@ def test_a_hand_held_short_of_the_push_end_is_not_led_off_by_the_persons_command
     v = J @ cmd
     assert assist.state.share > 0.9 and goal.done
     assert float(v @ (end - arm.tcp())) >= 0.0          # not led back by the person's command
+
+
+def test_the_push_of_a_tall_object_comes_down_farther_back_then_pushes_to_the_same_end(kin):
+    """Beside the cereal box (0.27 m) the descent to the demonstrations' pre-push stalled with the wrist on
+    the box's top edge; the hand comes down APPROACH_BACK_M farther back. Lower objects keep their poses."""
+    objects = (("cereal_box", (0.46, 0.0)), ("bread", (0.5, 0.3)))
+    arm = Arm(kin, model="cereal_box_push_south", objects=objects)
+    drive(arm, 0.2)
+    for goal in arm.core.assist.goals:
+        shape = CAT.spec(goal.obj.class_id)
+        theirs = task_goal_poses(goal.task, shape, goal.obj.anchor)
+        d = np.array([*goal.task.direction_vector, 0.0])
+        back = (APPROACH_BACK_M if shape.height >= TALL_M else 0.0) * d
+        assert [p.name for p in goal.poses] == [p.name for p in theirs]
+        for mine, their in zip(goal.poses, theirs):
+            expected = their.position if mine.name == "push_end" else their.position - back
+            assert mine.position == pytest.approx(expected, abs=1e-9), (goal.task.name, mine.name)
+    assert CAT.spec("cereal_box").height >= TALL_M > CAT.spec("bread").height

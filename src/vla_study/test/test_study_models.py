@@ -200,3 +200,31 @@ def test_the_graph_backend_drives_each_participants_model(tmp_path):
     for t in sorted(trial_plan(p), key=lambda t: t.participant):
         backend._set_strategy(t)
     assert asked == ["default", "cereal_box_push_south"]
+
+
+def test_the_shipped_matched_models_come_in_pairs_trained_alike():
+    """Every shipped matched model (model_set's name) has its other strategy's model for the same setting
+    and seed, trained on the same trajectories (the training fingerprint hashes them), counts and seeds,
+    with the same epochs and updates, by this recipe; its path fraction was chosen on the development
+    layouts of its setting in paper.yaml (the provenance says how many) and is the one the model uses."""
+    from vla_evaluation.resources import SOURCE_MODELS
+    from vla_latent_controller.model import LatentModel
+
+    p, recipe = load_protocol(PAPER), model_set.Recipe()
+    shipped = {u.name: u for u in model_set.units_of(p, recipe) if (SOURCE_MODELS / u.name).is_dir()}
+    assert shipped, "no matched model ships"
+    pairs: dict[tuple[str, int], list] = {}
+    for name, u in shipped.items():
+        path = SOURCE_MODELS / name
+        prov, cfg = model_set.read_provenance(path), LatentModel.load(path).config
+        assert prov["recipe_digest"] == recipe.digest() and prov["training_seed"] == u.seed, name
+        assert prov["path_fraction"]["chosen"] == cfg["latent"]["path_fraction"], name
+        assert prov["path_fraction"]["layouts"] == len(development_layouts(p, u.setting)), name
+        t = cfg["training"]
+        want = {k: recipe.base_demos if k in p.settings["base"] else recipe.fewshot_demos for k in u.tasks}
+        assert t["demos_per_task"] == want, name
+        pairs.setdefault((u.setting, u.seed), []).append(
+            (prov["demo_seeds"], t["demos_per_task"], cfg["fingerprint"]["sha256"], t["epochs"],
+             t["optimiser_steps"], cfg["hyper_parameters"]["seed"]))
+    for key, facts in pairs.items():
+        assert len(facts) == len(model_set.ENCODERS) and facts[0] == facts[1], key

@@ -145,18 +145,5 @@ def _thread_fields(executable: str, parent: int, index: int) -> dict[int, int]:
     return fields
 
 
-def realtime_allowed() -> bool:
-    """Whether this machine lets a process of ours run SCHED_FIFO (root, CAP_SYS_NICE, an rtprio
-    limit), and this process is not niced (a niced node stays normal: vla_common.priority)."""
-    if os.getpriority(os.PRIO_PROCESS, 0) > 0:
-        return False
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(1))
-    except OSError:
-        return False
-    os.sched_setscheduler(0, os.SCHED_OTHER, os.sched_param(0))
-    return True
-
-
 def cosine(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.dot(a, b) / max(np.linalg.norm(a) * np.linalg.norm(b), 1e-12))

@@ -15,7 +15,7 @@ import os
 
 import numpy as np
 import pytest
-from launch_process import LaunchProcess, Observer, cosine, realtime_allowed, thread_nices, thread_policies
+from launch_process import LaunchProcess, Observer, cosine, thread_nices, thread_policies
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import Joy
 from std_srvs.srv import Trigger
@@ -103,15 +103,10 @@ def test_teleop_launch_moves_the_arm_the_way_the_stick_commands(ros, tmp_path):
         for node in ("controller_node", "panda_bridge"):
             nices = thread_nices(node, run.proc.pid)
             assert nices[min(nices)] == base, (node, nices)   # its first thread: the executor's
-        # and the operator's path runs real time where the machine allows it: the controller's and the
-        # bridge's threads at SCHED_FIFO, apart from the bridge's background ones (the camera's
-        # renderer); the detector's never
-        path = os.SCHED_FIFO if realtime_allowed() else os.SCHED_OTHER
-        for node in ("controller_node", "panda_bridge"):
-            policies, nices = thread_policies(node, run.proc.pid), thread_nices(node, run.proc.pid)
-            assert policies[min(policies)] == path, (node, policies)
-            assert all(policies[t] != os.SCHED_FIFO for t, n in nices.items() if n > base and t in policies)
-        assert os.SCHED_FIFO not in thread_policies("detector_node", run.proc.pid).values()
+        # and the operator's path runs real time only where asked (thread_priority:=N), by default
+        # nothing in the graph does
+        for node in ("controller_node", "panda_bridge", "detector_node"):
+            assert os.SCHED_FIFO not in thread_policies(node, run.proc.pid).values(), node
         reset_to_one_object(ros, obs)
         obs.safety.clear()
         forward, cmd_forward = hold_stick(ros, obs, joy, 0.8, 2.0)

@@ -13,9 +13,10 @@ threads it starts inherit it), so this touches only the calling thread; elsewher
 A nice value is not enough for the input and control side: on the 2-core machine with the simulated
 graph busy, a thread that sleeps 5 ms at nice 0 or -5 woke up to 100-176 ms late (115-168 times over
 8 ms in 40 s; the same thread at SCHED_FIFO: at most 1.3 ms), and the key press waited for it at every
-hop. So the nodes on the person's path (station, joystick, controller, bridge) run their threads at a
-modest SCHED_FIFO priority (`run_realtime`, the `thread_priority` parameter, as ros2_control's
-controller manager does), where the system allows it: root, CAP_SYS_NICE or an rtprio limit (the
+hop. So the nodes on the person's path (station, joystick, controller, bridge) can run their threads
+at a modest SCHED_FIFO priority (`run_realtime`, the `thread_priority` parameter, as ros2_control's
+controller manager does; off by default, `thread_priority:=10` in teleop.launch.yaml), where the system
+allows it: root, CAP_SYS_NICE or an rtprio limit (the
 `realtime` group that libfranka's setup creates). Their threads sleep between events, and the kernel
 keeps 5 % of each second for the others (sched_rt_runtime_us). Elsewhere they run as before, with one
 line that says why.
@@ -29,8 +30,9 @@ from pathlib import Path
 
 BACKGROUND_NICE = 10   # added to the caller's nice value: weight ~1/9 of a nice-0 thread under contention
 MAX_NICE = 19
-# SCHED_FIFO priority of the input and control nodes' threads: above every normal thread, below the
-# kernel's interrupt threads (50) and a libfranka loop given its own `loop_priority`
+# SCHED_FIFO priority the input and control nodes' threads are given where a launch asks for it
+# (`thread_priority:=10`): above every normal thread, below the kernel's interrupt threads (50) and a
+# libfranka loop given its own `loop_priority`
 INPUT_PRIORITY = 10
 MAX_PRIORITY = 98
 

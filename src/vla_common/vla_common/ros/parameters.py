@@ -222,8 +222,10 @@ def _did_you_mean(name: str, declared: list[str]) -> str:
 
 # The nodes on the operator's path (station, joystick, controller, bridge) declare this; `run_node`
 # applies it once the node is built (vla_common.priority.run_realtime says why it is real time).
+# Off by default: a graph that runs beside other work (tests, evaluations) keeps normal scheduling;
+# the person's PC sets it (teleop.launch.yaml's thread_priority, e.g. INPUT_PRIORITY).
 THREAD_PRIORITY = Param(
-    "thread_priority", INPUT_PRIORITY,
-    "SCHED_FIFO priority of this node's threads, the operator's input and the arm's commands first "
-    "(0: normal scheduling). Needs root, CAP_SYS_NICE or an rtprio limit; without, normal priority "
-    "and one warning", range=(0, MAX_PRIORITY))
+    "thread_priority", 0,
+    f"SCHED_FIFO priority of this node's threads, the operator's input and the arm's commands first "
+    f"(0: normal scheduling; e.g. {INPUT_PRIORITY}). Needs root, CAP_SYS_NICE or an rtprio limit; "
+    "without, normal priority and one warning", range=(0, MAX_PRIORITY))

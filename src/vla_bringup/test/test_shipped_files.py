@@ -62,7 +62,7 @@ def test_teleop_arguments_reach_the_nodes(tmp_path):
         path,
         {"use_sim_time": "true", "detector_model": "/m/d.onnx", "use_joy": "true", "real_time_factor": "4.0",
          "catalogue": "/lab/objects.yaml", "backend": "libfranka", "robot_model": "fr3",
-         "robot_ip": "172.16.0.2"},
+         "robot_ip": "172.16.0.2", "thread_priority": "10"},
         _stub_ctx(tmp_path),
     )
     by_exec = {
@@ -74,8 +74,10 @@ def test_teleop_arguments_reach_the_nodes(tmp_path):
     assert by_exec["controller_node"]["use_sim_time"] is True
     assert by_exec["panda_bridge"] == {"backend": "libfranka", "real_time_factor": 4.0,
                                        "catalogue": "/lab/objects.yaml", "robot_model": "fr3",
-                                       "robot_ip": "172.16.0.2", "driver": "auto"}
+                                       "robot_ip": "172.16.0.2", "driver": "auto", "thread_priority": 10}
     assert "joy_node" in by_exec
+    # the operator's path, all of it: the bridge, the controller and the joystick (the station when used)
+    assert all(by_exec[n]["thread_priority"] == 10 for n in ("controller_node", "joy_node"))
     with pytest.raises(LaunchFileError, match="valid choices"):
         load_launch_file(path, {"backend": "gazebo"}, _stub_ctx(tmp_path))
 

@@ -16,10 +16,9 @@ graph busy, a thread that sleeps 5 ms at nice 0 or -5 woke up to 100-176 ms late
 hop. So the nodes on the person's path (station, joystick, controller, bridge) can run their threads
 at a modest SCHED_FIFO priority (`run_realtime`, the `thread_priority` parameter, as ros2_control's
 controller manager does; off by default, `thread_priority:=10` in teleop.launch.yaml), where the system
-allows it: root, CAP_SYS_NICE or an rtprio limit (the
-`realtime` group that libfranka's setup creates). Their threads sleep between events, and the kernel
-keeps 5 % of each second for the others (sched_rt_runtime_us). Elsewhere they run as before, with one
-line that says why.
+allows it: root, CAP_SYS_NICE or an rtprio limit (the `realtime` group that libfranka's setup creates).
+Their threads sleep between events, and the kernel keeps 5 % of each second for the others
+(sched_rt_runtime_us). Elsewhere they run as before, with one line that says why.
 """
 from __future__ import annotations
 

@@ -120,3 +120,16 @@ def test_plan_pace_slows_the_plan_clock_while_the_arm_lags():
     assert 0.0 < plan_pace((lo + hi) / 2) < 1.0
     assert plan_pace(hi) == 0.0 and plan_pace(1.0) == 0.0
     assert plan_pace(float("nan")) == 0.0
+
+
+def test_the_last_frame_at_a_hold_comes_from_the_counts_since_the_reset():
+    """Lockstep: the frame the recording waits for before it stops is known from the counts (frames at
+    the reset's step and every round(1 / (camera_rate * unit)) steps), not from what has arrived: the
+    held step's own frame may still be rendering when the hold is reported."""
+    from vla_evaluation.generate import last_frame_stamp
+
+    unit, rate, reset = 0.02, 5.0, 3.14          # 50 Hz states, a frame every 10 steps
+    assert last_frame_stamp(reset, reset, unit, rate) == pytest.approx(reset)
+    assert last_frame_stamp(reset + 9 * unit, reset, unit, rate) == pytest.approx(reset)
+    assert last_frame_stamp(reset + 10 * unit, reset, unit, rate) == pytest.approx(reset + 0.2)  # its own
+    assert last_frame_stamp(reset + 71 * unit, reset, unit, rate) == pytest.approx(reset + 1.4)

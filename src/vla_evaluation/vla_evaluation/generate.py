@@ -585,6 +585,14 @@ def _write_report(cfg: GenerateConfig, records: list[EpisodeRecord]) -> None:
     (cfg.out / "generate_report.json").write_text(json.dumps(report, indent=1, default=str))
 
 
+def last_frame_stamp(held: float, reset: float, unit: float, camera_rate: float) -> float:
+    """Lockstep: the stamp (s) of the last camera frame at or before the held step `held`. The bridge
+    renders one at the reset's step and every round(1 / (camera_rate * unit)) steps after it."""
+    every = max(1, round(1.0 / (camera_rate * unit)))
+    steps = round((held - reset) / unit)
+    return reset + (steps // every) * every * unit
+
+
 def _reset_scene(demo: Demonstrator, spec, layout, q0, alive) -> ObjectPose:
     """Reset through the bridge's ~/reset and wait for the settled, detected scene; the object's pose.
     Lockstep: the reset while the simulation holds, then a fixed RESET_SETTLE_S of steps."""
@@ -684,12 +692,14 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episod
     t_end = _record_plan(cfg, demo, spec, plan, rec, alive)
     rec.duration_s = plan.duration
     if demo.steps is not None:   # the recorded tail, a fixed count of steps the recorder has answered
-        demo.steps.run(round(RECORD_TAIL_S / demo.steps.unit) + 1, "the recorded tail")
-        # and the detections of every frame rendered by then, the last one's too (published at or just
-        # before the hold, it reached the bag before the stop at load and after it when quiet: one
-        # detection more or less, test_generate_lockstep); the recorder had it before the stop's request
-        _wait(demo, lambda: demo.detections_stamp >= demo.frame_stamp, WAIT_S, "the last frame's detection",
-              alive)
+        held = demo.steps.run(round(RECORD_TAIL_S / demo.steps.unit) + 1, "the recorded tail")
+        # and the last frame's camera info and detections, that frame known from the counts (not from
+        # what has arrived: the held step's frame may still be rendering, and its camera info was seen
+        # to reach the bag after the stop at load, test_generate_lockstep); the recorder has them before
+        # the stop's request, which follows them
+        last = last_frame_stamp(held, demo.reset_stamp, demo.steps.unit, cfg.camera_rate)
+        _wait(demo, lambda: min(demo.frame_stamp, demo.detections_stamp) >= last - demo.steps.unit / 2,
+              WAIT_S, f"the last frame's ({last:.3f} s) detection", alive)
     _wait(demo, lambda: demo.objects_stamp >= t_end, WAIT_S, "the final object poses", alive)
     if demo.steps is None:  # stop once the recorder's clock has passed the plan's end (else the tail is lost)
         _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, WAIT_S, "the recorder to catch up",

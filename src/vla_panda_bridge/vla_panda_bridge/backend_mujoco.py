@@ -162,7 +162,7 @@ class MujocoBackend(BackendBase):
         self._wall_start = time.monotonic()
         if host.params["lockstep"]:
             self._lockstep = Lockstep(host, self._steps_per_state * self._dt, self._lockstep_period,
-                                      self.now_ns, self.publish_scene)
+                                      self.now_ns, self._lockstep_hold)
             self._lockstep_outputs()
             host.publish_state()
             self._lockstep.begin()
@@ -320,13 +320,23 @@ class MujocoBackend(BackendBase):
     def _lockstep_period(self) -> None:
         """Lockstep: the last step's camera frame is out (it may only render while the nodes answer),
         then one state period; its outputs go before its joint state (vla_common.lockstep)."""
-        if self._camera is not None and not self._camera.wait_idle(timeout=FRAME_WAIT_S):
-            self._host.get_logger().error(f"lockstep: a camera frame took over {FRAME_WAIT_S:.0f} s to "
-                                          "render; the next joint state may overtake it")
+        self._frame_out("the next joint state")
         self._physics_period(scheduled=False)
         self._states_since_reset += 1
         self._lockstep_outputs()
         self._host.publish_state()
+
+    def _lockstep_hold(self) -> None:
+        """Lockstep, holding: the held step's camera frame is out (it renders while the nodes answer),
+        then the scene an orchestrator reads there; the held status follows both."""
+        self._frame_out("the held status")
+        self.publish_scene()
+
+    def _frame_out(self, before: str) -> None:
+        """Lockstep: wait until the camera frame requested last is published (bounded, logged)."""
+        if self._camera is not None and not self._camera.wait_idle(timeout=FRAME_WAIT_S):
+            self._host.get_logger().error(f"lockstep: a camera frame took over {FRAME_WAIT_S:.0f} s to "
+                                          f"render; {before} may overtake it")
 
     def _lockstep_outputs(self) -> None:
         """/clock, and at their counts of states the scene, a camera frame and the periodic status."""
@@ -380,8 +390,10 @@ class MujocoBackend(BackendBase):
         img.data = rgb.tobytes()
         info = self._camera_info
         info.header.stamp = img.header.stamp
-        self._image_pub.publish(img)
+        # the info first: whatever a node makes of the image (a detection, and from that the end of a
+        # recorded episode) then follows it, however long this thread is kept off the CPU in between
         self._info_pub.publish(info)
+        self._image_pub.publish(img)
 
     def _make_camera_info(self) -> CameraInfo:
         fx, fy, cx, cy = self._camera.intrinsics

@@ -62,7 +62,7 @@ def test_teleop_arguments_reach_the_nodes(tmp_path):
         path,
         {"use_sim_time": "true", "detector_model": "/m/d.onnx", "use_joy": "true", "real_time_factor": "4.0",
          "catalogue": "/lab/objects.yaml", "backend": "libfranka", "robot_model": "fr3",
-         "robot_ip": "172.16.0.2", "thread_priority": "10"},
+         "robot_ip": "172.16.0.2", "thread_priority": "20"},
         _stub_ctx(tmp_path),
     )
     by_exec = {
@@ -74,10 +74,17 @@ def test_teleop_arguments_reach_the_nodes(tmp_path):
     assert by_exec["controller_node"]["use_sim_time"] is True
     assert by_exec["panda_bridge"] == {"backend": "libfranka", "real_time_factor": 4.0,
                                        "catalogue": "/lab/objects.yaml", "robot_model": "fr3",
-                                       "robot_ip": "172.16.0.2", "driver": "auto", "thread_priority": 10}
+                                       "robot_ip": "172.16.0.2", "driver": "auto", "thread_priority": 20}
     assert "joy_node" in by_exec
     # the operator's path, all of it: the bridge, the controller and the joystick (the station when used)
-    assert all(by_exec[n]["thread_priority"] == 10 for n in ("controller_node", "joy_node"))
+    assert all(by_exec[n]["thread_priority"] == 20 for n in ("controller_node", "joy_node"))
+    # by default normal scheduling (0): with the graph at SCHED_FIFO a browser on the same loaded PC
+    # waited behind it (the station's browser tests failed at load; docs/history.md, stop 39)
+    plain = load_launch_file(path, {"use_operator_station": "true"}, _stub_ctx(tmp_path))
+    merged = {p.executable: {k: v for d in p.params if isinstance(d, ParamDict) for k, v in d.values.items()}
+              for p in plain.processes}
+    assert {n: merged[n].get("thread_priority") for n in merged} == {
+        "panda_bridge": 0, "detector_node": None, "controller_node": 0, "operator_station": 0}
     with pytest.raises(LaunchFileError, match="valid choices"):
         load_launch_file(path, {"backend": "gazebo"}, _stub_ctx(tmp_path))
 

@@ -25,6 +25,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from vla_study.outcome import THROWN_M, thrown, trial_time  # noqa: E402
+from vla_study.protocol_schema import OFF, assistance_of, strategy_label  # noqa: E402
 
 EQUAL = "settings, equal weight"
 SHARE = "Switching share: mode-switch time (decisions and presses) over execution time. "
@@ -152,7 +153,7 @@ def analyse(out: Path, figures: Path, time_limit: float | None = None) -> list[s
 def _header(st: Study) -> list[str]:
     rows = st.rows
     lines = [f"# User study ({st.who}): {len(rows)} test trials, {len(st.participants)} participants, "
-             f"strategies {', '.join(st.strategies)}", ""]
+             f"strategies {', '.join(map(strategy_label, st.strategies))}", ""]
     if st.who.startswith("simulated"):
         lines += ["All numbers below come from **simulated participants** (the human-like operator model "
                   "of vla_study.participant), not from people: they say what this operator model does with "
@@ -162,6 +163,12 @@ def _header(st: Study) -> list[str]:
                        "since issue 33: its numbers were not the graph's)"}
     backends = sorted({r.get("backend", "physics") for r in rows})
     lines += ["Trials ran " + " and ".join(ways.get(b, b) for b in backends) + ".", ""]
+    assisted = [strategy_label(s) for s in st.strategies if assistance_of(s) != OFF]
+    if assisted:
+        lines += [f"Assisted conditions ({', '.join(assisted)}): the controller's assistance (goal inference "
+                  "over the detected objects' tasks and a pull toward the inferred goal, "
+                  "vla_latent_controller.assistance) at the level named, with the strategy's model; every "
+                  "other condition has it off.", ""]
     rtf = [r["trial_rtf"] for r in rows if r.get("trial_rtf") is not None and not r.get("lockstep")]
     if rtf:
         lines += [f"{len(rtf)} trials ran the graph in real time, at {min(rtf):.2f}–{max(rtf):.2f} × real "
@@ -183,7 +190,8 @@ def _settings_table(st: Study, title: str, metric: str, fmt: str, counts: bool) 
     for s in st.strategies:
         cells = [f"{st.count(s, x)} ({st.cell(metric, s, x, fmt)})" if counts else st.cell(metric, s, x, fmt)
                  for x in st.settings]
-        lines.append(f"| {s} | " + " | ".join(cells) + f" | {st.cell(metric, s, None, fmt)} |")
+        lines.append(f"| {strategy_label(s)} | " + " | ".join(cells)
+                     + f" | {st.cell(metric, s, None, fmt)} |")
     return lines + [""]
 
 
@@ -208,7 +216,7 @@ def _effort_table(st: Study) -> list[str]:
         cells = [st.cell(m, s) for m in ("sparc", "ldlj", "path_length_m")]
         cells += [st.cell(m, s, fmt="{:.1f}") for m in ("n_inputs", "mode_switches")]
         cells.append("–" if share is None else f"{100 * share:.1f} %")
-        lines.append(f"| {s} | " + " | ".join(cells) + " |")
+        lines.append(f"| {strategy_label(s)} | " + " | ".join(cells) + " |")
     simulated = st.who.startswith("simulated")
     return lines + ["", "SPARC, LDLJ: closer to 0 is smoother. " + SHARE + HERLANT[simulated], ""]
 
@@ -231,7 +239,8 @@ def _thrown_table(st: Study) -> list[str]:
              "not pushed; each is also a failure above)", "",
              "| strategy | " + " | ".join(st.settings) + " |", "|---" * (len(st.settings) + 1) + "|"]
     for s in st.strategies:
-        lines.append(f"| {s} | " + " | ".join(st.count(s, x, "thrown") for x in st.settings) + " |")
+        lines.append(f"| {strategy_label(s)} | "
+                     + " | ".join(st.count(s, x, "thrown") for x in st.settings) + " |")
     flung = [r for r in st.rows if value(r, "thrown", st.limit)]
     lines += [""] + [f"- {r['key']}: {r['object_displacement_m']:.2f} m" for r in flung]
     return lines + ([""] if flung else [])
@@ -250,8 +259,8 @@ def _paired(st: Study) -> list[str]:
             pb = per_participant(st.rows, metric, b, x, st.limit)
             diffs = [pa[p] - pb[p] for p in sorted(set(pa) & set(pb))]
             if diffs:
-                lines.append(f"| {a} − {b} | {x or EQUAL} | {metric} | {np.mean(diffs):+.3f} | "
-                             f"{len(diffs)} | {sign_flip_p(diffs):.3f} |")
+                lines.append(f"| {strategy_label(a)} − {strategy_label(b)} | {x or EQUAL} | {metric} | "
+                             f"{np.mean(diffs):+.3f} | {len(diffs)} | {sign_flip_p(diffs):.3f} |")
     return lines + [""]
 
 
@@ -265,7 +274,7 @@ def _figure4(st: Study, path: Path) -> None:
         ms = [mean_se(per_participant(st.rows, "success", s, g, st.limit).values()) for g in st.settings]
         ms.append(mean_se(per_participant(st.rows, "success", s, None, st.limit).values()))
         ax.bar(x + (i - (len(st.strategies) - 1) / 2) * width, [m[0] for m in ms], width,
-               yerr=[0 if math.isnan(m[1]) else m[1] for m in ms], capsize=3, label=s)
+               yerr=[0 if math.isnan(m[1]) else m[1] for m in ms], capsize=3, label=strategy_label(s))
     ax.set_xticks(x, groups)
     ax.set_ylim(0, 1.05)
     ax.set_ylabel("success rate")
@@ -292,7 +301,7 @@ def _figure3(st: Study, out: Path, path: Path) -> None:
                 colour = "tab:green" if r["success"] else "tab:red"
                 ax.plot(tcp[:, 1], tcp[:, 0], lw=0.8, color=colour, alpha=0.8)
                 ax.plot(r["object_start"]["y"], r["object_start"]["x"], "ks", ms=4)
-        ax.set_title(f"{s} ({show})", fontsize=9)
+        ax.set_title(f"{strategy_label(s)} ({show})", fontsize=9)
         ax.set_xlabel("y (m)")
         ax.set_ylabel("x (m)")
         ax.invert_xaxis()

@@ -42,6 +42,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--participants", default=None, help="sim:N or comma-separated ids (overrides the file)")
     p.add_argument("--out", type=Path, default=Path("out/study"), help="study folder (resumed if it exists)")
     p.add_argument("--limit", type=int, default=None, help="stop after this many new trials")
+    p.add_argument("--only", default="", metavar="STRATEGY[,STRATEGY]",
+                   help="run only these of the protocol's conditions (the folder keeps the whole protocol: "
+                        "a later run without --only runs the others)")
     p.add_argument("--trials", type=int, default=None, help="test trials per task (overrides the file)")
     p.add_argument("--time-limit", type=float, default=None, help="s per trial (overrides the file)")
     p.add_argument("--backend", choices=("graph", "physics"), default=None,
@@ -81,6 +84,10 @@ def run(args) -> int:
         return 2
     if why := robot_refusal(proto):
         return refused([why])
+    only = tuple(s for s in args.only.split(",") if s)
+    if unknown := [s for s in only if s not in proto.strategies]:
+        return refused([f"--only: {', '.join(map(repr, unknown))} not among the protocol's strategies "
+                        f"({', '.join(proto.strategies)})"])
     if why := reused_seeds(proto):
         return refused(why)
     if args.check:
@@ -93,7 +100,7 @@ def run(args) -> int:
     failed: list[str] = []
     if not args.paths and not args.analyse_only:
         failed = run_study(proto, args.out, log=lambda s: print(s, flush=True), limit=args.limit,
-                           use_sim_time=args.use_sim_time, engine=engine_from(args)).failed
+                           use_sim_time=args.use_sim_time, engine=engine_from(args), only=only).failed
     from vla_study.analysis import analyse  # matplotlib: only for the figures, not for --help or --check
 
     for line in analyse(args.out, args.figures or args.out, proto.time_limit):

@@ -64,7 +64,7 @@ from vla_study.hand_participant import BUSY, EMPTY, HOLDING, OPEN
 from vla_study.participant import HumanOperator, HumanParams, Observation
 from vla_study.person import Experimenter, InputTally, PersonDriver, run_person_trial
 from vla_study.protocol import Protocol, model_for
-from vla_study.trial import Measured, Participant, Scene, Trial, TrialBackend, strategy_mode
+from vla_study.trial import Measured, Participant, Scene, Trial, TrialBackend, controller_parameters
 
 RECORDER = "recorder"
 # the stick and buttons as the controller is set up for them (grasp: the shipped controller.yaml's)
@@ -226,13 +226,19 @@ class StudyObserver(GraphObserver):
         msg = Joy()
         msg.header.stamp = stamp if stamp is not None else self.node.get_clock().now().to_msg()
         msg.header.frame_id = ""  # a Joy has no geometry
-        axes = [0.0] * NUM_AXES
-        axes[AXIS] = float(axis)
-        buttons = [0] * NUM_BUTTONS
-        buttons[EE_MODE_BUTTON] = 1 if press else 0
-        buttons[GRASP_BUTTON] = 1 if grasp else 0
-        msg.axes, msg.buttons = axes, buttons
+        msg.axes, msg.buttons = joy_fields(axis, press, grasp)
         self.joy_pub.publish(msg)
+
+
+def joy_fields(axis: float, press: bool = False, grasp: bool = False) -> tuple[list[float], list[int]]:
+    """The participant's Joy axes and buttons: the stick, the end-effector mode and the grasp buttons
+    where the study's graph sets the controller up for them (study_graph_config)."""
+    axes = [0.0] * NUM_AXES
+    axes[AXIS] = float(axis)
+    buttons = [0] * NUM_BUTTONS
+    buttons[EE_MODE_BUTTON] = 1 if press else 0
+    buttons[GRASP_BUTTON] = 1 if grasp else 0
+    return axes, buttons
 
 
 def study_graph_config(p: Protocol, out: Path, real_time_factor: float = 2.0,
@@ -336,10 +342,11 @@ class GraphBackend(TrialBackend):
         self.ev.close()
 
     def _set_strategy(self, trial: Trial) -> str:
-        mode = strategy_mode(trial.strategy)
-        # every trial, the same mode too: the end-effector baseline starts at its first axis, so a
-        # trial does not depend on the trials its graph ran before (a sweep's worker runs any of them)
-        self.ev.obs.set_parameters(CONTROLLER, {"mode": mode})
+        params = controller_parameters(trial.strategy)
+        mode = params["mode"]
+        # every trial, the same mode and assistance too: the end-effector baseline starts at its first
+        # axis, so a trial does not depend on the trials its graph ran before (a sweep's worker runs any)
+        self.ev.obs.set_parameters(CONTROLLER, params)
         self.mode = mode
         if mode == "latent":
             self.ev.set_model(str(latent_model_dir(model_for(self.protocol, trial))))

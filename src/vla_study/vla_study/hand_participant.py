@@ -49,6 +49,15 @@ REACH, CLOSE, CARRY, RELEASE = "reach", "close", "carry", "release"
 MODES = ("latent", "end_effector", "hybrid")
 # the three conditions as the results name them (a row's `condition`)
 CONDITIONS = {"latent": "latent alone", "end_effector": "end-effector alone", "hybrid": "hybrid control"}
+
+
+def condition(mode: str, assistance: str = "off") -> str:
+    """A row's condition as the results name it: `latent alone`, `latent with assistance high`."""
+    if assistance == "off":
+        return CONDITIONS[mode]
+    return f"{CONDITIONS[mode].removesuffix(' alone')} with assistance {assistance}"
+
+
 NECK_BELOW_TOP = 0.035   # m: the fingers (5 cm) closed round the object's top: the hand this far below it
 AROUND_XY, AROUND_Z = 0.012, 0.015   # m: the fingers look around the object (means of VIEWS views)
 HOVER = 0.08             # m above the grasp point before coming down (end effector; + practice's room)
@@ -73,14 +82,15 @@ class PickPlaceOperator(HumanOperator):
     switch of the controller's mode; `mode`: latent, end_effector or hybrid."""
 
     def __init__(self, params: HumanParams, goal: TaskGoal, mode: str, seed: int = 0,
-                 cycle: tuple[str, ...] = EE_CYCLE, lesson: Lesson | None = None) -> None:
+                 cycle: tuple[str, ...] = EE_CYCLE, lesson: Lesson | None = None,
+                 assistance: str = "off") -> None:
         if goal.kind != "pick_place":
             raise ValueError(f"PickPlaceOperator is for pick_place tasks, got {goal.kind!r}")
         if mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         super().__init__(params, goal, "end_effector" if mode == "end_effector" else "latent", seed,
                          cycle=cycle, lesson=lesson)
-        self.mode = mode
+        self.mode, self.assistance = mode, assistance   # the level the station shows (the condition's)
         self.driving = "end_effector" if mode == "end_effector" else "latent"
         self.phase = REACH
         self.hands: deque[np.ndarray] = deque(maxlen=LOOK)
@@ -344,6 +354,6 @@ class PickPlaceOperator(HumanOperator):
     def hand_row(self) -> dict:
         """The trial row's fields of the hand: the condition, presses, failed grasps, hybrid control's
         mode changes, the phase reached (reach, close, carry, release)."""
-        return {"condition": CONDITIONS[self.mode], "grasp_presses": self.grasp_presses,
+        return {"condition": condition(self.mode, self.assistance), "grasp_presses": self.grasp_presses,
                 "failed_grasps": self.failed_grasps, "control_switches": self.mode_changes,
                 "hand_phase": self.phase}

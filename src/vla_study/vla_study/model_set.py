@@ -46,6 +46,7 @@ from vla_evaluation.sweep import add_arguments as add_engine_arguments
 
 from vla_study.layouts import development_layouts, render_layouts
 from vla_study.protocol import PAPER, STRATEGIES, Protocol, ProtocolError, load_protocol
+from vla_study.protocol_schema import base_strategy
 
 # The encoder each latent strategy's models are trained with (vla_latent_training's --encoder).
 ENCODERS = {"latent-YOLO": "detector", "latent-localization": "localization"}
@@ -115,7 +116,7 @@ def fewshot_tasks(protocol: Protocol, setting: str) -> tuple[str, ...]:
 
 def units_of(protocol: Protocol, recipe: Recipe) -> list[Unit]:
     """Every model of the set, seed by seed (a stopped build has whole seeds first)."""
-    latent = [s for s in protocol.strategies if STRATEGIES[s] == "latent"]
+    latent = list(dict.fromkeys(base_strategy(s) for s in protocol.strategies if STRATEGIES[s] == "latent"))
     return [Unit(s, k, tuple(BASE_TASKS) + fewshot_tasks(protocol, k), seed)
             for seed in recipe.seeds for k in protocol.settings for s in latent]
 

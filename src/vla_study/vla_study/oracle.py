@@ -44,6 +44,7 @@ from vla_study.protocol import (
     model_names,
     parse_participants,
 )
+from vla_study.protocol_schema import base_strategy
 from vla_study.runner import trial_plan
 
 LOOPS = ("graph", "kinematic")
@@ -74,7 +75,8 @@ def oracle_units(p: Protocol, layouts: str = "test", loop: str = "graph", models
     """Every episode of the oracle's table, strategy by strategy and setting by setting."""
     assigned = _assigned(p) if models == "assigned" else {}
     out = []
-    for strategy in (s for s in p.strategies if STRATEGIES[s] == "latent"):
+    # an assisted condition drives its strategy's models: the oracle on them is its strategy's
+    for strategy in (s for s in p.strategies if STRATEGIES[s] == "latent" and base_strategy(s) == s):
         for setting in p.settings:
             names = model_names(p, strategy, setting)
             chosen = (trial_layouts(p, setting) if layouts == "test" else development_layouts(p, setting))

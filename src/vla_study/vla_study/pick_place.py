@@ -1,4 +1,5 @@
-"""The pick-and-place table: one row per condition (latent alone, end-effector alone, hybrid control),
+"""The pick-and-place table: one row per condition (latent alone, end-effector alone, hybrid control, and
+assisted ones: latent with assistance high),
 on the same test layouts, from a study folder's rows (protocols/pick_place.yaml's study).
 
     python -m vla_study.pick_place --out out/pick_place     # writes out/pick_place/pick_place.md
@@ -16,7 +17,13 @@ import statistics
 import sys
 from pathlib import Path
 
-ORDER = ("latent alone", "end-effector alone", "hybrid control")
+ORDER = ("latent alone", "end-effector alone", "hybrid control")   # then assisted ones, as they come
+
+
+def conditions(rows: list[dict]) -> list[str]:
+    """The conditions present: ORDER's, then the others (`latent with assistance high`) in row order."""
+    present = list(dict.fromkeys(r["condition"] for r in rows))
+    return [c for c in ORDER if c in present] + [c for c in present if c not in ORDER]
 
 
 def test_rows(path: Path) -> list[dict]:
@@ -36,8 +43,8 @@ def _s(value: float) -> str:
 
 def shared_layouts(rows: list[dict]) -> tuple[list[dict], int]:
     """The rows on layouts (participant, layout seed) that every condition present ran; how many left out."""
-    conditions = [c for c in ORDER if any(r["condition"] == c for r in rows)]
-    sets = [{(r["participant"], r["layout_seed"]) for r in rows if r["condition"] == c} for c in conditions]
+    sets = [{(r["participant"], r["layout_seed"]) for r in rows if r["condition"] == c}
+            for c in conditions(rows)]
     shared = set.intersection(*sets) if sets else set()
     kept = [r for r in rows if (r["participant"], r["layout_seed"]) in shared]
     return kept, len(rows) - len(kept)
@@ -46,8 +53,7 @@ def shared_layouts(rows: list[dict]) -> tuple[list[dict], int]:
 def table(rows: list[dict]) -> str:
     """Markdown: per condition, success, placement error, time and the hand's presses."""
     rows, left_out = shared_layouts(rows)
-    layouts = {c: [r for r in rows if r["condition"] == c] for c in ORDER
-               if any(r["condition"] == c for r in rows)}
+    layouts = {c: [r for r in rows if r["condition"] == c] for c in conditions(rows)}
     n = len(next(iter(layouts.values()), []))
     limit = rows[0]["time_limit_s"] if rows else float("nan")
     plural = "s" if left_out > 1 else ""

@@ -26,6 +26,7 @@ from vla_study.protocol_schema import (
     LAYOUT_SEEDS,
     STRATEGIES,
     ProtocolFile,
+    base_strategy,
     describe,
     line_of,
 )
@@ -89,8 +90,9 @@ class Protocol:
 
 
 def model_names(p: Protocol, strategy: str, setting: str) -> list[str]:
-    """Every model the protocol names for a latent strategy and setting (one per training seed)."""
-    names = p.models[strategy][setting]
+    """Every model the protocol names for a latent strategy and setting (one per training seed); an
+    assisted condition's are its strategy's."""
+    names = p.models[base_strategy(strategy)][setting]
     return [names] if isinstance(names, str) else list(names)
 
 
@@ -207,7 +209,7 @@ def _hand_errors(f: ProtocolFile, where: str, lines: Lines, cat: Catalogue) -> l
         if any(hand) and f.backend != "graph":
             errors.append(f"{where}:{line_of(lines, ('settings', setting))}: setting {key_name(setting)}: "
                           f"a pick_place task needs backend: graph (the {f.backend} backend has no hand)")
-        if HYBRID in f.strategies and not all(hand):
+        if HYBRID in map(base_strategy, f.strategies) and not all(hand):
             errors.append(f"{where}:{line_of(lines, ('strategies',))}: strategy {HYBRID!r} is for "
                           f"pick_place tasks only; setting {key_name(setting)} has others")
     return errors
@@ -217,7 +219,7 @@ def _model_errors(f: ProtocolFile, where: str, lines: Lines, model_exists) -> li
     """A model for every latent strategy and setting (the shipped ones by default), installed."""
     errors: list[str] = []
     models = {**DEFAULT_MODELS, **f.models}
-    for s in (s for s in f.strategies if STRATEGIES[s] == "latent"):
+    for s in dict.fromkeys(base_strategy(s) for s in f.strategies if STRATEGIES[s] == "latent"):
         for setting in f.settings:
             m = models.get(s, {}).get(setting)
             at = line_of(lines, ("models", s, setting) if (f.models.get(s) or {}).get(setting) else

@@ -22,13 +22,25 @@ from pydantic import (
 from vla_common.catalogue import Catalogue
 from vla_common.safe_yaml import Lines, key_name
 from vla_common.tasks import parse_task
+from vla_latent_controller.assistance import LEVELS
+
+OFF = LEVELS[0]   # the controller's default: no assistance
 
 # hybrid: hybrid control on tasks with the hand (the latent, then end-effector mode to finish each
 # phase; hand_participant): the controller starts a trial in latent mode with the strategy's model
 HYBRID = "hybrid"
-STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-effector": "end_effector",
-              HYBRID: "latent"}
-Strategy = Literal["latent-YOLO", "latent-localization", "end-effector", "hybrid"]
+BASE_STRATEGIES = {"latent-YOLO": "latent", "latent-localization": "latent", "end-effector": "end_effector",
+                   HYBRID: "latent"}
+# A latent strategy with the controller's assistance on (its `assistance` parameter; off in every other
+# condition) is a condition of its own, `<strategy>+assist-<level>`, so that one protocol holds the
+# assisted and unassisted conditions side by side, on the same layouts and participants; it drives its
+# strategy's model. The end effector has no assistance (the controller's is latent mode's).
+ASSIST = "+assist-"
+ASSISTED = {f"{s}{ASSIST}{level}": s for s, mode in BASE_STRATEGIES.items() if mode == "latent"
+            for level in LEVELS if level != OFF}
+STRATEGIES = {**BASE_STRATEGIES, **{name: BASE_STRATEGIES[s] for name, s in ASSISTED.items()}}
+Strategy = Literal[tuple(STRATEGIES)]          # type: ignore[valid-type]
+BaseStrategy = Literal[tuple(BASE_STRATEGIES)]  # type: ignore[valid-type]
 EE_AXES = ("x", "y", "z", "roll", "pitch", "yaw")  # the controller's (vla_latent_controller.ee_baseline)
 EeAxis = Literal["x", "y", "z", "roll", "pitch", "yaw"]
 # graph: the shipped launch file, the participant's stick as sensor_msgs/Joy (the study's backend);
@@ -43,6 +55,23 @@ Robot = Literal["sim", "real"]
 Role = Literal["test", "development"]
 LAYOUT_SEEDS = 200_000  # the default base of the test trials' layout seeds (the seeds of the first runs)
 NAME = r"^[A-Za-z0-9_.\-]+$"
+
+
+def base_strategy(strategy: str) -> str:
+    """The strategy a condition drives (its model, its participant): `latent-YOLO+assist-high` ->
+    `latent-YOLO`."""
+    return ASSISTED.get(strategy, strategy)
+
+
+def assistance_of(strategy: str) -> str:
+    """The controller's assistance level in a condition: off unless it names one."""
+    return strategy.rpartition(ASSIST)[2] if strategy in ASSISTED else OFF
+
+
+def strategy_label(strategy: str) -> str:
+    """A condition as the tables name it: `latent-YOLO, assistance high`; a strategy alone as itself."""
+    level = assistance_of(strategy)
+    return strategy if level == OFF else f"{base_strategy(strategy)}, assistance {level}"
 
 
 def _study_task(task: str, info: ValidationInfo) -> str:
@@ -107,7 +136,8 @@ class ProtocolFile(Strict):
     rate: float = Field(20.0, ge=5, le=200)
     # per latent strategy and setting a model, or a list of models (one per training seed): participant
     # i (0-based, in the order of participants) drives the model at i mod the list's length
-    models: dict[Strategy, dict[str, ModelNames]] = {}
+    # (keyed by the strategy: an assisted condition drives its strategy's models)
+    models: dict[BaseStrategy, dict[str, ModelNames]] = {}
     backend: Backend = "graph"
     robot: Robot = "sim"
     end_effector_axes: list[EeAxis] = list(EE_AXES)
@@ -128,6 +158,17 @@ class ProtocolFile(Strict):
         for name, tasks in v.items():
             if not tasks:
                 raise ValueError(f"setting {key_name(name)} needs a task or a list of tasks")
+        return v
+
+    @field_validator("strategies", mode="before")
+    @classmethod
+    def _assisted_latent_only(cls, v):
+        """`end-effector+assist-high` is refused with the reason (not only as an unknown name)."""
+        for name in v if isinstance(v, list) else []:
+            base, _, level = str(name).partition(ASSIST)
+            if level and BASE_STRATEGIES.get(base) == "end_effector":
+                raise ValueError(f"strategy {key_name(str(name))}: the end effector has no assistance (the "
+                                 "controller's assistance is latent mode's)")
         return v
 
     @field_validator("strategies")

@@ -29,6 +29,7 @@ from vla_study.backends import BACKENDS, Where, backend_name, backend_refusal, m
 from vla_study.participant import HumanParams, Lesson, population
 from vla_study.person import Experimenter, TerminalExperimenter
 from vla_study.protocol import STRATEGIES, Protocol, latin_square, load_protocol, model_for, robot_refusal
+from vla_study.protocol_schema import assistance_of
 from vla_study.questionnaire import LABELS, SCALE, likert_row, station_for
 from vla_study.trial import Trial, TrialBackend, hash_seed
 
@@ -189,8 +190,9 @@ def save_arrays(out: Path, stem: str, arrays: dict[str, np.ndarray]) -> Path:
 def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None,
               log: Callable[[str], None] = print, ask: Callable[[str], str] = input, limit: int | None = None,
               experimenter: Experimenter | None = None, use_sim_time: bool = False,
-              engine: Engine | None = None) -> StudyStore:
-    """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials.
+              engine: Engine | None = None, only: tuple[str, ...] = ()) -> StudyStore:
+    """Run every trial of the protocol not yet in `out`; `limit`: stop after this many new trials;
+    `only`: of these conditions (strategies) only, the others left for a later run of the same folder.
     `backend`: one already made (a test's), else the table's for the protocol (backends.py). Real
     participants (ids without `sim:`) drive themselves, with the experimenter at this terminal
     (`experimenter`: another front end, or a test's). `use_sim_time`: with `robot: real`, the attached
@@ -208,8 +210,10 @@ def run_study(protocol: Protocol, out: Path, backend: TrialBackend | None = None
     store = StudyStore(out, protocol)
     plan = trial_plan(protocol)
     todo = [t for t in plan if t.key not in store.done]
-    log(f"[study] {len(plan)} trials in the protocol, {len(plan) - len(todo)} already recorded in {out}, "
-        f"{len(todo)} to run")
+    left = sum(1 for t in todo if only and t.strategy not in only)
+    todo = [t for t in todo if not only or t.strategy in only]
+    log(f"[study] {len(plan)} trials in the protocol, {len(plan) - len(todo) - left} already recorded "
+        f"in {out}, {len(todo)} to run" + (f", {left} of other conditions left for later" if left else ""))
     if not todo:
         _ask_left_over(store, todo, backend, log, ask, out)   # on the terminal: nothing is launched
         return store
@@ -275,7 +279,8 @@ def _record(protocol: Protocol, store: StudyStore, trial: Trial, row: dict, arra
     """The trial's row, completed with what the plan says about it, recorded and logged."""
     who = trial.participant
     row.update({"key": trial.key, "file": trial.file_stem, "participant": who,
-                "strategy": trial.strategy, "setting": trial.setting, "task": trial.task,
+                "strategy": trial.strategy, "assistance": assistance_of(trial.strategy),
+                "setting": trial.setting, "task": trial.task,
                 "trial": trial.trial, "phase": trial.phase, "layout_seed": trial.layout_seed,
                 "operator_seed": seed, "model": _model(protocol, trial),
                 "order": trial.order, "simulated": who.startswith("sim:"), "backend": protocol.backend})

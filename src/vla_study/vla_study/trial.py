@@ -22,7 +22,7 @@ from vla_study.outcome import thrown, trial_time
 from vla_study.participant import HumanOperator, HumanParams, Lesson, TaskGoal
 from vla_study.person import InputTally
 from vla_study.protocol import STRATEGIES, Protocol
-from vla_study.protocol_schema import HYBRID
+from vla_study.protocol_schema import HYBRID, assistance_of, base_strategy
 from vla_study.smoothness import log_dimensionless_jerk, path_length, sparc, speed_profile
 
 PATH_DT = 0.05  # s between the path samples that smoothness is measured on
@@ -102,11 +102,13 @@ Participant = HumanOperator | InputTally
 def simulated_participant(params: HumanParams, goal: TaskGoal, strategy: str, seed: int,
                           cycle: tuple[str, ...], lesson: Lesson | None) -> HumanOperator:
     """The simulated operator for a trial: the pick-and-place one (hand_participant) for a task with
-    the hand, in the strategy's way of driving (hybrid control: the latent, then end-effector mode)."""
+    the hand, in the strategy's way of driving (hybrid control: the latent, then end-effector mode),
+    told the condition's assistance (the station shows it)."""
     if goal.kind == "pick_place":
-        mode = "hybrid" if strategy == HYBRID else STRATEGIES[strategy]
-        return PickPlaceOperator(params, goal, mode, seed=seed, cycle=cycle, lesson=lesson)
-    if strategy == HYBRID:
+        mode = "hybrid" if base_strategy(strategy) == HYBRID else STRATEGIES[strategy]
+        return PickPlaceOperator(params, goal, mode, seed=seed, cycle=cycle, lesson=lesson,
+                                 assistance=assistance_of(strategy))
+    if base_strategy(strategy) == HYBRID:
         raise ValueError(f"{HYBRID} control is for tasks with the hand, not a {goal.kind} task")
     return HumanOperator(params, goal, STRATEGIES[strategy], seed=seed, cycle=cycle, lesson=lesson)
 
@@ -169,6 +171,12 @@ class TrialBackend:
 def strategy_mode(strategy: str) -> str:
     """The controller's mode for a strategy: latent or end_effector."""
     return STRATEGIES[strategy]
+
+
+def controller_parameters(strategy: str) -> dict[str, str]:
+    """The controller's parameters a trial of this condition sets, every trial (nothing carries over from
+    the trial before): its mode and its assistance level (off but in an assisted condition)."""
+    return {"mode": strategy_mode(strategy), "assistance": assistance_of(strategy)}
 
 
 def trial_row(op: Participant, path: np.ndarray, times: np.ndarray, sticks: np.ndarray, *,

@@ -157,3 +157,42 @@ def test_one_condition_runs_alone_and_the_folder_keeps_the_rest_for_later(tmp_pa
     assert len(rows) == sum(t.strategy == "latent-YOLO+assist-high" for t in trial_plan(p))
     run_study(p, out, backend=_Fake(p), log=lambda s: None)
     assert len((out / "trials.jsonl").read_text().splitlines()) == len(trial_plan(p))
+
+
+def test_the_pick_and_place_table_puts_a_condition_run_alone_beside_the_others(tmp_path):
+    """`python -m vla_study.pick_place --also`: the assisted condition's rows (a folder of its own) beside
+    the three conditions' rows of an earlier run on the same layouts."""
+    from vla_study.pick_place import main
+
+    def row(c, seed, ok):
+        return {"condition": c, "participant": "sim:1", "layout_seed": seed, "success": ok, "phase": "test",
+                "placement_error_m": 0.01 if ok else 0.2, "time_s": 20.0 if ok else 60.0,
+                "time_limit_s": 60.0, "grasp_presses": 3, "failed_grasps": 0, "control_switches": 0,
+                "thrown": False}
+
+    earlier = tmp_path / "earlier.jsonl"
+    earlier.write_text("".join(json.dumps(row(c, s, False)) + "\n" for c in ("latent alone", "hybrid control")
+                               for s in (1, 2)))
+    out = tmp_path / "assisted"
+    out.mkdir()
+    (out / "trials.jsonl").write_text("".join(json.dumps(row("latent with assistance high", s, True)) + "\n"
+                                              for s in (1, 2)))
+    assert main(["--out", str(out), "--also", str(earlier)]) == 0
+    body = [x for x in (out / "pick_place.md").read_text().splitlines() if x.startswith("| ")][1:]
+    assert [x.split(" | ")[:2] for x in body] == [["| latent alone", "0/2 (0.00)"],
+                                                 ["| hybrid control", "0/2 (0.00)"],
+                                                 ["| latent with assistance high", "2/2 (1.00)"]]
+
+
+def test_the_prepared_paper_protocol_puts_assisted_latent_yolo_beside_the_paper_conditions():
+    from vla_study.runner import reused_seeds
+
+    paper, assisted = load_protocol(PROTOCOLS / "paper.yaml"), load_protocol(PROTOCOLS / "paper_assist.yaml")
+    assert assisted.strategies == ["latent-YOLO", "latent-YOLO+assist-high", "end-effector"]
+    assert reused_seeds(assisted) == [] and assisted.settings == paper.settings
+
+    def layouts(p, s):
+        return [(t.participant, t.task, t.layout_seed) for t in trial_plan(p) if t.strategy == s]
+
+    assert layouts(assisted, "latent-YOLO+assist-high") == layouts(paper, "latent-YOLO")
+    assert layouts(assisted, "end-effector") == layouts(paper, "end-effector")

@@ -143,7 +143,8 @@ def test_hybrid_is_only_for_tasks_with_the_hand():
 
 def test_the_protocol_keeps_development_and_test_apart_and_refuses_what_cannot_run(tmp_path):
     p = load_protocol(PROTOCOLS / "pick_place.yaml")
-    assert p.strategies == ["latent-YOLO", "end-effector", "hybrid"] and p.backend == "graph"
+    assert p.strategies == ["latent-YOLO", "end-effector", "hybrid", "latent-YOLO+assist-high"]
+    assert p.backend == "graph"
     assert p.layout_seeds >= 600000 and p.development and reused_seeds(p) == []
     dev = load_protocol(PROTOCOLS / "development" / "pick_place.yaml")
     assert dev.role == "development" and dev.layout_seeds < 600000

@@ -3,6 +3,7 @@ assisted ones: latent with assistance high),
 on the same test layouts, from a study folder's rows (protocols/pick_place.yaml's study).
 
     python -m vla_study.pick_place --out out/pick_place     # writes out/pick_place/pick_place.md
+    python -m vla_study.pick_place --out out/assisted --also docs/results/pick-place/trials.jsonl
 
 Success, the placement error (the object's distance from its place at the end, every trial), the time
 (a failure counts the time limit, outcome.py) and the hand's effort. Every row is the simulated
@@ -78,12 +79,20 @@ def table(rows: list[dict]) -> str:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", type=Path, required=True, help="the study folder (its trials.jsonl)")
+    ap.add_argument("--also", type=Path, action="append", default=[], metavar="TRIALS.jsonl",
+                    help="rows of the other conditions from another run of the protocol's layouts (a "
+                         "condition run alone with --only); a condition in both is taken from --out")
     args = ap.parse_args(argv)
     rows_path = args.out / "trials.jsonl"
-    if not rows_path.is_file():
-        print(f"{rows_path}: no rows", file=sys.stderr)
-        return 2
-    text = table(test_rows(rows_path))
+    for path in (rows_path, *args.also):
+        if not path.is_file():
+            print(f"{path}: no rows", file=sys.stderr)
+            return 2
+    rows = test_rows(rows_path)
+    mine = {r["condition"] for r in rows}
+    for path in args.also:
+        rows += [r for r in test_rows(path) if r["condition"] not in mine]
+    text = table(rows)
     (args.out / "pick_place.md").write_text(text)
     print(text)
     return 0

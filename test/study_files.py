@@ -16,3 +16,19 @@ def bag_joy(bag: Path) -> list:
     with AnyReader([bag]) as reader:
         conns = [c for c in reader.connections if c.topic == "/joy"]
         return [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages(connections=conns)]
+
+
+def bag_messages(bag: Path, topic: str) -> list:
+    """The messages of one topic of a trial's bag, the project's own types (vla_interfaces) included."""
+    from rosbags.highlevel import AnyReader
+    from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+
+    store = get_typestore(Stores.ROS2_JAZZY)
+    msgs = Path(__file__).resolve().parents[1] / "src" / "vla_interfaces" / "msg"
+    types: dict = {}
+    for f in sorted(msgs.glob("*.msg")):
+        types.update(get_types_from_msg(f.read_text(), f"vla_interfaces/msg/{f.stem}"))
+    store.register(types)
+    with AnyReader([bag], default_typestore=store) as reader:
+        conns = [c for c in reader.connections if c.topic == topic]
+        return [reader.deserialize(raw, c.msgtype) for c, _t, raw in reader.messages(connections=conns)]

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from study_files import bag_joy, study_rows
+from study_files import bag_joy, bag_messages, study_rows
 from vla_common.catalogue import load_catalogue
 from vla_study.hand_participant import BUSY, EMPTY, HOLDING, OPEN, PickPlaceOperator
 from vla_study.participant import HumanParams, Observation
@@ -170,11 +170,12 @@ _rows, _bag_joy = study_rows, bag_joy  # test/study_files.py: one home for both 
 GRAPH_PROTOCOL = """
 study: pick-place-ci
 participants: sim:1
-strategies: [hybrid, end-effector]
+strategies: [hybrid, end-effector, latent-YOLO+assist-high]
 settings:
   hand: glass_bottle/pick_place_west
 models:
   hybrid: {hand: glass_bottle_pick_place_west}
+  latent-YOLO: {hand: glass_bottle_pick_place_west}
 trials: 1
 practice: {trials: 0, reset_seed: 7}
 counterbalance: none
@@ -191,9 +192,10 @@ seeds: {layouts: 300000, operators: development}
 @pytest.mark.ros
 @pytest.mark.timeout(900)
 def test_a_pick_and_place_trial_runs_through_the_graph_and_its_row_names_the_condition(tmp_path):
-    """Two short trials (hybrid control, the end effector) through the launched graph in lockstep: each
-    row names its condition and the hand's presses, and the bag holds the grasp button as the
-    controller received it (the reset leaves the hand closed: every participant opens it first)."""
+    """Three short trials (hybrid control, the end effector, the latent with assistance high) through the
+    launched graph in lockstep: each row names its condition, its assistance and the hand's presses, the
+    bag holds the grasp button as the controller received it (the reset leaves the hand closed: every
+    participant opens it first) and the controller's status shows the condition's assistance level."""
     proto = tmp_path / "pick_place_ci.yaml"
     proto.write_text(GRAPH_PROTOCOL)
     out = tmp_path / "study"
@@ -201,9 +203,12 @@ def test_a_pick_and_place_trial_runs_through_the_graph_and_its_row_names_the_con
                           "--serial"], capture_output=True, text=True, timeout=800)
     assert res.returncode == 0, res.stdout[-3000:] + res.stderr[-3000:]
     rows = _rows(out)
-    assert [(r["strategy"], r["condition"]) for r in rows] == [("hybrid", "hybrid control"),
-                                                             ("end-effector", "end-effector alone")]
+    assert [(r["strategy"], r["condition"], r["assistance"]) for r in rows] == [
+        ("hybrid", "hybrid control", "off"), ("end-effector", "end-effector alone", "off"),
+        ("latent-YOLO+assist-high", "latent with assistance high", "high")]
     for r in rows:
+        levels = {m.assistance for m in bag_messages(out / r["bag"], "/controller_node/status")}
+        assert levels == {r["assistance"]}, r["key"]
         assert r["backend"] == "graph" and r["simulated"] and r["grasp_presses"] >= 1
         assert "placement_error_m" in r and r["hand_phase"] in ("reach", "close", "carry", "release")
         joy = _bag_joy(out / r["bag"])

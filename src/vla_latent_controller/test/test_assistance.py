@@ -225,6 +225,21 @@ def test_the_hand_opens_above_the_object_and_the_grasp_pose_is_left_once_it_has_
     assert arm.tcp()[2] > p0[2] + 0.01                             # up, toward the carry
 
 
+def test_a_reversal_in_the_carry_with_the_object_in_the_hand_does_not_trap_it_at_the_hover(kin):
+    """Reversed in the carry, the hand holding the bottle, the goal steps back no farther than the grasp
+    pose: pushed forward again, the carry goes on. (It stepped back to the hover, which wants an open
+    hand: the hand waited there for good, until the person dropped the bottle; the study's 3 assisted
+    pick-and-place failures.)"""
+    arm = Arm(kin, model="glass_bottle_pick_place_west", objects=(("glass_bottle", (0.5, -0.1)),))
+    drive(arm, 8.0)                                                # open hand: hover, then the grasp pose
+    arm.fingers = 0.026                                            # the operator's button: it holds the neck
+    assert drive(arm, 1.0).assist.stage == "carry"
+    st = drive(arm, 3.0, stick=-1.0)                               # the person reverses, back and down
+    assert st.assist.stage in ("grasp", "carry"), st.assist.stage
+    stages = [drive(arm, 0.5).assist.stage for _ in range(12)]    # and pushes on again, 6 s
+    assert "carry" in stages and stages[-1] in ("carry", "place", "retreat"), stages
+
+
 def test_status_names_the_goal_where_the_object_stands(kin):
     arm = Arm(kin, objects=(("bread", (0.5, 0.05)),))
     st = drive(arm, 0.5)

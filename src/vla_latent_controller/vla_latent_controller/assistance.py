@@ -410,12 +410,17 @@ class Assistance:
         return bool(pose.hand) and np.linalg.norm(pose.position - p) < STOP_REACH_M
 
     def _stages(self, goals: Sequence[Goal], p: np.ndarray, u: float) -> None:
+        """Forward: on past every pose reached. Reversed: back to the pose before once there, but never
+        back onto one the hand as it is cannot reach: with the object in the hand, a reversal in the
+        carry stops at the grasp pose (the hover above wants an open hand: pushed forward again, the
+        hand would wait there for good, a trap only dropping the object ended)."""
         hand = self._hand_state()
         for g in goals:
             if u > 0:
                 while not g.done and self._reached(g, p, hand):
                     g.stage += 1
-            elif g.stage > 0 and np.linalg.norm(g.previous() - p) < REACH_M:
+            elif g.stage > 0 and np.linalg.norm(g.previous() - p) < REACH_M and \
+                    not (hand == "holding" and g.poses[min(g.stage, len(g.poses)) - 1].hand == OPEN):
                 g.stage -= 1
 
     @classmethod

@@ -228,3 +228,33 @@ def test_the_shipped_matched_models_come_in_pairs_trained_alike():
              t["optimiser_steps"], cfg["hyper_parameters"]["seed"]))
     for key, facts in pairs.items():
         assert len(facts) == len(model_set.ENCODERS) and facts[0] == facts[1], key
+
+
+def test_the_paper_protocol_gives_both_strategies_the_same_demonstrations_and_training():
+    """What ships: paper.yaml names the matched set (model_set's names, one per seed), and for every
+    setting and seed the latent-YOLO and the localization-only model were trained on the same
+    trajectories (the training fingerprint hashes them), the same counts and seeds, the same epochs and
+    optimiser updates; each path fraction was chosen by the one procedure on development layouts."""
+    from vla_evaluation.resources import latent_model_dir
+    from vla_latent_controller.model import LatentModel
+
+    p = load_protocol(PAPER, model_exists=lambda n: (latent_model_dir(n) / "config.json").is_file())
+    latent = [s for s in p.strategies if STRATEGIES[s] == "latent"]
+    recipe = model_set.Recipe()
+    assert {s: p.models[s] for s in latent} == model_set.protocol_models(latent, p.settings, recipe.seeds)
+    for setting in p.settings:
+        for i in range(len(recipe.seeds)):
+            facts = []
+            for s in latent:
+                path = latent_model_dir(model_names(p, s, setting)[i])
+                prov = model_set.read_provenance(path)
+                cfg = LatentModel.load(path).config
+                assert prov["recipe_digest"] == recipe.digest() and prov["training_seed"] == recipe.seeds[i]
+                assert prov["path_fraction"]["chosen"] == cfg["latent"]["path_fraction"]
+                assert prov["path_fraction"]["layouts"] == len(development_layouts(p, setting))
+                t = cfg["training"]
+                facts.append((prov["demo_seeds"], t["demos_per_task"], cfg["fingerprint"]["sha256"],
+                              t["epochs"], t["optimiser_steps"], cfg["hyper_parameters"]["seed"]))
+            assert facts[0] == facts[1], (setting, i)
+            per_task = facts[0][1]
+            assert all(n == (9 if t in p.settings["base"] else 3) for t, n in per_task.items())

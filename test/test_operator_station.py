@@ -340,7 +340,13 @@ def test_toggle_mode_a_press_starts_and_a_second_press_stops(graph, page, settin
             tap()                              # disarmed by a starved heartbeat: stop, and start again
     else:
         pytest.fail(f"toggle did not keep the arm moving after the key was released: {obs.ctrl}")
-    tap()
+    for _ in range(3):
+        tap()
+        if js(page, "window.station.toggled") == 0:
+            break
+        # a loaded machine's late input made the page let go by itself just before the tap, which
+        # then started a new drive (the page said "let go and press again"): tap again, as a person would
+    assert js(page, "window.station.toggled") == 0
     assert h.spin_until(lambda: not obs.moving(), 5.0), obs.cmd
     n = len(obs.cmd_log)
     assert h.spin_until(lambda: len(obs.cmd_log) > n + 20, 10.0)   # and it stays stopped

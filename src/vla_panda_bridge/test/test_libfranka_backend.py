@@ -71,7 +71,7 @@ def rig():
 
 
 def loop_writes(backend, cycle: int, status: int = LoopStatus.OK, text: str = "connected", q=None,
-                tau_ext=None):
+                tau_ext=None, filter_code: int = SafetyCode.OK):
     """What the loop process would write for robot state `cycle`."""
     slots = backend.process.slots
     q = [0.1] * 7 if q is None else q
@@ -80,6 +80,7 @@ def loop_writes(backend, cycle: int, status: int = LoopStatus.OK, text: str = "c
     b[STATE["cycle"]], b[STATE["pid"]], b[STATE["status"]] = cycle, 1, status
     b[STATE["q"]] = q
     b[STATE["tau_ext_hat_filtered"]] = [0.0] * 7 if tau_ext is None else tau_ext
+    b[STATE["filter_code"]] = filter_code
     slots.end_state()
     slots.write_text("status", text)
 
@@ -129,6 +130,28 @@ def test_faults_reach_the_node_once_per_change_and_the_filter_brakes(rig):
     backend._t0 -= 0.0105
     backend._tick()
     assert len(host.faults) == 2 and not np.isnan(backend.filter_position()).any()
+
+
+def test_a_stop_of_the_loops_filter_stops_the_nodes_filter_while_it_commands_motion(rig):
+    """The loop's filter waits for a zero command (its watchdog fired while this process was late) and
+    ignores the node's non-zero commands: the node's filter is told, once per watch, and only while it
+    commands motion (its zeros re-arm the loop: no stop then)."""
+    host, backend = rig
+    stops = host.stops = []
+    host.on_stop = stops.append
+    loop_writes(backend, 1, filter_code=SafetyCode.AWAITING_ZERO)
+    backend.write(np.zeros(7))                              # the node commands nothing: nothing to stop
+    backend._t0 = time.monotonic() - 0.0105
+    backend._tick()
+    assert stops == []
+    backend.write(np.full(7, 0.2))                          # the node drives; the loop refuses
+    backend._t0 -= 0.0105
+    backend._tick()
+    assert len(stops) == 1 and "loop stopped" in stops[0]
+    loop_writes(backend, 2)                                 # re-armed: the node's stop is its own now
+    backend._t0 -= 0.0105
+    backend._tick()
+    assert len(stops) == 1
 
 
 class NodeHost(Host):

@@ -72,6 +72,10 @@ class Host(Protocol):
     def on_fault(self, text: str) -> None:
         """The robot stopped itself with a reflex (libfranka-like error name in `text`)."""
 
+    def on_stop(self, why: str) -> None:
+        """A stop the node's filter did not see (the robot side's own filter, `why` says which): the
+        node's filter stops too, and motion needs a zero command (vla_common.arming)."""
+
     def submit_command(self, values) -> None:
         """A joint-velocity command for the safety filter, as if it came on joint_velocity_cmd."""
 

@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable
 
 import numpy as np
+from vla_common.safety_status import SafetyCode
 
 from vla_panda_bridge.backend import TEACHING, BackendBase, BackendError, Host, JointSample
 from vla_panda_bridge.libfranka_driver import DRIVERS, REALTIME, DriverSettings
@@ -89,6 +90,7 @@ class LibfrankaBackend(BackendBase):
                      if p["gripper"] else None)
         self._latest: JointSample | None = None
         self._tau_ext: np.ndarray | None = None         # tau_ext_hat_filtered of the latest state read
+        self._written = np.zeros(host.spec.num_joints)  # the node's latest filtered command to the loop
         self._status = LibfrankaStatus(LoopStatus.CONNECTING, "", 0, "", -1, 0.0,
                                        math.inf, False, False, 0, 0, 0, 0, 0, math.nan)
         self._reported = -1                             # the loop status code last reported
@@ -130,6 +132,7 @@ class LibfrankaBackend(BackendBase):
         through host.on_fault with libfranka's text, the rest to the log; while it keeps trying to
         connect, why (libfranka's refusal) every RETRY_LOG_PERIOD."""
         st = self._status = self.process.status()
+        self._mirror_loop_hold(st)
         if not st.text:
             return                                      # its text is not written yet
         text = f"libfranka {st.name}: {st.text}"
@@ -148,6 +151,18 @@ class LibfrankaBackend(BackendBase):
             on_fault(text)
         else:
             self._host.get_logger().error(text)
+
+    def _mirror_loop_hold(self, st: LibfrankaStatus) -> None:
+        """The loop's filter waits for a zero command after a stop the node's filter did not see (its
+        watchdog, when this process was late by more than command_timeout on a loaded machine; a robot
+        silence): it ignores the node's non-zero commands, which the node's filter, still armed, goes on
+        sending. So the node's filter stops too, and says why: the operator's neutral then re-arms it,
+        and its zeros re-arm the loop. Without this the station said "moving" while nothing moved,
+        and a quick neutral did not help (the node's output, still braking, never reached zero)."""
+        if st.filter_code == SafetyCode.AWAITING_ZERO and np.any(self._written):
+            on_stop = getattr(self._host, "on_stop", None)
+            if on_stop is not None:
+                on_stop(f"the robot's loop stopped: {st.filter_text or 'it waits for a zero command'}")
 
     @property
     def status(self) -> LibfrankaStatus:
@@ -180,6 +195,7 @@ class LibfrankaBackend(BackendBase):
         return self._latest
 
     def write(self, dq: np.ndarray) -> None:
+        self._written = dq
         self.process.submit(dq)
 
     def advance(self, dt: float) -> None:

@@ -398,6 +398,13 @@ class PandaBridge(LifecycleNode):
         self.get_logger().error(f"robot reflex: {text}; holding until ~/recover")
         self._publish_status(SafetyCode.REFLEX, f"robot reflex ({text}): holding until ~/recover")
 
+    def on_stop(self, why: str) -> None:
+        """A stop the backend saw and this filter did not (the libfranka loop's filter): brake, and
+        motion needs a zero command; once only, the next control step publishes the status."""
+        if self.filter.arming.armed:
+            self.filter.disarm(why)
+            self.get_logger().warn(f"{why}: return the stick to neutral to move again")
+
     def _on_command(self, msg: Float64MultiArray) -> None:
         self.submit_command(msg.data)
 

@@ -47,7 +47,7 @@ from vla_common.tasks import parse_task
 
 from vla_evaluation.graph_runner import GraphRunner
 from vla_evaluation.kinematic import TeleopSettings, plan_waypoints, plannable_layout
-from vla_evaluation.lockstep_client import LockstepClient, await_detector
+from vla_evaluation.lockstep_client import LockstepClient, await_detector, stamp_ns
 from vla_evaluation.metrics import (
     EpisodeResult,
     LimitMonitor,
@@ -213,6 +213,9 @@ class GraphObserver:
     def now(self) -> float:
         return self.node.get_clock().now().nanoseconds * 1e-9
 
+    def now_ns(self) -> int:
+        return self.node.get_clock().now().nanoseconds
+
     def _joints(self, msg) -> None:
         names = list(msg.name)
         try:
@@ -225,7 +228,7 @@ class GraphObserver:
             self.q, self.dq, self.q_stamp = q, dq, _stamp(msg)
             self.cond.notify_all()
         if (m := self.monitor) is not None:
-            m.on_joint_state(self.q_stamp, q, dq)
+            m.on_joint_state(stamp_ns(msg), q, dq)
         self.on_state(msg)
 
     def on_state(self, msg: JointState) -> None:
@@ -239,7 +242,7 @@ class GraphObserver:
             self.objects, self.objects_stamp = objs, _stamp(msg)
             self.cond.notify_all()
         if (m := self.monitor) is not None:
-            m.on_objects(self.objects_stamp, objs)
+            m.on_objects(stamp_ns(msg), objs)
 
     def _dets(self, msg) -> None:
         with self.cond:
@@ -254,9 +257,9 @@ class GraphObserver:
     def _teleop(self, msg) -> None:
         with self.cond:
             self.teleop, self.teleop_recv = msg, self.now()
-            self._teleop_seen.append((_stamp(msg), msg))
+            self._teleop_seen.append((stamp_ns(msg), msg))
             if (m := self.monitor) is not None:
-                m.on_teleop(_stamp(msg), msg)
+                m.on_teleop(stamp_ns(msg), msg)
             self.cond.notify_all()
 
     def watch(self, monitor: EpisodeMonitor | None) -> None:
@@ -277,7 +280,7 @@ class GraphObserver:
     def _image(self, msg) -> None:
         m = self.monitor
         if m is not None and m.keep_frames and (frame := image_to_rgb(msg)) is not None:
-            m.on_frame(_stamp(msg), frame)
+            m.on_frame(stamp_ns(msg), frame)
 
     def wait_for(self, predicate: Callable[[], bool], timeout: float, what: str,
                  alive: Callable[[], None] | None = None) -> None:
@@ -335,9 +338,10 @@ class EpisodeRecord:
 
 
 class EpisodeMonitor:
-    """What an episode is measured by, fed from the observer's callbacks from `t_start` on: limit
+    """What an episode is measured by, fed from the observer's callbacks from `start_ns` on: limit
     violations and the TCP path on joint_states, success on scene/objects, safety on the bridge's
-    status, and the camera frames."""
+    status, and the camera frames. Stamps in integer ns: an episode's times (`since`) are then the same
+    floats whenever it runs (differences of seconds round by how long the graph has run: issue 33)."""
 
     def __init__(self, spec: TaskSpec, start_pose: ObjectPose, kin, path_every: int, keep_frames: bool):
         self.spec, self.kin, self.keep_frames = spec, kin, keep_frames
@@ -346,25 +350,41 @@ class EpisodeMonitor:
         self.tally = SafetyTally()
         self.path: list[np.ndarray] = []
         self.path_t: list[float] = []
-        self._states: list[tuple[float, float, np.ndarray]] = []  # (t, stamp, q) sampled for the trace
-        self._teleop: list[tuple[float, float, int, float]] = []     # (stamp, stick, waypoint, distance)
+        self._states: list[tuple[float, int, np.ndarray]] = []  # (t, stamp ns, q) sampled for the trace
+        self._teleop: list[tuple[int, float, int, float]] = []     # (stamp ns, stick, waypoint, distance)
         self.frames: list[tuple[float, np.ndarray]] = []
-        self.t_start = math.inf
+        self.start_ns: int | None = None   # the episode's start (its first step's stamp)
         self.every = max(1, int(path_every))
         self._count = 0
 
-    def on_joint_state(self, stamp: float, q: np.ndarray, dq: np.ndarray | None) -> None:
-        if stamp < self.t_start:
+    @property
+    def t_start(self) -> float:
+        """The episode's start in seconds (inf until set)."""
+        return math.inf if self.start_ns is None else self.start_ns * 1e-9
+
+    @t_start.setter
+    def t_start(self, seconds: float) -> None:
+        self.start_ns = round(seconds * 1e9)
+
+    def since(self, stamp_ns: int) -> float:
+        """Seconds from the episode's start to `stamp_ns`."""
+        return (int(stamp_ns) - self.start_ns) * 1e-9
+
+    def _started(self, stamp_ns: int) -> bool:
+        return self.start_ns is not None and stamp_ns >= self.start_ns
+
+    def on_joint_state(self, stamp: int, q: np.ndarray, dq: np.ndarray | None) -> None:
+        if not self._started(stamp):
             return
         self.limits.update(q, dq)
         self._count += 1
         if self._count % self.every == 0:
-            t = stamp - self.t_start
+            t = self.since(stamp)
             self.path.append(self.kin.fk(q)[0])
             self.path_t.append(t)
             self._states.append((t, stamp, np.asarray(q, dtype=float)))
 
-    def on_teleop(self, stamp: float, msg) -> None:
+    def on_teleop(self, stamp: int, msg) -> None:
         """A teleoperator status (any time: the trace pairs by stamp once the episode is over)."""
         self._teleop.append((stamp, float(msg.axis), int(msg.waypoint_index), float(msg.distance)))
 
@@ -383,17 +403,17 @@ class EpisodeMonitor:
                 rows.append([t, *q, said[i][1], said[i][2], said[i][3]])
         return rows
 
-    def on_objects(self, stamp: float, objs: dict[str, ObjectPose]) -> None:
-        if stamp >= self.t_start and self.spec.object_class in objs:
-            self.tracker.update(stamp - self.t_start, objs[self.spec.object_class])
+    def on_objects(self, stamp: int, objs: dict[str, ObjectPose]) -> None:
+        if self._started(stamp) and self.spec.object_class in objs:
+            self.tracker.update(self.since(stamp), objs[self.spec.object_class])
 
     def on_safety(self, msg) -> None:
         self.tally.update(int(msg.code), int(msg.interventions), bool(msg.estop_active),
                           int(msg.commands_rejected))
 
-    def on_frame(self, stamp: float, frame: np.ndarray) -> None:
-        if stamp >= self.t_start:
-            self.frames.append((stamp - self.t_start, frame))
+    def on_frame(self, stamp: int, frame: np.ndarray) -> None:
+        if self._started(stamp):
+            self.frames.append((self.since(stamp), frame))
 
 
 class GraphEvaluator:
@@ -637,27 +657,27 @@ class GraphEvaluator:
                      and obs.teleop.state in started, 30.0, "the teleoperator to start", self.alive)
         if obs.teleop.state == TeleopStatus.FAILED:
             raise GraphError(f"teleoperator failed to start {task}: {obs.teleop.reason}")
-        monitor.t_start = obs.now() - float(obs.teleop.elapsed)
+        monitor.start_ns = obs.now_ns() - round(float(obs.teleop.elapsed) * 1e9)
 
         def finished() -> bool:
             if obs.teleop.state in (TeleopStatus.DONE, TeleopStatus.FAILED) and obs.teleop_recv > t_request:
                 return True
             tts = monitor.tracker.time_to_success
-            return cfg.stop_on_success and tts is not None and obs.now() - monitor.t_start >= tts + cfg.linger
+            return cfg.stop_on_success and tts is not None and monitor.since(obs.now_ns()) >= tts + cfg.linger
 
         wall_limit = cfg.settings.time_limit / max(cfg.real_time_factor, 0.05) * 4 + 60
         obs.wait_for(finished, wall_limit, f"the end of the {task} episode", self.alive)
         if obs.teleop.state == TeleopStatus.RUNNING:  # stopped early on success
             obs.call(obs.stop_cli, Trigger.Request(), 10.0, "stop")
         final_wp = np.asarray(obs.teleop.final_waypoint, float)
-        t_end = obs.now()
+        t_end, t_end_ns = obs.now(), obs.now_ns()
         # let the arm come to rest and the last scene state arrive
         obs.wait_for(lambda: obs.objects_stamp > t_end and obs.q_stamp > t_end, 10.0, "final state",
                      self.alive)
         with obs.cond:
             q_final = obs.q.copy()
             end_pose = obs.objects.get(monitor.spec.object_class)
-        return final_wp, q_final, end_pose, t_end - monitor.t_start
+        return final_wp, q_final, end_pose, monitor.since(t_end_ns)
 
     def _drive_lockstep(self, task: str, monitor: EpisodeMonitor):
         """`_drive` in lockstep: the episode starts while the simulation holds, runs its time limit (in
@@ -679,24 +699,24 @@ class GraphEvaluator:
         if not mine() or obs.teleop.state == TeleopStatus.FAILED:
             raise GraphError(f"teleoperator failed to start {task}: "
                              f"{obs.teleop.reason if obs.teleop else 'no status'}")
-        monitor.t_start = _stamp(obs.teleop) - float(obs.teleop.elapsed)
+        monitor.start_ns = stamp_ns(obs.teleop) - round(float(obs.teleop.elapsed) * 1e9)
         chunk = cfg.steps(0.1) if cfg.stop_on_success else limit
         done = (TeleopStatus.DONE, TeleopStatus.FAILED)
         while obs.teleop.state not in done:
             obs.steps.run(max(1, chunk), f"the {task} episode")
             tts = monitor.tracker.time_to_success
-            elapsed = obs.steps.stamp - monitor.t_start
+            elapsed = monitor.since(obs.steps.stamp_ns)
             if cfg.stop_on_success and tts is not None and elapsed >= tts + cfg.linger:
                 obs.call(obs.stop_cli, Trigger.Request(), 10.0, "stop")
                 break
             chunk = cfg.steps(0.1)      # past the limit: the teleoperator's own end is a step or two on
         final_wp = np.asarray(obs.teleop.final_waypoint, float)
-        t_end = _stamp(obs.teleop) if obs.teleop.state in done else obs.steps.stamp
+        t_end = stamp_ns(obs.teleop) if obs.teleop.state in done else obs.steps.stamp_ns
         obs.steps.run(cfg.steps(FINAL_S), "the final state")
         with obs.cond:
             q_final = obs.q.copy()
             end_pose = obs.objects.get(monitor.spec.object_class)
-        return final_wp, q_final, end_pose, t_end - monitor.t_start
+        return final_wp, q_final, end_pose, monitor.since(t_end)
 
     @staticmethod
     def _score(result: EpisodeResult, spec: TaskSpec, m: EpisodeMonitor, start_pose: ObjectPose,

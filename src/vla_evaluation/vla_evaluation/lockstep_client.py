@@ -31,6 +31,10 @@ def stamp_s(msg) -> float:
     return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
 
 
+def stamp_ns(msg) -> int:
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
 class LockstepClient:
     """`run(steps)` runs that many steps and returns once the bridge holds, every answer in.
 
@@ -49,6 +53,7 @@ class LockstepClient:
         node.create_subscription(LockstepStatus, f"{BRIDGE}/lockstep", self._on_status, 50)
         self.step = 0          # where it holds (after the last run)
         self.stamp = math.nan  # the simulated time (s) of that step
+        self.stamp_ns = -1     # ... in ns (differences of times in s round by how long the graph ran)
         self._target: int | None = None   # the hold the current run waits for
         self._lowered: int | None = None  # a hold a participant set during the run (hold_after)
 
@@ -76,7 +81,7 @@ class LockstepClient:
         paced = sim_s / self.real_time_factor * 4 if self.real_time_factor > 0 else 0.0
         bound = RUN_BASE_S + RUN_PER_SIM_S * sim_s + paced
         self._wait_held(bound, what or f"{steps} steps")
-        self.step, self.stamp = self._target, stamp_s(self.status)
+        self.step, self.stamp, self.stamp_ns = self._target, stamp_s(self.status), stamp_ns(self.status)
         return self.stamp
 
     def hold_after(self, stamp_ns: int, steps: int) -> None:

@@ -22,9 +22,10 @@ T0 = 1_000_000_000         # the lockstep clock's start
 
 
 class Harness(RosHarness):
-    def __init__(self, model_dir):
+    def __init__(self, model_dir, assistance: str = "off"):
         super().__init__()
-        overrides = [Parameter("model_path", value=str(model_dir)), Parameter("lockstep", value=True)]
+        overrides = [Parameter("model_path", value=str(model_dir)), Parameter("lockstep", value=True),
+                     Parameter("assistance", value=assistance)]
         self.node = self.add(ControllerNode(context=self.context, parameter_overrides=overrides))
         self.io = self.add(rclpy.create_node("lockstep_io", context=self.context))
         self.js = self.io.create_publisher(JointState, "joint_states", 100)
@@ -115,3 +116,29 @@ def test_a_relatch_waits_for_the_first_usable_frames_detections(harness):
     assert h.answered(t + STEP)
     assert h.spin_until(lambda: h.status[-1].latched_class == "bread")
     assert _ns(h.status[-1]) == t + STEP
+
+
+def test_with_the_assistance_on_every_frames_detections_are_waited_for(random_model_dir):
+    """The assistance reads each detection array: a step after a frame waits for its detections, as a
+    re-latch does (taken whenever they came, an assisted episode depended on the detector's speed)."""
+    h = Harness(random_model_dir, assistance="high")
+    try:
+        h.detections(T0 - STEP)
+        for k in range(2):                                # latched at startup (whatever came)
+            h.state(T0 + k * STEP)
+            h.stick(T0 + k * STEP, 0.0)
+            assert h.answered(T0 + k * STEP)
+        assert h.spin_until(lambda: h.status[-1].latched_class == "bread")
+        t = T0 + 2 * STEP
+        h.frame(t)                                        # a frame: its detections are due next step
+        h.state(t)
+        h.stick(t)
+        assert h.answered(t)
+        h.state(t + STEP)
+        h.stick(t + STEP)
+        h.spin_for(0.3)
+        assert not any(_ns(a) == t + STEP for a in h.answers)  # the frame's detections are not in yet
+        h.detections(t)
+        assert h.answered(t + STEP)
+    finally:
+        h.shutdown()

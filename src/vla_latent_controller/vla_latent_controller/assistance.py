@@ -218,9 +218,18 @@ class Assistance:
         self.reset()
 
     def reset(self) -> None:
-        """A new episode (a re-detect, a new model): every goal forgotten."""
+        """A new episode (a re-detect, a new model): every goal forgotten, and so no goal shown."""
         self.objects, self.goals, self._dets_t, self._latched = [], [], -math.inf, None
         self._last_t = self._held = None
+        self.lost, self.state = "", AssistState(level=self.state.level)
+
+    def restamp(self, f: Callable[[float], float]) -> None:
+        """The core's clock moved its origin (`TeleopCore.restamp`): every time kept, mapped by `f`."""
+        self._dets_t = f(self._dets_t)
+        self._last_t = None if self._last_t is None else f(self._last_t)
+        for o in self.objects:
+            o.seen_t = f(o.seen_t)
+        self._hand.samples = [(f(t), w) for t, w in self._hand.samples]
 
     def on_fingers(self, width: float, now: float) -> None:
         """The gap between the fingers (m) from joint_states."""

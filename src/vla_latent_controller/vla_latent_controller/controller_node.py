@@ -41,7 +41,7 @@ from vla_latent_controller.assistance import LEVELS
 from vla_latent_controller.context import CNN_ENCODERS, GOAL_SELECTIONS
 from vla_latent_controller.ee_baseline import axes_text, parse_axes
 from vla_latent_controller.joints import parse_joint_map
-from vla_latent_controller.lockstep import DETECTIONS, IMAGE, JOY, LockstepInputs
+from vla_latent_controller.lockstep import DETECTIONS, IMAGE, JOY, EpisodeClock, LockstepInputs
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.status_log import StatusLog
 from vla_latent_controller.teleop import MODES, NEUTRAL_CODES, Code, Status, TeleopCore, TeleopParams
@@ -207,9 +207,11 @@ class ControllerNode(Node):
         self._msg = Float64MultiArray()
         self._last_status: tuple | None = None
         self._status_log = StatusLog()
-        self._last_status_t = -math.inf
-        self._status_period = 1.0 / values["status_rate"]
+        # in integer ns: a float period's rounding would depend on how long the node has run (issue 33)
+        self._last_status_ns: int | None = None
+        self._status_period_ns = round(1e9 / values["status_rate"])
         self._lockstep = LockstepInputs() if values["lockstep"] else None
+        self._episode_clock = EpisodeClock()   # lockstep: the core's seconds, counted from the last re-latch
         self._step_ns: int | None = None   # lockstep: the step being computed or last answered
         self._answer: StepAnswer | None = None   # lockstep: the last answer (sent again on a repeat)
         self._create_interfaces()
@@ -262,7 +264,7 @@ class ControllerNode(Node):
         elif name == "joint_map":
             self.core.set_joint_map(parse_joint_map(value))
         elif name == "status_rate":
-            self._status_period = 1.0 / float(value)
+            self._status_period_ns = round(1e9 / float(value))
         return None
 
     def _start_model(self, path: str, mode: str) -> None:
@@ -317,46 +319,58 @@ class ControllerNode(Node):
         ls = self._lockstep
         if ls.state is not None and self._pending_since is None:
             self._pending_since = time.monotonic()
-        wanted = None
-        if ls.state is not None:
-            since = self.core.detection_wanted(ls.state[0] * 1e-9)
-            wanted = None if since is None else (-1 if since == -math.inf else math.ceil(since * 1e9 - 0.5))
-        if wanted == -1:
-            wanted = None   # never asked to re-latch (startup): latch what comes, no frame to wait for
-        if ls.missing(wanted) is not None:
+        if ls.missing(self._wanted_ns()) is not None:
             return
         t_ns, msg, due = ls.take()
         self._step_ns, self._pending_since = t_ns, None
         for kind, stamp, value in due:
-            t = stamp * 1e-9
+            t = self._episode_clock.seconds(stamp)
             if kind == JOY:
                 self._joy_to_core(value, t)
             elif kind == DETECTIONS:
                 self.core.on_detections(*value, t)
             elif kind == IMAGE:
                 self.core.on_image(value, t)
-        self.core.on_joint_states(msg.name, msg.position, t_ns * 1e-9)
+        self.core.on_joint_states(msg.name, msg.position, self._episode_clock.seconds(t_ns))
         cmd = self._tick()
         self._answer = StepAnswer(header=msg.header, node=self.get_name(), command=cmd)
         self.answer_pub.publish(self._answer)
+
+    def _wanted_ns(self) -> int | None:
+        """The stamp from which the pending step needs every frame's detections (core.detection_wanted),
+        or None: it needs none, or was never asked to re-latch (startup: it latches what comes)."""
+        state = self._lockstep.state
+        if state is None:
+            return None
+        since = self.core.detection_wanted(self._episode_clock.seconds(state[0]))
+        return None if since is None or since == -math.inf else self._episode_clock.stamp_ns(since)
 
     def _lockstep_watch(self) -> None:
         """Steady clock, 1 Hz: say what a step has waited for this long (a hang is the bridge's to report;
         this only says why, and reads the wall clock for nothing else)."""
         ls, since = self._lockstep, self._pending_since
         if since is not None and time.monotonic() - since > LOCKSTEP_WARN_S and ls.state is not None:
-            wanted = self.core.detection_wanted(ls.state[0] * 1e-9)
-            wanted_ns = None if wanted is None or wanted == -math.inf else math.ceil(wanted * 1e9 - 0.5)
             self.get_logger().warn(f"lockstep: the joint state stamped {ls.state[0]} ns has waited "
-                                   f"{time.monotonic() - since:.0f} s for {ls.missing(wanted_ns)}",
+                                   f"{time.monotonic() - since:.0f} s for {ls.missing(self._wanted_ns())}",
                                    throttle_duration_sec=LOCKSTEP_WARN_S)
 
     # ------------------------------------------------------------------ inputs
     def _now(self) -> float:
-        """The node's time; in lockstep the step's (its joint state's stamp), whatever /clock says yet."""
+        """The core's time (s); in lockstep the step's (its joint state's stamp, whatever /clock says
+        yet) on the episode's clock (lockstep.EpisodeClock)."""
         if self._step_ns is not None:
-            return self._step_ns * 1e-9
+            return self._episode_clock.seconds(self._step_ns)
         return self.get_clock().now().nanoseconds * 1e-9
+
+    def _now_ns(self) -> int:
+        return self._step_ns if self._step_ns is not None else self.get_clock().now().nanoseconds
+
+    def _relatch(self) -> float:
+        """A re-latch starts an episode: in lockstep the core's clock counts from this step on (every
+        time it keeps mapped exactly). The time (s) to give the core."""
+        if self._step_ns is not None:
+            self.core.restamp(self._episode_clock.restart(self._step_ns))
+        return self._now()
 
     def _input_time(self) -> float | None:
         """The receive time of an input, or None under sim time before the first /clock: an input
@@ -479,13 +493,13 @@ class ControllerNode(Node):
         return resp
 
     def _on_redetect(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
-        self.core.request_redetect(self._now())
+        self.core.request_redetect(self._relatch())
         resp.success, resp.message = True, "context dropped; the next detection will be latched"
         return resp
 
     def _on_select_target(self, req: SelectTarget.Request, resp: SelectTarget.Response):
         resp.success, resp.message = self.core.select_target(
-            req.by, req.class_id, int(req.index), float(req.x), float(req.y), self._now())
+            req.by, req.class_id, int(req.index), float(req.x), float(req.y), self._relatch())
         return resp
 
     # ------------------------------------------------------------------ loop
@@ -493,7 +507,7 @@ class ControllerNode(Node):
         """One command (published on joint_velocity_cmd, or returned for the lockstep answer) and the
         status: at status_rate, and at once when what it says changes (code, mode, end-effector axis,
         latched object, the assistance's level, inferred goal and the pose it steers toward)."""
-        now = self._now()
+        now, now_ns = self._now(), self._now_ns()
         cmd, st = self.core.step(now)
         values = cmd.tolist()
         if self._lockstep is None:
@@ -502,7 +516,8 @@ class ControllerNode(Node):
         said = (st.code, st.mode, st.ee_axis, st.latched_class, st.latched_by, st.assist.level,
                 st.assist.goal_task, st.assist.stage)
         changed = said != self._last_status
-        if changed or now - self._last_status_t >= self._status_period or now < self._last_status_t:
+        last = self._last_status_ns
+        if changed or last is None or not 0 <= now_ns - last < self._status_period_ns:
             code_changed = self._last_status is None or st.code != self._last_status[0]
             level = self._status_log.level(st.code) if code_changed else None
             text = f"zero command: {st.code.name}: {st.reason}"
@@ -513,7 +528,7 @@ class ControllerNode(Node):
             elif level == "debug":     # a routine code again
                 self.get_logger().debug(text)
             self._last_status = said
-            self._last_status_t = now
+            self._last_status_ns = now_ns
             self.status_pub.publish(self._status_msg(st))
             level = "ok" if st.code == Code.ACTIVE or st.code in NEUTRAL_CODES else "warn"
             self.diagnostics.update(level, st.reason or st.code.name, mode=st.mode, code=st.code.name,

@@ -10,7 +10,7 @@ pseudo-inverse of the Jacobian (well-behaved near singularities, unlike the pape
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
@@ -74,6 +74,10 @@ class EndEffectorBaseline:
     def restart(self) -> None:
         """The first axis, no switch pending: what a newly chosen mode starts with (a trial's start)."""
         self.index, self._last_switch = 0, -np.inf
+
+    def restamp(self, f: Callable[[float], float]) -> None:
+        """The core's clock moved its origin (`TeleopCore.restamp`)."""
+        self._last_switch = f(self._last_switch)
 
     def set_axes(self, axes: Sequence[str]) -> None:
         """Cycle these axes from now on; the selected one stays if it is among them, else the first."""

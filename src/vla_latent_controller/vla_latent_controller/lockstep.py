@@ -9,6 +9,8 @@ without the wait the latched detection would depend on the detector's speed.
 """
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from typing import Any
 
 from vla_common.lockstep import StampedInputs
@@ -77,3 +79,34 @@ class LockstepInputs:
         t, msg = self.state
         self.state, self.answered_ns = None, t
         return t, msg, self.inputs.due(t, now_kinds=(JOY,))
+
+
+class EpisodeClock:
+    """Lockstep: the core's times, in seconds since an origin that each re-latch (~/redetect, a target
+    picked: an evaluation's new episode) moves to its step. Seconds are floats: 5.63 - 5.62 and 1.83 -
+    1.82 round differently, and those last bits (a step's dt in the assistance's inference, a window's
+    edge) grew into a different outcome, so the same episode came out differently after others on one
+    graph than alone on a fresh one (issue 33). Counted from the episode's re-latch, the times a core
+    sees are the same floats whatever ran before."""
+
+    def __init__(self) -> None:
+        self.origin_ns = 0   # until the first re-latch: the clock's own seconds, as without lockstep
+
+    def seconds(self, stamp_ns: int) -> float:
+        return (int(stamp_ns) - self.origin_ns) * 1e-9
+
+    def stamp_ns(self, seconds: float) -> int:
+        """The stamp (ns) of a time in this clock's seconds (rounded up to the ns: the earliest stamp
+        at or after it)."""
+        return math.ceil(seconds * 1e9 - 0.5) + self.origin_ns
+
+    def restart(self, origin_ns: int) -> Callable[[float], float]:
+        """Count from `origin_ns` on; returns the map of a time kept in the old seconds to the new ones
+        (exact: the value the new origin would have given it; infinities stay)."""
+        old, self.origin_ns = self.origin_ns, int(origin_ns)
+
+        def restamp(t: float) -> float:
+            if not math.isfinite(t):
+                return t
+            return (round(t * 1e9) + old - self.origin_ns) * 1e-9
+        return restamp

@@ -274,6 +274,21 @@ class TeleopCore:
         self.ee.restart()   # a mode set (again) starts at the first axis, whatever the last trial left
         return True, f"mode {mode}"
 
+    def restamp(self, f: Callable[[float], float]) -> None:
+        """The clock that gives ``now`` moved its origin (a lockstep node counts each episode from its
+        re-latch: vla_latent_controller.lockstep.EpisodeClock): every time kept, here and in the
+        assistance and the end-effector baseline, is mapped by ``f`` (old seconds -> new)."""
+        js = self._js
+        self._js = _JointStates(js.names, js.positions, f(js.t), js.error)
+        if self._foreign is not None:
+            self._foreign = (f(self._foreign[0]), self._foreign[1])
+        self._joy_t, self._dets_t, self._image_t = f(self._joy_t), f(self._dets_t), f(self._image_t)
+        self._latch_after = f(self._latch_after)
+        if self.latched is not None:
+            self.latched.t = f(self.latched.t)
+        self.ee.restamp(f)
+        self.assist.restamp(f)
+
     def request_redetect(self, now: float) -> None:
         """Drop the latched context; the next detection (and image) received from ``now`` on is latched."""
         self.latched = None
@@ -578,18 +593,21 @@ class TeleopCore:
         return self._latch(det, image)
 
     def detection_wanted(self, now: float) -> float | None:
-        """The time from which a detection would be latched by a step at `now`, or None when that step
-        latches none (a lockstep controller waits for such a detection: vla_latent_controller.lockstep)."""
+        """The time from which a step at `now` needs every camera frame's detections, or None when it
+        needs none (a lockstep controller waits for them: vla_latent_controller.lockstep): a latch's
+        detection, and with the assistance on every frame's since the latch (it reads each array: taken
+        whenever the detector's answer came, an assisted episode depended on the machine's load)."""
         p, m, lat = self.params, self.model, self.latched
         if self.mode != "latent" or m is None:
             return None
         fixed_class = p.goal_selection not in GOAL_SELECTIONS
-        if not (m.encoder == "detector" or (m.encoder == "localization" and not fixed_class)):
-            return None
-        if lat is None:
-            return self._latch_after
-        if p.detection_max_age > 0 and now - lat.t > p.detection_max_age:
-            return max(self._latch_after, now - p.detection_max_age)
+        if m.encoder == "detector" or (m.encoder == "localization" and not fixed_class):
+            if lat is None:
+                return self._latch_after
+            if p.detection_max_age > 0 and now - lat.t > p.detection_max_age:
+                return max(self._latch_after, now - p.detection_max_age)
+        if lat is not None and p.assistance != "off" and self._dets_t > -math.inf:
+            return lat.t   # a detector answers (detections came): every frame's from the latch on
         return None
 
     def _expire_latch(self, now: float) -> None:

@@ -105,6 +105,7 @@ class TrialDriver:
     def __init__(self, op: HumanOperator, object_class: str, t_start: float, time_limit: float, kin,
                  mode: str, every: int = 0) -> None:
         self.op, self.cls, self.t_start, self.time_limit = op, object_class, t_start, time_limit
+        self._start_ns = round(t_start * 1e9)   # a trial's times from ns: the same floats at any start
         self.kin, self.mode, self.switch_to = kin, mode, ""
         self.sticks: list[float] = []
         self.t_done: float | None = None
@@ -127,7 +128,7 @@ class TrialDriver:
     def tick(self, obs: StudyObserver, stamp=None) -> None:
         if self.finished.is_set():
             return
-        t = (obs.now() if stamp is None else stamp.sec + stamp.nanosec * 1e-9) - self.t_start
+        t = ((obs.now_ns() if stamp is None else ns_from_stamp(stamp)) - self._start_ns) * 1e-9
         with obs.cond:
             q, objs, ctrl, safety, hand = obs.q, obs.objects, obs.ctrl, obs.safety, obs.hand
         obj = objs.get(self.cls)

@@ -78,6 +78,7 @@ class Observer(Node):
     def __init__(self, context, name: str = "test_observer") -> None:
         super().__init__(name, context=context)
         self.q: np.ndarray | None = None
+        self.stamp = 0.0                   # the latest joint state's stamp (s): simulated time with a sim
         self.joint_states = 0
         self.detections: DetectionArray | None = None
         self.ctrl: ControllerStatus | None = None
@@ -95,6 +96,7 @@ class Observer(Node):
         names = list(msg.name)
         if all(j in names for j in JOINT_NAMES):
             self.q = np.array([msg.position[names.index(j)] for j in JOINT_NAMES])
+            self.stamp = msg.header.stamp.sec + 1e-9 * msg.header.stamp.nanosec
             self.joint_states += 1
 
     def _dets(self, msg: DetectionArray) -> None:

@@ -55,7 +55,7 @@ def reset_to_one_object(h: RosHarness, obs: Observer) -> None:
     req = ResetScene.Request(objects=[SceneObject(class_id=o.class_id, x=o.x, y=o.y, yaw=o.yaw)
                                       for o in objects], initial_positions=[float(v) for v in READY_POSE])
     assert h.call(reset, req, 60.0).success
-    h.spin_for(1.0)  # objects settle and the detector sees the new scene
+    sim_seconds(h, obs, 1.0)  # objects settle and the detector sees the new scene
     redetect = obs.create_client(Trigger, "controller_node/redetect")
     assert h.call(redetect, Trigger.Request(), 30.0).success
     assert h.spin_until(lambda: obs.ctrl is not None and obs.ctrl.latched_class == "bread", 30.0), obs.ctrl
@@ -69,20 +69,38 @@ def check_safety(obs: Observer) -> None:
     assert obs.safety[-1].commands_rejected == 0
 
 
+def sim_seconds(h: RosHarness, obs: Observer, seconds: float, step=None, bound: float = 120.0) -> None:
+    """Spin until `seconds` of simulated time have passed by the joint states' stamps, calling `step`
+    every 20 ms of wall time: a loaded machine runs the simulation slower than real time (CI: a 2 s
+    push in wall time gave the arm 0.05 rad). `bound`: wall seconds, only against a hang."""
+    start = obs.stamp
+
+    def done() -> bool:
+        if step is not None:
+            step()
+        h.spin_for(0.02)
+        return obs.stamp - start >= seconds
+
+    assert h.spin_until(done, bound), f"{seconds} s of simulated time did not pass in {bound} s"
+
+
 def hold_stick(h: RosHarness, obs: Observer, pub, value: float,
                seconds: float) -> tuple[np.ndarray, np.ndarray]:
-    """Publish the stick at 50 Hz for `seconds`; (the arm's motion, the mean command while ACTIVE)."""
-    def at_neutral() -> bool:                    # a person lets the stick go when the controller asks
+    """The stick at neutral until the arm has braked, then at `value` (50 Hz) for `seconds` of
+    simulated time; (the arm's motion, the mean command while ACTIVE)."""
+    def neutral() -> None:
         pub.publish(Joy(axes=[0.0, 0.0], buttons=[0] * 4))
+
+    def at_neutral() -> bool:                    # a person lets the stick go when the controller asks
+        neutral()
         h.spin_for(0.02)
         return obs.ctrl is not None and obs.ctrl.code == ControllerStatus.ZERO_DEADBAND
 
     assert h.spin_until(at_neutral, 10.0), obs.ctrl
+    sim_seconds(h, obs, 0.5, neutral)            # the arm brakes from the last push
     first = len(obs.ctrl_log)
     q0 = obs.q.copy()
-    for _ in range(int(seconds * 50)):
-        pub.publish(Joy(axes=[float(value), 0.0], buttons=[0] * 4))
-        h.spin_for(0.02)
+    sim_seconds(h, obs, seconds, lambda: pub.publish(Joy(axes=[float(value), 0.0], buttons=[0] * 4)))
     commands = [np.array(s.command) for s in obs.ctrl_log[first:]
                 if s.code == ControllerStatus.ACTIVE and len(s.command) == 7]
     assert commands, f"the controller never was ACTIVE: {obs.ctrl}"
@@ -115,9 +133,9 @@ def test_teleop_launch_moves_the_arm_the_way_the_stick_commands(ros, tmp_path):
         assert cosine(forward, cmd_forward) > 0.9, (forward, cmd_forward)
         assert cosine(back, cmd_back) > 0.9, (back, cmd_back)
         check_safety(obs)
-        ros.spin_for(1.0)  # stick released: joy_timeout, zero command, the arm brakes
+        sim_seconds(ros, obs, 1.0)  # stick released: joy_timeout, zero command, the arm brakes
         q_rest = obs.q.copy()
-        ros.spin_for(1.0)
+        sim_seconds(ros, obs, 1.0)
         assert obs.ctrl.code != ControllerStatus.ACTIVE and np.allclose(obs.q, q_rest, atol=1e-3)
         assert run.stop() == 0, run.text()[-3000:]
 
@@ -134,7 +152,7 @@ def test_demo_launch_teleoperator_drives_towards_its_waypoint(ros, tmp_path):
         running = lambda: obs.teleop.state == TeleopStatus.RUNNING and len(obs.teleop.waypoint) == 7  # noqa: E731
         assert ros.spin_until(running, 30.0), obs.teleop
         q0, waypoint = obs.q.copy(), np.array(obs.teleop.waypoint)
-        ros.spin_for(3.0)  # 6 s of simulated time
+        sim_seconds(ros, obs, 6.0)
         moved = obs.q - q0
         assert np.linalg.norm(waypoint - obs.q) < np.linalg.norm(waypoint - q0) - 0.1, (q0, obs.q, waypoint)
         assert cosine(moved, waypoint - q0) > 0.5

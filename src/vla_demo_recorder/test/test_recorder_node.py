@@ -14,6 +14,7 @@ from require import missing
 from rosbags.highlevel import AnyReader
 from sensor_msgs.msg import Image, JointState, Joy
 from std_srvs.srv import Trigger
+from vla_common.ros.convert import ns_from_stamp
 from vla_common.ros.node_main import ConfigError
 from vla_demo_recorder.bag_files import find_mcap, has_footer
 from vla_demo_recorder.bag_writer import EpisodeInfo, read_metadata_yaml
@@ -565,3 +566,25 @@ def test_the_status_keeps_coming_while_a_simulation_holds(ros, tmp_path):
     probe.create_subscription(RecorderStatus, "recorder/status", seen.append, 10)
     assert ros.spin_until(lambda: len(seen) >= 3, 10.0), len(seen)
     assert all(s.header.stamp.sec == 0 and s.header.stamp.nanosec == 0 for s in seen)  # no /clock yet
+
+
+def test_in_lockstep_the_status_says_the_newest_stamp_recorded_per_topic(ros, tmp_path):
+    """An orchestrator stops an episode once what it waited for is in the bag: a detection comes from
+    another process than the stop's request and could arrive after it (generate, CI at load)."""
+    make_recorder(ros, tmp_path, lockstep=True, use_sim_time=True)   # no /clock: the episode starts at 0
+    c = Client(ros)
+    c.wait_subscribed(c.js, c.det)
+    started = c.start()
+    assert started.success, started.message
+    det = DetectionArray(image_width=640, image_height=480)
+    det.header.stamp.sec = 7
+    c.det.publish(det)
+    c.publish_joints(3, start=5)
+
+    def newest() -> dict:
+        s = c.status[-1] if c.status else RecorderStatus()
+        return {t: ns_from_stamp(x) for t, x in zip(s.stamped_topics, s.newest_stamps)}
+
+    assert ros.spin_until(lambda: newest() == {"/detections": 7 * 10**9, "/joint_states": 7 * 10**9}, 10.0), \
+        newest()
+    assert c.stop().success

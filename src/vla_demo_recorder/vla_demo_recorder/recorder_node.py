@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Callable
 
+from builtin_interfaces.msg import Time
 from rclpy.clock import Clock, ClockType
 from rclpy.node import Node
 from rclpy.qos import (
@@ -122,6 +123,7 @@ class RecorderNode(Node):
             raise ConfigError(f"parameter 'joy_task': {err}") from err
         self.topics = list(p["topics"])
         self.lockstep, self.window = p["lockstep"], StampWindow()
+        self._newest: dict[str, int] = {}   # lockstep: per stamped topic, the newest stamp recorded (ns)
         if self.lockstep and self._resolved("joint_states") not in {self._resolved(t) for t in self.topics}:
             raise ConfigError("parameter 'lockstep': the recorder answers the joint states it records; "
                               "'topics' must hold joint_states")
@@ -283,7 +285,9 @@ class RecorderNode(Node):
                 self._image_counts[topic] = n + 1
                 if n % self.image_every_n:
                     return
-            self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data)
+            if self.recorder.record(topic, msgtype, self._subs[topic][1], clock.now().nanoseconds, data) \
+                    and stamped:
+                self._newest[topic] = max(self._newest.get(topic, 0), header_stamp_ns(data))
 
         def callback(data: bytes) -> None:
             record(data)
@@ -301,6 +305,7 @@ class RecorderNode(Node):
     def start_episode(self, task: str, note: str = "") -> tuple[bool, str, str]:
         topics = {t: (mt, offered) for t, (mt, offered, _s) in self._subs.items()}
         self._image_counts.clear()
+        self._newest.clear()
         try:
             start_ns = self.get_clock().now().nanoseconds
             if self.lockstep:
@@ -377,6 +382,9 @@ class RecorderNode(Node):
         msg.episode_index = st.episode_index
         msg.messages_written, msg.bytes_written = st.messages_written, st.bytes_written
         msg.messages_dropped, msg.last_error = st.messages_dropped, st.last_error
+        newest = dict(self._newest)   # a copy: the callbacks may add to it meanwhile
+        msg.stamped_topics = list(newest)
+        msg.newest_stamps = [Time(sec=ns // 10**9, nanosec=ns % 10**9) for ns in newest.values()]
         self.status_pub.publish(msg)
         self.diagnostics.update("error" if st.last_error else "ok", st.last_error or (
             f"recording {st.task}" if st.recording else "idle"), episode_index=st.episode_index,

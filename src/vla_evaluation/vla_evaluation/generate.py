@@ -165,7 +165,11 @@ def parse_tasks(items: list[str], tasks_file: Path | None, catalogue: Catalogue)
 
 
 def _stamp(msg) -> float:
-    return msg.header.stamp.sec + msg.header.stamp.nanosec * 1e-9
+    return _stamp_of(msg.header.stamp)
+
+
+def _stamp_of(t) -> float:
+    return t.sec + t.nanosec * 1e-9
 
 
 class Demonstrator:
@@ -345,6 +349,16 @@ class Demonstrator:
             self.cond.notify_all()
 
     # -- helpers for the orchestrator (main thread; the executor spins elsewhere) ----------------
+    def recorded_until(self, topics) -> float:
+        """Lockstep: the oldest of the newest stamps (s) the recorder's ~/status says it recorded on
+        `topics` in this episode (-inf before one of them has any)."""
+        msg = self.recorder
+        if msg is None:
+            return -math.inf
+        newest = dict(zip(msg.stamped_topics, msg.newest_stamps))
+        stamps = [newest.get(self.node.resolve_topic_name(t)) for t in topics]
+        return min((_stamp_of(s) if s is not None else -math.inf) for s in stamps)
+
     def now(self) -> float:
         return self.node.get_clock().now().nanoseconds * 1e-9
 
@@ -700,6 +714,11 @@ def _run_episode(cfg, demo: Demonstrator, kin, spec, catalogue, rng, rec: Episod
         last = last_frame_stamp(held, demo.reset_stamp, demo.steps.unit, cfg.camera_rate)
         _wait(demo, lambda: min(demo.frame_stamp, demo.detections_stamp) >= last - demo.steps.unit / 2,
               WAIT_S, f"the last frame's ({last:.3f} s) detection", alive)
+        # and in the bag: the detector's message reaches the recorder, another process, on a path of its
+        # own, so the stop's request could overtake it at load (a bag a detection short, CI)
+        framed = ("camera/camera_info", "detections")
+        _wait(demo, lambda: demo.recorded_until(framed) >= last - demo.steps.unit / 2, WAIT_S,
+              f"the recorder to have the last frame's ({last:.3f} s) detection", alive)
     _wait(demo, lambda: demo.objects_stamp >= t_end, WAIT_S, "the final object poses", alive)
     if demo.steps is None:  # stop once the recorder's clock has passed the plan's end (else the tail is lost)
         _wait(demo, lambda: demo.recorder_stamp >= t_end + RECORD_TAIL_S, WAIT_S, "the recorder to catch up",

@@ -72,4 +72,5 @@ def test_given_processes_with_their_own_environments_keep_going_past_a_failure(t
         assert s.output("robot") == ["robot base"] and s.output("vision") == ["vision None"]
         assert s.alive("long") and not s.alive("bad")
         assert "--- bad (exit code 3)" in s.describe() and "--- long (running)" in s.describe()
+        s.stop(timeout=150.0)   # longer than the grace above (the default 60 s cut it short at load ~10)
     assert s.exit_codes()["long"] == -signal.SIGINT and not s.alive("long")  # stopped by our SIGINT

@@ -5,6 +5,7 @@ import re
 import signal
 import sys
 import textwrap
+import time
 
 import pytest
 
@@ -248,3 +249,31 @@ def test_launcher_api_from_a_thread(fixtures_dir):
     assert result == {"rc": 0}
     assert "[a-1] hi" in out.getvalue() and err.getvalue() == ""
     assert launcher.tags == {launcher.all_pids[0]: "a-1"}
+
+
+def test_children_hear_the_stop_when_the_caller_ignores_sigint(fixtures_dir):
+    """A harness that runs the launcher from a thread of a process ignoring SIGINT (a `&` job of a
+    script, `nohup`) still stops its children with SIGINT: they must not inherit SIG_IGN, which would
+    cost every stop the SIGTERM grace (and a child's own shutdown on SIGINT)."""
+    import threading
+
+    from vla_launch.launcher import Launcher, ProcessSpec
+
+    script = os.path.join(fixtures_dir, "proc.py")
+    launcher = Launcher([ProcessSpec("a", [sys.executable, script], sigterm_timeout=60.0)])
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        t = threading.Thread(target=launcher.run)
+        t.start()
+        started = time.monotonic()
+        while not launcher.all_pids and time.monotonic() - started < 20:
+            time.sleep(0.01)
+    finally:
+        signal.signal(signal.SIGINT, before)
+    pid = launcher.all_pids[0]
+    with open(f"/proc/{pid}/status") as f:   # the child's ignored-signal mask, before it runs Python
+        ignored = int(next(x for x in f if x.startswith("SigIgn:")).split()[1], 16)
+    launcher.stop()
+    t.join(60)
+    assert not ignored & (1 << (signal.SIGINT - 1)), "the child inherited SIGINT ignored"
+    assert launcher.ended == [("a", -signal.SIGINT)]

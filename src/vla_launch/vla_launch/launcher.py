@@ -101,6 +101,10 @@ def _interrupted(sig: int) -> str:
 
 def _preexec(parent_pid: int):
     def setup() -> None:  # runs in the child between fork and exec
+        # the stop is our SIGINT (then SIGTERM): a child must hear both even where the caller ignores
+        # them (`nohup`, a `&` job of a script), as a disposition of SIG_IGN survives exec
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, signal.SIG_DFL)
         if _PRCTL is not None:
             _PRCTL(_PR_SET_PDEATHSIG, int(signal.SIGTERM), 0, 0, 0)
         if os.getppid() != parent_pid:  # the parent died before prctl took effect

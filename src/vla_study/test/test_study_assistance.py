@@ -196,3 +196,9 @@ def test_the_prepared_paper_protocol_puts_assisted_latent_yolo_beside_the_paper_
 
     assert layouts(assisted, "latent-YOLO+assist-high") == layouts(paper, "latent-YOLO")
     assert layouts(assisted, "end-effector") == layouts(paper, "end-effector")
+
+    def models(p, s):   # the A/B differs only in the assistance: both drive paper.yaml's matched set
+        return [(t.participant, t.task, model_for(p, t)) for t in trial_plan(p) if t.strategy == s]
+
+    assert models(assisted, "latent-YOLO+assist-high") == models(assisted, "latent-YOLO") \
+        == models(paper, "latent-YOLO")

@@ -96,6 +96,31 @@ def test_both_strategies_get_the_same_demonstrations_and_recipe_for_each_seed_an
     assert len(seeds) == 3 * 6
 
 
+def test_the_improved_training_is_a_set_of_its_own_on_the_same_demonstrations_and_schedule(tmp_path):
+    """Issue 34's A/B of training: `--rest-samples`/`--corrective-copies` make `..._ends_s<seed>` models
+    from the very demonstrations, epochs and seeds of the paper's set, the pairs taught where a task
+    ends; the paper's set keeps its name and recipe digest (its shipped models stay valid), and a bad
+    value is refused before anything is made."""
+    p = load_protocol(PAPER)
+    paper, ends = model_set.Recipe(), model_set.Recipe(rest_samples=10, corrective_copies=2)
+    assert paper.digest() == model_set.read_provenance(
+        Path(model_set.SOURCE_MODELS) / "matched_detector_base_s0")["recipe_digest"]
+    assert ends.digest() != paper.digest() and (paper.variant, ends.variant) == ("", "ends")
+    a, b = model_set.units_of(p, paper), model_set.units_of(p, ends)
+    assert [u.name for u in b][:2] == ["matched_detector_base_ends_s0", "matched_localization_base_ends_s0"]
+    assert [(u.strategy, u.setting, u.tasks, u.seed) for u in a] == [(u.strategy, u.setting, u.tasks, u.seed)
+                                                                  for u in b]
+    ca, cb = paper.train_config("detector", 1), ends.train_config("detector", 1)
+    assert (cb.rest_samples, cb.corrective_copies) == (10, 2)
+    assert (ca.rest_samples, ca.corrective_copies) == (0, 0)
+    assert {k: v for k, v in vars(ca).items() if k not in ("rest_samples", "corrective_copies")} == \
+           {k: v for k, v in vars(cb).items() if k not in ("rest_samples", "corrective_copies")}
+    assert model_set.protocol_models(["latent-YOLO"], ["Seen"], (0, 1), "ends") == {
+        "latent-YOLO": {"Seen": ["matched_detector_seen_ends_s0", "matched_detector_seen_ends_s1"]}}
+    assert model_set.main(["--out", str(tmp_path), "--corrective-sigma", "0", "--serial"]) == 2
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_development_layouts_are_never_test_layouts():
     p = load_protocol(PAPER)
     for setting in p.settings:

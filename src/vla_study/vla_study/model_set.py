@@ -17,6 +17,10 @@ setting, one model `matched_<encoder>_<setting>_s<s>`:
   improvements on) with 100 epochs, the learning-rate step at 40 and at least 1000 optimiser updates
   (Figure 2's schedule, `experiments.Plan`: with batches of 6000 pairs about the paper's 1000
   full-batch updates), the same for every strategy, setting and seed;
+- the improved training of issue 34, where asked (`--rest-samples`, `--corrective-copies`,
+  `--corrective-sigma`, as `vla_latent_training train` takes them): the same demonstrations, epochs and
+  seeds, the pairs taught where a task ends and the way back to its path; such a set is named
+  `matched_<encoder>_<setting>_ends_s<s>` and ships beside the paper's;
 - the path fraction (`vla_evaluation.path_fraction`): a held full stick in the kinematic loop on the
   development layouts of the protocol's `development` files (never a test layout), the fraction of
   {0.5, 0.65, 0.8, 1} whose path comes closest to the planner's waypoints.
@@ -43,6 +47,7 @@ from vla_common.tasks import BASE_TASKS
 from vla_evaluation.resources import SOURCE_MODELS, detector_model_path
 from vla_evaluation.sweep import Needs, engine_from, run_sweep
 from vla_evaluation.sweep import add_arguments as add_engine_arguments
+from vla_latent_training.config import TrainConfig  # no torch
 
 from vla_study.layouts import development_layouts, render_layouts
 from vla_study.protocol import PAPER, STRATEGIES, Protocol, ProtocolError, load_protocol
@@ -66,19 +71,32 @@ class Recipe:
     step_size: int = 40  # the learning-rate step, in epochs (0.4 of them, as the paper's 400 of 1000)
     min_steps: int = 1000  # at least this many optimiser updates (TrainConfig.min_steps)
     seeds: tuple[int, ...] = (0, 1, 2)
+    # The improved training (issue 34; TrainConfig's, off by default: the paper's pairs)
+    rest_samples: int = TrainConfig.rest_samples
+    corrective_copies: int = TrainConfig.corrective_copies
+    corrective_sigma: float = TrainConfig.corrective_sigma
+
+    @property
+    def variant(self) -> str:
+        """'ends' where the pairs are taught where a task ends (the improved training), else ''."""
+        return "ends" if self.rest_samples or self.corrective_copies else ""
 
     def train_config(self, encoder: str, seed: int):
         """The TrainConfig of a model of the set: the shipped recipe with this schedule."""
-        from vla_latent_training.config import TrainConfig  # no torch
-
         return TrainConfig(encoder=encoder, epochs=self.epochs, step_size=self.step_size,
-                           min_steps=self.min_steps, seed=seed)
+                           min_steps=self.min_steps, seed=seed, rest_samples=self.rest_samples,
+                           corrective_copies=self.corrective_copies, corrective_sigma=self.corrective_sigma)
 
     def digest(self) -> str:
         """What a model depends on besides its strategy, setting and seed (seeds excluded: a set with
-        more seeds keeps the models it has)."""
-        d = {k: v for k, v in asdict(self).items() if k != "seeds"}
+        more seeds keeps the models it has; the improved training's fields only where set, so that the
+        models made before them keep their digest)."""
+        d = {k: v for k, v in asdict(self).items()
+             if k != "seeds" and not (k in _ADDED and v == getattr(TrainConfig, k))}
         return hashlib.sha256(json.dumps(d, sort_keys=True).encode()).hexdigest()[:16]
+
+
+_ADDED = ("rest_samples", "corrective_copies", "corrective_sigma")
 
 
 @dataclass(frozen=True)
@@ -89,6 +107,7 @@ class Unit:
     setting: str
     tasks: tuple[str, ...]  # the base tasks, then the setting's own (few-shot) tasks
     seed: int
+    variant: str = ""  # Recipe.variant
 
     @property
     def encoder(self) -> str:
@@ -96,17 +115,18 @@ class Unit:
 
     @property
     def name(self) -> str:
-        return model_name(self.strategy, self.setting, self.seed)
+        return model_name(self.strategy, self.setting, self.seed, self.variant)
 
 
-def model_name(strategy: str, setting: str, seed: int) -> str:
-    """`matched_<encoder>_<setting>_s<seed>`, e.g. matched_localization_far_s2."""
-    return f"{PREFIX}_{ENCODERS[strategy]}_{setting.lower()}_s{seed}"
+def model_name(strategy: str, setting: str, seed: int, variant: str = "") -> str:
+    """`matched_<encoder>_<setting>[_<variant>]_s<seed>`, e.g. matched_localization_far_s2 or
+    matched_detector_seen_ends_s0."""
+    return f"{PREFIX}_{ENCODERS[strategy]}_{setting.lower()}{'_' + variant if variant else ''}_s{seed}"
 
 
-def protocol_models(strategies, settings, seeds) -> dict[str, dict[str, list[str]]]:
+def protocol_models(strategies, settings, seeds, variant: str = "") -> dict[str, dict[str, list[str]]]:
     """The protocol's `models` block for the set: per strategy and setting, one model per seed."""
-    return {s: {k: [model_name(s, k, seed) for seed in seeds] for k in settings} for s in strategies}
+    return {s: {k: [model_name(s, k, seed, variant) for seed in seeds] for k in settings} for s in strategies}
 
 
 def fewshot_tasks(protocol: Protocol, setting: str) -> tuple[str, ...]:
@@ -117,7 +137,7 @@ def fewshot_tasks(protocol: Protocol, setting: str) -> tuple[str, ...]:
 def units_of(protocol: Protocol, recipe: Recipe) -> list[Unit]:
     """Every model of the set, seed by seed (a stopped build has whole seeds first)."""
     latent = list(dict.fromkeys(base_strategy(s) for s in protocol.strategies if STRATEGIES[s] == "latent"))
-    return [Unit(s, k, tuple(BASE_TASKS) + fewshot_tasks(protocol, k), seed)
+    return [Unit(s, k, tuple(BASE_TASKS) + fewshot_tasks(protocol, k), seed, recipe.variant)
             for seed in recipe.seeds for k in protocol.settings for s in latent]
 
 
@@ -256,6 +276,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--epochs", type=int, default=Recipe.epochs,
                     help="training epochs (the lr step at 0.4 of them); every model the same")
     ap.add_argument("--min-steps", type=int, default=Recipe.min_steps)
+    ap.add_argument("--rest-samples", type=int, default=Recipe.rest_samples,
+                    help="the improved training: each demonstration held at its end this many samples more")
+    ap.add_argument("--corrective-copies", type=int, default=Recipe.corrective_copies,
+                    help="the improved training: copies of every pair from a perturbed state (DART-like)")
+    ap.add_argument("--corrective-sigma", type=float, default=Recipe.corrective_sigma,
+                    help="rad per joint of those perturbations")
     add_engine_arguments(ap)
     a = ap.parse_args(argv)
     try:
@@ -264,7 +290,13 @@ def main(argv: list[str] | None = None) -> int:
         print(f"protocol refused:\n{e}", file=sys.stderr)
         return 2
     recipe = Recipe(epochs=a.epochs, step_size=max(1, round(0.4 * a.epochs)), min_steps=a.min_steps,
-                    seeds=tuple(int(s) for s in a.seeds.split(",") if s.strip()))
+                    seeds=tuple(int(s) for s in a.seeds.split(",") if s.strip()), rest_samples=a.rest_samples,
+                    corrective_copies=a.corrective_copies, corrective_sigma=a.corrective_sigma)
+    try:
+        recipe.train_config("detector", 0).validate()
+    except ValueError as e:
+        print(f"recipe refused: {e}", file=sys.stderr)
+        return 2
     units = units_of(protocol, recipe)
     if a.only:
         names = {n.strip() for n in a.only.split(",")}

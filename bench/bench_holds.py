@@ -50,7 +50,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", default=None, help="also write every hold's row (task, seed, success, ...) here")
     add_engine_arguments(p)
     a = parse(p, argv, n=1, tasks="bread/push_east")
-    cfg = hold_config(str(latent_model_dir(a.model)), str(detector_model_path()), a.seconds, a.stick,
+    model = latent_model_dir(a.model)
+    if not (model / "config.json").is_file():   # refused here, not as one graph error per hold
+        p.error(f"--model {a.model}: no latent model there ({model} has no config.json)")
+    cfg = hold_config(str(model), str(detector_model_path()), a.seconds, a.stick,
                       a.path_fraction, log_dir=a.log_dir, real_time_factor=a.real_time_factor,
                       lockstep=not a.free_running,
                       extra_params={"controller_node": {"assistance": a.assistance}})

@@ -27,3 +27,16 @@ def test_holds_at_full_stick_run_through_the_graph_and_are_tallied(tmp_path):
     # a reflex, and the xfail this replaced fired in the last CI runs)
     assert t.reflexes == 0, t.line()
     assert 0 <= t.successes <= 2
+
+
+def test_a_model_that_is_not_there_is_refused_before_any_hold(tmp_path):
+    """`bench_holds.py --model` naming no model stops at once with the reason (it ran every hold as a
+    graph error, minutes of graphs, before)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    bench = Path(__file__).resolve().parents[1] / "bench" / "bench_holds.py"
+    r = subprocess.run([sys.executable, str(bench), "--model", str(tmp_path / "none"), "--n", "1"],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "no latent model there" in r.stderr and "has no config.json" in r.stderr

@@ -45,6 +45,20 @@ def test_the_aggregate_weighs_each_setting_once_not_each_trial(tmp_path):
     assert "0.89" not in table
 
 
+def test_the_tables_follow_the_protocols_order_not_the_order_units_finished(tmp_path):
+    """A sweep finishes units in any order (a Far unit first, the end effector before latent-YOLO): the
+    tables list strategies and settings as the protocol does, so that two runs read alike."""
+    rows = [_row("sim:1", "Far", False, strategy="end-effector"), _row("sim:1", "base", True),
+            _row("sim:1", "Far", True), _row("sim:1", "base", True, strategy="end-effector")]
+    out = _study(tmp_path, rows)
+    text = "\n".join(analyse(out, out, 30.0, ["latent-YOLO", "end-effector"], ["base", "Far"]))
+    table = text.split("## Success per setting")[1].split("##")[0]
+    assert "| strategy | base | Far | settings, equal weight |" in table
+    assert table.index("| latent-YOLO |") < table.index("| end-effector |")
+    unordered = "\n".join(analyse(out, out, 30.0)).split("## Success per setting")[1]
+    assert "| strategy | Far | base |" in unordered   # without the protocol: as the rows came
+
+
 def test_a_failures_time_is_the_limit(tmp_path):
     """A participant who gave up after 3 s did not fail faster: the failure counts 30 s (the limit), in the
     scorer's row and, for rows made before, in the analysis."""

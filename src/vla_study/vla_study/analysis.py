@@ -15,6 +15,7 @@ import itertools
 import json
 import math
 from collections import defaultdict
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -111,10 +112,13 @@ class Study:
     limit: float | None
 
     @classmethod
-    def of(cls, rows: list[dict], limit: float | None) -> Study:
+    def of(cls, rows: list[dict], limit: float | None, strategies: Sequence[str] = (),
+           settings: Sequence[str] = ()) -> Study:
+        """`strategies`, `settings`: the protocol's order for the tables (the rows' order otherwise:
+        that of the units' completion, which a sweep decides)."""
         simulated = all(r.get("simulated", True) for r in rows)
-        return cls(rows, list(dict.fromkeys(r["strategy"] for r in rows)),
-                   list(dict.fromkeys(r["setting"] for r in rows)),
+        return cls(rows, _ordered((r["strategy"] for r in rows), strategies),
+                   _ordered((r["setting"] for r in rows), settings),
                    sorted({r["participant"] for r in rows}, key=lambda s: (len(s), s)), _label(simulated),
                    limit)
 
@@ -130,15 +134,23 @@ class Study:
         return f"{sum(got)}/{len(got)}" if got else "–"
 
 
-def analyse(out: Path, figures: Path, time_limit: float | None = None) -> list[str]:
+def _ordered(names, first: Sequence[str]) -> list[str]:
+    """The distinct `names`, those in `first` in its order, then the others as they came."""
+    seen = list(dict.fromkeys(names))
+    return [x for x in first if x in seen] + [x for x in seen if x not in first]
+
+
+def analyse(out: Path, figures: Path, time_limit: float | None = None, strategies: Sequence[str] = (),
+            settings: Sequence[str] = ()) -> list[str]:
     """Write figure4_success.png, figure3_paths.png and study_tables.md; return the lines printed.
-    `time_limit`: the protocol's, for rows made before each row kept its own."""
+    `time_limit`: the protocol's, for rows made before each row kept its own; `strategies`,
+    `settings`: the protocol's order for the tables and figures."""
     out, figures = Path(out), Path(figures)
     rows = [r for r in load_rows(out) if r.get("phase") == "test"]
     if not rows:
         return [f"[study] no test trials in {out} yet"]
     figures.mkdir(parents=True, exist_ok=True)
-    st = Study.of(rows, time_limit)
+    st = Study.of(rows, time_limit, strategies, settings)
     lines = _header(st)
     _figure4(st, figures / "figure4_success.png")
     _figure3(st, out, figures / "figure3_paths.png")

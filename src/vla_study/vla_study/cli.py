@@ -103,7 +103,8 @@ def run(args) -> int:
                            use_sim_time=args.use_sim_time, engine=engine_from(args), only=only).failed
     from vla_study.analysis import analyse  # matplotlib: only for the figures, not for --help or --check
 
-    for line in analyse(args.out, args.figures or args.out, proto.time_limit):
+    for line in analyse(args.out, args.figures or args.out, proto.time_limit, proto.strategies,
+                        list(proto.settings)):
         print(line)
     if failed:  # the analysis above is of what was recorded; the study is not complete
         print(f"[study] incomplete: {len(failed)} units of trials failed (see above); run the same command "

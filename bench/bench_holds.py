@@ -23,7 +23,7 @@ from vla_evaluation.evaluate_cli import task_list
 from vla_evaluation.graph import GraphConfig
 from vla_evaluation.holds import FRESH_SEED, hold_config, run_holds
 from vla_evaluation.kinematic import TeleopSettings
-from vla_evaluation.resources import detector_model_path, latent_model_dir
+from vla_evaluation.resources import detector_model_path, is_latent_model, latent_model_dir
 from vla_evaluation.sweep import add_arguments as add_engine_arguments
 from vla_evaluation.sweep import engine_from
 
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     add_engine_arguments(p)
     a = parse(p, argv, n=1, tasks="bread/push_east")
     model = latent_model_dir(a.model)
-    if not (model / "config.json").is_file():   # refused here, not as one graph error per hold
+    if not is_latent_model(model):   # refused here, not as one graph error per hold
         p.error(f"--model {a.model}: no latent model there ({model} has no config.json)")
     cfg = hold_config(str(model), str(detector_model_path()), a.seconds, a.stick,
                       a.path_fraction, log_dir=a.log_dir, real_time_factor=a.real_time_factor,

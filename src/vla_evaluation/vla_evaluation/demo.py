@@ -34,7 +34,7 @@ from vla_evaluation.demo_video import write_video_and_strip
 from vla_evaluation.evaluate_cli import add_teleop_arguments, print_table, settings_from, task_list
 from vla_evaluation.graph import CAMERA_SIZE, CONTROLLER, GraphConfig, GraphError, GraphEvaluator
 from vla_evaluation.metrics import summarize, write_json
-from vla_evaluation.resources import SOURCE_MODELS, detector_model_path, latent_model_dir
+from vla_evaluation.resources import SOURCE_MODELS, detector_model_path, is_latent_model, latent_model_dir
 from vla_evaluation.training_data import ensure_detector, ensure_latent_models
 
 BASE_MODEL = "default"  # the controller node's default model (detector encoder, base tasks)
@@ -109,7 +109,7 @@ def run(args) -> int:
         model_dirs = {n: Path(args.models) / n for n in names}
     else:
         model_dirs = {n: latent_model_dir(n) for n in names}
-    missing = [n for n, d in model_dirs.items() if not (d / "config.json").is_file()]
+    missing = [n for n, d in model_dirs.items() if not is_latent_model(d)]
     if missing:
         target = Path(args.models) if args.models is not None else SOURCE_MODELS
         _log(

@@ -45,7 +45,7 @@ from vla_common.safety_status import code_name
 from vla_common.tasks import BASE_TASKS
 
 from vla_evaluation.kinematic import VALIDATION_SEED_OFFSET
-from vla_evaluation.resources import detector_model_path
+from vla_evaluation.resources import detector_model_path, is_latent_model
 from vla_evaluation.training_data import BASE_EPISODES, BASE_SEED, count_bags, ensure_demos, run_command
 
 DETECTOR_AP_GOAL = 0.9  # AP@0.5 of the new class on the held-out renders
@@ -333,7 +333,7 @@ def train_transfer(cfg: NewObjectConfig, k: int, base: Sequence[Path], new_bags:
                    detector: Path, cmds: Commands) -> Path:
     """The transfer model of k new demonstrations: base + the first k new bags in one model."""
     out = cfg.path("models", f"k{k}")
-    if (out / "config.json").is_file():
+    if is_latent_model(out):
         cmds.log(f"[new-object] reusing {out}")
         return out
     cmds.run(["vla_latent_training", "train", "--catalogue", str(cfg.catalogue),

@@ -11,12 +11,18 @@ PACKAGE = "vla_latent_controller"
 SOURCE_MODELS = Path(__file__).resolve().parents[2] / PACKAGE / "models"
 
 
+def is_latent_model(d: Path) -> bool:
+    """Whether `d` holds a latent-action model: its sealed config.json (the one test of what a model
+    directory is, for every tool that refuses or makes a missing model)."""
+    return (Path(d) / "config.json").is_file()
+
+
 def latent_model_dir(name: str = "default") -> Path:
     """The shipped latent-action model directory `name` (may not exist yet); `default` is the
     controller's default: detector encoder trained on the base tasks."""
     try:
         p = Path(get_package_share_directory(PACKAGE)) / "models" / name
-        if (p / "config.json").is_file():
+        if is_latent_model(p):
             return p
     except PackageNotFoundError:
         pass

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from vla_common.catalogue import load_catalogue
 from vla_common.kinematics import PandaKinematics
-from vla_evaluation.resources import latent_model_dir
+from vla_evaluation.resources import is_latent_model, latent_model_dir
 from vla_evaluation.sweep import add_arguments as add_engine_arguments
 from vla_evaluation.sweep import engine_from
 
@@ -75,7 +75,7 @@ def run(args) -> int:
         return 2
     try:
         proto = load_protocol(args.protocol,
-                              model_exists=lambda m: (latent_model_dir(m) / "config.json").is_file())
+                              model_exists=lambda m: is_latent_model(latent_model_dir(m)))
         proto = with_overrides(proto, args)
     except ProtocolError as e:
         return refused(e.errors)

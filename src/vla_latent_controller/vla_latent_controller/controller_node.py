@@ -258,6 +258,7 @@ class ControllerNode(Node):
             setattr(self.params, name, _core_value(name, value))
             self.core.sync_params()
         if name == "mode":
+            self._new_episode()   # set for every trial; an end-effector trial has no re-latch
             self.core.set_mode(value)
         elif name == "model_path":
             return self._reload_model(value)
@@ -365,9 +366,13 @@ class ControllerNode(Node):
     def _now_ns(self) -> int:
         return self._step_ns if self._step_ns is not None else self.get_clock().now().nanoseconds
 
-    def _relatch(self) -> float:
-        """A re-latch starts an episode: in lockstep the core's clock counts from this step on (every
-        time it keeps mapped exactly). The time (s) to give the core."""
+    def _new_episode(self) -> float:
+        """A re-latch or a mode set starts an episode: in lockstep the core's clock counts from this
+        step on (every time it keeps mapped exactly), so an episode's times are the same floats whatever
+        the graph ran before. An end-effector trial sets the mode and never re-latches: on the last
+        latent trial's origin, a press 0.25 s after the last switch fell either side of the debounce
+        with the trial before it (a study row on Ray unlike the serial one under load). The time (s)
+        to give the core."""
         if self._step_ns is not None:
             self.core.restamp(self._episode_clock.restart(self._step_ns))
         return self._now()
@@ -493,13 +498,13 @@ class ControllerNode(Node):
         return resp
 
     def _on_redetect(self, req: Trigger.Request, resp: Trigger.Response) -> Trigger.Response:
-        self.core.request_redetect(self._relatch())
+        self.core.request_redetect(self._new_episode())
         resp.success, resp.message = True, "context dropped; the next detection will be latched"
         return resp
 
     def _on_select_target(self, req: SelectTarget.Request, resp: SelectTarget.Response):
         resp.success, resp.message = self.core.select_target(
-            req.by, req.class_id, int(req.index), float(req.x), float(req.y), self._relatch())
+            req.by, req.class_id, int(req.index), float(req.x), float(req.y), self._new_episode())
         return resp
 
     # ------------------------------------------------------------------ loop

@@ -11,12 +11,13 @@ import os
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from vla_evaluation.graph import EpisodeRecord, GraphConfig, GraphError, GraphEvaluator
 
 # Runs of a unit that ends in a GraphError, each on a new graph (a graph error is not an outcome)
 GRAPH_ATTEMPTS = 2
+T = TypeVar("T")
 
 
 @dataclass(frozen=True)
@@ -38,6 +39,23 @@ def for_workers(config: GraphConfig) -> GraphConfig:
     return replace(config, domain_id=None)
 
 
+def on_a_new_graph_after_errors(episode: Callable[[], T], close: Callable[[], None], what: str,
+                                attempts: int = GRAPH_ATTEMPTS) -> T:
+    """`episode()` on the worker's graph; a GraphError closes the graph (an episode that timed out is
+    still running on it, and the graph would refuse the next unit's model or task) and `episode()` runs
+    again on a new one, up to `attempts` times in all; the last error is raised."""
+    for attempt in range(1, attempts + 1):
+        try:
+            return episode()
+        except GraphError as e:
+            close()
+            print(f"[graph] {what}: attempt {attempt} of {attempts} ended with a graph error ({e}); the "
+                  "graph is closed", flush=True)
+            if attempt == attempts:
+                raise
+    raise AssertionError("unreachable")
+
+
 class EpisodeWorker:
     """Runs (task, seed) episodes on one graph. A GraphError (the graph did not answer in time: a
     starved machine, a process that ended) is not an outcome: the graph is closed and the episode runs
@@ -53,20 +71,14 @@ class EpisodeWorker:
 
     def run(self, unit: tuple[str, int]) -> Any:
         task, seed = unit
-        for attempt in range(1, self.job.attempts + 1):
-            try:
-                rec = self._episode(task, seed)
-            except GraphError as e:
-                self.close()
-                print(f"[graph] {task} seed {seed}: attempt {attempt} of {self.job.attempts} ended with a "
-                      f"graph error ({e}); the graph is closed", flush=True)
-                if attempt < self.job.attempts:
-                    continue
-                if self.job.graph_errors_are_results:
-                    return {"seed": seed, "graph_error": str(e)}
-                raise
-            return self.job.summarise(rec) if self.job.summarise else rec
-        raise AssertionError("unreachable")
+        try:
+            rec = on_a_new_graph_after_errors(lambda: self._episode(task, seed), self.close,
+                                              f"{task} seed {seed}", self.job.attempts)
+        except GraphError as e:
+            if self.job.graph_errors_are_results:
+                return {"seed": seed, "graph_error": str(e)}
+            raise
+        return self.job.summarise(rec) if self.job.summarise else rec
 
     def _episode(self, task: str, seed: int) -> EpisodeRecord:
         if self.ev is None:

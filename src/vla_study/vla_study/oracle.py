@@ -126,6 +126,12 @@ class OracleWorker:
         return oracle_row(unit, self._kinematic_episode(unit))
 
     def _graph_episode(self, unit: OracleUnit):
+        from vla_evaluation.graph_sweep import on_a_new_graph_after_errors  # rclpy: only in a worker
+
+        return on_a_new_graph_after_errors(lambda: self._graph_try(unit), self.close,
+                                           f"{unit.task} seed {unit.layout_seed} with {unit.model}")
+
+    def _graph_try(self, unit: OracleUnit):
         from vla_evaluation.graph import GraphConfig, GraphEvaluator  # rclpy, the graph: only in a worker
         from vla_evaluation.kinematic import TeleopSettings
         from vla_evaluation.resources import detector_model_path, latent_model_dir
@@ -162,7 +168,8 @@ class OracleWorker:
 
     def close(self) -> None:
         if self.ev is not None:
-            self.ev.close()
+            ev, self.ev = self.ev, None
+            ev.close()
 
 
 def oracle_row(unit: OracleUnit, r) -> dict:

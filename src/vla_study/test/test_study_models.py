@@ -177,6 +177,16 @@ def test_the_oracle_runs_every_model_on_every_test_layout_or_each_participants_o
     assert max(Counter((u.model, u.task) for u in dev).values()) == 2
 
 
+def test_the_oracle_runs_a_chosen_strategy_alone_on_the_same_episodes():
+    """`--strategies latent-YOLO`: the method's episodes, keyed as in the whole table (a run resumes)."""
+    p = load_protocol(PAPER)
+    mine = oracle.oracle_units(p, models="assigned")
+    alone = oracle.oracle_units(p, models="assigned", strategies=["latent-YOLO"])
+    assert alone == [u for u in mine if u.strategy == "latent-YOLO"] and alone
+    with pytest.raises(ValueError, match="end-effector: not among the protocol's latent strategies"):
+        oracle.oracle_units(p, strategies=["end-effector"])
+
+
 def _row(model, seed_index, task, seed, success, strategy="latent-YOLO", setting="base"):
     return {"strategy": strategy, "setting": setting, "model": model, "seed_index": seed_index, "task": task,
             "layout_seed": seed, "loop": "graph", "layouts": "test", "success": success,

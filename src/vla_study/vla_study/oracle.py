@@ -4,6 +4,7 @@ model can do, beside what the simulated participants get out of it.
     python -m vla_study.oracle --protocol src/vla_study/vla_study/protocols/paper.yaml --out out/oracle
     python -m vla_study.oracle --protocol ... --layouts development --loop kinematic --out out/oracle_dev
     python -m vla_study.oracle --protocol ... --out STUDY/oracle --study STUDY
+    python -m vla_study.oracle --protocol ... --models assigned --strategies latent-YOLO --out ...
 
 The paper's oracle (vla_evaluation.sim_teleoperator: a decoder search towards the planner's waypoints)
 drives every model the protocol names for a latent strategy and setting (one per training seed where
@@ -71,12 +72,17 @@ class OracleUnit:
 
 
 def oracle_units(p: Protocol, layouts: str = "test", loop: str = "graph", models: str = "all",
-                 per_task: int | None = None) -> list[OracleUnit]:
-    """Every episode of the oracle's table, strategy by strategy and setting by setting."""
+                 per_task: int | None = None, strategies: list[str] | None = None) -> list[OracleUnit]:
+    """Every episode of the oracle's table, strategy by strategy and setting by setting (`strategies`:
+    only these of the protocol's latent strategies; ValueError naming one it has not)."""
     assigned = _assigned(p) if models == "assigned" else {}
-    out = []
     # an assisted condition drives its strategy's models: the oracle on them is its strategy's
-    for strategy in (s for s in p.strategies if STRATEGIES[s] == "latent" and base_strategy(s) == s):
+    latent = [s for s in p.strategies if STRATEGIES[s] == "latent" and base_strategy(s) == s]
+    if unknown := [s for s in strategies or () if s not in latent]:
+        raise ValueError(f"--strategies {', '.join(unknown)}: not among the protocol's latent strategies "
+                         f"({', '.join(latent)})")
+    out = []
+    for strategy in (s for s in latent if strategies is None or s in strategies):
         for setting in p.settings:
             names = model_names(p, strategy, setting)
             chosen = (trial_layouts(p, setting) if layouts == "test" else development_layouts(p, setting))
@@ -264,6 +270,8 @@ def main(argv=None) -> int:
     ap.add_argument("--models", choices=("all", "assigned"), default="all",
                     help="every model named for a setting on every layout, or each layout's participant's")
     ap.add_argument("--per-task", type=int, default=None, help="at most this many layouts per task")
+    ap.add_argument("--strategies", default=None,
+                    help="comma-separated: only these latent strategies (default: all the protocol's)")
     ap.add_argument("--study", type=Path, default=None,
                     help="a study folder: its participants beside the oracle")
     add_engine_arguments(ap)
@@ -272,7 +280,8 @@ def main(argv=None) -> int:
         proto = load_protocol(a.protocol)
         if a.participants:
             proto.participants = parse_participants(a.participants)
-        units = oracle_units(proto, a.layouts, a.loop, a.models, a.per_task)
+        chosen = a.strategies.split(",") if a.strategies else None
+        units = oracle_units(proto, a.layouts, a.loop, a.models, a.per_task, chosen)
     except (ProtocolError, ValueError) as e:
         print(f"protocol refused:\n{e}")
         return 2

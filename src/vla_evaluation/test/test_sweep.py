@@ -14,7 +14,7 @@ from vla_evaluation.unit_store import UnitStore, digest
 
 class Squares:
     """A worker: squares numbers; unit -1 raises; a unit ("die", path) kills its own process the first
-    time (the path marks that it did), as a worker killed mid-unit."""
+    time (the path marks that it did), as a worker killed mid-unit; unit "nice" gives its niceness."""
 
     made = 0
 
@@ -22,6 +22,8 @@ class Squares:
         self.offset = shared or 0
 
     def run(self, unit):
+        if unit == "nice":
+            return os.nice(0)
         if unit == -1:
             raise ValueError("unit -1 always fails")
         if isinstance(unit, tuple):
@@ -56,10 +58,12 @@ def test_serial_sweep_runs_every_unit_and_reports_the_failed_one():
 
 @pytest.mark.slow
 def test_a_local_ray_gives_the_serial_results_and_survives_a_worker_that_dies(tmp_path):
-    units = [(f"u{i}", i) for i in range(6)] + [("bad", -1), ("dies", ("die", str(tmp_path / "died")))]
+    units = [(f"u{i}", i) for i in range(6)] + [("bad", -1), ("dies", ("die", str(tmp_path / "died"))),
+                                                  ("niceness", "nice")]
     got, failed = collect(units, Engine(cpus=2), shared=1)
     assert failed == ["bad"]
-    assert got == {**{f"u{i}": i * i + 1 for i in range(6)}, "dies": "survived"}
+    # the workers run at the driver's niceness (Ray's default: 15 nicer, starved beside other work)
+    assert got == {**{f"u{i}": i * i + 1 for i in range(6)}, "dies": "survived", "niceness": os.nice(0)}
     assert (tmp_path / "died").exists()  # the worker did die once, and the unit ran again
 
 

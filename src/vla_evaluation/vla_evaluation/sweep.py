@@ -172,7 +172,10 @@ def ray_session(engine: Engine, log: Callable[[str], None] = print) -> Iterator[
 def _start_local(ray, engine: Engine, tries: int = 5) -> None:
     """A new local Ray of our own (`address="local"`: never one that another `ray start` left on this
     machine). Ray gives its raylet 30 s to register, hard-coded; on a loaded machine a start that
-    misses it is tried again."""
+    misses it is tried again. Its workers run at the driver's niceness, not Ray's default of 15 nicer:
+    beside other work (a CI run at nice 0) a sweep's graphs got next to no CPU and ran past their hang
+    guard; `nice -n 10 vla_study ...` says how much a sweep yields, and means it."""
+    os.environ.setdefault("RAY_worker_niceness", "0")
     for attempt in range(tries):
         try:
             ray.init(address="local", num_cpus=engine.cpus or os.cpu_count(), include_dashboard=False,

@@ -284,6 +284,17 @@ for (const r of regions) {
 return regions.map((r) => r.id);"""
 
 
+# What the page says while a loaded machine stalls the nodes' input or the live view for a moment: a
+# real change, announced once, and so is its end (a clean clone beside two busy loops, load 14: "Input
+# stopped arriving ... The live view has stopped: no new picture." and back, within the 3 s at rest)
+STALLS = ("stopped arriving", "live view has stopped")
+
+
+def _calm(log: list) -> list:
+    """The live-region changes that are not a stall's coming or going."""
+    return [x for x in log if not any(w in x[1] + x[2] for w in STALLS)]
+
+
 def test_the_status_regions_announce_changes_only(graph, page, laptop):
     """At rest the nodes' state still comes about 50 times a second: no live region may be rewritten with
     what it already says (a screen reader would say it again); a change is announced once."""
@@ -295,7 +306,8 @@ def test_the_status_regions_announce_changes_only(graph, page, laptop):
     assert "state" in regions
     h.spin_for(3.0)                               # a window at rest
     log = js(page, "window.liveLog")
-    assert [x for x in log if x[1] == x[2]] == [] and len(log) <= 2, log
+    # ~150 rewrites in the window before issue 32's fix; a stall's start and end are changes of their own
+    assert [x for x in log if x[1] == x[2]] == [] and len(_calm(log)) <= 2, log
     n = len(obs.latched)
     d.find_element(By.ID, "estop").click()
     assert h.spin_until(lambda: len(obs.latched) > n, 10.0)
@@ -305,7 +317,9 @@ def test_the_status_regions_announce_changes_only(graph, page, laptop):
     try:
         assert [x for x in log if x[1] == x[2]] == [], log
         state = [x for x in log if x[0] == "state"]
-        assert [x[2] for x in state].count(state[-1][2]) == 1 and "E-stop" in state[-1][2], state
+        assert "E-stop" in state[-1][2], state
+        calm = _calm(state)
+        assert calm and [x[2] for x in calm].count(calm[-1][2]) == 1 and "E-stop" in calm[-1][2], state
     finally:
         release_estop(h, obs, page)
 

@@ -20,6 +20,7 @@ import sys
 import time
 
 from brief import parse
+from vla_common.ros.context import end_context
 from vla_common.ros.domain import isolate
 
 isolate()  # before any rclpy context exists
@@ -87,7 +88,7 @@ def run_node(params: dict, duration: float, warmup: float = 1.0) -> dict:
             proc.kill()
         node.destroy_node()
         ex.shutdown()
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
     return {"arrivals": np.array(arrivals), "stamps": np.array(stamps), "clock": np.array(clock)}
 
 

@@ -31,6 +31,7 @@ from sensor_msgs.msg import JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from vla_common.detection import Detection
 from vla_common.robot import JOINT_NAMES, READY_POSE
+from vla_common.ros.context import end_context
 from vla_common.ros.domain import isolate
 from vla_latent_controller.artifacts import decoder_tensor_shapes, save_model
 from vla_latent_controller.context import context_dim
@@ -297,7 +298,7 @@ def bench_e2e(model_dir: Path, trials: int, rate: float) -> None:
             proc.kill()
         ex.shutdown()
         node.destroy_node()
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
 
 
 def bench_training(threads: int, epochs: int, per_task: int) -> None:

@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 import yaml
 from vla_common.kinematics import panda_urdf_path
+from vla_common.ros.context import end_context
 from vla_common.ros.parameters import ParameterTable
 from vla_launch.launch_file import ParamDict, ParamFile, load_launch_file
 from vla_launch.substitutions import SubstitutionContext
@@ -122,7 +123,7 @@ def test_documented_parameter_values_are_read_by_rcl(doc, command, values):
     import rclpy
     context = rclpy.context.Context()
     rclpy.init(context=context, args=["prog", "--ros-args", *[a for v in values for a in ("-p", v)]])
-    rclpy.shutdown(context=context)
+    end_context(context)
 
 
 def test_a_misspelt_parameter_stops_the_real_robot_command_with_the_closest_name(tmp_path):

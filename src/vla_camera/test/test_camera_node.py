@@ -17,6 +17,7 @@ from require import missing
 from sensor_msgs.msg import CameraInfo, Image
 from std_srvs.srv import SetBool
 from vla_camera.camera_node import CameraNode
+from vla_common.ros.context import end_context
 from vla_common.ros.node_main import ConfigError
 from vla_common.ros.testing import RosHarness
 from vla_launch.run import RunError, find_executable
@@ -85,7 +86,7 @@ class Harness:
             self.camera.destroy_node()
         self.listener.destroy_node()
         self.executor.shutdown()
-        rclpy.shutdown(context=self.ctx)
+        end_context(self.ctx)
 
 
 @pytest.fixture
@@ -211,7 +212,7 @@ def test_bringup_parameter_file_loads():
         assert node.get_parameter("width").value == 640 and node.get_parameter("pixel_format").value == "rgb8"
         node.destroy_node()
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
 
 
 def _exe():

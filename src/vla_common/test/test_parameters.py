@@ -3,6 +3,7 @@ import pytest
 import rclpy
 from rclpy.node import Node
 from rclpy.parameter import Parameter
+from vla_common.ros.context import end_context
 from vla_common.ros.node_main import ConfigError
 from vla_common.ros.parameter_sources import key_matches, remember
 from vla_common.ros.parameters import Param, ParameterTable
@@ -22,7 +23,7 @@ def ctx():
     context = rclpy.context.Context()
     rclpy.init(context=context)
     yield context
-    rclpy.shutdown(context=context)
+    end_context(context)
 
 
 def make(ctx, overrides=(), on_change=None):
@@ -97,7 +98,7 @@ def _node_with_args(tmp_path, args, name="t", warnings=None):
         finally:
             node.destroy_node()
     finally:
-        rclpy.shutdown(context=context)
+        end_context(context)
 
 
 def _file(tmp_path, key, params, name="params.yaml"):
@@ -219,5 +220,5 @@ def test_section_keys_match_as_rcl_matches_them(tmp_path, fqn):
         applied = {keys[int(n[1:])] for n in node._parameter_overrides}
         node.destroy_node()
     finally:
-        rclpy.shutdown(context=context)
+        end_context(context)
     assert applied == {k for k in keys if key_matches(k, fqn)}

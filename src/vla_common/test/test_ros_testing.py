@@ -14,8 +14,42 @@ def test_shutdown_twice_is_harmless():
     node = h.add(rclpy.create_node("harness_probe", context=h.context))
     assert node.context.ok()
     h.shutdown()
-    assert not h.context.ok()
+    assert h.ended
     h.shutdown()          # before: rclpy.shutdown raised on the context already shut down
+
+
+def test_an_ended_context_has_no_participant_left_and_ending_it_again_does_nothing():
+    """The harness's shutdown deletes the participant at once, even where the test left an action
+    client on its node (before: rclpy's destroy_node left the client, which held the node and its
+    participant until some later collection; a dozen of them in one process could deadlock Fast DDS)."""
+    import rclpy
+    from rclpy.action import ActionClient
+    from vla_common.ros.context import end_context
+
+    from vla_interfaces.action import Questionnaire
+
+    before = _participants()
+    h = RosHarness()
+    node = h.add(rclpy.create_node("harness_probe", context=h.context))
+    ActionClient(node, Questionnaire, "nothing")
+    assert _participants() == before + 1
+    h.shutdown()
+    assert _participants() == before
+    end_context(h.context)
+
+
+def _participants() -> int:
+    """This process's Fast DDS participants: one event thread (`dds.ev...`) each."""
+    import os
+
+    count = 0
+    for task in os.listdir("/proc/self/task"):
+        try:
+            with open(f"/proc/self/task/{task}/comm") as comm:
+                count += comm.read().startswith("dds.ev")
+        except OSError:  # the thread ended meanwhile
+            pass
+    return count
 
 
 def test_a_harness_sees_only_its_own_nodes_unless_it_talks_to_other_processes():

@@ -15,6 +15,7 @@ from rclpy.qos import ReliabilityPolicy
 from require import missing
 from sensor_msgs.msg import Image
 from std_srvs.srv import SetBool
+from vla_common.ros.context import end_context
 from vla_common.ros.node_main import ConfigError
 from vla_common.ros.qos import IMAGE_QOS, SENSOR_QOS
 from vla_common.ros.testing import RosHarness
@@ -218,7 +219,7 @@ def test_bringup_parameter_file_loads():
         assert node.detector.class_filter is None  # classes: [""] = every class
         node.destroy_node()
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
 
 
 def test_enable_service_sets_the_parameter(harness, scene):

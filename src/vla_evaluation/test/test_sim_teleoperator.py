@@ -168,6 +168,7 @@ def test_stick_to_command_matches_the_controller_core(tmp_path):
 def ros():
     import rclpy
     from rclpy.executors import SingleThreadedExecutor
+    from vla_common.ros.context import end_context
 
     ctx = rclpy.context.Context()
     rclpy.init(context=ctx)
@@ -178,7 +179,7 @@ def ros():
         ex.remove_node(n)
         n.destroy_node()
     ex.shutdown()
-    rclpy.shutdown(context=ctx)
+    end_context(ctx)
 
 
 def _spin_until(ex, cond, timeout):

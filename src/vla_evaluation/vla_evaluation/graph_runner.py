@@ -20,6 +20,7 @@ from rclpy.executors import ExternalShutdownException
 from rclpy.experimental import EventsExecutor
 from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
+from vla_common.ros.context import destroy_node, end_context
 from vla_common.ros.domain import DISCOVERY_VARIABLE, DomainError, isolated_env, release_domain
 from vla_launch.session import LaunchError, LaunchSession
 
@@ -83,9 +84,8 @@ class NodeSpinner(Generic[N]):
             if self.executor is not None:
                 self.executor.shutdown(timeout_sec=10.0)
             if self.owner is not None:
-                self.owner.node.destroy_node()
-            if ctx.ok():
-                rclpy.shutdown(context=ctx)
+                destroy_node(self.owner.node)
+            end_context(ctx)
 
 
 class GraphRunner(Generic[N]):

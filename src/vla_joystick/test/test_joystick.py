@@ -372,6 +372,7 @@ def test_joy_node_publishes_stops_on_unplug_and_resumes():
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.parameter import Parameter
     from sensor_msgs.msg import Joy
+    from vla_common.ros.context import end_context
     from vla_common.ros.node_main import ConfigError
     from vla_joystick.joy_node import JoyNode
 
@@ -434,7 +435,7 @@ def test_joy_node_publishes_stops_on_unplug_and_resumes():
             node.destroy_node()
         listener.destroy_node()
         executor.shutdown()
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
 
 
 # -- a real kernel device through uinput, where the kernel allows it -------------------------------

@@ -17,6 +17,7 @@ from require import missing
 from sensor_msgs.msg import Image, JointState, Joy
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
+from vla_common.ros.context import end_context
 from vla_common.ros.node_main import ConfigError, StartupError
 from vla_common.ros.testing import RosHarness
 from vla_latent_controller.controller_node import PARAMETERS, ControllerNode, _core_value
@@ -325,7 +326,7 @@ def test_process_publishes_zero_on_shutdown(random_model_dir):
             proc.kill()
         ex.shutdown()
         node.destroy_node()
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
 
 
 @pytest.mark.slow

@@ -56,6 +56,7 @@ TRICKY = {
 def test_rclpy_reads_every_value_back_with_its_type(tmp_path):
     import rclpy
     from rclpy.context import Context
+    from vla_common.ros.context import end_context
 
     scalars = {k: v for k, v in TRICKY.items() if not isinstance(v, tuple) and "\n" not in str(v)}
     others = {k: v for k, v in TRICKY.items() if k not in scalars}
@@ -76,4 +77,4 @@ def test_rclpy_reads_every_value_back_with_its_type(tmp_path):
             assert got == want and type(got) is type(want), (name, got, want)
         node.destroy_node()
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)

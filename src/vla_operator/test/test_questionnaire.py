@@ -109,27 +109,29 @@ def test_the_papers_questionnaire_is_accepted():
 # ---------------------------------------------------------------------- the action, in process
 @pytest.fixture
 def station(tmp_path):
+    from rclpy.action import ActionClient
     from rclpy.node import Node
     from rclpy.parameter import Parameter
     from vla_common.ros.testing import RosHarness
     from vla_operator.station_node import StationNode
+
+    from vla_interfaces.action import Questionnaire as Action
 
     h = RosHarness()
     node = h.add(StationNode(context=h.context, parameter_overrides=[
         Parameter("port", value=0), Parameter("settings_file", value=str(tmp_path / "s.json")),
         Parameter("controller", value="no_such_controller_for_this_test")]))
     client_node = h.add(Node("questionnaire_test_client", context=h.context))
-    yield h, node, client_node
+    client = ActionClient(client_node, Action, "operator_station/questionnaire")
+    yield h, node, client
+    client.destroy()  # destroy_node leaves an action client, and its context, alive
     h.shutdown()
 
 
-def send(h, client_node, statements=STATEMENTS):
-    from rclpy.action import ActionClient
-
+def send(h, client, statements=STATEMENTS):
     from vla_interfaces.action import Questionnaire as Action
 
     feedback = []
-    client = ActionClient(client_node, Action, "operator_station/questionnaire")
     assert client.wait_for_server(timeout_sec=10.0)
     sent = client.send_goal_async(Action.Goal(title="About latent-YOLO", statements=list(statements)),
                                   feedback_callback=lambda m: feedback.append(m.feedback))
@@ -141,9 +143,9 @@ def send(h, client_node, statements=STATEMENTS):
 def test_the_driving_page_answers_and_the_client_gets_the_answers(station):
     from action_msgs.msg import GoalStatus
 
-    h, node, client_node = station
+    h, node, client = station
     page = node.station.link.connect(0.0).cid        # a driving page (a link client, no browser)
-    handle, feedback = send(h, client_node)
+    handle, feedback = send(h, client)
     assert handle.accepted
     shown = node.state["questionnaire"]
     assert shown["statements"] == list(STATEMENTS) and (shown["min"], shown["max"]) == (1, 7)
@@ -170,8 +172,8 @@ def test_the_driving_page_answers_and_the_client_gets_the_answers(station):
 def test_without_a_driving_page_it_is_aborted_with_the_reason(station):
     from action_msgs.msg import GoalStatus
 
-    h, node, client_node = station
-    handle, _ = send(h, client_node)
+    h, node, client = station
+    handle, _ = send(h, client)
     result = handle.get_result_async()
     assert h.spin_until(result.done, 10.0)
     r = result.result()
@@ -184,11 +186,11 @@ def test_without_a_driving_page_it_is_aborted_with_the_reason(station):
 def test_one_waits_at_a_time_and_a_cancel_withdraws_it_from_the_pages(station):
     from action_msgs.msg import GoalStatus
 
-    h, node, client_node = station
+    h, node, client = station
     page = node.station.link.connect(0.0).cid
-    first, _ = send(h, client_node)
+    first, _ = send(h, client)
     qid = node.state["questionnaire"]["id"]
-    second, _ = send(h, client_node)
+    second, _ = send(h, client)
     r2 = second.get_result_async()
     assert h.spin_until(r2.done, 10.0) and "another questionnaire is waiting" in r2.result().result.message
     result = first.get_result_async()

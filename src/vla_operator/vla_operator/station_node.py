@@ -568,6 +568,7 @@ class StationNode(Node):
 
     def destroy_node(self):
         self.on_shutdown()
+        self.q_server.destroy()  # rclpy's destroy_node leaves an action server, and its context, alive
         return super().destroy_node()
 
 

@@ -26,6 +26,7 @@ from sensor_msgs.msg import CameraInfo, Image, JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool, Trigger
 from vla_common.robot import READY_POSE
+from vla_common.ros.context import end_context
 from vla_common.ros.qos import IMAGE_QOS
 from vla_launch.run import RunError, find_executable
 from vla_panda_bridge.bridge_node import ConfigError, PandaBridge
@@ -102,7 +103,7 @@ class Harness:
         self.bridge.destroy_node()
         self.probe.destroy_node()
         self.executor.shutdown()
-        rclpy.shutdown(context=self.ctx)
+        end_context(self.ctx)
 
 
 @pytest.fixture
@@ -460,7 +461,7 @@ def test_bad_parameters_are_refused_in_process():
             with pytest.raises(ConfigError, match=needle):
                 PandaBridge(context=ctx, parameter_overrides=[Parameter(name, value=value)])
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
 
 
 def test_integer_value_for_a_rate_is_accepted(harness):
@@ -540,7 +541,7 @@ def test_the_shipped_parameter_file_names_every_parameter_and_starts_the_node():
         assert node.params["state_rate"] == 200.0 and node.params["backend"] == "mujoco"
         node.destroy_node()
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)
 
 
 def test_the_readme_documents_every_parameter_and_service():
@@ -643,4 +644,4 @@ def test_the_scene_holds_the_objects_of_a_given_catalogue(tmp_path):
         with pytest.raises(ConfigError, match="catalogue"):
             PandaBridge(context=ctx, parameter_overrides=[Parameter("catalogue", value=str(bad))])
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)

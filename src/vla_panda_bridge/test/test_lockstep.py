@@ -12,6 +12,7 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import JointState
 from vla_common.lockstep import EPOCH_NS
+from vla_common.ros.context import end_context
 from vla_panda_bridge.bridge_node import ConfigError, PandaBridge
 
 from vla_interfaces.msg import LockstepStatus, SafetyStatus, StepAnswer
@@ -80,7 +81,7 @@ class Stepper:
         self.bridge.destroy_node()
         self.probe.destroy_node()
         self.executor.shutdown()
-        rclpy.shutdown(context=self.ctx)
+        end_context(self.ctx)
 
 
 @pytest.fixture
@@ -158,4 +159,4 @@ def test_lockstep_is_refused_where_it_cannot_work(params, needle):
             PandaBridge(context=ctx,
                         parameter_overrides=[Parameter(k, value=v) for k, v in overrides.items()])
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)

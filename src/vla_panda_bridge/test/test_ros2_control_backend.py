@@ -16,6 +16,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
 from vla_common.robot import DDQ_MAX, DQ_MAX, READY_POSE
+from vla_common.ros.context import end_context
 from vla_panda_bridge.bridge_node import PandaBridge
 
 from vla_interfaces.msg import SafetyStatus
@@ -125,7 +126,7 @@ def rig(request):
     arm.destroy_node()
     probe.destroy_node()
     ex.shutdown()
-    rclpy.shutdown(context=ctx)
+    end_context(ctx)
 
 
 def _accel(commands: list[np.ndarray]) -> np.ndarray:

@@ -116,6 +116,8 @@ def graph_on_domain(domain: int, names: set[str], topic: str, listen_s: float = 
     from rclpy.node import Node
     from rclpy.signals import SignalHandlerOptions
 
+    from vla_common.ros.context import end_context
+
     ctx = Context()
     rclpy.init(context=ctx, domain_id=domain, signal_handler_options=SignalHandlerOptions.NO)
     try:
@@ -128,4 +130,4 @@ def graph_on_domain(domain: int, names: set[str], topic: str, listen_s: float = 
         node.destroy_node()
         return False
     finally:
-        rclpy.shutdown(context=ctx)
+        end_context(ctx)

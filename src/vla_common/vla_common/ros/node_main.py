@@ -63,6 +63,7 @@ from rclpy.node import Node
 from rclpy.signals import SignalHandlerOptions
 
 from vla_common.priority import run_realtime
+from vla_common.ros.context import destroy_node
 from vla_common.ros.parameter_sources import remember
 from vla_common.ros.qos import use_large_image_transport
 
@@ -204,7 +205,7 @@ def _end_process(held: list, name: str, code: int, bound: float) -> None:
         node, executor = held
         held.clear()
         if node is not None:
-            node.destroy_node()
+            destroy_node(node)
         if executor is not None:
             executor.shutdown()
         del node, executor

@@ -17,6 +17,7 @@ import rclpy
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
 
+from vla_common.ros.context import destroy_node, end_context
 from vla_common.ros.discovery import discovered_by
 from vla_common.ros.domain import DISCOVERY_VARIABLE
 from vla_common.ros.spin import spin_until
@@ -34,6 +35,7 @@ class RosHarness:
             _init_discovering_nothing_else(self.context)
         self.executor = SingleThreadedExecutor(context=self.context)
         self.nodes = []
+        self.ended = False
 
     def add(self, node):
         self.nodes.append(node)
@@ -62,13 +64,14 @@ class RosHarness:
 
     def shutdown(self) -> None:
         """Destroy the nodes and end the context; a second call does nothing."""
-        if not self.context.ok():
+        if self.ended:
             return
+        self.ended = True
         for node in self.nodes:
             self.executor.remove_node(node)
-            node.destroy_node()
+            destroy_node(node)
         self.executor.shutdown()
-        rclpy.shutdown(context=self.context)
+        end_context(self.context)
 
 
 def _init_discovering_nothing_else(context: Context) -> None:

@@ -257,6 +257,19 @@ def test_node_drives_joy_through_an_episode(ros, tmp_path):
     assert joys[-1].axes[0] == 0.0  # stick released at the time limit
     assert joys[-1].header.stamp.sec > 0 or joys[-1].header.stamp.nanosec > 0
 
+    # stopped before its time limit: every status from then on says how long it ran (an orchestrator
+    # that missed the first DONE, on a loaded machine, still knows when it ended)
+    from std_srvs.srv import Trigger
+    stop = peer.create_client(Trigger, "sim_teleoperator/stop")
+    statuses.clear()
+    assert call("bread/push_east").success
+    assert _spin_until(ex, lambda: any(s.state == TeleopStatus.RUNNING for s in statuses), 10.0)
+    _spin_until(ex, lambda: False, 0.3)
+    fut = stop.call_async(Trigger.Request())
+    assert _spin_until(ex, fut.done, 5.0) and fut.result().success
+    assert _spin_until(ex, lambda: sum(s.state == TeleopStatus.DONE for s in statuses) >= 4, 10.0)
+    ended = [s.elapsed for s in statuses if s.state == TeleopStatus.DONE]
+    assert len(set(ended)) == 1 and 0.0 < ended[0] < 1.5, ended
 
     # without the controller's latched context it gives up after start_timeout, stick released
     flags["ctrl"] = False

@@ -711,8 +711,13 @@ class GraphEvaluator:
                 break
             chunk = cfg.steps(0.1)      # past the limit: the teleoperator's own end is a step or two on
         final_wp = np.asarray(obs.teleop.final_waypoint, float)
-        t_end = stamp_ns(obs.teleop) if obs.teleop.state in done else obs.steps.stamp_ns
-        obs.steps.run(cfg.steps(FINAL_S), "the final state")
+        # its end from what any of its final statuses says (elapsed stops there), not from the one that
+        # came in: which arrives before the loop looks depends on the load (a test saw 3.1 s for 3.0 s)
+        ended = obs.teleop.state in done
+        t_end = monitor.start_ns + round(float(obs.teleop.elapsed) * 1e9) if ended else obs.steps.stamp_ns
+        # the final state FINAL_S after the end, wherever the loop noticed it (within a chunk)
+        left_s = (t_end - obs.steps.stamp_ns) * 1e-9 + FINAL_S
+        obs.steps.run(cfg.steps(left_s), "the final state")
         with obs.cond:
             q_final = obs.q.copy()
             end_pose = obs.objects.get(monitor.spec.object_class)

@@ -208,6 +208,7 @@ class SimTeleoperatorNode(Node):
         self.reason = ""
         self.request_time: Time | None = None
         self.t0: Time | None = None
+        self.t_end: Time | None = None   # when the running episode ended (its statuses' elapsed stops)
         self.tele: SimTeleoperator | None = None
         self.last_step = None
         rate = float(self.p["rate"])
@@ -368,7 +369,7 @@ class SimTeleoperatorNode(Node):
             self._finish(TeleopStatus.FAILED, f"cannot start: {e}")
             self.get_logger().error(f"{self.task}: {self.reason}")
             return
-        self.t0 = now
+        self.t0, self.t_end = now, None
         self.state = TeleopStatus.RUNNING
         self.reason = f"context {cls or self.model.encoder}"
         self.get_logger().info(f"{self.task}: running ({len(self.tele.schedule.waypoints)} waypoints, "
@@ -457,6 +458,7 @@ class SimTeleoperatorNode(Node):
     def _finish(self, state: int, reason: str) -> None:
         if self.state in ACTIVE:
             self._publish_joy(0.0)  # release the stick
+            self.t_end = self._now()
         self._fine = None
         if self._switched:
             self._in_mode("latent")   # the controller as the episode found it
@@ -560,8 +562,10 @@ class SimTeleoperatorNode(Node):
             msg.final_waypoint = [float(v) for v in sched.final]
             if self.t0 is not None:
                 # the episode's time limit (a task with the hand has a schedule per phase, each
-                # with the time left when it began)
-                msg.elapsed = min((self._now() - self.t0).nanoseconds * 1e-9, self._episode_limit)
+                # with the time left when it began); once it ended, its length: every later status
+                # says when it ended, so a reader that missed the first one still knows (lockstep)
+                until = self.t_end if self.t_end is not None and self.state not in ACTIVE else self._now()
+                msg.elapsed = min((until - self.t0).nanoseconds * 1e-9, self._episode_limit)
             if self.last_step is not None:
                 msg.waypoint_index = int(self.last_step.waypoint_index)
                 msg.waypoint = [float(v) for v in sched.waypoints[self.last_step.waypoint_index]]

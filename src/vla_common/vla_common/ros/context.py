@@ -1,18 +1,19 @@
 """Ending a private rclpy context so its DDS participant goes at once, not at some later garbage
 collection.
 
-`rclpy.shutdown(context=ctx)` leaves the participant alive until the Context object is collected: a
-test run or a study worker that makes a context per test or trial then holds a dozen participants in
-one process, and Fast DDS can deadlock when a participant is torn down while another of the same
-process removes its endpoints (docs/history.md, stop 30: eProsima/Fast-DDS #6193). One owner for
-the teardown: `destroy_node` for each node, then `end_context`.
+`rclpy.shutdown(context=ctx)` leaves the participant alive while anything still holds one of its
+nodes (an action server or client that `destroy_node` left, a reference cycle), until a later garbage
+collection: a test run or a study worker that makes a context per test or trial then held up to 21
+participants in one process, and Fast DDS can deadlock when a participant is torn down while
+another of the same process removes its endpoints (docs/history.md, stop 30: eProsima/Fast-DDS
+#6193). One owner for the teardown: `destroy_node` for each node, then `end_context`.
 """
 from __future__ import annotations
 
 import gc
 
-from rclpy._rclpy_pybind11 import InvalidHandle
 from rclpy.context import Context
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 
 
@@ -22,7 +23,7 @@ def end_context(ctx: Context) -> None:
     collected here). Afterwards `ctx.ok()` raises: the context is gone, not only shut down."""
     try:
         ctx.try_shutdown()
-    except InvalidHandle:  # already ended
+    except _rclpy.InvalidHandle:  # already ended
         return
     gc.collect()
     ctx.destroy()

@@ -201,6 +201,7 @@ class Assistance:
         self._presses = 0  # grasp button presses: the hand's state where no finger joints are seen
         self._last_t: float | None = None
         self._held: tuple[Goal, float] | None = None  # a reached goal holding the hand, and its share
+        self._steering: tuple[Goal, float] | None = None  # the goal that pulled the last step, and its share
         self.lost = ""  # the last command was a stop: the reached goal's object left the view (why)
         self.state = AssistState()
 
@@ -220,7 +221,7 @@ class Assistance:
     def reset(self) -> None:
         """A new episode (a re-detect, a new model): every goal forgotten, and so no goal shown."""
         self.objects, self.goals, self._dets_t, self._latched = [], [], -math.inf, None
-        self._last_t = self._held = None
+        self._last_t = self._held = self._steering = None
         self.lost, self.state = "", AssistState(level=self.state.level)
 
     def restamp(self, f: Callable[[float], float]) -> None:
@@ -335,6 +336,7 @@ class Assistance:
         inference. Returns ``person`` itself when the assistance is off or has nothing to add."""
         dt = 0.0 if self._last_t is None else min(max(now - self._last_t, 0.0), MAX_STEP_S)
         self._last_t, self.lost = now, ""
+        steering, self._steering = self._steering, None
         if self.level == "off" or self.kinematics is None or u == 0.0:
             self.state = AssistState(level=self.level)
             return person
@@ -350,12 +352,13 @@ class Assistance:
         visible = [g for g in self.goals if g.obj.visible]
         self._stages(visible, p, u)
         if not self._waiting(visible, p):
-            self._infer(visible, p, J[:3] @ person, dt)
+            self._infer(visible, p, J[:3] @ person, dt, steering if u > 0 else None)
         best, confidence = self._best(visible)
         share = LEVEL_SHARE[self.level] * _ramp(confidence) if best is not None else 0.0
         self.state = self._state(best, confidence, share)
         if best is None or share == 0.0:
             return person
+        self._steering = (best, share)
         if u > 0 and best.done:
             self._held = (best, share)
             return self._settle(best, q, share, person, u)
@@ -445,19 +448,31 @@ class Assistance:
             return hand == "open"
         return True
 
-    def _infer(self, goals: Sequence[Goal], p: np.ndarray, v: np.ndarray, dt: float) -> None:
+    def _infer(self, goals: Sequence[Goal], p: np.ndarray, v: np.ndarray, dt: float,
+               steering: tuple[Goal, float] | None = None) -> None:
         """Evidence from the person's TCP velocity v over dt: progress toward a goal's next pose, or the
         pose after it (a model that cuts a corner, or heads on to the carry while the hand waits to
-        close, still does that task); motion away from both counts AWAY_WEIGHT times."""
+        close, still does that task); motion away from both counts AWAY_WEIGHT times; old evidence
+        fades with the distance the person's command moves.
+
+        `steering`: the goal that pulled the last step and its share, with the stick still forward.
+        Progress toward it counts as ever; motion away and the fade count only by the part the
+        person's command had in what the arm did (1 - share). The person watches the arm go, assisted,
+        toward that goal and holds on; a decoder that disagrees then is a model off its
+        demonstrations, not the person (the matched Far model turned down and out three quarters
+        round the ring and took a held stick's confidence from 0.98 to 0.03 in a second, over and
+        over). The other goals gather evidence as ever; a reversal (the stick no longer forward)
+        judges every goal by the person's command alone, and another object picked drops all
+        evidence: each lowers the goal's pull at once."""
         moved = float(np.linalg.norm(v)) * dt
-        fade = math.exp(-moved / MEMORY_M)
         for g in goals:
             progress = max((_progress(v, pose.position - p) for pose in g.poses[g.stage:g.stage + 2]),
                            default=0.0) * dt
+            own = 1.0 - steering[1] if steering is not None and steering[0] is g else 1.0
             if progress < 0.0:
-                progress *= AWAY_WEIGHT
-            g.evidence = float(np.clip(g.evidence * fade + progress / EVIDENCE_M,
-                                       -EVIDENCE_MAX, EVIDENCE_MAX))
+                progress *= AWAY_WEIGHT * own
+            kept = g.evidence * math.exp(-own * moved / MEMORY_M)
+            g.evidence = float(np.clip(kept + progress / EVIDENCE_M, -EVIDENCE_MAX, EVIDENCE_MAX))
 
     def _best(self, goals: Sequence[Goal]) -> tuple[Goal | None, float]:
         """The most probable goal and its probability (against the others and "none of them")."""

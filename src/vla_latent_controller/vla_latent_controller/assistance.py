@@ -10,10 +10,13 @@ push end; a circle: a ring; a pick-and-place: hover, grasp, carry, place, retrea
 Inference: every goal gathers evidence from where the *person's* command (the decoder's output for
 their stick, before any assistance) takes the hand: progress toward the goal's next pose adds,
 motion away subtracts, and old evidence fades with the distance moved (not with time: a pause keeps
-it). Evidence from the assisted motion would feed on itself; Aronson and Short (2024) show how such
-confidence runs away and traps the user. The object the controller latched (the operator's pick on
-the station, or `goal_selection`) starts ahead (`PRIOR_LATCHED`). The belief is a softmax over the
-goals and "none of them"; the confidence is the inferred goal's probability.
+it). While a goal steers a stick held forward, its motion away and fade count only by the person's
+share of the last step: the person holds on to what they watch, and a decoder that turns away there is
+a model off its demonstrations (`_infer`). Evidence from the assisted motion would feed on itself;
+Aronson and Short (2024) show how such confidence runs away and traps the user. The object the
+controller latched (the operator's pick on the station, or `goal_selection`) starts ahead
+(`PRIOR_LATCHED`). The belief is a softmax over the goals and "none of them"; the confidence is the
+inferred goal's probability.
 
 Command: with the stick forward the command is (1 - a) x person's + a x assistance's, a = the level's
 share times how far the confidence is above one half; the assistance's moves the TCP straight toward

@@ -57,3 +57,22 @@ def test_detections_that_overtook_their_frame_count():
     ls.on_state(30, "s")
     ls.on_joy(30, "j")
     assert ls.missing(wanted_since_ns=10) is None
+
+
+def test_a_frame_rendered_twice_at_one_stamp_waits_for_nothing_once_both_are_answered():
+    """A reset at a held step renders the scene again at that step's stamp: where the step had a frame
+    of its own, two frames (and two detections) share a stamp. In whatever order they come, none is
+    left waited for (a set of stamps kept one of them forever when both detections came first)."""
+    from itertools import permutations
+    for order in sorted(set(permutations(["frame", "frame", "dets", "dets"]))):
+        ls = LockstepInputs()
+        for what in order:
+            ls.on_frame(20) if what == "frame" else ls.on_detections(20, "dets@20")
+        ls.on_state(30, "s")
+        ls.on_joy(30, "j")
+        assert ls.missing(wanted_since_ns=10) is None, order
+        ls.on_frame(40)                  # and the next frame is waited for as ever
+        ls.take()
+        ls.on_state(50, "s")
+        ls.on_joy(50, "j")
+        assert "frame stamped 40" in ls.missing(wanted_since_ns=10), order

@@ -10,6 +10,7 @@ without the wait the latched detection would depend on the detector's speed.
 from __future__ import annotations
 
 import math
+from collections import Counter
 from collections.abc import Callable
 from typing import Any
 
@@ -26,8 +27,11 @@ class LockstepInputs:
         self.inputs = StampedInputs()
         self.state: tuple[int, Any] | None = None     # (stamp ns, message) of the step to answer
         self.answered_ns = -1                          # the last step answered
-        self._frames: set[int] = set()                 # camera frames (their stamps) without detections
-        self._detected: set[int] = set()               # frames whose detections came before the frame
+        # Counts by stamp, not sets: a reset at a held step renders that step again, so two frames (and
+        # two detections) can share a stamp, and a set kept one of them waited for when both
+        # detections came before both frames (a lockstep hang).
+        self._frames: Counter[int] = Counter()         # camera frames (their stamps) without detections
+        self._detected: Counter[int] = Counter()       # detections that came before their frame
 
     def on_state(self, stamp_ns: int, msg: Any) -> bool:
         """Keep a new step's joint state; True when it is the step just answered again (the bridge
@@ -44,19 +48,17 @@ class LockstepInputs:
 
     def on_frame(self, stamp_ns: int) -> None:
         """A camera frame was published (its camera_info): its detections will follow."""
-        if stamp_ns in self._detected:
-            self._detected.discard(stamp_ns)
-        else:
-            self._frames.add(int(stamp_ns))
+        stamp_ns = int(stamp_ns)
+        if not _take_one(self._detected, stamp_ns):
+            self._frames[stamp_ns] += 1
 
     def on_detections(self, stamp_ns: int, value: Any) -> None:
         self.inputs.add(DETECTIONS, stamp_ns, value)
-        if stamp_ns in self._frames:
-            self._frames.discard(stamp_ns)
-        else:
-            self._detected.add(int(stamp_ns))
+        stamp_ns = int(stamp_ns)
+        if not _take_one(self._frames, stamp_ns):
+            self._detected[stamp_ns] += 1
             while len(self._detected) > KEEP_EARLY:   # a frame whose camera_info never comes
-                self._detected.discard(min(self._detected))
+                del self._detected[min(self._detected)]
 
     def missing(self, wanted_since_ns: int | None) -> str | None:
         """What the pending step still waits for (None: it can be computed). `wanted_since_ns`: the
@@ -69,7 +71,7 @@ class LockstepInputs:
         if wanted_since_ns is not None:
             for frame in sorted(self._frames):
                 if frame < wanted_since_ns:
-                    self._frames.discard(frame)       # older than the re-latch: never needed
+                    del self._frames[frame]           # older than the re-latch: never needed
                 elif frame < t:
                     return f"the detections of the camera frame stamped {frame} ns"
         return None
@@ -79,6 +81,16 @@ class LockstepInputs:
         t, msg = self.state
         self.state, self.answered_ns = None, t
         return t, msg, self.inputs.due(t, now_kinds=(JOY,))
+
+
+def _take_one(counts: Counter[int], stamp_ns: int) -> bool:
+    """One of `stamp_ns` out of `counts` (its entry gone at zero); False when there was none."""
+    if not counts.get(stamp_ns):
+        return False
+    counts[stamp_ns] -= 1
+    if not counts[stamp_ns]:
+        del counts[stamp_ns]
+    return True
 
 
 class EpisodeClock:

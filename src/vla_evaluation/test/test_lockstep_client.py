@@ -4,7 +4,7 @@ until it answers or the tries run out, loudly."""
 from __future__ import annotations
 
 import pytest
-from vla_evaluation.lockstep_client import DETECTOR_TRIES, LockstepError, await_detector
+from vla_evaluation.lockstep_client import DETECTOR_TRIES, LockstepError, await_detector, steps_to_grid
 
 
 def run(answers_after: int) -> tuple[list[str], list[float]]:
@@ -31,3 +31,13 @@ def test_a_late_detector_gets_a_new_frame_each_try_and_longer_to_answer():
 def test_a_deaf_detector_is_an_error_that_says_what_to_check():
     with pytest.raises(LockstepError, match="is it subscribed"):
         run(answers_after=DETECTOR_TRIES)
+
+
+def test_chunks_are_anchored_at_the_episodes_start_wherever_the_loop_first_looked():
+    """0.1 s chunks of 10 ms steps from an episode that started at 5.00 s: the first chunk ends at
+    5.10 s whether the loop saw it running at 5.01, 5.02 or 5.09 s, or at 5.10 s itself (then 5.20)."""
+    start, unit = 5_000_000_000, 0.01
+    for seen_ms, steps in ((5010, 9), (5020, 8), (5090, 1), (5100, 10), (5000, 10)):
+        assert steps_to_grid(seen_ms * 1_000_000, start, unit, 10) == steps, seen_ms
+    # a start a nanosecond off its step (start + elapsed rounded) still counts whole steps
+    assert steps_to_grid(5_030_000_000, start + 1, unit, 10) == 7

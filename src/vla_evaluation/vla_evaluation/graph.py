@@ -47,7 +47,7 @@ from vla_common.tasks import parse_task
 
 from vla_evaluation.graph_runner import GraphRunner
 from vla_evaluation.kinematic import TeleopSettings, plan_waypoints, plannable_layout
-from vla_evaluation.lockstep_client import LockstepClient, await_detector, stamp_ns
+from vla_evaluation.lockstep_client import LockstepClient, await_detector, stamp_ns, steps_to_grid
 from vla_evaluation.metrics import (
     EpisodeResult,
     LimitMonitor,
@@ -700,7 +700,8 @@ class GraphEvaluator:
             raise GraphError(f"teleoperator failed to start {task}: "
                              f"{obs.teleop.reason if obs.teleop else 'no status'}")
         monitor.start_ns = stamp_ns(obs.teleop) - round(float(obs.teleop.elapsed) * 1e9)
-        chunk = cfg.steps(0.1) if cfg.stop_on_success else limit
+        chunk = (steps_to_grid(obs.steps.stamp_ns, monitor.start_ns, obs.steps.unit, cfg.steps(0.1))
+                 if cfg.stop_on_success else limit)
         done = (TeleopStatus.DONE, TeleopStatus.FAILED)
         while obs.teleop.state not in done:
             obs.steps.run(max(1, chunk), f"the {task} episode")

@@ -35,6 +35,17 @@ def stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
+def steps_to_grid(now_ns: int, start_ns: int, unit_s: float, every: int) -> int:
+    """Steps from the step stamped `now_ns` to the next one a whole number of `every` steps after
+    `start_ns` (1 to `every`). An orchestrator that runs an episode in chunks anchors them at the
+    episode's start: anchored where its loop first saw the episode running (a status that is not part
+    of a step's answers, so it can come a step or two late under load), a stop on success fell on
+    another step."""
+    every = max(1, int(every))
+    since = round((int(now_ns) - int(start_ns)) / max(1, round(unit_s * 1e9)))
+    return every - since % every
+
+
 class LockstepClient:
     """`run(steps)` runs that many steps and returns once the bridge holds, every answer in.
 

@@ -370,3 +370,24 @@ def test_the_push_of_a_tall_object_comes_down_farther_back_then_pushes_to_the_sa
             expected = their.position if mine.name == "push_end" else their.position - back
             assert mine.position == pytest.approx(expected, abs=1e-9), (goal.task.name, mine.name)
     assert CAT.spec("cereal_box").height >= TALL_M > CAT.spec("bread").height
+
+
+def test_the_steering_goal_keeps_its_evidence_on_the_way_and_not_on_its_last_pose():
+    """The inference alone (`_infer`): the person's decoder heading away from the goal that steered the
+    last step whole (share 1) takes nothing from it on the way to a pose before its last; toward its
+    last pose (the push itself) it takes as much as from a goal that did not steer."""
+    from vla_latent_controller.assistance import Assistance, Goal, Seen
+    poses = task_goal_poses(CAT.task("bread/push_east"), CAT.spec("bread"), (0.5, 0.05))
+    obj = Seen("bread", np.array([0.5, 0.05]), np.array([0.5, 0.05]), (320.0, 240.0), (40.0, 40.0), SIZE,
+               np.array([0.3, 0.0, 0.5]))
+    assist = Assistance()
+    for stage, kept in ((0, True), (len(poses) - 1, False)):
+        steered, other = Goal(obj, CAT.task("bread/push_east"), poses, stage, 3.0), \
+            Goal(obj, CAT.task("bread/push_east"), poses, stage, 3.0)
+        p = poses[stage].position + np.array([0.0, 0.0, 0.1])
+        away = (p - poses[stage].position) / 0.1 * 0.05          # 5 cm/s straight away from the pose
+        assist._infer([steered, other], p, away, 0.1, (steered, 1.0))
+        assert other.evidence < 3.0
+        assert (steered.evidence == 3.0) is kept, (stage, steered.evidence)
+        if not kept:
+            assert steered.evidence == other.evidence

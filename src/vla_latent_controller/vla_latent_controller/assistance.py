@@ -10,13 +10,13 @@ push end; a circle: a ring; a pick-and-place: hover, grasp, carry, place, retrea
 Inference: every goal gathers evidence from where the *person's* command (the decoder's output for
 their stick, before any assistance) takes the hand: progress toward the goal's next pose adds,
 motion away subtracts, and old evidence fades with the distance moved (not with time: a pause keeps
-it). While a goal steers a stick held forward, its motion away and fade count only by the person's
-share of the last step: the person holds on to what they watch, and a decoder that turns away there is
-a model off its demonstrations (`_infer`). Evidence from the assisted motion would feed on itself;
-Aronson and Short (2024) show how such confidence runs away and traps the user. The object the
-controller latched (the operator's pick on the station, or `goal_selection`) starts ahead
-(`PRIOR_LATCHED`). The belief is a softmax over the goals and "none of them"; the confidence is the
-inferred goal's probability.
+it). While a goal steers a stick held forward toward a pose before its last, its motion away and fade
+count only by the person's share of the last step: the person holds on to what they watch, and a
+decoder that turns away there is a model off its demonstrations (`_infer`). Evidence from the
+assisted motion would feed on itself; Aronson and Short (2024) show how such confidence runs away
+and traps the user. The object the controller latched (the operator's pick on the station, or
+`goal_selection`) starts ahead (`PRIOR_LATCHED`). The belief is a softmax over the goals and "none
+of them"; the confidence is the inferred goal's probability.
 
 Command: with the stick forward the command is (1 - a) x person's + a x assistance's, a = the level's
 share times how far the confidence is above one half; the assistance's moves the TCP straight toward
@@ -459,19 +459,23 @@ class Assistance:
         fades with the distance the person's command moves.
 
         `steering`: the goal that pulled the last step and its share, with the stick still forward.
-        Progress toward it counts as ever; motion away and the fade count only by the part the
-        person's command had in what the arm did (1 - share). The person watches the arm go, assisted,
-        toward that goal and holds on; a decoder that disagrees then is a model off its
-        demonstrations, not the person (the matched Far model turned down and out three quarters
-        round the ring and took a held stick's confidence from 0.98 to 0.03 in a second, over and
-        over). The other goals gather evidence as ever; a reversal (the stick no longer forward)
-        judges every goal by the person's command alone, and another object picked drops all
-        evidence: each lowers the goal's pull at once."""
+        On the way to its last pose, progress toward it counts as ever, and motion away and the fade
+        count only by the part the person's command had in what the arm did (1 - share). The person
+        watches the arm go, assisted, toward that goal and holds on; a decoder that disagrees then is
+        a model off its demonstrations, not the person (the matched Far model turned down and out
+        three quarters round the ring and took a held stick's confidence from 0.98 to 0.03 in a
+        second, over and over). Toward the last pose (a push itself, a place) the decoder counts
+        whole again: there a model that turns back knows the push went far enough or the object
+        turned (kept there too, a held stick pushed the cereal box on into a reflex and 35 deg off).
+        The other goals gather evidence as ever; a reversal (the stick no longer forward) judges every
+        goal by the person's command alone, and another object picked drops all evidence: each lowers
+        the goal's pull at once."""
         moved = float(np.linalg.norm(v)) * dt
         for g in goals:
             progress = max((_progress(v, pose.position - p) for pose in g.poses[g.stage:g.stage + 2]),
                            default=0.0) * dt
-            own = 1.0 - steering[1] if steering is not None and steering[0] is g else 1.0
+            led = steering is not None and steering[0] is g and g.stage < len(g.poses) - 1
+            own = 1.0 - steering[1] if led else 1.0
             if progress < 0.0:
                 progress *= AWAY_WEIGHT * own
             kept = g.evidence * math.exp(-own * moved / MEMORY_M)

@@ -41,3 +41,21 @@ def test_chunks_are_anchored_at_the_episodes_start_wherever_the_loop_first_looke
         assert steps_to_grid(seen_ms * 1_000_000, start, unit, 10) == steps, seen_ms
     # a start a nanosecond off its step (start + elapsed rounded) still counts whole steps
     assert steps_to_grid(5_030_000_000, start + 1, unit, 10) == 7
+
+
+def test_a_hang_says_what_the_nodes_said_they_waited_for():
+    from vla_evaluation.lockstep_client import lockstep_says
+    log = "\n".join([
+        "[controller_node-3] [INFO] [1.0] [controller_node]: latched bread",
+        "[controller_node-3] [WARN] [11.0] [controller_node]: lockstep: the joint state stamped 1220000000 "
+        "ns "
+        "has waited 10 s for the detections of the camera frame stamped 1200000000 ns",
+        "[panda_bridge-1] [ERROR] [61.0] [panda_bridge]: lockstep hang: step 22 ...",
+        "[controller_node-3] [WARN] [21.0] [controller_node]: lockstep: the joint state stamped 1220000000 "
+        "ns "
+        "has waited 20 s for the detections of the camera frame stamped 1200000000 ns",
+    ])
+    said = lockstep_says(log, lines=1)
+    assert said.startswith("\n  ") and "waited 20 s for the detections of the camera frame" in said
+    assert "waited 10 s" in lockstep_says(log) and "lockstep hang" not in lockstep_says(log)
+    assert lockstep_says("") == ""

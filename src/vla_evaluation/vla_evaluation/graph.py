@@ -47,7 +47,13 @@ from vla_common.tasks import parse_task
 
 from vla_evaluation.graph_runner import GraphRunner
 from vla_evaluation.kinematic import TeleopSettings, plan_waypoints, plannable_layout
-from vla_evaluation.lockstep_client import LockstepClient, await_detector, stamp_ns, steps_to_grid
+from vla_evaluation.lockstep_client import (
+    LockstepClient,
+    await_detector,
+    lockstep_says,
+    stamp_ns,
+    steps_to_grid,
+)
 from vla_evaluation.metrics import (
     EpisodeResult,
     LimitMonitor,
@@ -454,6 +460,7 @@ class GraphEvaluator:
             if cfg.lockstep:
                 st = self.obs.steps
                 st.alive, st.unit = self.alive, 1.0 / cfg.state_rate
+                st.why_hung = self._why_hung
                 st.real_time_factor = cfg.real_time_factor
             self._wait_ready()
             self.configure()
@@ -464,6 +471,11 @@ class GraphEvaluator:
     def alive(self) -> None:
         """GraphError when a process of the launch has ended, with its last output lines."""
         self.runner.alive()
+
+    def _why_hung(self) -> str:
+        """What the graph's nodes last said a lockstep step waited for (their log is gone with it)."""
+        session = self.runner.session if self.runner is not None else None
+        return lockstep_says(session.tail(lines=0)) if session is not None else ""
 
     def _wait_ready(self) -> None:
         obs, t = self.obs, self.config.startup_timeout

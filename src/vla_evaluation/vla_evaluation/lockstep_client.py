@@ -35,6 +35,14 @@ def stamp_ns(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
+def lockstep_says(log_text: str, lines: int = 3) -> str:
+    """The last `lines` lines of a graph's output in which a node says what a lockstep step waits for
+    ("lockstep: ... has waited N s for ..."): appended to a hang's error, whose graph and log are
+    then gone (the last hangs said only which node, not what it waited for)."""
+    said = [line.strip() for line in log_text.splitlines() if "lockstep:" in line and "waited" in line]
+    return "".join(f"\n  {line}" for line in said[-lines:])
+
+
 def steps_to_grid(now_ns: int, start_ns: int, unit_s: float, every: int) -> int:
     """Steps from the step stamped `now_ns` to the next one a whole number of `every` steps after
     `start_ns` (1 to `every`). An orchestrator that runs an episode in chunks anchors them at the
@@ -58,6 +66,7 @@ class LockstepClient:
                  error: type[Exception] = LockstepError) -> None:
         self.cond, self.state_stamp, self.error = cond, state_stamp, error
         self.alive: Callable[[], None] = lambda: None
+        self.why_hung: Callable[[], str] = lambda: ""   # what the waited-for nodes said (their log)
         self.unit, self.real_time_factor = 0.01, 0.0
         self.status: LockstepStatus | None = None
         self.client = node.create_client(LockstepRun, f"{BRIDGE}/lockstep_run")
@@ -112,7 +121,7 @@ class LockstepClient:
             while True:
                 st, target = self.status, self._target
                 if st is not None and st.hung:
-                    raise self.error(f"{what}: {st.text}")
+                    raise self.error(f"{what}: {st.text}{self.why_hung()}")
                 if st is not None and st.held and st.step == target and self.state_stamp() >= stamp_s(st):
                     return
                 left = deadline - time.monotonic()

@@ -59,3 +59,18 @@ def test_a_hang_says_what_the_nodes_said_they_waited_for():
     assert said.startswith("\n  ") and "waited 20 s for the detections of the camera frame" in said
     assert "waited 10 s" in lockstep_says(log) and "lockstep hang" not in lockstep_says(log)
     assert lockstep_says("") == ""
+
+
+def test_with_one_try_a_missed_first_frame_is_an_error_and_not_rendered_again():
+    """Where a controller counts every frame, a second rendering at the held step would leave it waiting
+    for the missed frame's detections: one reset, one wait, then the error (the graph is restarted)."""
+    resets: list[str] = []
+    waits: list[float] = []
+
+    def detected(timeout: float) -> bool:
+        waits.append(timeout)
+        return False
+
+    with pytest.raises(LockstepError, match="in 1 tries"):
+        await_detector(lambda: resets.append("reset"), detected, lambda text: None, tries=1, wait_s=60.0)
+    assert resets == ["reset"] and waits == [60.0]

@@ -76,6 +76,7 @@ LAUNCH_FILE = ("vla_evaluation", "demo.launch.yaml")
 CAMERA_SIZE = (640, 480)  # the bridge's camera (config/panda_bridge.yaml)
 # Lockstep: the fixed counts of steps between what the orchestrator does (vla_common.lockstep).
 STARTUP_S = 0.2   # sim s run once at startup: every node's status published, nothing else moved
+DETECTOR_FIRST_WAIT_S = 60.0  # wall s for the detections of the first frame once the detector listens
 FINAL_S = 0.1     # sim s after an episode's end before its final state is read (the next scene update)
 RELIABLE = 1000   # lockstep: the orchestrator's subscriptions keep every message (reliable, this deep)
 
@@ -500,8 +501,9 @@ class GraphEvaluator:
         self.log(f"[graph] up in {time.monotonic() - t0:.1f} s")
 
     def _start_lockstep(self) -> None:
-        """Lockstep: run STARTUP_S (every node answers and says its status), then make sure the detector
-        sees the camera (lockstep_client.await_detector)."""
+        """Lockstep: run STARTUP_S (every node answers and says its status), then, once the detector's
+        subscription to the camera is seen, make sure it sees a frame (lockstep_client.await_detector):
+        once, as the controller counts every frame (a miss is a GraphError; the callers start a new graph)."""
         obs, cfg = self.obs, self.config
         t_held = obs.steps.run(cfg.steps(STARTUP_S), "the graph's first steps")
 
@@ -518,7 +520,13 @@ class GraphEvaluator:
             except GraphError:
                 return False
 
-        await_detector(reset, detected, lambda text: self.log(f"[graph] {text}"), GraphError)
+        def listening() -> bool:   # the graph's discovery: polled by wait_for, bounded by its timeout
+            topic = f"{obs.node.get_namespace().rstrip('/')}/camera/image_raw"
+            return any(i.node_name == DETECTOR for i in obs.node.get_subscriptions_info_by_topic(topic))
+
+        obs.wait_for(listening, cfg.startup_timeout, "the detector's subscription to the camera", self.alive)
+        await_detector(reset, detected, lambda text: self.log(f"[graph] {text}"), GraphError, tries=1,
+                       wait_s=DETECTOR_FIRST_WAIT_S)
 
     def configure(self) -> None:
         """Set the controller's and the teleoperator's run-time parameters from the config."""

@@ -138,19 +138,25 @@ class LockstepClient:
 
 
 DETECTOR_TRIES = 5  # resets at the held step before a graph is called deaf (each waits 10 s longer)
+DETECTOR_WAIT_S = 10.0
 
 
 def await_detector(reset: Callable[[], None], detected: Callable[[float], bool], log: Callable[[str], None],
-                   error: type[Exception] = LockstepError) -> None:
+                   error: type[Exception] = LockstepError, tries: int = DETECTOR_TRIES,
+                   wait_s: float = DETECTOR_WAIT_S) -> None:
     """Lockstep, once after the first steps: make sure the detector sees the camera. Those steps pass in
     well under a second of wall time, before the discovery of every pair of nodes is done, and a
     frame published before the detector's subscription matched is never seen; with the simulation held
     no other frame comes, and a wait for its detections would hang. `reset()` resets the scene at the
     held step (which renders a frame and moves no time); `detected(timeout)` says whether its
-    detections came within `timeout` wall s. Only counts of steps pass, so no result depends on it."""
-    for attempt in range(1, DETECTOR_TRIES + 1):
+    detections came within `timeout` wall s (`wait_s` times the try's number). Only counts of steps
+    pass, so no result depends on it. `tries` = 1 where a latent controller is in the loop: it counts
+    every frame it is told of and waits for each one's detections, so a frame the detector missed,
+    rendered again at the same stamp, left it waiting for the missed one's detections (a lockstep hang,
+    twice at a graph's first hold): such a graph is an error, and its callers start a new one."""
+    for attempt in range(1, tries + 1):
         reset()
-        if detected(10.0 * attempt):
+        if detected(wait_s * attempt):
             return
-        log(f"lockstep: no detections of the first frame yet (attempt {attempt}/{DETECTOR_TRIES})")
-    raise error(f"the detector did not answer a camera frame in {DETECTOR_TRIES} tries: is it subscribed?")
+        log(f"lockstep: no detections of the first frame yet (attempt {attempt}/{tries})")
+    raise error(f"the detector did not answer a camera frame in {tries} tries: is it subscribed?")

@@ -76,3 +76,16 @@ def test_a_frame_rendered_twice_at_one_stamp_waits_for_nothing_once_both_are_ans
         ls.on_state(50, "s")
         ls.on_joy(50, "j")
         assert "frame stamped 40" in ls.missing(wanted_since_ns=10), order
+
+
+def test_a_frame_the_detector_missed_is_waited_for_even_after_a_second_rendering_is_answered():
+    """Why the graph's first frame is not rendered again after a miss (vla_evaluation's await_detector
+    with tries=1): counts by stamp cannot tell the missed rendering from the answered one, so the step
+    after them waits (the hang seen at a graph's first hold)."""
+    ls = LockstepInputs()
+    ls.on_frame(1_200_000_000)                 # published before the detector's subscription matched
+    ls.on_frame(1_200_000_000)                 # the reset at the held step renders it again ...
+    ls.on_detections(1_200_000_000, object())  # ... and that one is answered
+    ls.on_state(1_220_000_000, object())
+    ls.on_joy(1_220_000_000, object())
+    assert ls.missing(1_200_000_000) == "the detections of the camera frame stamped 1200000000 ns"

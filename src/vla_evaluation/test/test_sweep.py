@@ -96,3 +96,21 @@ def test_the_store_resumes_keeps_each_unit_once_and_sets_a_partial_line_aside(tm
     assert [json.loads(x)["key"] for x in path.read_text().splitlines()[1:]] == ["a"]
     with pytest.raises(SystemExit, match="another plan"):
         UnitStore(path, digest({"plan": 2}))
+
+
+def test_a_local_ray_that_is_another_drivers_is_told_apart_by_its_job_number():
+    """The first job of a cluster is its own starter's; a later one joined someone else's Ray."""
+    from vla_evaluation.sweep import joined_another
+
+    class Ray:
+        def __init__(self, job):
+            self.job = job
+
+        def get_runtime_context(self):
+            return self
+
+        def get_job_id(self):
+            return self.job
+
+    assert joined_another(Ray("01000000")) == ""
+    assert "another driver's" in joined_another(Ray("02000000"))

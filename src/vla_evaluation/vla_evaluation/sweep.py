@@ -174,18 +174,37 @@ def _start_local(ray, engine: Engine, tries: int = 5) -> None:
     machine). Ray gives its raylet 30 s to register, hard-coded; on a loaded machine a start that
     misses it is tried again. Its workers run at the driver's niceness, not Ray's default of 15 nicer:
     beside other work (a CI run at nice 0) a sweep's graphs got next to no CPU and ran past their hang
-    guard; `nice -n 10 vla_study ...` says how much a sweep yields, and means it."""
+    guard; `nice -n 10 vla_study ...` says how much a sweep yields, and means it. A start that joined
+    another driver's Ray (`joined_another`) is tried again."""
     os.environ.setdefault("RAY_worker_niceness", "0")
     for attempt in range(tries):
         try:
             ray.init(address="local", num_cpus=engine.cpus or os.cpu_count(), include_dashboard=False,
                      object_store_memory=LOCAL_OBJECT_STORE_BYTES, logging_level=logging.WARNING,
                      log_to_driver=True)
-            return
         except Exception as e:  # Ray raises a bare Exception for the timeout
             if "timed out during startup" not in str(e) or attempt == tries - 1:
                 raise
             ray.shutdown()
+            continue
+        why = joined_another(ray)
+        if not why:
+            return
+        ray.shutdown()
+        if attempt == tries - 1:
+            raise RuntimeError(f"{why}; {tries} starts")
+
+
+def joined_another(ray) -> str:
+    """Why this driver's "local" Ray is another's ("" when it is its own: the first job of its cluster).
+    Two sweeps started within a second of each other (a study in one checkout, its A/B in another)
+    both asked for a new local Ray, and the second's driver came up in the first's cluster: its units
+    ran in the first's workers, with the first checkout's code and models (seen 2026-12-07)."""
+    job = ray.get_runtime_context().get_job_id()   # hex of the job number's bytes, little-endian
+    if int.from_bytes(bytes.fromhex(job), "little") == 1:
+        return ""
+    return (f"this sweep's local Ray is another driver's (it is job {job} there): its units would run in "
+            "that driver's workers, with their code")
 
 
 def slots(resources: dict, needs: Needs, n_units: int) -> tuple[int, float]:

@@ -95,7 +95,7 @@ HAND_EMPTY_BELOW = 0.005                   # ... below this a shut, empty one; b
 # stalled with the wrist on the box's top edge, turned the box and toppled it (Seen, development layouts
 # 310000-310019 through the graph: 15/20 -> 18/20). The glass bottle (0.22) and milk carton (0.20) come
 # down clean and keep the demonstrations' poses.
-TALL_M = 0.25
+TALL_M = 0.21
 APPROACH_BACK_M = 0.04
 CLEARANCE_M = 0.02        # the arm's links keep this far above (and outside) a detected object
 CLEARANCE_LINKS = ("panda_link3", "panda_link4", "panda_link5", "panda_link6")  # not the wrist on the hand

@@ -49,7 +49,7 @@ import numpy as np
 from vla_common.catalogue import Catalogue, ObjectSpec, TaskSpec, default_catalogue
 from vla_common.detection import Detection
 from vla_common.robot import HAND
-from vla_common.task_goals import GRASP, OPEN, GoalPose, task_goal_poses
+from vla_common.task_goals import GRASP, OPEN, GoalPose, preferred_flip, push_rotation, task_goal_poses
 
 LEVELS = ("off", "low", "high")
 LEVEL_SHARE = {"off": 0.0, "low": 0.5, "high": 1.0}  # the most of the command the assistance takes
@@ -97,6 +97,10 @@ HAND_EMPTY_BELOW = 0.005                   # ... below this a shut, empty one; b
 # down clean and keep the demonstrations' poses.
 TALL_M = 0.21
 APPROACH_BACK_M = 0.04
+# ... and the hand leans toward the push at least this much all the way (the planner's extra tilt for the
+# cereal box's pushes, 34-35 deg at its centre layouts): a decoder that straightened the hand during the
+# push brought the wrist forward onto the box's top edge (Seen, development layouts at 47fda13).
+TALL_TILT_DEG = 34.0
 CLEARANCE_M = 0.02        # the arm's links keep this far above (and outside) a detected object
 CLEARANCE_LINKS = ("panda_link3", "panda_link4", "panda_link5", "panda_link6")  # not the wrist on the hand
 CLEARANCE_GAIN = 4.0      # 1/s: how fast a link below that rises
@@ -368,7 +372,7 @@ class Assistance:
         pace = float(np.linalg.norm(J[:3] @ person))
         rows, twist = self._toward(best, p, R, J, u, pace) if u > 0 else self._back(best, p, J, u, pace)
         out = person + share * _solve(rows, twist - rows @ person)
-        out = self._clear(q, out, J[:3], best)
+        out = self._clear(q, out, rows if best.task.kind == "push" else J[:3], best)
         return out if u > 0 else _not_toward(out, best.target().position - p, J)
 
     def _settle(self, goal: Goal, q: np.ndarray, share: float, person: np.ndarray, u: float) -> np.ndarray:
@@ -385,8 +389,10 @@ class Assistance:
     def _clear(self, q: np.ndarray, dq: np.ndarray, J_tcp: np.ndarray, best: Goal) -> np.ndarray:
         """Keep the arm's links (not the wrist and hand: they are meant to come close) CLEARANCE_M
         above the detected objects' tops where they pass over them, moving them up in the null space
-        of the TCP's motion (a steeper forearm, more tilt: what the planner's extra tilt does for the
-        demonstrations). The object a goal grasps is not an obstacle to it."""
+        of `J_tcp`: the TCP's motion (a steeper forearm, more tilt: what the planner's extra tilt does
+        for the demonstrations), and on a push the hand's lean as well: there the wrist, lifted where it
+        cannot rise, was brought upright and forward onto the cereal box's top edge, which toppled the
+        box. The object a goal grasps is not an obstacle to it."""
         grasps = any(pose.hand for pose in best.poses)   # the hand closes round its object: no obstacle
         obstacles = [o for o in self.objects if o.visible and not (grasps and o is best.obj)]
         if not obstacles or not hasattr(self.kinematics, "arm_points"):
@@ -558,14 +564,21 @@ class Assistance:
 
 
 def _poses(spec: TaskSpec, shape: ObjectSpec, xy, tcp) -> list[GoalPose]:
-    """The assistance's goal poses: the demonstrations' (`task_goal_poses`, shared with the planner),
-    and for a push of an object at least TALL_M high the hover and the pre-push APPROACH_BACK_M farther
-    back along the push (its end stays): the hand comes down clear of the box, then pushes."""
+    """The assistance's goal poses: the demonstrations' (`task_goal_poses`, shared with the planner); a
+    push's with the hand's lean toward the push held all the way (`aligns`, at least the poses' tilt:
+    `_push_axis`), and for an object at least TALL_M high the hover and the pre-push APPROACH_BACK_M
+    farther back along the push (its end stays) and a lean of at least TALL_TILT_DEG: the hand comes
+    down clear of the object and pushes with the wrist back from its top."""
     poses = task_goal_poses(spec, shape, xy, tcp)
     if spec.kind != "push":
         return poses
-    back = np.zeros(3) if shape.height < TALL_M else APPROACH_BACK_M * np.array([*spec.direction_vector, 0.0])
-    return [p if p.name == "push_end" else replace(p, position=p.position - back, aligns=True) for p in poses]
+    if shape.height < TALL_M:
+        return [replace(p, aligns=True) for p in poses]
+    d = spec.direction_vector
+    back = APPROACH_BACK_M * np.array([*d, 0.0])
+    rot = push_rotation(d, math.radians(TALL_TILT_DEG), preferred_flip(d))
+    return [replace(p, position=p.position - (0.0 if p.name == "push_end" else back), rotation=rot,
+                    aligns=True) for p in poses]
 
 
 def _push_axis(z: np.ndarray, demonstrated: np.ndarray) -> np.ndarray:

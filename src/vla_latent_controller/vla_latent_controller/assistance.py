@@ -97,7 +97,7 @@ HAND_EMPTY_BELOW = 0.005                   # ... below this a shut, empty one; b
 # down clean and keep the demonstrations' poses.
 TALL_M = 0.21
 APPROACH_BACK_M = 0.04
-# ... and the hand leans toward the push at least this much all the way (the planner's extra tilt for the
+# ... and the hand leans toward the push at least this much while it pushes (the planner's extra tilt for the
 # cereal box's pushes, 34-35 deg at its centre layouts): a decoder that straightened the hand during the
 # push brought the wrist forward onto the box's top edge (Seen, development layouts at 47fda13).
 TALL_TILT_DEG = 34.0
@@ -567,8 +567,9 @@ def _poses(spec: TaskSpec, shape: ObjectSpec, xy, tcp) -> list[GoalPose]:
     """The assistance's goal poses: the demonstrations' (`task_goal_poses`, shared with the planner); a
     push's with the hand's lean toward the push held all the way (`aligns`, at least the poses' tilt:
     `_push_axis`), and for an object at least TALL_M high the hover and the pre-push APPROACH_BACK_M
-    farther back along the push (its end stays) and a lean of at least TALL_TILT_DEG: the hand comes
-    down clear of the object and pushes with the wrist back from its top."""
+    farther back along the push (its end stays) and, pushing, a lean of at least TALL_TILT_DEG: the
+    hand comes down clear of the object and pushes with the wrist back from its top (asked from the
+    hover on, the lean held the hand still short of it: Seen and Near, development layouts)."""
     poses = task_goal_poses(spec, shape, xy, tcp)
     if spec.kind != "push":
         return poses
@@ -577,8 +578,8 @@ def _poses(spec: TaskSpec, shape: ObjectSpec, xy, tcp) -> list[GoalPose]:
     d = spec.direction_vector
     back = APPROACH_BACK_M * np.array([*d, 0.0])
     rot = push_rotation(d, math.radians(TALL_TILT_DEG), preferred_flip(d))
-    return [replace(p, position=p.position - (0.0 if p.name == "push_end" else back), rotation=rot,
-                    aligns=True) for p in poses]
+    return [replace(p, rotation=rot, aligns=True) if p.name == "push_end"
+            else replace(p, position=p.position - back, aligns=True) for p in poses]
 
 
 def _push_axis(z: np.ndarray, demonstrated: np.ndarray) -> np.ndarray:

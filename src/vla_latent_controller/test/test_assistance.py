@@ -18,6 +18,9 @@ from vla_latent_controller.assistance import (
     LEVELS,
     STOP_REACH_M,
     TALL_M,
+    TALL_TILT_DEG,
+    _poses,
+    _push_axis,
 )
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
@@ -370,6 +373,36 @@ def test_the_push_of_a_tall_object_comes_down_farther_back_then_pushes_to_the_sa
             expected = their.position if mine.name == "push_end" else their.position - back
             assert mine.position == pytest.approx(expected, abs=1e-9), (goal.task.name, mine.name)
     assert CAT.spec("cereal_box").height >= TALL_M > CAT.spec("bread").height
+
+
+def test_a_push_leans_the_hand_toward_it_and_a_tall_objects_push_leans_more():
+    """Every pose of a push turns the hand's axis (`aligns`) to lean toward the push; pushing a tall
+    object it leans TALL_TILT_DEG (the wrist back from the top edge), the way there keeps the
+    demonstrations' lean (asked for more there, it held the hand short of the hover)."""
+    for cls, task, xy in (("cereal_box", "push_south", (0.46, 0.0)), ("bread", "push_east", (0.5, 0.05))):
+        spec, shape = CAT.task(f"{cls}/{task}"), CAT.spec(cls)
+        d = spec.direction_vector
+        for pose in _poses(spec, shape, xy, None):
+            z = pose.rotation[:, 2]
+            lean = math.degrees(math.acos(-z[2]))
+            assert pose.aligns and float(z[:2] @ d) > 0.0, (cls, pose.name)
+            tall_push = shape.height >= TALL_M and pose.name == "push_end"
+            assert lean == pytest.approx(TALL_TILT_DEG if tall_push else 22.0, abs=0.01), (cls, pose.name)
+
+
+def test_the_lean_toward_a_push_turns_a_hand_leaning_away_and_keeps_a_steeper_one():
+    """`_push_axis`: a hand leaning the other way is turned to lean toward the push by the demonstrations'
+    tilt; one leaning toward it more than they do keeps its lean (the planner's extra tilt)."""
+    def axis(lean_deg, toward):
+        a = math.radians(lean_deg)
+        return np.array([math.sin(a) * toward[0], math.sin(a) * toward[1], -math.cos(a)])
+
+    push = (0.0, 1.0)
+    demonstrated = axis(22.0, push)
+    away = _push_axis(axis(25.0, (0.0, -1.0)), demonstrated)
+    assert away == pytest.approx(axis(25.0, push), abs=1e-9)
+    assert _push_axis(axis(10.0, (1.0, 0.0)), demonstrated) == pytest.approx(demonstrated, abs=1e-9)
+    assert _push_axis(axis(35.0, push), demonstrated) == pytest.approx(axis(35.0, push), abs=1e-9)
 
 
 def test_the_steering_goal_keeps_its_evidence_on_the_way_and_not_on_its_last_pose():

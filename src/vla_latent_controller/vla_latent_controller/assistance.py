@@ -24,8 +24,10 @@ the goal's next pose at the demonstrations' speed times |stick| (slowing onto a 
 acts and onto the last one) and turns the hand toward its orientation. A push's end follows the object:
 the hand pushes along the line through where the object is now seen (up to PUSH_FOLLOW_M aside of the
 line through where it was first seen), so a box that turns and slides aside under the fingers is
-pushed back onto its direction. The push of a tall object (TALL_M) comes down APPROACH_BACK_M farther
-back than the demonstrations' pre-push, clear of the box's top edge. The person stays in charge:
+pushed back onto its direction. On a push the hand's axis leans toward the push, by the
+demonstrations' tilt or more (`_push_axis`); the push of a tall object (TALL_M) comes down
+APPROACH_BACK_M farther back than the demonstrations' pre-push, clear of the object's top edge, and
+pushes leaning at least TALL_TILT_DEG, the wrist back from it. The person stays in charge:
 - the stick at rest gives zero (the controller never calls this then);
 - reversed, the assistance retraces the goal's poses and the command never moves the TCP toward the
   goal's next pose, from the first step;

@@ -44,6 +44,21 @@ def test_the_end_effector_plan_has_no_practised_tricks():
     assert all(np.allclose(np.abs(p[:2] - obj), r) for p in ring)
 
 
+def test_both_participants_aim_the_hand_as_low_behind_a_tall_object():
+    """The latent participant watches the hand come down behind the cereal box (0.27 m) to the push
+    height the end-effector plan goes to (PUSH_LOW_M): lower looks nearer done all the way down. It
+    counted the height only to the object's top and reversed during the descent (issue 34)."""
+    goal = task_goal("cereal_box/push_south", CAT)
+    obj = np.array([0.5, 0.0])
+    op = part.HumanOperator(part.HumanParams(), goal, "latent")
+    op.start_obj = obj
+    behind = obj - np.asarray(goal.direction) * (goal.object_radius + 0.02)
+    costs = [op._task_cost(np.array([*behind, z]), obj) for z in (0.30, 0.2, 0.1, part.PUSH_LOW_M)]
+    assert all(a > b for a, b in zip(costs, costs[1:]))
+    plan = part.plan_hand_points(goal, np.array([0.3, 0.0, 0.4]), obj)
+    assert plan[1][2] == part.PUSH_LOW_M and goal.object_height > 0.25
+
+
 def _observe(op, frames):
     for i, (hand, obj) in enumerate(frames):
         op.act(part.Observation(i * 0.05, np.asarray(hand, float), np.asarray(obj, float)))

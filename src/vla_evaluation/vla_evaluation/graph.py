@@ -501,10 +501,19 @@ class GraphEvaluator:
         self.log(f"[graph] up in {time.monotonic() - t0:.1f} s")
 
     def _start_lockstep(self) -> None:
-        """Lockstep: run STARTUP_S (every node answers and says its status), then, once the detector's
-        subscription to the camera is seen, make sure it sees a frame (lockstep_client.await_detector):
-        once, as the controller counts every frame (a miss is a GraphError; the callers start a new graph)."""
+        """Lockstep: once the detector's subscription to the camera is seen, run STARTUP_S (every node
+        answers and says its status), then make sure the detector sees a frame
+        (lockstep_client.await_detector): once, as the controller counts every frame (a miss is a
+        GraphError; the callers start a new graph). The first steps render frames too, the last at the
+        held step: run before the detector listened, one missed there would leave the controller waiting
+        for it at the first episode (the likely cause of three hangs with the wait after the steps)."""
         obs, cfg = self.obs, self.config
+
+        def listening() -> bool:   # the graph's discovery: polled by wait_for, bounded by its timeout
+            topic = f"{obs.node.get_namespace().rstrip('/')}/camera/image_raw"
+            return any(i.node_name == DETECTOR for i in obs.node.get_subscriptions_info_by_topic(topic))
+
+        obs.wait_for(listening, cfg.startup_timeout, "the detector's subscription to the camera", self.alive)
         t_held = obs.steps.run(cfg.steps(STARTUP_S), "the graph's first steps")
 
         def reset() -> None:
@@ -520,11 +529,6 @@ class GraphEvaluator:
             except GraphError:
                 return False
 
-        def listening() -> bool:   # the graph's discovery: polled by wait_for, bounded by its timeout
-            topic = f"{obs.node.get_namespace().rstrip('/')}/camera/image_raw"
-            return any(i.node_name == DETECTOR for i in obs.node.get_subscriptions_info_by_topic(topic))
-
-        obs.wait_for(listening, cfg.startup_timeout, "the detector's subscription to the camera", self.alive)
         await_detector(reset, detected, lambda text: self.log(f"[graph] {text}"), GraphError, tries=1,
                        wait_s=DETECTOR_FIRST_WAIT_S)
 

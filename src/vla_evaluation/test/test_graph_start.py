@@ -6,7 +6,7 @@ from __future__ import annotations
 from types import SimpleNamespace
 
 import pytest
-from vla_evaluation.graph import DETECTOR, GraphError, GraphEvaluator
+from vla_evaluation.graph import DETECTOR, START_TRIES, FirstFrameMissedError, GraphError, GraphEvaluator
 
 
 class Obs:
@@ -60,6 +60,37 @@ def test_the_detector_is_listening_before_any_frame_is_rendered_and_checked_with
 
 def test_a_detector_that_misses_the_checks_frame_fails_the_graph_after_one_reset():
     obs = Obs(detector_answers=False)
-    with pytest.raises(GraphError, match="in 1 tries"):
+    with pytest.raises(FirstFrameMissedError, match="in 1 tries"):
         start(obs)
     assert obs.calls.count("reset") == 1
+
+
+def test_a_graph_whose_detector_missed_its_first_frame_is_launched_again():
+    """start() launches again on FirstFrameMissedError (a test or a sweep gets a graph, not the error), up to
+    START_TRIES times; any other GraphError is the caller's."""
+    ev = GraphEvaluator.__new__(GraphEvaluator)
+    ev.log = lambda text: None
+    launches = []
+
+    def once(fail: int, other: bool = False):
+        def start_once():
+            launches.append(1)
+            if other:
+                raise GraphError("a process ended")
+            if len(launches) <= fail:
+                raise FirstFrameMissedError("the detector did not answer a camera frame in 1 tries")
+        return start_once
+
+    ev._start_once = once(fail=START_TRIES - 1)
+    ev.start()
+    assert len(launches) == START_TRIES
+    launches.clear()
+    ev._start_once = once(fail=START_TRIES)
+    with pytest.raises(FirstFrameMissedError):
+        ev.start()
+    assert len(launches) == START_TRIES
+    launches.clear()
+    ev._start_once = once(fail=0, other=True)
+    with pytest.raises(GraphError, match="process ended"):
+        ev.start()
+    assert len(launches) == 1

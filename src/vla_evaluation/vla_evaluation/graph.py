@@ -77,12 +77,17 @@ CAMERA_SIZE = (640, 480)  # the bridge's camera (config/panda_bridge.yaml)
 # Lockstep: the fixed counts of steps between what the orchestrator does (vla_common.lockstep).
 STARTUP_S = 0.2   # sim s run once at startup: every node's status published, nothing else moved
 DETECTOR_FIRST_WAIT_S = 60.0  # wall s for the detections of the first frame once the detector listens
+START_TRIES = 3               # launches of a lockstep graph whose detector missed its first frame
 FINAL_S = 0.1     # sim s after an episode's end before its final state is read (the next scene update)
 RELIABLE = 1000   # lockstep: the orchestrator's subscriptions keep every message (reliable, this deep)
 
 
 class GraphError(RuntimeError):
     """The graph could not be started or an episode could not be run; the message says why."""
+
+
+class FirstFrameMissedError(GraphError):
+    """A lockstep graph's detector did not answer its first frame: launched again (GraphEvaluator.start)."""
 
 
 @dataclass
@@ -448,7 +453,18 @@ class GraphEvaluator:
         self.close()
 
     def start(self) -> None:
-        """Launch demo.launch.yaml, join its ROS domain, wait until every node answers, configure."""
+        """Launch demo.launch.yaml, join its ROS domain, wait until every node answers, configure. A
+        lockstep graph whose detector missed its first frame is closed and launched again (at most
+        START_TRIES times): its controller would wait for that frame's detections (FirstFrameMissedError)."""
+        for attempt in range(1, START_TRIES + 1):
+            try:
+                return self._start_once()
+            except FirstFrameMissedError as e:
+                if attempt == START_TRIES:
+                    raise
+                self.log(f"[graph] {e}; launching the graph again ({attempt + 1}/{START_TRIES})")
+
+    def _start_once(self) -> None:
         cfg = self.config
         log_path = Path(cfg.log_dir) / "graph.log" if cfg.log_dir else None
         self.runner = GraphRunner(LAUNCH_FILE, cfg.launch_arguments(), domain=cfg.domain_id,
@@ -529,8 +545,8 @@ class GraphEvaluator:
             except GraphError:
                 return False
 
-        await_detector(reset, detected, lambda text: self.log(f"[graph] {text}"), GraphError, tries=1,
-                       wait_s=DETECTOR_FIRST_WAIT_S)
+        await_detector(reset, detected, lambda text: self.log(f"[graph] {text}"), FirstFrameMissedError,
+                       tries=1, wait_s=DETECTOR_FIRST_WAIT_S)
 
     def configure(self) -> None:
         """Set the controller's and the teleoperator's run-time parameters from the config."""

@@ -520,9 +520,10 @@ class GraphEvaluator:
         """Lockstep: once the detector's subscription to the camera is seen, run STARTUP_S (every node
         answers and says its status), then make sure the detector sees a frame
         (lockstep_client.await_detector): once, as the controller counts every frame (a miss is a
-        GraphError; the callers start a new graph). The first steps render frames too, the last at the
-        held step: run before the detector listened, one missed there would leave the controller waiting
-        for it at the first episode (the likely cause of three hangs with the wait after the steps)."""
+        FirstFrameMissedError; `start` launches the graph again). The first steps render frames too,
+        the last at the held step: run before the detector listened, one missed there would leave the
+        controller waiting for it at the first episode (the likely cause of three hangs with the wait
+        after the steps)."""
         obs, cfg = self.obs, self.config
 
         def listening() -> bool:   # the graph's discovery: polled by wait_for, bounded by its timeout

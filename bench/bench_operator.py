@@ -3,9 +3,9 @@ nothing.
 
 The shipped teleop.launch.yaml (use_operator_station:=true) on the simulated Panda and one headless
 Chromium on its page. Every time is on this machine's wall clock: the browser's (performance.timeOrigin
-+ now, its offset to ours measured through WebDriver), the stamps DDS puts on each sample (source: when
-it was published; received: when it reached this process's reader, independent of when this process
-gets round to it) and the station's Joy stamp (arrival of the input at the station):
++ now, its offset to ours measured through WebDriver before each press), the stamps DDS puts on each
+sample (source: when it was published; received: when it reached this process's reader, independent of
+when this process gets round to it) and the station's Joy stamp (arrival of the input at the station):
 1. key press -> joint_velocity_cmd latency over --presses (goal p99 <= 30 ms on localhost), split into
    page -> station (the Joy's stamp), station -> the controller's command (both publish stamps) and the
    command's delivery here; a press that gets no command says why (the page's last refusal, the
@@ -63,6 +63,10 @@ from vla_interfaces.msg import SafetyStatus  # noqa: E402
 
 NOW = "performance.timeOrigin + performance.now()"
 SKEW = 0.01   # s: the browser clock offset's uncertainty (measured: about 2 ms), with a margin
+# The browser's clock against ours is read again before every press (the best of this many WebDriver
+# round trips): on the shared VM our wall clock moved 5 ms per second against the browser's for minutes
+# at a time, and in steps of up to 33 s, so one reading before the presses put 0.2-33 s into them.
+OFFSET_READS = 5
 PRESS = (f"const t = {NOW};"
          "document.body.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp', bubbles: true}));"
          "return t;")
@@ -227,10 +231,10 @@ def synthetic(rate: float, presses: int, seconds: float = 20.0) -> int:
         h.spin_for(1.2)
         s1 = cam.station
         age = js("window.station.age")
-        off, _ = browser_offset(b.driver)
         arrive, here = [], []
         for _ in range(presses):
             n = len(cam.joy)
+            off, _ = browser_offset(b.driver, OFFSET_READS)
             t0 = b.driver.execute_script(PRESS) / 1000.0 - off
             if h.spin_until(lambda n=n: any(j[0] != 0.0 for j in cam.joy[n:]), 5.0):
                 j = next(j for j in cam.joy[n:] if j[0] != 0.0)
@@ -303,7 +307,8 @@ def main() -> int:
             for i in range(args.presses):
                 h.spin_until(lambda: not obs.moving() and obs.ctrl is not None and obs.ctrl.code == 1, 10.0)
                 nj, nc = len(obs.joy), len(obs.cmd)
-                t0 = b.driver.execute_script(PRESS) / 1000.0 - off0
+                off, _ = browser_offset(b.driver, OFFSET_READS)
+                t0 = b.driver.execute_script(PRESS) / 1000.0 - off
                 if h.spin_until(lambda nc=nc: any(m for m, _, _ in obs.cmd[nc:]), 5.0):
                     _, pub, rec = next(c for c in obs.cmd[nc:] if c[0])
                     h.spin_until(lambda nj=nj, t0=t0: held_joy(obs.joy[nj:], t0) is not None, 1.0)
@@ -327,7 +332,8 @@ def main() -> int:
             for _ in range(args.estops):
                 h.spin_for(0.3)
                 n = len(obs.latch)
-                t0 = b.driver.execute_script(ESTOP) / 1000.0 - off1
+                off, _ = browser_offset(b.driver, OFFSET_READS)
+                t0 = b.driver.execute_script(ESTOP) / 1000.0 - off
                 if h.spin_until(lambda n=n: len(obs.latch) > n, 5.0):
                     latch.append(obs.latch[n] - t0)
                 h.spin_until(lambda: js("window.station.estopLatency !== null"), 5.0)
@@ -354,8 +360,8 @@ def main() -> int:
     print(f"  presses with no command within 5 s: {len(lost)} of {args.presses}"
           + "".join(f"\n    press {i}: page refusal {r!r}, controller {c!r}, Joy moved: {j}"
                     for i, r, c, j in lost))
-    print(f"  browser clock offset {off0 * 1000:.1f} +- {unc0 * 1000:.1f} ms, "
-          f"{off1 * 1000:.1f} +- {unc1 * 1000:.1f} ms after the presses")
+    print(f"  browser clock offset {off0 * 1000:.1f} +- {unc0 * 1000:.1f} ms before the presses, "
+          f"{off1 * 1000:.1f} +- {unc1 * 1000:.1f} ms after (read again before each press and e-stop)")
     print(figures("e-stop press -> bridge latched (its status published)", latch))
     print(figures("e-stop press -> the bridge's answer on the page (browser clock)", answer))
     diff = {k: int(counters1.get(k, 0)) - int(counters0.get(k, 0)) for k in counters1

@@ -20,7 +20,7 @@ def q_of(t: float) -> np.ndarray:
 
 def write_rosbags_bag(path: Path, *, seconds=2.0, rate=100.0, with_image=True, with_detection=True,
                       encoding="rgb8", episode: EpisodeInfo | None = None, image_delay_s=0.0,
-                      storage=StoragePlugin.MCAP) -> Path:
+                      detection_logged_after_s=0.0, storage=StoragePlugin.MCAP) -> Path:
     """A bag written by rosbags directly (not our writer): shuffled joint order, an extra joint and
     an extra topic, padded image rows."""
     ts = typestore()
@@ -43,8 +43,9 @@ def write_rosbags_bag(path: Path, *, seconds=2.0, rate=100.0, with_image=True, w
             w.write(cam, t_img, image(t_img, pixels, encoding, pad=2))
             w.write(cam, t_img + 10**8, image(t_img, np.zeros_like(pixels), encoding))
         if with_detection:
-            w.write(det, T0, detections(T0, []))  # empty first: skipped
-            w.write(det, T0 + 1, detections(T0, [("bread", 0, 0.4, 10, 20, 5, 5),
+            t_det = T0 + int(detection_logged_after_s * 1e9)   # the log time; stamped T0 all the same
+            w.write(det, t_det, detections(T0, []))  # empty first: skipped
+            w.write(det, t_det + 1, detections(T0, [("bread", 0, 0.4, 10, 20, 5, 5),
                                                  ("soda_can", 1, 0.8, 300.5, 200.25, 40, 60)]))
         for i in range(int(seconds * rate) + 1):
             t = i / rate
@@ -178,6 +179,14 @@ def test_bag_from_our_writer_and_without_metadata(tmp_path):
     own = load_demo(plain, task="spam:push_south")  # an object of a lab's own catalogue
     assert (own.task, own.object_class) == ("spam/push_south", "spam")
     assert own.detection.class_id == "soda_can"  # no spam detected: the top detection
+
+
+def test_the_context_is_timed_by_its_stamp_not_by_when_it_was_logged(tmp_path):
+    """A detection of the frame at the start that the recorder logged 5 s late (generated at real-time
+    factor 0 beside two busy loops) is the demo's context: its stamp says which scene it shows."""
+    kept = EpisodeInfo(task="bread/push_east", outcome="kept")
+    demo = load_demo(write_rosbags_bag(tmp_path / "late_log", episode=kept, detection_logged_after_s=5.0))
+    assert demo.detection is not None and demo.detection.class_id == "bread"
 
 
 def test_unusable_bags_are_reported_and_skipped(tmp_path):

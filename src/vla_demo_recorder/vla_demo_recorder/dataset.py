@@ -189,9 +189,11 @@ class _Scan:
     grasp: list[tuple[int, int, str]] = field(default_factory=list)   # (stamp ns, state, holding)
     image: np.ndarray | None = None
     image_err: str = ""
-    image_t: int = 0
+    image_t: int = 0              # its log time (ns) ...
+    image_stamp: int = 0          # ... and its header's stamp (0: none)
     detection: Detection | None = None
     det_t: int = 0
+    det_stamp: int = 0
     det_size: tuple[int, int] | None = None
 
     def add(self, schema: str, log_time: int, msg) -> None:
@@ -219,16 +221,27 @@ class _Scan:
             return  # queued before the episode started: not this episode's scene
         try:
             self.image = image_to_rgb(msg, schema)
-            self.image_t = log_time
+            self.image_t, self.image_stamp = log_time, _stamp_ns(msg)
         except DemoError as err:
             self.image_err = str(err)
 
     def _detection(self, schema: str, log_time: int, msg) -> None:
         self.detection = top_detection(msg, schema, prefer_class=self.prefer)
         if self.detection is not None:
-            self.det_t = log_time
+            self.det_t, self.det_stamp = log_time, _stamp_ns(msg)
             w, h = getattr(msg, "image_width", 0), getattr(msg, "image_height", 0)
             self.det_size = (int(w), int(h)) if w and h else None
+
+
+def _after_start(scan: _Scan, stamp: int, log_time: int) -> float:
+    """Seconds from the first joint state to a context message: by the headers' stamps where both have
+    one (the time of the scene it shows; in a lockstep recording, simulated time), else by the bag's
+    log times. Log times are when the recorder got round to a message: generated at real-time factor 0
+    beside two busy loops, a detection of the frame at the start came later than the window by them,
+    and the bag was refused while another run's was kept (test_generate.py in a clean clone)."""
+    if stamp > 0 and all(scan.js_t):
+        return (stamp - min(scan.js_t)) / 1e9
+    return (log_time - min(scan.js_log)) / 1e9
 
 
 def resample(t: np.ndarray, q: np.ndarray, rate_hz: float = RATE_HZ) -> tuple[np.ndarray, np.ndarray]:
@@ -322,13 +335,13 @@ def _demo_of(scan: _Scan, episode: EpisodeInfo | None, task: str, bag_path: str,
     q10, hand = q10[:, :-1], q10[:, -1]
     t_first = int(stamps[0])
     events = [((ns - t_first) / 1e9, state, holding) for ns, state, holding in scan.grasp if ns >= t_first]
-    start_log = min(scan.js_log)
     image, image_err = scan.image, scan.image_err
-    if image is not None and (scan.image_t - start_log) / 1e9 > context_window_s:
-        image_err = f"first camera frame arrives {(scan.image_t - start_log) / 1e9:.1f} s after the start"
+    if image is not None and _after_start(scan, scan.image_stamp, scan.image_t) > context_window_s:
+        image_err = (f"first camera frame arrives {_after_start(scan, scan.image_stamp, scan.image_t):.1f} s "
+                     "after the start")
         image = None
     detection = scan.detection
-    if detection is not None and (scan.det_t - start_log) / 1e9 > context_window_s:
+    if detection is not None and _after_start(scan, scan.det_stamp, scan.det_t) > context_window_s:
         detection = None
     image_size = (image.shape[1], image.shape[0]) if image is not None else None
     if detection is not None:

@@ -751,8 +751,7 @@ def loaded_detection(bag: str | Path) -> tuple[str, dict | None]:
     """(why training cannot use the bag or "", the demo's detection as a dict or None).
 
     A bag without a detection near its start counts as refused: training (the detector encoder)
-    would skip it, and a kept bag must be one it uses (at real-time factor 0 the context frame can
-    come too late)."""
+    would skip it, and a kept bag must be one it uses (the loader times the context by its stamp)."""
     try:
         demo = load_demo(bag)
     except DemoError as err:

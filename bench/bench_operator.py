@@ -3,9 +3,10 @@ nothing.
 
 The shipped teleop.launch.yaml (use_operator_station:=true) on the simulated Panda and one headless
 Chromium on its page. Every time is on this machine's wall clock: the browser's (performance.timeOrigin
-+ now, its offset to ours measured through WebDriver before each press), the stamps DDS puts on each
-sample (source: when it was published; received: when it reached this process's reader, independent of
-when this process gets round to it) and the station's Joy stamp (arrival of the input at the station):
++ now, its offset to ours read through WebDriver after each press, interpolated to it), the stamps DDS
+puts on each sample (source: when it was published; received: when it reached this process's reader,
+independent of when this process gets round to it) and the station's Joy stamp (arrival of the input at
+the station):
 1. key press -> joint_velocity_cmd latency over --presses (goal p99 <= 30 ms on localhost), split into
    page -> station (the Joy's stamp), station -> the controller's command (both publish stamps) and the
    command's delivery here; a press that gets no command says why (the page's last refusal, the
@@ -63,9 +64,11 @@ from vla_interfaces.msg import SafetyStatus  # noqa: E402
 
 NOW = "performance.timeOrigin + performance.now()"
 SKEW = 0.01   # s: the browser clock offset's uncertainty (measured: about 2 ms), with a margin
-# The browser's clock against ours is read again before every press (the best of this many WebDriver
-# round trips): on the shared VM our wall clock moved 5 ms per second against the browser's for minutes
-# at a time, and in steps of up to 33 s, so one reading before the presses put 0.2-33 s into them.
+# The browser's clock against ours is read after every press (the best of this many WebDriver round
+# trips) and interpolated to the press's time between that reading and the one before: on the shared
+# VM our wall clock moved 5 ms per second against the browser's for minutes at a time, and in steps of
+# up to 33 s, so one reading before the presses put 0.2-33 s into them; read just before each press,
+# the round trips kept the page busy at the press.
 OFFSET_READS = 5
 PRESS = (f"const t = {NOW};"
          "document.body.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp', bubbles: true}));"
@@ -113,6 +116,32 @@ class Probe(Observer):
 
     def moving(self) -> bool:
         return bool(self.cmd) and self.cmd[-1][0]
+
+
+class BrowserClock:
+    """The browser's clock against ours, read between presses and interpolated to each press."""
+
+    def __init__(self, driver):
+        self.driver = driver
+        self.steps = 0                      # presses whose time is unknown: the clock stepped meanwhile
+        self.last = self._read()
+
+    def _read(self) -> tuple[float, float]:
+        return time.time(), browser_offset(self.driver, OFFSET_READS)[0]
+
+    def offset(self) -> float:
+        return self.last[1]
+
+    def ours(self, browser_t: float) -> float | None:
+        """A past moment of the browser's clock (s) on ours, from the last reading and one taken now;
+        None where the two readings disagree by more than SKEW (a step of the VM's clock between)."""
+        (w0, o0), (w1, o1) = self.last, self._read()
+        self.last = (w1, o1)
+        if abs(o1 - o0) > SKEW:
+            self.steps += 1
+            return None
+        f = min(max((browser_t - o0 - w0) / max(w1 - w0, 1e-9), 0.0), 1.0)
+        return browser_t - (o0 + f * (o1 - o0))
 
 
 def held_joy(joys: list[tuple[float, float, float]], t0: float) -> tuple[float, float, float] | None:
@@ -301,18 +330,24 @@ def main() -> int:
                 print(f"Chromium at SCHED_FIFO {args.browser_priority}: {how}")
             counters0 = dict(obs.station)
             off0, unc0 = browser_offset(b.driver)
+            clock = BrowserClock(b.driver)
             pid = station_pid()
             c0, w0 = cpu_seconds(pid), time.monotonic()
             total, sent, here, to_station, to_cmd, lost, split = [], [], [], [], [], [], []
             for i in range(args.presses):
                 h.spin_until(lambda: not obs.moving() and obs.ctrl is not None and obs.ctrl.code == 1, 10.0)
                 nj, nc = len(obs.joy), len(obs.cmd)
-                off, _ = browser_offset(b.driver, OFFSET_READS)
-                t0 = b.driver.execute_script(PRESS) / 1000.0 - off
-                if h.spin_until(lambda nc=nc: any(m for m, _, _ in obs.cmd[nc:]), 5.0):
+                pressed = b.driver.execute_script(PRESS) / 1000.0
+                near = pressed - clock.offset()    # to tell this press's Joy from the last one's
+                moved = h.spin_until(lambda nc=nc: any(m for m, _, _ in obs.cmd[nc:]), 5.0)
+                if moved:
+                    h.spin_until(lambda nj=nj, t=near: held_joy(obs.joy[nj:], t) is not None, 1.0)
+                h.spin_for(0.2)
+                b.driver.execute_script(RELEASE)
+                t0 = clock.ours(pressed)
+                if moved and t0 is not None:
                     _, pub, rec = next(c for c in obs.cmd[nc:] if c[0])
-                    h.spin_until(lambda nj=nj, t0=t0: held_joy(obs.joy[nj:], t0) is not None, 1.0)
-                    joy = held_joy(obs.joy[nj:], t0)
+                    joy = held_joy(obs.joy[nj:], near)
                     total.append(pub - t0)
                     here.append(rec - t0)
                     if joy is not None:
@@ -320,23 +355,22 @@ def main() -> int:
                         sent.append(joy[2] - t0)
                         to_cmd.append(pub - joy[2])
                         split.append((pub - t0, joy[1] - t0, joy[2] - joy[1], pub - joy[2]))
-                else:
+                elif not moved:
                     lost.append((i, js("window.station.refused"),
                                  obs.ctrl.reason if obs.ctrl is not None else "",
                                  any(j[0] != 0.0 for j in obs.joy[nj:])))
-                h.spin_for(0.2)
-                b.driver.execute_script(RELEASE)
             h.spin_until(lambda: not obs.moving(), 5.0)
             off1, unc1 = browser_offset(b.driver)
             latch, answer = [], []
             for _ in range(args.estops):
                 h.spin_for(0.3)
                 n = len(obs.latch)
-                off, _ = browser_offset(b.driver, OFFSET_READS)
-                t0 = b.driver.execute_script(ESTOP) / 1000.0 - off
-                if h.spin_until(lambda n=n: len(obs.latch) > n, 5.0):
-                    latch.append(obs.latch[n] - t0)
+                pressed = b.driver.execute_script(ESTOP) / 1000.0
+                latched = h.spin_until(lambda n=n: len(obs.latch) > n, 5.0)
                 h.spin_until(lambda: js("window.station.estopLatency !== null"), 5.0)
+                t0 = clock.ours(pressed)
+                if latched and t0 is not None:
+                    latch.append(obs.latch[n] - t0)
                 answer.append(js("window.station.estopLatency") / 1000.0)
                 b.driver.execute_script("document.getElementById('release-confirm').click()")
                 h.spin_until(lambda: bool(obs.safety) and not obs.safety[-1].estop_active, 5.0)
@@ -361,7 +395,8 @@ def main() -> int:
           + "".join(f"\n    press {i}: page refusal {r!r}, controller {c!r}, Joy moved: {j}"
                     for i, r, c, j in lost))
     print(f"  browser clock offset {off0 * 1000:.1f} +- {unc0 * 1000:.1f} ms before the presses, "
-          f"{off1 * 1000:.1f} +- {unc1 * 1000:.1f} ms after (read again before each press and e-stop)")
+          f"{off1 * 1000:.1f} +- {unc1 * 1000:.1f} ms after (read again after each press and e-stop; "
+          f"{clock.steps} left out: the clock stepped by more than {SKEW * 1000:.0f} ms meanwhile)")
     print(figures("e-stop press -> bridge latched (its status published)", latch))
     print(figures("e-stop press -> the bridge's answer on the page (browser clock)", answer))
     diff = {k: int(counters1.get(k, 0)) - int(counters0.get(k, 0)) for k in counters1

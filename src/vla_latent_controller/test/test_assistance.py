@@ -16,6 +16,7 @@ from vla_latent_controller.assistance import (
     HIDDEN_KEEP_S,
     HIDDEN_MARGIN_PX,
     LEVELS,
+    NULL_SPEED_MAX,
     STOP_REACH_M,
     TALL_M,
     TALL_TILT_DEG,
@@ -225,6 +226,26 @@ def test_the_assistance_moves_no_faster_than_the_stick_asks(kin):
         speed = np.linalg.norm(arm.tcp() - p0) / DT
         # the stick's share of the demonstrations' speed to the hover pose, or the decoder's own pace
         assert speed <= max(0.3 * 0.2, min(np.linalg.norm(person), 2 * 0.3 * 0.2)) * 1.05
+
+
+def test_the_elbow_swung_by_the_persons_command_is_kept_no_faster_than_its_bound(kin):
+    """The elbow's self-motion keeps its direction and at most NULL_SPEED_MAX rad/s, the hand's motion
+    as it was: the decoder beside its demonstrations swung the elbow at 1-4.6 rad/s while pushing, and
+    the hand jumped aside (the safety layer's per-joint limits let such a swing into it)."""
+    arm = Arm(kin)
+    drive(arm, 2.0)                       # coming down to the push, the pull at its full share
+    person, _ = arm.step(1.0)             # a command as the decoder's, the elbow calm
+    assist, t = arm.core.assist, arm.t
+    J = kin.jacobian(arm.q)
+    elbow = np.linalg.svd(J)[2][-1]       # the self-motion: moves neither the TCP nor the hand's axes
+    calm = assist.command(arm.q, 1.0, person, t)
+    swung = assist.command(arm.q, 1.0, person + 3.0 * elbow, t)
+    assert assist.state.share == 1.0
+    extra = swung - calm
+    np.testing.assert_allclose(J @ extra, 0.0, atol=1e-9)          # the hand moves as before
+    assert np.linalg.norm(swung) <= np.linalg.norm(calm) + NULL_SPEED_MAX + 1e-9
+    assert np.linalg.norm(extra) < 1.0                              # not the 3 rad/s swing
+    assert float(extra @ elbow) > 0.0                               # the person's direction kept
 
 
 def test_the_hand_opens_above_the_object_and_the_grasp_pose_is_left_once_it_has_closed(kin):

@@ -104,6 +104,13 @@ CLEARANCE_M = 0.02        # the arm's links keep this far above (and outside) a 
 CLEARANCE_LINKS = ("panda_link3", "panda_link4", "panda_link5", "panda_link6")  # not the wrist on the hand
 CLEARANCE_GAIN = 4.0      # 1/s: how fast a link below that rises
 MAX_STEP_S = 0.1          # s: a longer gap between steps counts as this much motion
+# The elbow's self-motion (what moves neither the TCP nor the hand's axes: the decoder's, and the links'
+# clearance) is kept no faster than this (rad/s, its norm). Pushing the cereal box, the decoder beside
+# its demonstrations and a clearance the links could not reach that way swung the elbow at 1-4.6 rad/s;
+# the safety layer's per-joint limits on such a swing let it into the hand, which jumped 5 cm aside at
+# the push's start (Seen, development layouts 340000-: 0.3-0.5 m/s at the TCP). The demonstrations' own
+# self-motion, on the approach, is 0.05-0.11 rad/s.
+NULL_SPEED_MAX = 0.5
 
 
 def check_level(level: str) -> str | None:
@@ -373,7 +380,7 @@ class Assistance:
         pace = float(np.linalg.norm(J[:3] @ person))
         rows, twist = self._toward(best, p, R, J, u, pace) if u > 0 else self._back(best, p, J, u, pace)
         out = person + share * _solve(rows, twist - rows @ person)
-        out = self._clear(q, out, rows if best.task.kind == "push" else J[:3], best)
+        out = _elbow_bounded(self._clear(q, out, rows if best.task.kind == "push" else J[:3], best), J)
         return out if u > 0 else _not_toward(out, best.target().position - p, J)
 
     def _settle(self, goal: Goal, q: np.ndarray, share: float, person: np.ndarray, u: float) -> np.ndarray:
@@ -632,6 +639,13 @@ def _ramp(confidence: float) -> float:
 def _solve(J: np.ndarray, twist: np.ndarray) -> np.ndarray:
     """Damped least squares: the joint velocities (min norm) that give ``twist``."""
     return J.T @ np.linalg.solve(J @ J.T + DAMPING**2 * np.eye(J.shape[0]), twist)
+
+
+def _elbow_bounded(dq: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """``dq`` with its part in the exact null space of the TCP's Jacobian ``J`` at most NULL_SPEED_MAX."""
+    free = dq - np.linalg.pinv(J, rcond=1e-3) @ (J @ dq)
+    n = float(np.linalg.norm(free))
+    return dq if n <= NULL_SPEED_MAX else dq - free * (1.0 - NULL_SPEED_MAX / n)
 
 
 def _not_toward(dq: np.ndarray, to: np.ndarray, J: np.ndarray) -> np.ndarray:

@@ -67,8 +67,8 @@ SKEW = 0.01   # s: the browser clock offset's uncertainty (measured: about 2 ms)
 # The browser's clock against ours is read after every press (the best of this many WebDriver round
 # trips) and interpolated to the press's time between that reading and the one before: on the shared
 # VM our wall clock moved 5 ms per second against the browser's for minutes at a time, and in steps of
-# up to 33 s, so one reading before the presses put 0.2-33 s into them; read just before each press,
-# the round trips kept the page busy at the press.
+# up to 33 s, so one reading before the presses put 0.2-33 s into them. Read after the press, no round
+# trip comes just before it (read just before it, the figures were the same: docs/history.md).
 OFFSET_READS = 5
 PRESS = (f"const t = {NOW};"
          "document.body.dispatchEvent(new KeyboardEvent('keydown', {key: 'ArrowUp', bubbles: true}));"

@@ -336,9 +336,9 @@ def _demo_of(scan: _Scan, episode: EpisodeInfo | None, task: str, bag_path: str,
     t_first = int(stamps[0])
     events = [((ns - t_first) / 1e9, state, holding) for ns, state, holding in scan.grasp if ns >= t_first]
     image, image_err = scan.image, scan.image_err
-    if image is not None and _after_start(scan, scan.image_stamp, scan.image_t) > context_window_s:
-        image_err = (f"first camera frame arrives {_after_start(scan, scan.image_stamp, scan.image_t):.1f} s "
-                     "after the start")
+    image_late = _after_start(scan, scan.image_stamp, scan.image_t) if image is not None else 0.0
+    if image_late > context_window_s:
+        image_err = f"first camera frame arrives {image_late:.1f} s after the start"
         image = None
     detection = scan.detection
     if detection is not None and _after_start(scan, scan.det_stamp, scan.det_t) > context_window_s:

@@ -26,6 +26,8 @@ from vla_latent_controller.assistance import (
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
 
+from vla_latent_controller import assistance
+
 MODELS = Path(__file__).resolve().parents[1] / "models"
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 FINGERS = ["panda_finger_joint1", "panda_finger_joint2"]
@@ -464,3 +466,35 @@ def test_the_steering_goal_keeps_its_evidence_on_the_way_and_not_on_its_last_pos
         assert (steered.evidence == 3.0) is kept, (stage, steered.evidence)
         if not kept:
             assert steered.evidence == other.evidence
+
+
+def test_a_joint_near_its_limit_is_moved_back_out_and_the_tcp_moves_as_before(kin, monkeypatch):
+    """The cereal box 0.29 m to the side: the arm came down with the shoulder leant forward and the elbow
+    straight, where the safety layer held the elbow at its margin 5 cm above the pre-push pose; bent,
+    the elbow reaches it. A joint inside LIMIT_ZONE is moved back out; the TCP moves as before."""
+    arm = Arm(kin, model="cereal_box_push_south", objects=(("cereal_box", (0.469, 0.288)),))
+    arm.q = np.array([0.38, 1.46, 0.07, -0.17, 0.08, 1.24, 0.93])   # as the trial's arm stood
+    person, _ = arm.step(1.0)
+    assist, t = arm.core.assist, arm.t
+    kept = assist.command(arm.q, 1.0, person, t)
+    assert assist.state.share > 0.5
+    monkeypatch.setattr(assistance, "LIMIT_ZONE", 0.0)
+    plain = assist.command(arm.q, 1.0, person, t)
+    np.testing.assert_allclose(kin.jacobian(arm.q)[:3] @ (kept - plain), 0.0, atol=1e-9)   # the TCP as before
+    assert kept[3] < plain[3] - 0.1 and kept[3] < 0.0      # the elbow bends, away from its limit
+
+def test_a_hand_backed_away_past_the_pose_before_comes_through_it_again(kin):
+    """Reversed beside the goal's path (the person's reversal at a low share), the hand ends farther from
+    the pre-push than the hover is: the goal's next pose is the hover again, not a straight line from
+    there down to the pre-push through the object."""
+    arm = Arm(kin)
+    goal = None
+    for _ in range(int(round(6.0 / DT))):
+        arm.step(1.0)
+        goal = next(g for g in arm.core.assist.goals if g.task.name == "bread/push_east")
+        if goal.stage == 1:
+            break
+    assert goal is not None and goal.stage == 1 and goal.target().name == "pre_push"
+    arm.q = np.array(READY_POSE, float)                    # backed away another way, up and toward the robot
+    arm.step(-1.0)
+    assert goal.stage == 0 and goal.target().name == "hover"

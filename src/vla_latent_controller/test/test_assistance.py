@@ -26,8 +26,6 @@ from vla_latent_controller.assistance import (
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
 
-from vla_latent_controller import assistance
-
 MODELS = Path(__file__).resolve().parents[1] / "models"
 NAMES = [f"panda_joint{i}" for i in range(1, 8)]
 FINGERS = ["panda_finger_joint1", "panda_finger_joint2"]
@@ -478,10 +476,11 @@ def test_a_joint_near_its_limit_is_moved_back_out_and_the_tcp_moves_as_before(ki
     assist, t = arm.core.assist, arm.t
     kept = assist.command(arm.q, 1.0, person, t)
     assert assist.state.share > 0.5
-    monkeypatch.setattr(assistance, "LIMIT_ZONE", 0.0)
+    monkeypatch.setattr("vla_latent_controller.assistance.LIMIT_ZONE", 0.0)
     plain = assist.command(arm.q, 1.0, person, t)
     np.testing.assert_allclose(kin.jacobian(arm.q)[:3] @ (kept - plain), 0.0, atol=1e-9)   # the TCP as before
     assert kept[3] < plain[3] - 0.1 and kept[3] < 0.0      # the elbow bends, away from its limit
+
 
 def test_a_hand_backed_away_past_the_pose_before_comes_through_it_again(kin):
     """Reversed beside the goal's path (the person's reversal at a low share), the hand ends farther from

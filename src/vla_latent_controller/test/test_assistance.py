@@ -13,6 +13,8 @@ from vla_common.robot import READY_POSE
 from vla_common.task_goals import task_goal_poses
 from vla_latent_controller.assistance import (
     APPROACH_BACK_M,
+    CLEARANCE_LINKS,
+    CLEARANCE_M,
     HIDDEN_KEEP_S,
     HIDDEN_MARGIN_PX,
     LEVELS,
@@ -20,8 +22,12 @@ from vla_latent_controller.assistance import (
     STOP_REACH_M,
     TALL_M,
     TALL_TILT_DEG,
+    Assistance,
+    Goal,
+    Seen,
     _poses,
     _push_axis,
+    _pushed_to,
 )
 from vla_latent_controller.model import LatentModel
 from vla_latent_controller.teleop import Code, TeleopCore, TeleopParams
@@ -497,3 +503,55 @@ def test_a_hand_backed_away_past_the_pose_before_comes_through_it_again(kin):
     arm.q = np.array(READY_POSE, float)                    # backed away another way, up and toward the robot
     arm.step(-1.0)
     assert goal.stage == 0 and goal.target().name == "hover"
+
+
+class _AtHeight:
+    """The Panda's kinematics with every point of the links' clearance moved to height `z`."""
+
+    def __init__(self, kin, z: float):
+        self.kin, self.z = kin, z
+
+    def tcp_state(self, q):
+        return self.kin.tcp_state(q)
+
+    def arm_points(self, q, links):
+        points, jacobians = self.kin.arm_points(q, links)
+        points = points.copy()
+        points[:, 2] = self.z
+        return points, jacobians
+
+
+@pytest.mark.parametrize("below, raised", [(0.03, True), (0.12, False)])
+def test_the_links_rise_over_an_objects_top_not_from_far_below_it(kin, below, raised):
+    """The links keep clear of a detected object's top where they pass over it (its footprint a circle);
+    points far below its top within that circle are beside a thin object, not over it, and cannot rise
+    there: asked to, they outweighed the forearm on the cereal box's top edge, which stayed there and
+    tipped the box over (development, the assistance alone in MuJoCo)."""
+    q = np.array(READY_POSE, float)
+    shape = CAT.spec("cereal_box")
+    points, _ = kin.arm_points(q, CLEARANCE_LINKS)
+    xy = points[len(points) // 2, :2].copy()                       # the object under the links
+    assist = Assistance(kinematics=_AtHeight(kin, shape.height + CLEARANCE_M - below))
+    seen = Seen("cereal_box", xy, xy.copy(), (320.0, 240.0), (40.0, 40.0), SIZE, kin.fk(q)[0])
+    spec = CAT.task("cereal_box/push_south")
+    goal = Goal(seen, spec, _poses(spec, shape, xy, kin.fk(q)[0]))
+    assist.objects = [seen]
+    J = kin.jacobian(q)
+    out = assist._clear(q, np.zeros(7), J[:3], goal)
+    assert bool(np.linalg.norm(out) > 1e-6) == raised
+    np.testing.assert_allclose(J[:3] @ out, 0.0, atol=1e-4)      # the TCP as before (a damped projector)
+
+
+def test_the_object_a_push_pushes_stands_ahead_of_the_hand_for_the_links_clearance():
+    """In the push, the object is where the hand has pushed it, at least its least half-extent ahead of
+    the hand (the hand hides it; the detections lag): the links keep clear of it there, not where it
+    was last seen. Before the push, and behind the hand's reach, it stands where it was seen."""
+    spec, shape = CAT.task("cereal_box/push_south"), CAT.spec("cereal_box")
+    xy = np.array([0.45, 0.2])
+    seen = Seen("cereal_box", xy, xy.copy(), (320.0, 240.0), (40.0, 40.0), SIZE, np.zeros(3))
+    goal = Goal(seen, spec, _poses(spec, shape, xy, np.zeros(3)), stage=1)
+    past = np.array([0.40, 0.21, 0.03])       # 5 cm along the push (south, -x) past the centre
+    np.testing.assert_allclose(_pushed_to(seen, goal, past, shape), xy)
+    goal.stage = len(goal.poses) - 1
+    np.testing.assert_allclose(_pushed_to(seen, goal, past, shape), [0.40 - shape.min_half_extent, 0.2])
+    np.testing.assert_allclose(_pushed_to(seen, goal, np.array([0.6, 0.2, 0.03]), shape), xy)

@@ -537,7 +537,7 @@ def test_the_links_rise_over_an_objects_top_not_from_far_below_it(kin, below, ra
     goal = Goal(seen, spec, _poses(spec, shape, xy, kin.fk(q)[0]))
     assist.objects = [seen]
     J = kin.jacobian(q)
-    out = assist._clear(q, np.zeros(7), J[:3], goal)
+    out = assist._clear(q, np.zeros(7), J[:3], goal, kin.fk(q)[0])
     assert bool(np.linalg.norm(out) > 1e-6) == raised
     np.testing.assert_allclose(J[:3] @ out, 0.0, atol=1e-4)      # the TCP as before (a damped projector)
 

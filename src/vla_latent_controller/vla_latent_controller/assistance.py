@@ -402,7 +402,7 @@ class Assistance:
         rows, twist = self._toward(best, p, R, J, u, pace) if u > 0 else self._back(best, p, J, u, pace)
         out = person + share * _solve(rows, twist - rows @ person)
         kept = rows if best.task.kind == "push" else J[:3]
-        out = _elbow_bounded(self._limits_kept(q, self._clear(q, out, kept, best), J[:3]), J)
+        out = _elbow_bounded(self._limits_kept(q, self._clear(q, out, kept, best, p), J[:3]), J)
         return out if u > 0 else _not_toward(out, best.target().position - p, J)
 
     def _settle(self, goal: Goal, q: np.ndarray, share: float, person: np.ndarray, u: float) -> np.ndarray:
@@ -416,7 +416,8 @@ class Assistance:
         rows, twist = self._toward(goal, p, R, J, u, 0.0)
         return (1.0 - share) * person + share * _solve(rows, twist)
 
-    def _clear(self, q: np.ndarray, dq: np.ndarray, J_tcp: np.ndarray, best: Goal) -> np.ndarray:
+    def _clear(self, q: np.ndarray, dq: np.ndarray, J_tcp: np.ndarray, best: Goal,
+               tcp: np.ndarray) -> np.ndarray:
         """Keep the arm's links (not the wrist and hand: they are meant to come close) CLEARANCE_M
         above the detected objects' tops where they pass over them, moving them up in the null space
         of `J_tcp`: the TCP's motion (a steeper forearm, more tilt: what the planner's extra tilt does
@@ -428,7 +429,6 @@ class Assistance:
         if not obstacles or not hasattr(self.kinematics, "arm_points"):
             return dq
         points, jacobians = self.kinematics.arm_points(q, CLEARANCE_LINKS)
-        tcp = self.kinematics.tcp_state(q)[0]
         need = np.zeros(len(points))
         for o in obstacles:
             shape = self.catalogue.spec(o.class_id)

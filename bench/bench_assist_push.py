@@ -38,10 +38,8 @@ class Push:
     judged: bool        # the task's success where the participant stops (the distance + 1 cm gone)
 
 
-def push_once(sim: PandaSim, kin: PandaKinematics, task, seed: int) -> Push:
-    """One push from the ready pose on the layout of `seed` (the task's object alone)."""
-    cat = default_catalogue()
-    shape = cat.spec(task.object_class)
+def push_once(sim: PandaSim, kin: PandaKinematics, task, shape, seed: int) -> Push:
+    """One push from the ready pose on the layout of `seed` (the task's object alone, `shape` its spec)."""
     sim.reset(objects=task_layout(task, np.random.default_rng(seed), n_objects=1))
     start = sim.object_poses()[0]
     a = assistance.Assistance(kinematics=kin)
@@ -81,7 +79,8 @@ def main(argv: list[str] | None = None) -> int:
             task = cat.task(name.strip())
             for tilt in tilts:
                 assistance.TALL_TILT_DEG = tilt
-                rows = [push_once(sim, kin, task, a.first_seed + i) for i in range(a.n)]
+                rows = [push_once(sim, kin, task, cat.spec(task.object_class), a.first_seed + i)
+                        for i in range(a.n)]
                 print(f"{task.name:28s} tall tilt {tilt:4.1f} deg  layouts {a.n:4d}  done "
                       f"{sum(r.done for r in rows):4d}  toppled {sum(r.toppled for r in rows):4d}  "
                       f"done as judged {sum(r.judged for r in rows):4d}", flush=True)

@@ -110,9 +110,10 @@ CLEARANCE_LINKS = ("panda_link3", "panda_link4", "panda_link5", "panda_link6")  
 CLEARANCE_GAIN = 4.0      # 1/s: how fast a link below that rises
 # Only points of the links at most CLEARANCE_DEPTH below that height are raised: the footprint is a circle, so
 # points far below it beside a thin object (the wrist by the hand pushing the cereal box) count as over it,
-# cannot rise there without the TCP, and in the least-squares rise outweighed the forearm on the box's top
-# edge, which then stayed there (development, the assistance alone in MuJoCo on 200 random layouts of the
-# cereal box's push: 33 -> 19 boxes toppled; 0.04-0.08 m alike, none at 0.12).
+# cannot rise there without the TCP, and weigh in the least-squares rise against the points that can
+# (development, the assistance alone in MuJoCo on 200 random layouts of the cereal box's push: 33 -> 19
+# boxes toppled; 0.04-0.08 m alike, no gain at 0.12). At the push's pose the null space left is small:
+# the hand's lean (TALL_TILT_DEG), not this rise, is what keeps the forearm off the box's top.
 CLEARANCE_DEPTH = 0.08
 MAX_STEP_S = 0.1          # s: a longer gap between steps counts as this much motion
 # The elbow's self-motion (what moves neither the TCP nor the hand's axes: the decoder's, and the links'
